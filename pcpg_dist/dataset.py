@@ -1,0 +1,388 @@
+"""The Dataset: the one interchange format every stage reads and every user can open.
+
+On disk: ``DIR/<domain>-<env>.parquet``, one row per step, plus ``DIR/manifest.json`` with the
+config, seeds, versions, row counts and a SHA-256 per file. Columns:
+
+- ``trajectory`` (int64), ``t`` (int64), ``env`` (string), ``style`` (int64, -1 = unknown)
+- ``s0`` .. ``s{d-1}`` (float32 state features)
+- ``action`` (int64; -1 on a trajectory's final state), ``valid`` (int64 bitmask of valid actions)
+- ``reward`` (float64: the reward received for the action taken in this row; 0 on the final row)
+- ``success`` (bool) and ``epsilon`` (float64, NaN = unknown): per-trajectory, repeated per row
+
+Plain pandas, polars or DuckDB read it. In memory a :class:`Dataset` keeps the rows in trajectory
+order with CSR-style ``offsets``, so a trajectory is a slice and subsets are cheap.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from pcpg_dist.errors import DataError
+
+SCHEMA_VERSION = 1
+MANIFEST = "manifest.json"
+
+
+@dataclass(frozen=True, eq=False)
+class Dataset:
+    """Variable-length trajectories of one (domain, environment), stored row-wise.
+
+    Rows of trajectory ``i`` are ``offsets[i]:offsets[i+1]``; every trajectory has at least one row
+    and its last row has ``action == -1``.
+    """
+
+    domain: str
+    env: str
+    n_actions: int
+    states: np.ndarray  # (rows, d) float32
+    actions: np.ndarray  # (rows,) int64, -1 on final rows
+    valid: np.ndarray  # (rows,) int64 bitmask
+    rewards: np.ndarray  # (rows,) float64
+    offsets: np.ndarray  # (n + 1,) int64
+    trajectory_ids: np.ndarray  # (n,) int64
+    styles: np.ndarray  # (n,) int64, -1 = unknown
+    success: np.ndarray  # (n,) bool
+    epsilon: np.ndarray  # (n,) float64, NaN = unknown
+    feature_names: tuple[str, ...] = field(default=())
+
+    def __post_init__(self) -> None:
+        rows, n = len(self.actions), len(self.trajectory_ids)
+        where = f"dataset {self.domain}-{self.env}"
+        if self.states.ndim != 2 or len(self.states) != rows:
+            raise DataError(f"{where}: states must have shape (rows={rows}, d), got {self.states.shape}")
+        for name in ("valid", "rewards"):
+            if len(getattr(self, name)) != rows:
+                raise DataError(f"{where}: {name} has {len(getattr(self, name))} rows, expected {rows}")
+        for name in ("styles", "success", "epsilon"):
+            if len(getattr(self, name)) != n:
+                raise DataError(f"{where}: {name} has {len(getattr(self, name))} entries, expected {n}")
+        if len(self.offsets) != n + 1 or self.offsets[0] != 0 or self.offsets[-1] != rows:
+            raise DataError(f"{where}: offsets must run from 0 to {rows} with {n + 1} entries")
+        lengths = np.diff(self.offsets)
+        if n and lengths.min() < 1:
+            bad = int(self.trajectory_ids[np.argmin(lengths)])
+            raise DataError(f"{where}: trajectory {bad} has zero length; every trajectory needs a state")
+        if rows and not np.isfinite(self.states).all():
+            row = int(np.nonzero(~np.isfinite(self.states).all(axis=1))[0][0])
+            traj = int(self.trajectory_ids[np.searchsorted(self.offsets, row, side="right") - 1])
+            raise DataError(f"{where}: trajectory {traj} has a NaN or infinite state feature (row {row})")
+        if n and (self.actions[self.offsets[1:] - 1] != -1).any():
+            raise DataError(f"{where}: the final row of every trajectory must have action -1")
+        steps = self.actions[self.actions >= 0]
+        if len(steps) and steps.max() >= self.n_actions:
+            raise DataError(f"{where}: action {int(steps.max())} outside 0..{self.n_actions - 1}")
+        if self.feature_names and len(self.feature_names) != self.state_dim:
+            raise DataError(f"{where}: {len(self.feature_names)} feature names for {self.state_dim} features")
+
+    # ----------------------------------------------------------------- shape
+    @property
+    def n_trajectories(self) -> int:
+        return len(self.trajectory_ids)
+
+    @property
+    def n_rows(self) -> int:
+        return len(self.actions)
+
+    @property
+    def state_dim(self) -> int:
+        return int(self.states.shape[1])
+
+    @property
+    def lengths(self) -> np.ndarray:
+        """Number of states (rows) of each trajectory."""
+        return np.diff(self.offsets)
+
+    @property
+    def row_trajectory(self) -> np.ndarray:
+        """Index (0..n-1) of the trajectory each row belongs to."""
+        return np.repeat(np.arange(self.n_trajectories), self.lengths)
+
+    @property
+    def valid_mask(self) -> np.ndarray:
+        """(rows, n_actions) bool: which actions are valid in each row's state."""
+        return (self.valid[:, None] >> np.arange(self.n_actions)) & 1 == 1
+
+    @property
+    def step_rows(self) -> np.ndarray:
+        """Indices of rows where an action was taken (all but each trajectory's final row)."""
+        return np.nonzero(self.actions >= 0)[0]
+
+    def trajectory_states(self, i: int) -> np.ndarray:
+        return self.states[self.offsets[i] : self.offsets[i + 1]]
+
+    # ----------------------------------------------------------------- subsets
+    def subset(self, indices: Sequence[int] | np.ndarray) -> Dataset:
+        """The trajectories at positions ``indices`` (0..n-1), in that order."""
+        idx = np.asarray(indices, dtype=np.int64)
+        if idx.size and (idx.min() < 0 or idx.max() >= self.n_trajectories):
+            raise DataError(f"subset index out of range 0..{self.n_trajectories - 1}")
+        lengths = self.lengths[idx]
+        starts = self.offsets[idx]
+        rows = (np.repeat(starts - np.cumsum(np.r_[0, lengths[:-1]]), lengths) + np.arange(lengths.sum())
+                if idx.size else np.zeros(0, np.int64))
+        return Dataset(
+            domain=self.domain, env=self.env, n_actions=self.n_actions,
+            states=self.states[rows], actions=self.actions[rows], valid=self.valid[rows],
+            rewards=self.rewards[rows], offsets=np.r_[0, np.cumsum(lengths)].astype(np.int64),
+            trajectory_ids=self.trajectory_ids[idx], styles=self.styles[idx],
+            success=self.success[idx], epsilon=self.epsilon[idx], feature_names=self.feature_names,
+        )
+
+    def with_styles(self, styles: np.ndarray) -> Dataset:
+        """The same trajectories with other style labels (e.g. cluster assignments)."""
+        styles = np.asarray(styles, dtype=np.int64)
+        if styles.shape != (self.n_trajectories,):
+            raise DataError(f"styles must have shape ({self.n_trajectories},), got {styles.shape}")
+        return Dataset(**{**self.__dict__, "styles": styles})
+
+    @staticmethod
+    def concat(parts: Sequence[Dataset], renumber: bool = True) -> Dataset:
+        """Join datasets of one domain and state width; trajectory ids are renumbered 0..n-1."""
+        if not parts:
+            raise DataError("cannot concatenate an empty list of datasets")
+        first = parts[0]
+        for p in parts[1:]:
+            if p.state_dim != first.state_dim or p.n_actions != first.n_actions:
+                raise DataError(
+                    f"cannot join {p.domain}-{p.env} (d={p.state_dim}, actions={p.n_actions}) with "
+                    f"{first.domain}-{first.env} (d={first.state_dim}, actions={first.n_actions})")
+        lengths = np.concatenate([p.lengths for p in parts])
+        ids = np.concatenate([p.trajectory_ids for p in parts])
+        envs = {p.env for p in parts}
+        return Dataset(
+            domain=first.domain, env=first.env if len(envs) == 1 else "+".join(sorted(envs)),
+            n_actions=first.n_actions,
+            states=np.concatenate([p.states for p in parts]),
+            actions=np.concatenate([p.actions for p in parts]),
+            valid=np.concatenate([p.valid for p in parts]),
+            rewards=np.concatenate([p.rewards for p in parts]),
+            offsets=np.r_[0, np.cumsum(lengths)].astype(np.int64),
+            trajectory_ids=np.arange(len(ids), dtype=np.int64) if renumber else ids,
+            styles=np.concatenate([p.styles for p in parts]),
+            success=np.concatenate([p.success for p in parts]),
+            epsilon=np.concatenate([p.epsilon for p in parts]),
+            feature_names=first.feature_names,
+        )
+
+    @staticmethod
+    def from_trajectories(
+        domain: str, env: str, n_actions: int,
+        trajectories: Sequence[dict[str, np.ndarray]],
+        styles: Sequence[int], success: Sequence[bool], epsilon: Sequence[float] | None = None,
+        feature_names: tuple[str, ...] = (),
+    ) -> Dataset:
+        """Build from per-trajectory dicts with ``states`` (T+1, d), ``actions`` (T,),
+        ``valid`` (T+1,) and ``rewards`` (T,)."""
+        states, actions, valid, rewards, lengths = [], [], [], [], []
+        for tr in trajectories:
+            s = np.asarray(tr["states"], np.float32)
+            states.append(s)
+            actions.append(np.r_[np.asarray(tr["actions"], np.int64), -1])
+            valid.append(np.asarray(tr["valid"], np.int64))
+            rewards.append(np.r_[np.asarray(tr["rewards"], np.float64), 0.0])
+            lengths.append(len(s))
+        n = len(trajectories)
+        d = states[0].shape[1] if states else 0
+        return Dataset(
+            domain=domain, env=env, n_actions=n_actions,
+            states=np.concatenate(states) if states else np.zeros((0, d), np.float32),
+            actions=np.concatenate(actions) if n else np.zeros(0, np.int64),
+            valid=np.concatenate(valid) if n else np.zeros(0, np.int64),
+            rewards=np.concatenate(rewards) if n else np.zeros(0),
+            offsets=np.r_[0, np.cumsum(lengths)].astype(np.int64),
+            trajectory_ids=np.arange(n, dtype=np.int64),
+            styles=np.asarray(styles, np.int64), success=np.asarray(success, bool),
+            epsilon=np.full(n, np.nan) if epsilon is None else np.asarray(epsilon, np.float64),
+            feature_names=feature_names,
+        )
+
+    # ----------------------------------------------------------------- Arrow
+    def to_table(self) -> pa.Table:
+        per_row = self.row_trajectory
+        cols: dict[str, pa.Array] = {
+            "trajectory": pa.array(self.trajectory_ids[per_row], pa.int64()),
+            "t": pa.array(np.arange(self.n_rows) - self.offsets[per_row], pa.int64()),
+            "env": pa.array([self.env] * self.n_rows, pa.string()),
+            "style": pa.array(self.styles[per_row], pa.int64()),
+        }
+        for j in range(self.state_dim):
+            cols[f"s{j}"] = pa.array(self.states[:, j], pa.float32())
+        cols["action"] = pa.array(self.actions, pa.int64())
+        cols["valid"] = pa.array(self.valid, pa.int64())
+        cols["reward"] = pa.array(self.rewards, pa.float64())
+        cols["success"] = pa.array(self.success[per_row], pa.bool_())
+        cols["epsilon"] = pa.array(self.epsilon[per_row], pa.float64())
+        meta = {"pcpg": json.dumps({
+            "schema_version": SCHEMA_VERSION, "domain": self.domain, "env": self.env,
+            "n_actions": self.n_actions, "feature_names": list(self.feature_names)})}
+        return pa.table(cols).replace_schema_metadata(meta)
+
+    @staticmethod
+    def from_table(table: pa.Table, source: str = "<table>") -> Dataset:
+        meta_raw = (table.schema.metadata or {}).get(b"pcpg")
+        if meta_raw is None:
+            raise DataError(f"{source}: not a pcpg dataset (no 'pcpg' schema metadata)")
+        try:
+            meta = json.loads(meta_raw)
+            domain, env, n_actions = meta["domain"], meta["env"], int(meta["n_actions"])
+        except (ValueError, KeyError, TypeError) as e:
+            raise DataError(f"{source}: unreadable 'pcpg' schema metadata ({e})") from None
+        names = table.column_names
+        d = sum(1 for c in names if c.startswith("s") and c[1:].isdigit())
+        expected = {"trajectory": pa.int64(), "t": pa.int64(), "env": pa.string(), "style": pa.int64(),
+                    **{f"s{j}": pa.float32() for j in range(d)}, "action": pa.int64(),
+                    "valid": pa.int64(), "reward": pa.float64(), "success": pa.bool_(),
+                    "epsilon": pa.float64()}
+        for col, typ in expected.items():
+            if col not in names:
+                raise DataError(f"{source}: missing column '{col}' (expected {typ})")
+            if table.schema.field(col).type != typ:
+                raise DataError(f"{source}: column '{col}' has type {table.schema.field(col).type}, expected {typ}")
+        for col in ("trajectory", "t", "style", "action", "valid", "success"):
+            if table.column(col).null_count:
+                raise DataError(f"{source}: column '{col}' has null values")
+        traj = table.column("trajectory").to_numpy()
+        t = table.column("t").to_numpy()
+        order = np.lexsort((t, traj))
+        traj, t = traj[order], t[order]
+        starts = np.r_[0, np.nonzero(np.diff(traj))[0] + 1] if len(traj) else np.zeros(0, np.int64)
+        offsets = np.r_[starts, len(traj)].astype(np.int64)
+        lengths = np.diff(offsets)
+        expect_t = np.arange(len(t)) - np.repeat(starts, lengths)
+        if (t != expect_t).any():
+            bad = int(traj[np.nonzero(t != expect_t)[0][0]])
+            raise DataError(f"{source}: trajectory {bad} has missing or repeated time steps")
+
+        def col(name: str, dtype: type) -> np.ndarray:
+            return table.column(name).to_numpy(zero_copy_only=False).astype(dtype)[order]
+
+        states = (np.stack([col(f"s{j}", np.float32) for j in range(d)], axis=1)
+                  if d else np.zeros((len(traj), 0), np.float32))
+        return Dataset(
+            domain=domain, env=env, n_actions=n_actions, states=states,
+            actions=col("action", np.int64), valid=col("valid", np.int64),
+            rewards=col("reward", np.float64), offsets=offsets, trajectory_ids=traj[starts],
+            styles=col("style", np.int64)[starts], success=col("success", bool)[starts],
+            epsilon=col("epsilon", np.float64)[starts],
+            feature_names=tuple(meta.get("feature_names") or ()),
+        )
+
+
+# --------------------------------------------------------------------- files
+def file_name(domain: str, env: str) -> str:
+    return f"{domain}-{env}.parquet"
+
+
+def sha256_file(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write to a temporary file beside ``path`` and rename it: a crash never leaves a half file."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def write_parquet(dataset: Dataset, path: Path) -> str:
+    """Write one dataset atomically; returns its SHA-256."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
+    try:
+        pq.write_table(dataset.to_table(), tmp, compression="zstd")
+        digest = sha256_file(Path(tmp))
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return digest
+
+
+def read_parquet(path: Path, expected_sha256: str | None = None) -> Dataset:
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"{path}: dataset file not found")
+    if expected_sha256 is not None and sha256_file(path) != expected_sha256:
+        raise DataError(f"{path}: content hash does not match {MANIFEST} (file changed or corrupted)")
+    try:
+        table = pq.read_table(path)
+    except (pa.ArrowException, OSError) as e:
+        raise DataError(f"{path}: not a readable Parquet file ({e})") from None
+    return Dataset.from_table(table, source=str(path))
+
+
+def write_datasets(directory: Path, datasets: Sequence[Dataset], manifest: dict) -> Path:
+    """Write every dataset and then ``manifest.json`` (config, seeds, versions, rows, hashes).
+
+    The manifest is written last, so a directory whose manifest exists is complete.
+    """
+    directory = Path(directory)
+    files = {}
+    for ds in datasets:
+        name = file_name(ds.domain, ds.env)
+        files[name] = {"sha256": write_parquet(ds, directory / name), "rows": ds.n_rows,
+                       "trajectories": ds.n_trajectories, "domain": ds.domain, "env": ds.env}
+    full = {"schema_version": SCHEMA_VERSION, **manifest, "files": files}
+    atomic_write_bytes(directory / MANIFEST, json.dumps(full, indent=2, sort_keys=True, default=str).encode())
+    return directory / MANIFEST
+
+
+def read_manifest(directory: Path) -> dict:
+    path = Path(directory) / MANIFEST
+    if not path.is_file():
+        raise DataError(f"{path}: manifest not found (is {directory} a pcpg dataset directory?)")
+    try:
+        manifest = json.loads(path.read_text())
+        manifest["files"]  # noqa: B018 - presence check
+    except (ValueError, KeyError, TypeError) as e:
+        raise DataError(f"{path}: unreadable manifest ({e})") from None
+    return manifest
+
+
+def load_datasets(directory: Path) -> dict[str, Dataset]:
+    """All datasets of a directory, keyed by env, each checked against the manifest's hash."""
+    directory = Path(directory)
+    manifest = read_manifest(directory)
+    out = {}
+    for name, info in manifest["files"].items():
+        ds = read_parquet(directory / name, expected_sha256=info.get("sha256"))
+        if ds.n_rows != info.get("rows"):
+            raise DataError(f"{directory / name}: {ds.n_rows} rows, manifest says {info.get('rows')}")
+        out[ds.env] = ds
+    return out
+
+
+def load_dataset(path: Path) -> Dataset:
+    """One dataset from a Parquet file; checked against the manifest beside it when there is one."""
+    path = Path(path)
+    manifest_path = path.parent / MANIFEST
+    expected = None
+    if manifest_path.is_file():
+        info = read_manifest(path.parent)["files"].get(path.name)
+        expected = info.get("sha256") if info else None
+    return read_parquet(path, expected_sha256=expected)
