@@ -198,9 +198,10 @@ def test_nothing_readable_fails_even_when_lenient(tmp_path: Path) -> None:
 
 def test_config_model(tmp_path: Path) -> None:
     path = write(tmp_path, GOOD_A + GOOD_B)
-    cfg = mario.MarioLoadConfig(goal="any", increments=True)
-    ds = mario.load(cfg, path).dataset
-    assert ds.success.all() and ds.state_dim == 11
+    cfg = mario.MarioLoadConfig(path=path, goal="any", increments=True)
+    ds = mario.load(cfg).dataset
+    assert ds.success.all() and ds.state_dim == 11 and ds.n_trajectories == 2
+    assert mario.load(mario.MarioLoadConfig()).dataset.n_trajectories == 225
     with pytest.raises(pydantic.ValidationError):
         mario.MarioLoadConfig(goal="finish")
     with pytest.raises(pydantic.ValidationError):

@@ -62,6 +62,8 @@ Goal = Literal["no_death", "any", "won_level"]
 class MarioLoadConfig(StrictModel):
     """How to read a Mario play log into a Dataset (the options of :func:`load_play_log`)."""
 
+    path: Path | None = Field(None, description="S-TLI play log to read; None = the log shipped "
+                              "with the package (225 human episodes).")
     strict: bool = Field(True, description="Fail with DataError on the first malformed step or "
                          "episode; when false, skip it and report what was skipped.")
     goal: Goal = Field("no_death", description="Which episodes reached the goal (Performance, "
@@ -217,11 +219,10 @@ def load_play_log(path: str | Path, strict: bool = True, goal: Goal = "no_death"
     return result
 
 
-def load(cfg: MarioLoadConfig, path: str | Path | None = None) -> LoadResult:
-    """Load ``path`` (or the shipped log when None) with the options of ``cfg``."""
-    if path is None:
-        return load_default(**cfg.model_dump())
-    return load_play_log(path, **cfg.model_dump())
+def load(cfg: MarioLoadConfig) -> LoadResult:
+    """Load ``cfg.path`` (the shipped log when None) with the options of ``cfg``."""
+    options = cfg.model_dump(exclude={"path"})
+    return load_default(**options) if cfg.path is None else load_play_log(cfg.path, **options)
 
 
 def load_default(strict: bool = True, goal: Goal = "no_death", increments: bool = False) -> LoadResult:
