@@ -80,8 +80,8 @@ def test_shipped_goal_definitions() -> None:
 
 
 # ------------------------------------------------------------------ tidy input
-def test_terminator_blank_lines_and_crlf_are_accepted(tmp_path: Path) -> None:
-    text = "\n" + GOOD_A.replace("\n", "\r\n") + "\n   \n" + GOOD_B + "\n\n"
+def test_terminator_blank_lines_bom_and_crlf_are_accepted(tmp_path: Path) -> None:
+    text = "\ufeff\n" + GOOD_A.replace("\n", "\r\n") + "\n   \n" + GOOD_B + "\n\n"
     result = mario.load_play_log(write(tmp_path, text))
     ds = result.dataset
     assert ds.n_trajectories == 2 and list(ds.lengths) == [4, 5]
@@ -89,6 +89,8 @@ def test_terminator_blank_lines_and_crlf_are_accepted(tmp_path: Path) -> None:
     assert list(ds.actions[:4]) == [3, 13, 17, -1]
     assert list(ds.actions[4:]) == [25, 24, 6, 22, -1]
     assert list(ds.success) == [True, False]
+    bom_first = mario.load_play_log(write(tmp_path, "\ufeff" + GOOD_A, "bom.log")).dataset
+    np.testing.assert_array_equal(bom_first.states[0], np.zeros(6))
 
 
 def test_goal_options_on_hand_made_log(tmp_path: Path) -> None:

@@ -152,7 +152,7 @@ def load_play_log(path: str | Path, strict: bool = True, goal: Goal = "no_death"
     if goal not in ("no_death", "any", "won_level"):
         raise DataError(f"goal must be 'no_death', 'any' or 'won_level', got {goal!r}")
     try:
-        text = path.read_text(encoding="utf-8", errors="replace")
+        text = path.read_text(encoding="utf-8-sig", errors="replace")  # a BOM is not data
     except OSError as e:
         raise DataError(f"{path}: cannot read play log ({e.strerror or e})") from None
 
