@@ -25,9 +25,6 @@ from pcpg_dist.domains.gridworld import FEATURES, N_ACTIONS, GridTables, Layout
 from pcpg_dist.schema import StrictModel
 
 
-_ASSEMBLE_KEY = 1000  # pair_seed key of the sampling of D, distinct from any reward index
-
-
 class PBTGConfig(StrictModel):
     """Q-learning and trajectory sampling for GridWorld."""
 
@@ -158,19 +155,20 @@ def sample_trajectories(layout: Layout, q: np.ndarray, reward_index: int, n: int
 
 
 def generate_pair(layout: Layout, reward_index: int, cfg: PBTGConfig, base_seed: int) -> Dataset:
-    """PBTG for one (E, R): Q-learning, then ``trajectories_per_style`` perturbed trajectories."""
-    q_seed, sample_seed = pair_seed(base_seed, layout.name, reward_index).generate_state(2)
+    """PBTG for one (E, R): Q-learning, ``trajectories_per_style`` perturbed trajectories, and of
+    those the ``dataset_per_style`` that enter the environment's dataset D (a seeded sample).
+
+    Sampling inside the pair keeps Ray transfers small and the result a function of the key only.
+    """
+    q_seed, sample_seed, pick_seed = pair_seed(base_seed, layout.name, reward_index).generate_state(3)
     q = q_learning(layout.tables, reward_index, cfg, int(q_seed))
-    return sample_trajectories(layout, q, reward_index, cfg.trajectories_per_style, cfg,
+    pool = sample_trajectories(layout, q, reward_index, cfg.trajectories_per_style, cfg,
                                np.random.default_rng(int(sample_seed)))
+    pick = np.random.default_rng(int(pick_seed)).choice(pool.n_trajectories, cfg.dataset_per_style,
+                                                          replace=False)
+    return pool.subset(np.sort(pick))
 
 
-def assemble_dataset(pairs: list[Dataset], cfg: PBTGConfig, base_seed: int) -> Dataset:
-    """Dataset D of one environment: ``dataset_per_style`` trajectories of each style's pool."""
-    env = pairs[0].env
-    rng = np.random.default_rng(pair_seed(base_seed, env, _ASSEMBLE_KEY))
-    parts = []
-    for pool in sorted(pairs, key=lambda d: int(d.styles[0])):
-        pick = np.sort(rng.choice(pool.n_trajectories, cfg.dataset_per_style, replace=False))
-        parts.append(pool.subset(pick))
-    return Dataset.concat(parts)
+def assemble_dataset(pairs: list[Dataset]) -> Dataset:
+    """Dataset D of one environment: its styles' samples, in style order, ids renumbered 0..n-1."""
+    return Dataset.concat(sorted(pairs, key=lambda d: int(d.styles[0])))
