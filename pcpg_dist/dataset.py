@@ -268,14 +268,17 @@ class Dataset:
 
         states = (np.stack([col(f"s{j}", np.float32) for j in range(d)], axis=1)
                   if d else np.zeros((len(traj), 0), np.float32))
-        return Dataset(
-            domain=domain, env=env, n_actions=n_actions, states=states,
-            actions=col("action", np.int64), valid=col("valid", np.int64),
-            rewards=col("reward", np.float64), offsets=offsets, trajectory_ids=traj[starts],
-            styles=col("style", np.int64)[starts], success=col("success", bool)[starts],
-            epsilon=col("epsilon", np.float64)[starts],
-            feature_names=tuple(meta.get("feature_names") or ()),
-        )
+        try:
+            return Dataset(
+                domain=domain, env=env, n_actions=n_actions, states=states,
+                actions=col("action", np.int64), valid=col("valid", np.int64),
+                rewards=col("reward", np.float64), offsets=offsets, trajectory_ids=traj[starts],
+                styles=col("style", np.int64)[starts], success=col("success", bool)[starts],
+                epsilon=col("epsilon", np.float64)[starts],
+                feature_names=tuple(meta.get("feature_names") or ()),
+            )
+        except DataError as e:
+            raise DataError(f"{source}: {e}") from None
 
 
 # --------------------------------------------------------------------- files

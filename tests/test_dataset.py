@@ -1,0 +1,109 @@
+"""The Parquet + manifest interchange format: round trip, validation, corruption detection."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from pcpg_dist.dataset import Dataset, load_dataset, load_datasets, read_parquet, write_datasets
+from pcpg_dist.errors import DataError
+
+
+def small(env: str = "E1", n: int = 5, seed: int = 0) -> Dataset:
+    rng = np.random.default_rng(seed)
+    trajs = []
+    for i in range(n):
+        T = int(rng.integers(0, 6))
+        trajs.append({"states": rng.random((T + 1, 3)), "actions": rng.integers(0, 4, T),
+                      "valid": np.full(T + 1, 15), "rewards": rng.random(T)})
+    return Dataset.from_trajectories("toy", env, 4, trajs, styles=rng.integers(0, 2, n),
+                                     success=rng.random(n) < 0.5, epsilon=rng.random(n),
+                                     feature_names=("a", "b", "c"))
+
+
+def same(a: Dataset, b: Dataset) -> None:
+    for name in ("states", "actions", "valid", "rewards", "offsets", "trajectory_ids", "styles",
+                 "success", "epsilon"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    assert (a.domain, a.env, a.n_actions, a.feature_names) == (b.domain, b.env, b.n_actions, b.feature_names)
+
+
+def test_round_trip_and_plain_pandas(tmp_path):
+    ds = [small("E1"), small("E2", seed=1)]
+    write_datasets(tmp_path, ds, {"config": {"x": 1}})
+    loaded = load_datasets(tmp_path)
+    same(loaded["E1"], ds[0])
+    same(loaded["E2"], ds[1])
+    df = pd.read_parquet(tmp_path / "toy-E1.parquet")
+    assert list(df.columns[:4]) == ["trajectory", "t", "env", "style"]
+    assert (df.groupby("trajectory")["action"].last() == -1).all()
+    manifest = json.loads((tmp_path / "manifest.json").read_text())
+    assert manifest["files"]["toy-E1.parquet"]["rows"] == ds[0].n_rows
+
+
+def test_subset_and_concat(rng):
+    ds = small(n=8)
+    sub = ds.subset([5, 2])
+    assert sub.n_trajectories == 2
+    np.testing.assert_array_equal(sub.trajectory_states(0), ds.trajectory_states(5))
+    np.testing.assert_array_equal(sub.trajectory_states(1), ds.trajectory_states(2))
+    both = Dataset.concat([ds, sub])
+    assert both.n_trajectories == 10 and both.n_rows == ds.n_rows + sub.n_rows
+    assert ds.valid_mask.shape == (ds.n_rows, 4) and ds.valid_mask.all()
+
+
+def test_bit_flip_and_truncation_detected(tmp_path):
+    write_datasets(tmp_path, [small()], {})
+    path = tmp_path / "toy-E1.parquet"
+    raw = bytearray(path.read_bytes())
+    raw[len(raw) // 2] ^= 0xFF
+    path.write_bytes(bytes(raw))
+    with pytest.raises(DataError, match="toy-E1.parquet: content hash"):
+        load_datasets(tmp_path)
+    path.write_bytes(bytes(raw[: len(raw) // 3]))
+    with pytest.raises(DataError, match="toy-E1.parquet: not a readable Parquet"):
+        read_parquet(path)
+
+
+@pytest.mark.parametrize("mutate, needle", [
+    (lambda t: t.set_column(t.schema.get_field_index("action"), "action",
+                            pa.array(t.column("action").to_numpy().astype("float64"))), "column 'action' has type double"),
+    (lambda t: t.drop(["reward"]), "missing column 'reward'"),
+    (lambda t: t.set_column(t.schema.get_field_index("s0"), "s0",
+                            pa.array(np.where(np.arange(t.num_rows) == 3, np.nan, 0).astype("float32"))), "NaN or infinite"),
+    (lambda t: t.filter(pa.array(np.arange(t.num_rows) != 1)), "missing or repeated time steps"),
+])
+def test_bad_files_name_the_problem(tmp_path, mutate, needle):
+    table = small(n=3).to_table()
+    path = tmp_path / "bad.parquet"
+    pq.write_table(mutate(table), path)
+    with pytest.raises(DataError, match="bad.parquet") as e:
+        load_dataset(path)
+    assert needle in str(e.value)
+
+
+def test_zero_length_trajectory_rejected():
+    with pytest.raises(DataError, match="trajectory 1 has zero length"):
+        Dataset(domain="toy", env="E", n_actions=2, states=np.zeros((2, 1), np.float32),
+                actions=np.array([-1, -1]), valid=np.zeros(2, np.int64), rewards=np.zeros(2),
+                offsets=np.array([0, 1, 1, 2]), trajectory_ids=np.arange(3), styles=np.zeros(3, np.int64),
+                success=np.zeros(3, bool), epsilon=np.zeros(3))
+
+
+def test_write_never_leaves_a_half_file(tmp_path, monkeypatch):
+    write_datasets(tmp_path, [small()], {})
+    before = (tmp_path / "toy-E1.parquet").read_bytes()
+
+    def boom(*a, **k):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(pq, "write_table", boom)
+    with pytest.raises(OSError):
+        write_datasets(tmp_path, [small(seed=3)], {})
+    assert (tmp_path / "toy-E1.parquet").read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["manifest.json", "toy-E1.parquet"]
