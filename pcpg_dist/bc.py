@@ -432,4 +432,4 @@ def weighted_loss_and_grad(cell: Cell, params: list[np.ndarray], activation: str
     wt = torch.tensor(w, dtype=torch.float64)
     loss = (ce * wt).sum() / wt.sum()
     loss.backward()
-    return float(loss), [p.grad.numpy() for p in ts]
+    return float(loss.detach()), [p.grad.numpy() for p in ts]

@@ -1,0 +1,176 @@
+"""Step C: the batched behavioural-cloning trainer and the trained ensemble."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+from bc_toy import expert, make_dataset, rollout
+
+from pcpg_dist.bc import BCConfig, TrainedCells, init_params, train_cells, weighted_loss_and_grad
+from pcpg_dist.errors import ConfigError, DataError
+from pcpg_dist.ranking import Cell, RankConfig, plan_cells, split_trajectories
+
+
+@pytest.fixture(scope="module")
+def toy():
+    ds = make_dataset(100, seed=0)
+    tr, te = split_trajectories(ds.n_trajectories, 0.2, 0)
+    cells = plan_cells(ds, ds.styles, tr, RankConfig(ps=(1.0, 0.25)), seeds=[0, 1])
+    return ds, te, cells
+
+
+def _test_accuracy(model, ds, te, cell, style):
+    test = ds.subset(te[ds.styles[te] == style])
+    rows = test.step_rows
+    pred = model.predict(test.states[rows], test.valid_mask[rows], cell)
+    return float((pred == test.actions[rows]).mean())
+
+
+def test_agent_learns_its_style(toy):
+    ds, te, cells = toy
+    model = train_cells(cells, BCConfig())
+    # the demonstrations take a random action with probability U[0, 0.3]: the expert itself
+    # matches ~0.9 of them; a 3x5 MLP clones each style to within a few points of that
+    for style in (0, 1):
+        test = ds.subset(te[ds.styles[te] == style])
+        ceiling = np.mean([expert(test.states[r], style) == test.actions[r] for r in test.step_rows])
+        acc = _test_accuracy(model, ds, te, f"k{style}-p1-s0", style)
+        assert acc >= 0.8 and acc >= ceiling - 0.06, (acc, ceiling)
+        # the other style's policy is clearly worse on this style
+        assert _test_accuracy(model, ds, te, f"k{1 - style}-p1-s0", style) < 0.75
+    assert (model.final_loss < 0.6).all()
+
+
+def test_batched_equals_alone(toy):
+    _, _, cells = toy
+    batch = train_cells(cells, BCConfig())
+    i = 5
+    alone = train_cells([cells[i]], BCConfig())
+    for name in batch.params:
+        np.testing.assert_allclose(batch.params[name][i], alone.params[name][0], atol=1e-5)
+    # the stacked torch engine (padding, bmm) is exact too; in float64 over the full run
+    cfg = BCConfig(engine="torch", dtype="float64", epochs=500)
+    batch, alone = train_cells(cells, cfg), train_cells([cells[i]], cfg)
+    for name in batch.params:
+        np.testing.assert_allclose(batch.params[name][i], alone.params[name][0], atol=1e-5)
+
+
+def test_engines_agree_with_autograd_and_torch_adam(toy):
+    """One epoch of either engine = one torch.optim.Adam step on the autograd gradient."""
+    _, _, cells = toy
+    cell = cells[2]
+    sizes = (4, 5, 5, 5, 4)
+    params = [torch.tensor(p, dtype=torch.float64, requires_grad=True) for p in init_params(sizes, 0)]
+    opt = torch.optim.Adam(params, lr=0.01)
+    for _ in range(3):
+        _, grads = weighted_loss_and_grad(cell, [p.detach().numpy() for p in params])
+        for p, g in zip(params, grads, strict=True):
+            p.grad = torch.tensor(g)
+        opt.step()
+    for engine in ("numba", "torch"):
+        got = train_cells([cell], BCConfig(epochs=3, engine=engine))
+        for i in range(4):
+            np.testing.assert_allclose(got.params[f"W{i}"][0], params[2 * i].detach().numpy(), atol=2e-6)
+            np.testing.assert_allclose(got.params[f"b{i}"][0], params[2 * i + 1].detach().numpy(), atol=2e-6)
+
+
+def test_dedupe_gives_the_raw_loss_and_gradient(toy):
+    ds, _, _ = toy
+    tr = np.arange(ds.n_trajectories)
+    raw = plan_cells(ds, ds.styles, tr, RankConfig(ps=(1.0,)), [0], baseline=False, dedupe=False)[0]
+    dedup = plan_cells(ds, ds.styles, tr, RankConfig(ps=(1.0,)), [0], baseline=False)[0]
+    assert dedup.n_rows * 5 < raw.n_rows  # states repeat a lot
+    params = init_params((4, 5, 5, 5, 4), 3)
+    loss_raw, grad_raw = weighted_loss_and_grad(raw, params, dedupe=False)
+    loss_dd, grad_dd = weighted_loss_and_grad(dedup, params, dedupe=False)
+    assert loss_raw == pytest.approx(loss_dd, rel=1e-10)
+    for a, b in zip(grad_raw, grad_dd, strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-8, atol=1e-12)
+    # and training on raw rows gives the model trained on distinct rows
+    a = train_cells([raw], BCConfig(epochs=50, dedupe=False, engine="torch", dtype="float64"))
+    b = train_cells([dedup], BCConfig(epochs=50, engine="torch", dtype="float64"))
+    np.testing.assert_allclose(a.params["W0"], b.params["W0"], atol=1e-6)
+
+
+def test_same_seed_same_params_other_seed_differs(toy):
+    _, _, cells = toy
+    a, b = train_cells(cells[:4], BCConfig(epochs=200)), train_cells(cells[:4], BCConfig(epochs=200))
+    for name in a.params:
+        assert np.array_equal(a.params[name], b.params[name])
+    s0 = next(c for c in cells if c.key == "k0-p1-s0")
+    s1 = next(c for c in cells if c.key == "k0-p1-s1")
+    m = train_cells([s0, s1], BCConfig(epochs=200))
+    assert not np.allclose(m.params["W0"][0], m.params["W0"][1])
+
+
+def test_invalid_actions_are_never_chosen(toy, rng):
+    _, _, cells = toy
+    model = train_cells(cells[:2], BCConfig(epochs=0))  # untrained: arbitrary preferences
+    states = rng.normal(size=(2000, 4)).astype(np.float32) * 3
+    valid = rng.random((2000, 4)) < 0.4
+    valid[np.arange(2000), rng.integers(0, 4, 2000)] = True
+    for greedy in (True, False):
+        for cell in (0, 1):
+            a = model.act(states, valid, cell, greedy=greedy, rng=rng)
+            assert valid[np.arange(2000), a].all()
+    # sampled choice spreads over the valid actions; the rollout raises on any invalid action
+    a = model.act(states[:1].repeat(4000, 0), np.ones((4000, 4), bool), 0, greedy=False, rng=rng)
+    assert len(np.unique(a)) > 1
+    for greedy in (True, False):
+        rollout(model.policy(0, greedy=greedy), 20, rng)
+
+
+def test_wrong_shapes_fail_with_data_error(toy):
+    _, _, cells = toy
+    model = train_cells(cells[:1], BCConfig(epochs=0))
+    with pytest.raises(DataError, match=r"shape \(B, 4\)"):
+        model.act(np.zeros((3, 5), np.float32), np.ones((3, 4), bool), 0)
+    with pytest.raises(DataError, match="valid must have shape"):
+        model.act(np.zeros((3, 4), np.float32), np.ones((3, 3), bool), 0)
+    c = cells[0]
+    wide = Cell(dataclasses.replace(c.spec, key="wide"), np.zeros((c.n_rows, 5), np.float32), c.valid,
+                c.actions, c.weights, np.zeros(5, np.float32), np.ones(5, np.float32))
+    with pytest.raises(DataError, match="state width"):
+        train_cells([c, wide], BCConfig(epochs=1))
+    with pytest.raises(DataError, match="no training steps"):
+        Cell(c.spec, c.states[:0], c.valid[:0], c.actions[:0], c.weights[:0], c.mean, c.std)
+    bad_action = c.actions.copy()
+    bad_action[0] = int(np.nonzero(~c.valid[0])[0][0])
+    with pytest.raises(DataError, match="forbids"):
+        Cell(c.spec, c.states, c.valid, bad_action, c.weights, c.mean, c.std)
+
+
+def test_save_load_roundtrip_and_concat(toy, tmp_path):
+    _, _, cells = toy
+    a = train_cells(cells[:3], BCConfig(epochs=30))
+    b = train_cells(cells[3:5], BCConfig(epochs=30))
+    both = TrainedCells.concat([a, b])
+    path = both.save(tmp_path / "models")
+    back = TrainedCells.load(path)
+    assert back.keys == [c.key for c in cells[:5]]
+    states = cells[0].states
+    for i in range(5):
+        np.testing.assert_array_equal(back.logits(states, i), both.logits(states, i))
+    assert np.array_equal(back.select([cells[4].key]).params["W0"][0], b.params["W0"][1])
+    with pytest.raises(DataError, match="repeated"):
+        TrainedCells.concat([a, a])
+    with pytest.raises(DataError, match="unreadable"):
+        TrainedCells.load(tmp_path / "missing")
+
+
+def test_device_config():
+    if not torch.cuda.is_available():
+        with pytest.raises(ConfigError, match="no GPU"):
+            _resolve("cuda")
+    assert _resolve("auto").type in ("cpu", "cuda")
+    with pytest.raises(ConfigError, match="float32"):
+        from pcpg_dist.bc import _engine
+        _engine(BCConfig(engine="numba", dtype="float64"), torch.device("cpu"))
+
+
+def _resolve(name):
+    from pcpg_dist.bc import resolve_device
+    return resolve_device(name)

@@ -1,0 +1,110 @@
+"""Evaluation on the two-style toy grid: every table the paper reports, with real thresholds."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+from bc_toy import make_dataset, optimal_return, returns, rollout
+
+from pcpg_dist.bc import BCConfig, train_cells
+from pcpg_dist.evaluation import DomainHooks, EvalConfig, Scorer, evaluate, summarize
+from pcpg_dist.ranking import RankConfig, plan_cells, split_trajectories
+
+RANK = RankConfig(ps=(1.0, 0.5, 0.25))
+EVAL = EvalConfig(rollouts_per_policy=10, corruption_levels=(0.0, 0.5), reward_p=0.25)
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    ds = make_dataset(120, seed=1)
+    tr, te = split_trajectories(ds.n_trajectories, RANK.test_fraction, RANK.split_seed)
+    cells = plan_cells(ds, ds.styles, tr, RANK, seeds=[0, 1],
+                       corruption_levels=EVAL.corruption_levels, corruption_ps=EVAL.corruption_ps)
+    model = train_cells(cells, BCConfig(epochs=1500))
+    hooks = DomainHooks(rollout=rollout, returns=returns, optimal_return=optimal_return,
+                        draw=lambda ax, d: ax.plot(d.states[:, 0], d.states[:, 1]))
+    out = tmp_path_factory.mktemp("eval")
+    return ds, te, model, evaluate(ds, ds.styles, te, model, RANK, EVAL, out, hooks), out
+
+
+def test_pcpg_beats_no_clustering_and_random(run):
+    _, _, _, res, _ = run
+    m = res.metrics
+    for p in ("1", "0.5", "0.25"):
+        assert m[f"pcpg/accuracy/p{p}"] > m[f"baseline/accuracy/p{p}"] + 0.05
+        assert m[f"baseline/accuracy/p{p}"] > m[f"random/accuracy/p{p}"]
+    assert m["pcpg/wins_over_baseline"] == 1.0
+    assert 0.25 < m["random/accuracy"] < 0.5  # 2 to 4 valid moves per cell of a 5x5 grid
+    acc = res.tables["accuracy"]
+    assert set(acc.method) >= {"pcpg", "no_clustering", "random"}
+
+
+def test_cross_accuracy_diagonal_dominates(run):
+    _, _, _, res, _ = run
+    cross = res.tables["cross_accuracy"].to_numpy()
+    assert (np.diag(cross) > cross.max(axis=1, initial=0, where=~np.eye(2, dtype=bool))).all()
+    assert res.metrics["cross/diagonal_mean"] > 0.8
+    assert res.metrics["cross/diagonal_is_row_max"] == 1.0
+    corr = res.tables["correlation"].to_numpy()
+    assert (np.diag(corr) > 0.3).all() and (corr[~np.eye(2, dtype=bool)] < 0).all()
+
+
+def test_accuracy_matches_brute_force(run):
+    ds, te, model, _, _ = run
+    scorer = Scorer(ds, te, model)
+    i = model.index("k1-p1-s1")
+    idx = te[ds.styles[te] == 1]
+    test = ds.subset(idx)
+    rows = test.step_rows
+    hits = [model.predict(test.states[r:r + 1], test.valid_mask[r:r + 1], i)[0] == test.actions[r]
+            for r in rows]
+    assert scorer.accuracy(i, idx) == pytest.approx(np.mean(hits))
+    assert scorer.random_accuracy(idx) == pytest.approx(np.mean(1 / test.valid_mask[rows].sum(1)))
+
+
+def test_rollouts_reward_distance_and_lengths(run):
+    _, _, _, res, _ = run
+    m = res.metrics
+    for style in (0, 1):
+        assert m[f"reward_distance/style{style}"] <= 5.0
+        assert m[f"random/reward_distance/style{style}"] > 50.0
+        # the optimal route is 8 moves; a good clone is close
+        assert 8 <= m[f"rollout/length/k{style}/p0.25"] <= 10
+    table = res.tables["reward_distance"]
+    assert list(table.actions) == ["greedy", "greedy"]
+
+
+def test_corruption_falls_to_no_clustering(run):
+    _, _, _, res, _ = run
+    m = res.metrics
+    assert m["corruption/accuracy/c0"] > m["corruption/accuracy/c0.5"] + 0.05
+    # with 2 styles, c = 0.5 mixes both halves evenly: the baseline's situation
+    assert abs(m["corruption/accuracy/c0.5"] - m["corruption/baseline/accuracy"]) < 0.04
+    rew = res.tables["corruption_reward"].set_index(["c", "k"])
+    # clean subsets collect their own bonus; half-corrupted ones are mixed
+    assert rew.loc[(0.0, 0), "R1"] > 140 and rew.loc[(0.0, 0), "R2"] < 110
+    assert 110 < rew.loc[(0.5, 0), "R1"] < 140
+
+
+def test_outputs_written(run):
+    _, _, _, res, out = run
+    for name, df in res.tables.items():
+        assert (out / f"{name}.csv").is_file()
+        back = pd.read_json(out / f"{name}.json", orient="records")
+        assert len(back) == len(df)
+    assert json.loads((out / "metrics.json").read_text()) == pytest.approx(res.metrics, nan_ok=True)
+    for name in ("accuracy_vs_p", "cross_accuracy", "correlation", "rollout_length", "corruption",
+                 "rollouts"):
+        png = res.figures[name]
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 5000
+
+
+def test_summarize_averages_environments(run, tmp_path):
+    _, _, _, res, _ = run
+    s = summarize({"A": res, "B": res}, tmp_path)
+    assert s.metrics["pcpg/accuracy/p1"] == pytest.approx(res.metrics["pcpg/accuracy/p1"])
+    assert s.metrics["B/cross/diagonal_mean"] == res.metrics["cross/diagonal_mean"]
+    assert set(s.tables["accuracy"].env) == {"A", "B"}

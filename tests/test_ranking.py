@@ -1,0 +1,135 @@
+"""Step B: Performance (Eq. 3), splits, top-p thresholding, corruption and cell planning."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from bc_toy import make_dataset
+from pydantic import ValidationError
+
+from pcpg_dist.dataset import Dataset
+from pcpg_dist.errors import DataError
+from pcpg_dist.ranking import (
+    RankConfig,
+    corrupt_labels,
+    n_kept,
+    performance,
+    plan_cells,
+    split_trajectories,
+    threshold,
+    top_p,
+)
+
+
+@pytest.fixture(scope="module")
+def toy() -> Dataset:
+    return make_dataset(60, seed=3)
+
+
+def _lined(lengths, success) -> Dataset:
+    trajs = [{"states": np.zeros((n, 1)), "actions": np.zeros(n - 1, int), "valid": np.ones(n, int),
+              "rewards": np.zeros(n - 1)} for n in lengths]
+    return Dataset.from_trajectories("t", "e", 1, trajs, [0] * len(lengths), success)
+
+
+def test_performance_is_eq3():
+    ds = _lined([2, 4, 4, 10], [True, True, False, False])
+    np.testing.assert_allclose(performance(ds, beta=0.1), [1 / 2, 1 / 4, 0.1 / 4, 0.1 / 10])
+    # a failure never outranks an equally long success, and shorter successes rank first
+    s = performance(ds, 0.1)
+    assert s[0] > s[1] > s[2] > s[3]
+
+
+def test_top_p_keeps_ceil_and_breaks_ties_by_id():
+    scores = np.array([0.5, 0.5, 0.5, 0.9, 0.1])
+    ids = np.array([40, 10, 30, 20, 0])
+    idx = np.arange(5)
+    assert top_p(idx, scores, 0.1, ids).tolist() == [3]  # ceil(0.5) = 1: at least one kept
+    # three tied at 0.5: ids 10 (pos 1) and 30 (pos 2) win over 40 (pos 0)
+    assert top_p(idx, scores, 0.6, ids).tolist() == [1, 2, 3]
+    assert top_p(idx, scores, 1.0, ids).tolist() == [0, 1, 2, 3, 4]
+    assert n_kept(30, 0.1) == 3 and n_kept(31, 0.1) == 4 and n_kept(1, 0.1) == 1
+    assert top_p(np.array([], np.int64), scores, 0.5, ids).size == 0
+
+
+def test_split_is_seeded_disjoint_and_complete():
+    tr, te = split_trajectories(100, 0.2, seed=7)
+    assert len(te) == 20 and len(tr) == 80
+    assert np.intersect1d(tr, te).size == 0 and np.union1d(tr, te).tolist() == list(range(100))
+    tr2, te2 = split_trajectories(100, 0.2, seed=7)
+    assert (te == te2).all()
+    assert not (te == split_trajectories(100, 0.2, seed=8)[1]).all()
+    with pytest.raises(DataError):
+        split_trajectories(0, 0.2, 0)
+
+
+def test_threshold_per_cluster_and_test_subsets_alike(toy):
+    cfg = RankConfig()
+    tr, te = split_trajectories(toy.n_trajectories, cfg.test_fraction, 0)
+    scores = performance(toy, cfg.beta)
+    h = threshold(toy.styles, te, scores, toy.trajectory_ids, cfg.ps)
+    for (c, p), idx in h.items():
+        members = te[toy.styles[te] == c]
+        assert len(idx) == n_kept(len(members), p)
+        assert set(idx) <= set(members)
+        # everything kept scores at least as high as everything dropped
+        dropped = np.setdiff1d(members, idx)
+        if len(dropped):
+            assert scores[idx].min() >= scores[dropped].max()
+    # nested: a smaller p keeps a subset of a larger p's trajectories
+    assert set(h[(0, 0.1)]) <= set(h[(0, 0.5)]) <= set(h[(0, 1.0)])
+
+
+def test_rank_config_rejects_bad_values():
+    with pytest.raises(ValidationError):
+        RankConfig(ps=(1.0, 0.0))
+    with pytest.raises(ValidationError):
+        RankConfig(ps=(1.5,))
+    with pytest.raises(ValidationError):
+        RankConfig(beta=0.1, unknown=3)
+
+
+def test_corrupt_labels_exact_fraction_and_always_wrong(rng):
+    labels = np.repeat(np.arange(4), 250)
+    for c in (0.0, 0.2, 0.6, 1.0):
+        bad = corrupt_labels(labels, c, 4, np.random.default_rng(1))
+        assert (bad != labels).sum() == round(c * len(labels))
+    bad = corrupt_labels(labels, 1.0, 4, rng)
+    # wrong labels are uniform over the 3 others: each other label gets ~1/3 of a class
+    counts = np.bincount(bad[labels == 0], minlength=4)
+    assert counts[0] == 0 and counts[1:].min() > 60
+
+
+def test_plan_cells_builds_pcpg_baseline_and_corruption_cells(toy):
+    cfg = RankConfig(ps=(1.0, 0.5))
+    tr, _ = split_trajectories(toy.n_trajectories, 0.2, 0)
+    cells = plan_cells(toy, toy.styles, tr, cfg, seeds=[0, 1], corruption_levels=(0.0, 0.5))
+    keys = [c.key for c in cells]
+    assert "k1-p0.5-s1" in keys and "nc-p1-s0" in keys and "corrupt0.5-k0-p1-s1" in keys
+    assert len(keys) == len(set(keys)) == 2 * (2 * 2 + 2 + 2 * 2)
+    by_key = {c.key: c for c in cells}
+    # dedupe keeps the step count: weights sum to the raw steps of the subset
+    raw_steps = sum(toy.lengths[i] - 1 for i in tr if toy.styles[i] == 0)
+    assert by_key["k0-p1-s0"].weights.sum() == raw_steps
+    assert by_key["k0-p1-s0"].n_rows < raw_steps
+    # c = 0 corruption is the clean clustering
+    assert np.array_equal(by_key["corrupt0-k0-p1-s0"].states, by_key["k0-p1-s0"].states)
+    # inputs are normalised on the environment's training rows: one scale for every cell
+    assert np.array_equal(by_key["k0-p1-s0"].mean, by_key["nc-p0.5-s1"].mean)
+
+
+def test_plan_cells_empty_subset_fails_clearly(toy):
+    tr, _ = split_trajectories(toy.n_trajectories, 0.2, 0)
+    labels = np.where(toy.styles == 1, 2, 0)  # no trajectory labelled 1
+    with pytest.raises(DataError, match="empty"):
+        plan_cells(toy, labels, tr, RankConfig(), seeds=[0])
+
+
+def test_custom_score_is_used(toy):
+    tr, _ = split_trajectories(toy.n_trajectories, 0.2, 0)
+    longest = plan_cells(toy, toy.styles, tr, RankConfig(ps=(0.1,)), [0], baseline=False,
+                         score=lambda ds: ds.lengths.astype(float))
+    shortest = plan_cells(toy, toy.styles, tr, RankConfig(ps=(0.1,)), [0], baseline=False)
+    assert longest[0].weights.sum() > shortest[0].weights.sum()
+    with pytest.raises(DataError, match="shape"):
+        plan_cells(toy, toy.styles, tr, RankConfig(), [0], score=lambda ds: np.ones(3))
