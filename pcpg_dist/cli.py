@@ -24,6 +24,26 @@ def _cmd_generate(args: argparse.Namespace) -> None:
     console.print(f"wrote {args.out}/manifest.json")
 
 
+def _cmd_run(args: argparse.Namespace) -> None:
+    from pcpg_dist.config import load_config
+    from pcpg_dist.progress import console
+    from pcpg_dist.ray_utils import init_ray
+    from pcpg_dist.runner import run_experiment
+    from pcpg_dist.summary import print_summary
+
+    cfg = load_config(args.config)
+    init_ray(args.ray_address)
+    result = run_experiment(cfg, workdir=Path(args.workdir), tracking_uri=args.tracking_uri,
+                            track=not args.no_tracking, show_progress=not args.quiet)
+    print_summary(result, console)
+    if result.parent_run_id:
+        console.print(f"MLflow parent run: {result.parent_run_id}  (view: uv run mlflow ui "
+                      f"--backend-store-uri {args.tracking_uri or 'sqlite:///mlflow.db'})")
+    console.print(f"outputs: {result.out_dir}/summary")
+    if getattr(result, "report", None):
+        console.print(f"report: {result.report}")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="pcpg", description="Play-style-centric agents from gameplay data (PCPG) at scale.")
@@ -39,6 +59,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output folder (Parquet files + manifest.json)")
     common(p)
     p.set_defaults(func=_cmd_generate)
+
+    p = sub.add_parser("run", help="run a whole experiment: generate, cluster, rank, train, evaluate, log")
+    p.add_argument("config", help="experiment YAML")
+    p.add_argument("--workdir", default="runs", help="outputs and the resumable cache (default: runs/)")
+    p.add_argument("--tracking-uri", default=None,
+                   help="MLflow tracking URI (default: $MLFLOW_TRACKING_URI, else sqlite:///mlflow.db)")
+    p.add_argument("--no-tracking", action="store_true", help="do not log to MLflow")
+    common(p)
+    p.set_defaults(func=_cmd_run)
     return parser
 
 

@@ -16,8 +16,10 @@ from typing import Annotated, Any, Literal
 import yaml
 from pydantic import Field, ValidationError, ValidationInfo, field_validator, model_validator
 
+from pcpg_dist.bc import BCConfig
 from pcpg_dist.clustering import ClusterConfig
 from pcpg_dist.errors import ConfigError
+from pcpg_dist.evaluation import EvalConfig
 from pcpg_dist.pbtg import PBTGConfig
 from pcpg_dist.ranking import RankConfig
 from pcpg_dist.schema import StrictModel
@@ -78,6 +80,8 @@ class ExperimentConfig(StrictModel):
     pbtg: PBTGConfig = PBTGConfig()
     clustering: ClusterConfig = ClusterConfig()
     ranking: RankConfig = RankConfig()
+    bc: BCConfig = BCConfig()
+    evaluation: EvalConfig = EvalConfig()
     runner: RunnerConfig = RunnerConfig()
 
     @field_validator("name")

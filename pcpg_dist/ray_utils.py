@@ -10,7 +10,7 @@ import os
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from pcpg_dist.errors import ServiceError
+from pcpg_dist.errors import PcpgError, ServiceError
 from pcpg_dist.parallel import available_cpus
 
 
@@ -25,8 +25,12 @@ def init_ray(address: str | None = None, num_cpus: int | None = None) -> None:
                                 "TOKENIZERS_PARALLELISM": "false"}}
     if not address:
         # Ray's `uv run` hook would start every local worker through `uv run` and ship the working
-        # directory; in-process workers already share this interpreter and its environment.
+        # directory (~20 s here); in-process workers already share this interpreter. The flag is
+        # read from ray_constants at init time, so set it there too if ray was imported already.
         os.environ.setdefault("RAY_ENABLE_UV_RUN_RUNTIME_ENV", "0")
+        from ray._private import ray_constants
+
+        ray_constants.RAY_ENABLE_UV_RUN_RUNTIME_ENV = os.environ["RAY_ENABLE_UV_RUN_RUNTIME_ENV"] not in ("0", "false", "False")
     try:
         if address:
             ray.init(address=address, log_to_driver=False, runtime_env=runtime_env)
@@ -60,7 +64,13 @@ def run_tasks(fn: Callable[..., Any], calls: Sequence[tuple], description: str,
             done, pending = ray.wait(pending, num_returns=1)
             for ref in done:
                 i = index[ref]
-                results[i] = ray.get(ref)
+                try:
+                    results[i] = ray.get(ref)
+                except ray.exceptions.RayTaskError as e:
+                    # A user mistake inside a task surfaces as the project's own one-line error.
+                    if isinstance(e.cause, PcpgError):
+                        raise e.cause from None
+                    raise
                 if on_result is not None:
                     on_result(i, results[i])
                 advance()

@@ -1,0 +1,241 @@
+"""`pcpg run`: generate → cluster → rank/threshold → train → evaluate → log, fanned out on Ray.
+
+Every unit of work has a content key (its config slice + its inputs' keys) and a cache folder
+(:mod:`pcpg_dist.cache`); a finished unit is never recomputed, so rerunning the same command after
+Ctrl-C or a killed process continues where it stopped and ends with the same numbers.
+
+Units: the data (one Ray task per (environment, style)), one clustering per environment, BC
+training in groups of ``runner.group_size`` cells (never one task per tiny model), one evaluation
+per environment (which also logs that environment's MLflow child runs from the worker).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from pcpg_dist.cache import Cache, content_key
+from pcpg_dist.config import ExperimentConfig
+from pcpg_dist.dataset import Dataset, atomic_write_bytes, load_datasets
+from pcpg_dist.parallel import set_threads
+from pcpg_dist.progress import console
+from pcpg_dist.ray_utils import run_tasks
+
+CODE_VERSION = "1"  # bump when a stage's numbers change for the same config
+
+
+@dataclass
+class RunResult:
+    """What `pcpg run` produced: where, the summary metrics, and where time went."""
+
+    out_dir: Path
+    metrics: dict[str, float]
+    clustering: dict[str, dict[str, float]]
+    stage_seconds: dict[str, float] = field(default_factory=dict)
+    parent_run_id: str | None = None
+    computed: dict[str, int] = field(default_factory=dict)
+
+
+# --------------------------------------------------------------------------- domains
+def _hooks(cfg: ExperimentConfig, env: str):
+    """Rollout/reward/drawing callables of a simulating domain (None where it cannot simulate)."""
+    from pcpg_dist.evaluation import DomainHooks
+
+    if cfg.domain == "gridworld":
+        from pcpg_dist.domains import gridworld as gw
+
+        layout = gw.load_layout(cfg.gridworld.layout_path(env), check_styles=False)
+        steps = cfg.evaluation.max_steps
+        return DomainHooks(
+            rollout=lambda policy, n, rng: gw.rollout(layout, policy, n, rng, max_steps=steps),
+            returns=gw.returns, optimal_return=lambda r: gw.optimal_return(layout, r, max_steps=steps),
+            draw=lambda ax, ds: gw.draw_trajectory(ax, layout, ds))
+    return None
+
+
+def data_key(cfg: ExperimentConfig) -> str:
+    layouts = ([cfg.gridworld.layout_path(e).read_text() for e in cfg.gridworld.environments]
+               if cfg.domain == "gridworld" else [])
+    return content_key(CODE_VERSION, cfg.domain, cfg.seed, cfg.pbtg, cfg.gridworld.environments, layouts)
+
+
+def load_or_generate(cfg: ExperimentConfig, cache: Cache, show_progress: bool) -> tuple[dict[str, Dataset], str]:
+    from pcpg_dist.generate import generate_to
+
+    key = data_key(cfg)
+    path = cache.path("data", key)
+    if cache.done("data", key) is None:
+        cache.start("data", key)
+        generate_to(cfg, path, show_progress=show_progress)
+        cache.finish("data", key, {"stage": "data"})
+    return load_datasets(path), key
+
+
+# --------------------------------------------------------------------------- Ray tasks
+def cluster_task(dataset: Dataset, cfg, seed: int, threads: int, out_dir: str) -> dict:
+    """One environment's clustering (a Ray task): labels, metrics and the saved model."""
+    from pcpg_dist.clustering import cluster, clustering_metrics
+
+    set_threads(threads)
+    result = cluster(dataset, cfg, seed)
+    metrics = {f"clustering/{k}": float(v) for k, v in result.metrics.items()
+               if isinstance(v, int | float)}
+    if (dataset.styles >= 0).all():
+        sup = clustering_metrics(dataset.styles, result.labels)
+        metrics.update({f"clustering/{k}": float(v) for k, v in sup.items() if isinstance(v, int | float)})
+    metrics["clustering/fit_seconds"] = result.fit_seconds
+    if result.model is not None:
+        result.model.save(Path(out_dir) / "model")
+    return {"labels": result.labels.astype(int).tolist(), "metrics": metrics}
+
+
+def train_task(cells: list, cfg, threads: int, out_path: str) -> str:
+    """Train one group of cells in one vectorised pass (a Ray task); saves and returns the path."""
+    from pcpg_dist.bc import train_cells
+
+    set_threads(threads)
+    return str(train_cells(cells, cfg).save(out_path))
+
+
+def evaluate_task(dataset: Dataset, labels: np.ndarray, test_idx: np.ndarray, model_paths: list[str],
+                  cfg: ExperimentConfig, env: str, out_dir: str, threads: int,
+                  tracking: dict | None) -> dict:
+    """Evaluate one environment (a Ray task) and log its child runs to MLflow from the worker."""
+    from pcpg_dist.bc import TrainedCells
+    from pcpg_dist.evaluation import evaluate
+
+    set_threads(threads)
+    trained = TrainedCells.concat([TrainedCells.load(p) for p in model_paths])
+    result = evaluate(dataset, labels, test_idx, trained, cfg.ranking, cfg.evaluation,
+                      out_dir=out_dir, hooks=_hooks(cfg, env), k=cfg.clustering.k)
+    metrics = {k: float(v) for k, v in result.metrics.items() if np.isfinite(v)}
+    atomic_write_bytes(Path(out_dir) / "metrics.json", json.dumps(metrics, indent=1, sort_keys=True).encode())
+    if tracking is not None:
+        from pcpg_dist.tracking import log_environment
+
+        log_environment(tracking, env, out_dir, metrics, model_paths)
+    return metrics
+
+
+# --------------------------------------------------------------------------- the run
+def run_experiment(cfg: ExperimentConfig, workdir: Path = Path("runs"), tracking_uri: str | None = None,
+                   track: bool = True, show_progress: bool = True) -> RunResult:
+    """Run (or resume) a whole experiment; Ray must be initialised by the caller."""
+    from pcpg_dist.bc import TrainedCells  # noqa: F401 - import torch once in the driver
+    from pcpg_dist.ranking import plan_cells, split_trajectories
+
+    out = Path(workdir).resolve() / cfg.name
+    cache = Cache(out / "cache")
+    threads = cfg.runner.cpus_per_task
+    times: dict[str, float] = {}
+    computed: dict[str, int] = {"clustering": 0, "train_groups": 0, "evaluations": 0}
+    tracker = None
+    if track:
+        from pcpg_dist.tracking import Tracker
+
+        tracker = Tracker.start(cfg, tracking_uri, out)
+
+    try:
+        t0 = time.perf_counter()
+        datasets, dkey = load_or_generate(cfg, cache, show_progress)
+        times["generate"] = time.perf_counter() - t0
+
+        # ---- Step A: one clustering per environment
+        t0 = time.perf_counter()
+        envs = list(datasets)
+        ckeys = {e: content_key(CODE_VERSION, dkey, e, cfg.clustering, cfg.seed) for e in envs}
+        todo = [e for e in envs if cache.done("cluster", ckeys[e]) is None]
+        for e in todo:
+            cache.start("cluster", ckeys[e])
+
+        def save_cluster(i: int, res: dict) -> None:
+            e = todo[i]
+            path = cache.path("cluster", ckeys[e])
+            atomic_write_bytes(path / "result.json", json.dumps(res).encode())
+            cache.finish("cluster", ckeys[e], {"env": e})
+
+        run_tasks(cluster_task, [(datasets[e], cfg.clustering, cfg.seed, threads,
+                                  str(cache.path("cluster", ckeys[e]))) for e in todo],
+                  "Step A: clustering", num_cpus=threads, on_result=save_cluster,
+                  show_progress=show_progress and bool(todo))
+        computed["clustering"] = len(todo)
+        clusters = {e: json.loads((cache.path("cluster", ckeys[e]) / "result.json").read_text()) for e in envs}
+        times["cluster"] = time.perf_counter() - t0
+
+        # ---- Steps B + C: plan every cell, train in groups
+        t0 = time.perf_counter()
+        groups: list[tuple[str, str, list]] = []  # (env, key, cells)
+        splits = {}
+        for e in envs:
+            ds = datasets[e]
+            labels = np.asarray(clusters[e]["labels"], np.int64)
+            train_idx, test_idx = split_trajectories(ds.n_trajectories, cfg.ranking.test_fraction, cfg.seed)
+            splits[e] = (labels, test_idx)
+            corrupt = cfg.evaluation.corruption_levels if (ds.styles >= 0).all() else ()
+            cells = plan_cells(ds, labels, train_idx, cfg.ranking, cfg.seeds, k=cfg.clustering.k,
+                               corruption_levels=corrupt, corruption_ps=cfg.evaluation.corruption_ps)
+            size = cfg.runner.group_size
+            for g in range(0, len(cells), size):
+                chunk = cells[g: g + size]
+                key = content_key(CODE_VERSION, ckeys[e], cfg.ranking, cfg.bc, cfg.evaluation.corruption_levels,
+                                  cfg.evaluation.corruption_ps, [c.key for c in chunk])
+                groups.append((e, key, chunk))
+        pending = [(e, k, c) for e, k, c in groups if cache.done("train", k) is None]
+        for _, k, _ in pending:
+            cache.start("train", k)
+
+        def save_group(i: int, path: str) -> None:
+            cache.finish("train", pending[i][1], {"env": pending[i][0], "cells": len(pending[i][2])})
+
+        run_tasks(train_task, [(c, cfg.bc, threads, str(cache.path("train", k) / "cells")) for _, k, c in pending],
+                  "Step C: BC groups", num_cpus=threads, on_result=save_group,
+                  show_progress=show_progress and bool(pending))
+        computed["train_groups"] = len(pending)
+        times["train"] = time.perf_counter() - t0
+
+        # ---- Evaluation (+ MLflow child runs) per environment
+        t0 = time.perf_counter()
+        ekeys = {e: content_key(CODE_VERSION, [k for ge, k, _ in groups if ge == e], cfg.evaluation,
+                                cfg.ranking) for e in envs}
+        todo = [e for e in envs if cache.done("evaluate", ekeys[e]) is None
+                or (tracker is not None and not tracker.env_logged(e, ekeys[e]))]
+        for e in todo:
+            cache.start("evaluate", ekeys[e])
+        calls = []
+        for e in todo:
+            labels, test_idx = splits[e]
+            models = [str(cache.path("train", k) / "cells.pt") for ge, k, _ in groups if ge == e]
+            track_info = tracker.child_info(e, ekeys[e], clusters[e]["metrics"]) if tracker else None
+            calls.append((datasets[e], labels, test_idx, models, cfg, e,
+                          str(cache.path("evaluate", ekeys[e])), threads, track_info))
+
+        def save_eval(i: int, metrics: dict) -> None:
+            cache.finish("evaluate", ekeys[todo[i]], {"env": todo[i]})
+
+        run_tasks(evaluate_task, calls, "Evaluation", num_cpus=threads, on_result=save_eval,
+                  show_progress=show_progress and bool(todo))
+        computed["evaluations"] = len(todo)
+        per_env = {e: json.loads((cache.path("evaluate", ekeys[e]) / "metrics.json").read_text()) for e in envs}
+        times["evaluate"] = time.perf_counter() - t0
+
+        # ---- Across environments: summary tables, figures, parent-run logging, report
+        t0 = time.perf_counter()
+        from pcpg_dist.summary import write_summary
+
+        metrics = write_summary(cfg, out, {e: cache.path("evaluate", ekeys[e]) for e in envs}, per_env,
+                                {e: clusters[e]["metrics"] for e in envs})
+        times["summary"] = time.perf_counter() - t0
+        result = RunResult(out_dir=out, metrics=metrics, clustering={e: clusters[e]["metrics"] for e in envs},
+                           stage_seconds=times, computed=computed)
+        if tracker is not None:
+            tracker.finish(result)
+            result.parent_run_id = tracker.parent_id
+        return result
+    except BaseException:
+        if tracker is not None:
+            tracker.fail()
+        raise

@@ -1,0 +1,125 @@
+"""Across environments: summary metrics, tables, a figure, and the terminal summary table."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from pcpg_dist.dataset import atomic_write_bytes
+
+#: What the paper reports (../shared/PAPER.md), shown beside our numbers in reports.
+PAPER = {
+    "gridworld": {
+        "clustering accuracy": "0.66",
+        "cross-accuracy diagonal (Table 4)": "0.57 / 0.64 / 0.63 / 0.69",
+        "reward distance, PCPG (Table 3)": "8.66 / 44.85 / 46.28 / 50.79",
+        "reward distance, random (Table 3)": "33.05 / 180.84 / 180.12 / 192.42",
+    },
+}
+
+
+def _mean(values: list[float]) -> float:
+    vals = [v for v in values if v == v]
+    return float(np.mean(vals)) if vals else float("nan")
+
+
+def summary_metrics(per_env: dict[str, dict[str, float]], clusters: dict[str, dict[str, float]]) -> dict[str, float]:
+    """Each metric's mean over environments, plus ``<env>/<metric>`` for every environment."""
+    merged = {e: {**clusters.get(e, {}), **m} for e, m in per_env.items()}
+    names = sorted({k for m in merged.values() for k in m})
+    out = {n: _mean([m[n] for m in merged.values() if n in m]) for n in names}
+    for env, m in merged.items():
+        out.update({f"{env}/{k}": v for k, v in m.items()})
+    return out
+
+
+def accuracy_table(per_env: dict[str, dict[str, float]], ps: tuple[float, ...]) -> pd.DataFrame:
+    rows = []
+    for env, m in per_env.items():
+        for p in ps:
+            rows.append({"env": env, "p": p,
+                         "pcpg": m.get(f"pcpg/accuracy/p{p:g}", np.nan),
+                         "pcpg_std": m.get(f"pcpg/accuracy/p{p:g}/std", np.nan),
+                         "no_clustering": m.get(f"baseline/accuracy/p{p:g}", np.nan),
+                         "no_clustering_std": m.get(f"baseline/accuracy/p{p:g}/std", np.nan),
+                         "random": m.get("random/accuracy", np.nan)})
+    return pd.DataFrame(rows)
+
+
+def write_summary(cfg, out: Path, eval_dirs: dict[str, Path], per_env: dict[str, dict[str, float]],
+                  clusters: dict[str, dict[str, float]]) -> dict[str, float]:
+    """Write ``out/summary`` (metrics, tables, figures, per-environment folders); return metrics."""
+    summary = Path(out) / "summary"
+    if summary.exists():
+        shutil.rmtree(summary)
+    summary.mkdir(parents=True)
+    metrics = summary_metrics(per_env, clusters)
+    atomic_write_bytes(summary / "metrics.json", json.dumps(metrics, indent=1, sort_keys=True).encode())
+    acc = accuracy_table(per_env, cfg.ranking.ps)
+    acc.to_csv(summary / "accuracy_vs_p.csv", index=False)
+    acc.to_json(summary / "accuracy_vs_p.json", orient="records", indent=1)
+    clus = pd.DataFrame([{"env": e, **m} for e, m in clusters.items()])
+    clus.to_csv(summary / "clustering.csv", index=False)
+    clus.to_json(summary / "clustering.json", orient="records", indent=1)
+    for env, d in eval_dirs.items():
+        shutil.copytree(d, summary / env, ignore=shutil.ignore_patterns("done.json"))
+    _figure(acc, summary / "accuracy_vs_p.png")
+    return metrics
+
+
+def _figure(acc: pd.DataFrame, path: Path) -> None:
+    from matplotlib.figure import Figure
+
+    envs = list(dict.fromkeys(acc["env"]))
+    fig = Figure(figsize=(3.2 * len(envs), 3))
+    axes = fig.subplots(1, len(envs), squeeze=False)[0]
+    for ax, env in zip(axes, envs, strict=True):
+        d = acc[acc["env"] == env].sort_values("p")
+        ax.errorbar(d["p"], d["pcpg"], yerr=d["pcpg_std"], marker="o", label="PCPG", capsize=3)
+        ax.errorbar(d["p"], d["no_clustering"], yerr=d["no_clustering_std"], marker="s",
+                    label="No Clustering", capsize=3)
+        ax.plot(d["p"], d["random"], "k:", label="random")
+        ax.set_title(env)
+        ax.set_xlabel("p")
+        ax.set_ylim(0, 1)
+    axes[0].set_ylabel("test accuracy")
+    axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def print_summary(result, console) -> None:
+    """The terminal summary: accuracy per p (PCPG vs No Clustering), clustering quality, times."""
+    from rich.table import Table
+
+    m = result.metrics
+    ps = sorted({float(k.split("/p")[1].split("/")[0]) for k in m
+                 if k.startswith("pcpg/accuracy/p") and k.count("/") == 2}, reverse=True)
+    t = Table(title="Accuracy on held-out trajectories (mean over environments)")
+    t.add_column("p", justify="right")
+    t.add_column("PCPG", justify="right")
+    t.add_column("No Clustering", justify="right")
+    t.add_column("random", justify="right")
+    for p in ps:
+        t.add_row(f"{p:g}", f"{m.get(f'pcpg/accuracy/p{p:g}', float('nan')):.3f}",
+                  f"{m.get(f'baseline/accuracy/p{p:g}', float('nan')):.3f}",
+                  f"{m.get('random/accuracy', float('nan')):.3f}")
+    console.print(t)
+    c = Table(title="Clustering")
+    cols = [k for k in ("ari", "nmi", "accuracy", "silhouette", "fit_seconds")
+            if any(f"clustering/{k}" in v for v in result.clustering.values())]
+    c.add_column("env")
+    for k in cols:
+        c.add_column(k, justify="right")
+    for env, cm in result.clustering.items():
+        c.add_row(env, *[f"{cm.get(f'clustering/{k}', float('nan')):.3f}" for k in cols])
+    console.print(c)
+    extra = [f"{k}={m[k]:.3f}" for k in ("cross/diagonal_mean",) if k in m]
+    extra += [f"{k}={m[k]:.2f}" for k in sorted(m) if k.startswith("reward_distance/style") and k.count("/") == 1]
+    if extra:
+        console.print("  ".join(extra))
+    console.print("time per stage: " + ", ".join(f"{k} {v:.1f}s" for k, v in result.stage_seconds.items()))

@@ -1,0 +1,177 @@
+"""MLflow tracking: one experiment per config name, one parent run per sweep, child runs per environment.
+
+Embedded default: ``sqlite:///<cwd>/mlflow.db`` with artifacts in ``<cwd>/mlruns``, created by the
+driver before any worker logs. For a team: ``MLFLOW_TRACKING_URI=http://host:5000`` (an
+``mlflow server`` on PostgreSQL with proxied artifacts, see tracking/README.md).
+
+Workers log with :class:`mlflow.MlflowClient` and the parent's run id, never the fluent API (Ray
+reuses worker processes). Runs carry ``pcpg.unit_key`` tags, so a rerun finds what is already
+logged: a sweep resumes its own parent run and never duplicates a finished child; a child left
+half-written by a killed process is deleted and logged again.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+import urllib.error
+import urllib.request
+from dataclasses import dataclass
+from pathlib import Path
+
+from pcpg_dist.errors import ServiceError
+from pcpg_dist.provenance import git_commit, uv_lock_hash
+
+import pcpg_dist
+
+ROLE, UNIT, CONFIG_HASH = "pcpg.role", "pcpg.unit_key", "pcpg.config_hash"
+PARAM_BATCH = 100  # MLflow's limit of params per log_batch call
+
+
+def default_tracking_uri() -> str:
+    env = os.environ.get("MLFLOW_TRACKING_URI")
+    if env:
+        return env
+    return f"sqlite:///{Path.cwd().resolve() / 'mlflow.db'}"
+
+
+def check_reachable(uri: str, timeout: float = 8.0) -> None:
+    """Fail fast (within ``timeout`` s) with the URI in the message when a server is down."""
+    if not uri.startswith(("http://", "https://")):
+        return
+    try:
+        with urllib.request.urlopen(uri.rstrip("/") + "/health", timeout=timeout) as resp:
+            if resp.status != 200:
+                raise ServiceError(f"MLflow server at {uri} answered {resp.status} on /health")
+    except (urllib.error.URLError, OSError, TimeoutError) as e:
+        reason = getattr(e, "reason", e)
+        raise ServiceError(f"MLflow tracking server {uri} is unreachable ({reason}); start it or set "
+                           f"MLFLOW_TRACKING_URI to a reachable server (unset = local sqlite)") from None
+
+
+def _client(uri: str):
+    from mlflow import MlflowClient
+
+    return MlflowClient(tracking_uri=uri)
+
+
+def _retry(fn, *args, attempts: int = 5, **kwargs):
+    """Call an MLflow client method, retrying transient failures with exponential backoff."""
+    from mlflow.exceptions import MlflowException
+
+    for i in range(attempts):
+        try:
+            return fn(*args, **kwargs)
+        except (MlflowException, OSError) as e:
+            if i == attempts - 1 or getattr(e, "error_code", "") in ("INVALID_PARAMETER_VALUE",
+                                                                       "RESOURCE_ALREADY_EXISTS"):
+                raise
+            time.sleep(min(2 ** i, 10))
+    return None
+
+
+def _log_params(client, run_id: str, params: dict[str, str]) -> None:
+    from mlflow.entities import Param
+
+    items = [Param(k, str(v)[:6000]) for k, v in sorted(params.items())]
+    for i in range(0, len(items), PARAM_BATCH):
+        _retry(client.log_batch, run_id, params=items[i: i + PARAM_BATCH])
+
+
+def _log_metrics(client, run_id: str, metrics: dict[str, float]) -> None:
+    from mlflow.entities import Metric
+
+    now = int(time.time() * 1000)
+    items = [Metric(k, float(v), now, 0) for k, v in sorted(metrics.items())]
+    for i in range(0, len(items), 1000):
+        _retry(client.log_batch, run_id, metrics=items[i: i + 1000])
+
+
+@dataclass
+class Tracker:
+    """The driver's handle on a sweep's MLflow experiment and parent run."""
+
+    uri: str
+    experiment_id: str
+    parent_id: str
+    config_hash: str
+
+    @staticmethod
+    def start(cfg, uri: str | None, out_dir: Path) -> Tracker:
+        uri = uri or default_tracking_uri()
+        check_reachable(uri)
+        client = _client(uri)
+        exp = _retry(client.get_experiment_by_name, cfg.name)
+        if exp is None:
+            location = None
+            if uri.startswith("sqlite:"):
+                location = (Path(uri.removeprefix("sqlite:///")).parent / "mlruns").resolve().as_uri()
+            exp_id = _retry(client.create_experiment, cfg.name, artifact_location=location)
+        else:
+            exp_id = exp.experiment_id
+        chash = cfg.hash()
+        found = _retry(client.search_runs, [exp_id],
+                       filter_string=f"tags.`{ROLE}` = 'parent' and tags.`{CONFIG_HASH}` = '{chash}'",
+                       order_by=["attributes.start_time DESC"], max_results=1)
+        if found:
+            parent = found[0].info.run_id
+            if found[0].info.status != "FINISHED":
+                _retry(client.update_run, parent, status="RUNNING")
+        else:
+            tags = {ROLE: "parent", CONFIG_HASH: chash, "mlflow.runName": f"{cfg.name}-{chash[:8]}",
+                    "pcpg.git_commit": git_commit(), "pcpg.version": pcpg_dist.__version__,
+                    "pcpg.uv_lock": uv_lock_hash(), "pcpg.output_dir": str(out_dir)}
+            parent = _retry(client.create_run, exp_id, tags=tags).info.run_id
+            _log_params(client, parent, cfg.flat())
+        return Tracker(uri, exp_id, parent, chash)
+
+    def _children(self, env: str) -> list:
+        client = _client(self.uri)
+        return _retry(client.search_runs, [self.experiment_id],
+                      filter_string=f"tags.`mlflow.parentRunId` = '{self.parent_id}' and tags.`pcpg.env` = '{env}'")
+
+    def env_logged(self, env: str, unit_key: str) -> bool:
+        return any(r.info.status == "FINISHED" and r.data.tags.get(UNIT) == unit_key for r in self._children(env))
+
+    def child_info(self, env: str, unit_key: str, cluster_metrics: dict[str, float]) -> dict:
+        return {"uri": self.uri, "experiment_id": self.experiment_id, "parent_id": self.parent_id,
+                "unit_key": unit_key, "config_hash": self.config_hash, "cluster_metrics": cluster_metrics}
+
+    def finish(self, result) -> None:
+        client = _client(self.uri)
+        metrics = {k: v for k, v in result.metrics.items() if v == v}  # drop NaN
+        metrics.update({f"time/{k}_seconds": v for k, v in result.stage_seconds.items()})
+        _log_metrics(client, self.parent_id, metrics)
+        summary = Path(result.out_dir) / "summary"
+        if summary.is_dir():
+            _retry(client.log_artifacts, self.parent_id, str(summary), "summary")
+        _retry(client.set_terminated, self.parent_id, "FINISHED")
+
+    def fail(self) -> None:
+        try:
+            _retry(_client(self.uri).set_terminated, self.parent_id, "KILLED", attempts=2)
+        except Exception:  # noqa: BLE001 - best effort while already failing
+            pass
+
+
+def log_environment(info: dict, env: str, out_dir: str, metrics: dict[str, float],
+                    model_paths: list[str]) -> str:
+    """Worker side: one child run for an environment's results, tables, figures and models."""
+    client = _client(info["uri"])
+    stale = _retry(client.search_runs, [info["experiment_id"]],
+                   filter_string=f"tags.`mlflow.parentRunId` = '{info['parent_id']}' and tags.`pcpg.env` = '{env}'")
+    for run in stale:  # a half-written child of a killed run, or one from other settings
+        _retry(client.delete_run, run.info.run_id)
+    tags = {"mlflow.parentRunId": info["parent_id"], "mlflow.runName": env, "pcpg.env": env,
+            UNIT: info["unit_key"], ROLE: "environment", CONFIG_HASH: info["config_hash"]}
+    run_id = _retry(client.create_run, info["experiment_id"], tags=tags).info.run_id
+    _log_params(client, run_id, {"env": env})
+    _log_metrics(client, run_id, {**info["cluster_metrics"], **metrics})
+    _retry(client.log_artifacts, run_id, out_dir, "evaluation")
+    for path in model_paths:
+        p = Path(path)
+        for f in (p, p.with_suffix(".json")):
+            if f.is_file():
+                _retry(client.log_artifact, run_id, str(f), f"models/{p.parent.name}")
+    _retry(client.set_terminated, run_id, "FINISHED")
+    return run_id
