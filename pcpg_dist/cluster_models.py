@@ -1,0 +1,259 @@
+"""The LSTM sequence autoencoder of Step A, its batching, and the saved cluster model.
+
+Why it looks like this:
+
+- **Batches are built once.** Trajectories are sorted by length and cut into fixed batches, each
+  stored as a ready :class:`~torch.nn.utils.rnn.PackedSequence`. Neighbours in length pad nothing,
+  packing skips the LSTM work of finished sequences, and no Python runs per sample in an epoch;
+  each epoch only shuffles the order of the batches (with a local ``torch.Generator``).
+- **Normalisation** is per state feature (mean / std over all rows of the training data), fitted
+  once and stored with the model, so ``predict`` sees new trajectories on the training scale.
+  Flags such as GridWorld's b1/b2 then weigh as much in the reconstruction as coordinates do.
+- **Encoder** = one LSTM layer; its last hidden state (the state after the trajectory's final
+  step, which packing gives exactly) goes through a linear layer to the latent ``z``.
+  **Decoder** = ``z`` fed at every step to one LSTM layer and a linear read-out: it must rebuild
+  the whole sequence from ``z`` alone, so ``z`` has to summarise the route.
+- **Assignment** is the nearest centroid in the model's feature space for every method: the
+  Student-t soft assignment of DEC is a decreasing function of distance, so its argmax is the
+  nearest centroid too. One saved format therefore serves all three methods.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import pickle  # only for its UnpicklingError: torch.load(weights_only=True) raises it on a corrupt file
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+from torch.nn.utils.rnn import PackedSequence
+
+from pcpg_dist.errors import DataError
+
+FORMAT_VERSION = 1
+CONFIG_FILE = "cluster_model.json"
+WEIGHTS_FILE = "cluster_model.pt"
+
+
+# --------------------------------------------------------------------- input checks and features
+def checked_sequences(dataset, where: str = "clustering") -> tuple[np.ndarray, np.ndarray]:
+    """``(states float32 (rows, d), offsets (n+1,))`` of a dataset, checked for what we rely on.
+
+    The :class:`Dataset` constructor validates too, but its arrays are mutable numpy arrays, so a
+    caller can break them afterwards; a NaN reaching the LSTM would silently poison every weight.
+    """
+    states = np.asarray(dataset.states, dtype=np.float32)
+    offsets = np.asarray(dataset.offsets, dtype=np.int64)
+    n = len(offsets) - 1
+    if n < 1:
+        raise DataError(f"{where}: dataset {dataset.domain}-{dataset.env} has no trajectories")
+    if states.ndim != 2 or states.shape[1] < 1:
+        raise DataError(f"{where}: states must have shape (rows, d>=1), got {states.shape}")
+    if (np.diff(offsets) < 1).any() or offsets[0] != 0 or offsets[-1] != len(states):
+        raise DataError(f"{where}: offsets must rise from 0 to {len(states)}; every trajectory needs a state")
+    bad = ~np.isfinite(states)
+    if bad.any():
+        row = int(np.nonzero(bad.any(axis=1))[0][0])
+        traj = int(np.searchsorted(offsets, row, side="right") - 1)
+        raise DataError(f"{where}: trajectory {traj} (row {row}) has a NaN or infinite state feature")
+    return states, offsets
+
+
+def summary_features(states: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """Per trajectory: [length, final state, mean state] — the cheap baseline's whole view."""
+    lengths = np.diff(offsets)
+    sums = np.add.reduceat(states.astype(np.float64), offsets[:-1], axis=0)
+    final = states[offsets[1:] - 1].astype(np.float64)
+    return np.column_stack([lengths.astype(np.float64), final, sums / lengths[:, None]])
+
+
+def fit_normaliser(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Column mean and std; constant columns get std 1 so they stay finite (and stay zero)."""
+    mean = x.mean(axis=0)
+    std = x.std(axis=0)
+    std = np.where(std > 1e-6, std, 1.0)
+    return mean.astype(np.float32), std.astype(np.float32)
+
+
+# --------------------------------------------------------------------- batching
+@dataclass(frozen=True)
+class PackedBatch:
+    """One fixed batch: its trajectories (dataset positions, longest first) and packed states."""
+
+    index: torch.Tensor  # (B,) positions in the dataset
+    packed: PackedSequence  # normalised states, time-major packed
+    repeat: torch.Tensor  # (rows,) batch slot of every packed row, to feed z at every step
+    lengths: torch.Tensor  # (B,) float lengths, longest first
+
+
+def make_batches(states: np.ndarray, offsets: np.ndarray, batch_size: int) -> list[PackedBatch]:
+    """Sort by length (longest first, ties by position) and pack fixed batches of ``batch_size``."""
+    lengths = np.diff(offsets)
+    order = np.lexsort((np.arange(len(lengths)), -lengths))
+    batches = []
+    for start in range(0, len(order), batch_size):
+        idx = order[start : start + batch_size]
+        lens = lengths[idx]
+        t_max = int(lens[0])
+        # (T, B) mask in C order = time-major, batch slot ascending: exactly PackedSequence layout.
+        t_idx, slot = np.nonzero(np.arange(t_max)[:, None] < lens[None, :])
+        rows = offsets[idx][slot] + t_idx
+        batch_sizes = torch.from_numpy((lens[None, :] > np.arange(t_max)[:, None]).sum(axis=1))
+        data = torch.from_numpy(np.ascontiguousarray(states[rows]))
+        batches.append(PackedBatch(torch.from_numpy(idx.copy()), PackedSequence(data, batch_sizes),
+                                   torch.from_numpy(slot.astype(np.int64)),
+                                   torch.from_numpy(lens.astype(np.float32))))
+    return batches
+
+
+# --------------------------------------------------------------------- network
+class SequenceAutoencoder(nn.Module):
+    """LSTM encoder -> latent z -> LSTM decoder that rebuilds the normalised states from z."""
+
+    def __init__(self, state_dim: int, hidden_size: int, latent_size: int, pooling: str = "last") -> None:
+        super().__init__()
+        if pooling not in ("last", "last_mean"):
+            raise DataError(f"unknown encoder pooling '{pooling}' (expected 'last' or 'last_mean')")
+        self.pooling = pooling
+        self.encoder = nn.LSTM(state_dim, hidden_size)
+        self.to_latent = nn.Linear(hidden_size * (2 if pooling == "last_mean" else 1), latent_size)
+        self.decoder = nn.LSTM(latent_size, hidden_size)
+        self.to_state = nn.Linear(hidden_size, state_dim)
+
+    def reset_parameters(self, generator: torch.Generator) -> None:
+        """PyTorch's default init (uniform +-1/sqrt(fan)), drawn from a local generator.
+
+        ``nn.Module`` initialises from the global RNG; redrawing here keeps the stage free of
+        global random state, so the same seed gives the same model whatever ran before.
+        """
+        with torch.no_grad():
+            for module in (self.encoder, self.decoder):
+                bound = 1.0 / math.sqrt(module.hidden_size)
+                for p in module.parameters():
+                    p.uniform_(-bound, bound, generator=generator)
+            for lin in (self.to_latent, self.to_state):
+                bound = 1.0 / math.sqrt(lin.in_features)
+                lin.weight.uniform_(-bound, bound, generator=generator)
+                lin.bias.uniform_(-bound, bound, generator=generator)
+
+    def encode(self, packed: PackedSequence, batch: PackedBatch | None = None) -> torch.Tensor:
+        """Latent z per sequence: from the last hidden state, or (``last_mean``) the last hidden
+        state beside the mean hidden state over all steps, which sums up where the route went."""
+        out, (h, _) = self.encoder(packed)
+        if self.pooling == "last":
+            return self.to_latent(h[-1])
+        sums = torch.zeros_like(h[-1]).index_add_(0, batch.repeat, out.data)
+        return self.to_latent(torch.cat([h[-1], sums / batch.lengths[:, None]], dim=1))
+
+    def decode(self, z: torch.Tensor, batch: PackedBatch) -> torch.Tensor:
+        """Reconstructed packed data (rows, d), aligned with ``batch.packed.data``."""
+        inp = PackedSequence(z[batch.repeat], batch.packed.batch_sizes)
+        out, _ = self.decoder(inp)
+        return self.to_state(out.data)
+
+
+def encode_all(ae: SequenceAutoencoder, batches: list[PackedBatch], n: int) -> torch.Tensor:
+    """Latents of every trajectory, in dataset order."""
+    z_all = torch.empty(n, ae.to_latent.out_features)
+    with torch.no_grad():
+        for b in batches:
+            z_all[b.index] = ae.encode(b.packed, b)
+    return z_all
+
+
+# --------------------------------------------------------------------- the saved model
+class ClusterModel:
+    """A fitted clusterer: feature pipeline + centroids; assigns trajectories to styles.
+
+    ``method`` is ``lstm_dec`` / ``lstm_kmeans`` (features = encoder latents of normalised states)
+    or ``summary_kmeans`` (features = normalised :func:`summary_features`).
+    """
+
+    def __init__(self, method: str, config: dict, state_dim: int, mean: np.ndarray, std: np.ndarray,
+                 centroids: np.ndarray, autoencoder: SequenceAutoencoder | None,
+                 feature_names: tuple[str, ...] = ()) -> None:
+        self.method = method
+        self.config = dict(config)
+        self.state_dim = int(state_dim)
+        self.mean = np.asarray(mean, np.float32)
+        self.std = np.asarray(std, np.float32)
+        self.centroids = np.asarray(centroids, np.float32)
+        self.autoencoder = autoencoder
+        self.feature_names = tuple(feature_names)
+
+    @property
+    def k(self) -> int:
+        return int(self.centroids.shape[0])
+
+    def features(self, dataset) -> np.ndarray:
+        """The space the centroids live in: latents (LSTM methods) or normalised summaries."""
+        states, offsets = checked_sequences(dataset, where=f"{self.method} model")
+        if states.shape[1] != self.state_dim:
+            raise DataError(f"{self.method} model was fitted on {self.state_dim} state features, "
+                            f"dataset {dataset.domain}-{dataset.env} has {states.shape[1]}")
+        if self.autoencoder is None:
+            return ((summary_features(states, offsets) - self.mean) / self.std).astype(np.float32)
+        norm = (states - self.mean) / self.std
+        batches = make_batches(norm, offsets, int(self.config.get("batch_size", 512)))
+        self.autoencoder.eval()
+        return encode_all(self.autoencoder, batches, len(offsets) - 1).numpy()
+
+    def assign(self, feats: np.ndarray) -> np.ndarray:
+        """Nearest centroid (= argmax of DEC's Student-t assignment); ties go to the lower index."""
+        d2 = ((feats[:, None, :].astype(np.float64) - self.centroids[None].astype(np.float64)) ** 2).sum(-1)
+        return np.argmin(d2, axis=1).astype(np.int64)
+
+    def predict(self, dataset) -> np.ndarray:
+        """Cluster label (0..k-1) of every trajectory of ``dataset``."""
+        return self.assign(self.features(dataset))
+
+    # ------------------------------------------------------------- persistence
+    def save(self, directory: str | Path) -> Path:
+        """Write ``cluster_model.json`` (method, config, shapes) and ``cluster_model.pt`` (tensors)."""
+        directory = Path(directory)
+        directory.mkdir(parents=True, exist_ok=True)
+        tensors = {"mean": torch.from_numpy(self.mean), "std": torch.from_numpy(self.std),
+                   "centroids": torch.from_numpy(self.centroids)}
+        if self.autoencoder is not None:
+            tensors.update({f"ae.{k}": v.detach().clone() for k, v in self.autoencoder.state_dict().items()})
+        torch.save(tensors, directory / WEIGHTS_FILE)
+        meta = {"format_version": FORMAT_VERSION, "method": self.method, "config": self.config,
+                "state_dim": self.state_dim, "k": self.k, "feature_names": list(self.feature_names)}
+        (directory / CONFIG_FILE).write_text(json.dumps(meta, indent=2, sort_keys=True))
+        return directory
+
+
+def load_model(directory: str | Path) -> ClusterModel:
+    """Read a model written by :meth:`ClusterModel.save` (tensors only: ``weights_only=True``)."""
+    directory = Path(directory)
+    cfg_path, w_path = directory / CONFIG_FILE, directory / WEIGHTS_FILE
+    for p in (cfg_path, w_path):
+        if not p.is_file():
+            raise DataError(f"{p}: cluster model file not found (is {directory} a saved cluster model?)")
+    try:
+        meta = json.loads(cfg_path.read_text())
+        method, config, state_dim = meta["method"], meta["config"], int(meta["state_dim"])
+    except (ValueError, KeyError, TypeError) as e:
+        raise DataError(f"{cfg_path}: unreadable cluster model config ({e})") from None
+    if meta.get("format_version") != FORMAT_VERSION:
+        raise DataError(f"{cfg_path}: format_version {meta.get('format_version')}, expected {FORMAT_VERSION}")
+    try:
+        tensors = torch.load(w_path, weights_only=True, map_location="cpu")
+        mean, std, centroids = (tensors[k].numpy() for k in ("mean", "std", "centroids"))
+    except (RuntimeError, KeyError, OSError, EOFError, ValueError, pickle.UnpicklingError) as e:
+        raise DataError(f"{w_path}: unreadable cluster model weights ({e})") from None
+    ae = None
+    if method in ("lstm_dec", "lstm_kmeans"):
+        try:
+            ae = SequenceAutoencoder(state_dim, int(config["hidden_size"]), int(config["latent_size"]),
+                                     str(config.get("pooling", "last")))
+            ae.load_state_dict({k[3:]: v for k, v in tensors.items() if k.startswith("ae.")})
+        except (KeyError, RuntimeError) as e:
+            raise DataError(f"{w_path}: weights do not fit a {method} model ({e})") from None
+    elif method != "summary_kmeans":
+        raise DataError(f"{cfg_path}: unknown clustering method '{method}'")
+    return ClusterModel(method, config, state_dim, mean, std, centroids, ae,
+                        tuple(meta.get("feature_names") or ()))
