@@ -34,7 +34,8 @@ def _cmd_run(args: argparse.Namespace) -> None:
     cfg = load_config(args.config)
     init_ray(args.ray_address)
     result = run_experiment(cfg, workdir=Path(args.workdir), tracking_uri=args.tracking_uri,
-                            track=not args.no_tracking, show_progress=not args.quiet)
+                            track=not args.no_tracking, show_progress=not args.quiet,
+                            command=" ".join(["pcpg", *sys.argv[1:]]))
     print_summary(result, console)
     if result.parent_run_id:
         console.print(f"MLflow parent run: {result.parent_run_id}  (view: uv run mlflow ui "
@@ -42,6 +43,16 @@ def _cmd_run(args: argparse.Namespace) -> None:
     console.print(f"outputs: {result.out_dir}/summary")
     if getattr(result, "report", None):
         console.print(f"report: {result.report}")
+
+
+def _cmd_report(args: argparse.Namespace) -> None:
+    from pcpg_dist.progress import console
+    from pcpg_dist.report import render, resolve_summary
+
+    summary, run_id = resolve_summary(args.target, args.tracking_uri, Path(args.workdir))
+    out = Path(args.out) if args.out else summary.parent / "report"
+    html_path, md_path = render(summary, out)
+    console.print(f"report: {html_path}\nmarkdown: {md_path}")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -68,6 +79,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-tracking", action="store_true", help="do not log to MLflow")
     common(p)
     p.set_defaults(func=_cmd_run)
+
+    p = sub.add_parser("report", help="write the reproducibility report of a sweep (HTML + Markdown)")
+    p.add_argument("target", help="MLflow run id, experiment name, or a run's output folder (runs/NAME)")
+    p.add_argument("--out", default=None, help="folder for report.html/report.md (default: beside the summary)")
+    p.add_argument("--workdir", default="runs", help="where downloaded artifacts are kept")
+    p.add_argument("--tracking-uri", default=None, help="MLflow tracking URI (default: as for run)")
+    p.set_defaults(func=_cmd_report)
     return parser
 
 

@@ -38,6 +38,21 @@ class RunResult:
     stage_seconds: dict[str, float] = field(default_factory=dict)
     parent_run_id: str | None = None
     computed: dict[str, int] = field(default_factory=dict)
+    report: Path | None = None
+
+
+def _collect_agents(target: Path, models: dict[str, list[Path]]) -> Path:
+    """``target/<env>/<group>.pt|.json``: every trained cell of the sweep, for the pyfunc model."""
+    import shutil
+
+    if target.exists():
+        shutil.rmtree(target)
+    for env, paths in models.items():
+        (target / env).mkdir(parents=True)
+        for i, p in enumerate(paths):
+            for suffix in (".pt", ".json"):
+                shutil.copyfile(p.with_suffix(suffix), target / env / f"group{i:03d}{suffix}")
+    return target
 
 
 # --------------------------------------------------------------------------- domains
@@ -123,7 +138,7 @@ def evaluate_task(dataset: Dataset, labels: np.ndarray, test_idx: np.ndarray, mo
 
 # --------------------------------------------------------------------------- the run
 def run_experiment(cfg: ExperimentConfig, workdir: Path = Path("runs"), tracking_uri: str | None = None,
-                   track: bool = True, show_progress: bool = True) -> RunResult:
+                   track: bool = True, show_progress: bool = True, command: str = "") -> RunResult:
     """Run (or resume) a whole experiment; Ray must be initialised by the caller."""
     from pcpg_dist.bc import TrainedCells  # noqa: F401 - import torch once in the driver
     from pcpg_dist.ranking import plan_cells, split_trajectories
@@ -228,12 +243,22 @@ def run_experiment(cfg: ExperimentConfig, workdir: Path = Path("runs"), tracking
 
         metrics = write_summary(cfg, out, {e: cache.path("evaluate", ekeys[e]) for e in envs}, per_env,
                                 {e: clusters[e]["metrics"] for e in envs})
+        agents = _collect_agents(out / "agents", {e: [cache.path("train", k) / "cells" for ge, k, _ in groups
+                                                      if ge == e] for e in envs})
         times["summary"] = time.perf_counter() - t0
         result = RunResult(out_dir=out, metrics=metrics, clustering={e: clusters[e]["metrics"] for e in envs},
-                           stage_seconds=times, computed=computed)
+                           stage_seconds=times, computed=computed,
+                           parent_run_id=tracker.parent_id if tracker else None)
+        from pcpg_dist.provenance import provenance
+        from pcpg_dist.report import render
+
+        run_info = {"config": cfg.model_dump(mode="json"), "config_hash": cfg.hash(), "command": command
+                    or f"pcpg run <config of {cfg.name}>", "provenance": provenance(), "stage_seconds": times,
+                    "parent_run_id": result.parent_run_id, "computed": computed}
+        atomic_write_bytes(out / "summary" / "run.json", json.dumps(run_info, indent=1, default=str).encode())
+        result.report = render(out / "summary", out / "report")[0]
         if tracker is not None:
-            tracker.finish(result)
-            result.parent_run_id = tracker.parent_id
+            tracker.finish(result, agents_dir=agents, report_dir=out / "report")
         return result
     except BaseException:
         if tracker is not None:

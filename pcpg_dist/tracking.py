@@ -137,7 +137,7 @@ class Tracker:
         return {"uri": self.uri, "experiment_id": self.experiment_id, "parent_id": self.parent_id,
                 "unit_key": unit_key, "config_hash": self.config_hash, "cluster_metrics": cluster_metrics}
 
-    def finish(self, result) -> None:
+    def finish(self, result, agents_dir: Path | None = None, report_dir: Path | None = None) -> None:
         client = _client(self.uri)
         metrics = {k: v for k, v in result.metrics.items() if v == v}  # drop NaN
         metrics.update({f"time/{k}_seconds": v for k, v in result.stage_seconds.items()})
@@ -145,7 +145,28 @@ class Tracker:
         summary = Path(result.out_dir) / "summary"
         if summary.is_dir():
             _retry(client.log_artifacts, self.parent_id, str(summary), "summary")
+        if report_dir is not None and report_dir.is_dir():
+            _retry(client.log_artifacts, self.parent_id, str(report_dir), "report")
+        if agents_dir is not None and not self._has_agents(client):
+            self._log_agents(agents_dir)
         _retry(client.set_terminated, self.parent_id, "FINISHED")
+
+    def _has_agents(self, client) -> bool:
+        return any(a.path == "agents_logged" for a in client.list_artifacts(self.parent_id))
+
+    def _log_agents(self, agents_dir: Path) -> None:
+        """The sweep's agents as one pyfunc model (driver only: log_model needs the fluent API)."""
+        import mlflow
+
+        import pcpg_dist.agent_model as agent_model
+
+        mlflow.set_tracking_uri(self.uri)
+        with mlflow.start_run(run_id=self.parent_id):
+            mlflow.pyfunc.log_model(
+                name="agents", python_model=agent_model.__file__, artifacts={"agents": str(agents_dir)},
+                code_paths=[str(Path(pcpg_dist.__file__).parent)],
+                pip_requirements=["torch", "numpy", "pandas", "mlflow"])
+            mlflow.log_text("yes", "agents_logged")
 
     def fail(self) -> None:
         try:
