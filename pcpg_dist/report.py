@@ -37,6 +37,8 @@ def _tables(folder: Path) -> list[tuple[str, pd.DataFrame]]:
     for csv in sorted(folder.glob("*.csv")):
         try:
             out.append((csv.stem, pd.read_csv(csv)))
+        except pd.errors.EmptyDataError:
+            continue  # an empty table (e.g. no rollouts for this setting) has nothing to show
         except (OSError, ValueError, pd.errors.ParserError) as e:
             raise DataError(f"{csv}: unreadable table ({e})") from None
     return out

@@ -1,0 +1,152 @@
+"""`pcpg run` end to end on a tiny config: results, MLflow runs, resume without recomputation,
+no duplicate runs, the report and the pyfunc agents."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from pcpg_dist.config import load_config
+from pcpg_dist.runner import run_experiment
+
+ROOT = Path(__file__).resolve().parent.parent
+
+TINY = {
+    "name": "tiny", "seed": 1, "seeds": [0, 1],
+    "gridworld": {"layout_dir": str(ROOT / "experiments" / "gridworlds"), "environments": ["E1"]},
+    "pbtg": {"episodes": 20000, "trajectories_per_style": 200, "dataset_per_style": 100},
+    "clustering": {"k": 4, "pretrain_epochs": 6, "dec_epochs": 3},
+    "ranking": {"ps": [1.0, 0.5]},
+    "bc": {"epochs": 300, "hidden_size": 16},
+    "evaluation": {"rollouts_per_policy": 10, "corruption_levels": [0.0, 1.0], "figures": True},
+}
+
+
+def results_only(metrics: dict[str, float]) -> dict[str, float]:
+    """Metrics without wall-clock timings, which differ between any two runs."""
+    return {k: v for k, v in metrics.items() if "seconds" not in k}
+
+
+@pytest.fixture(scope="module")
+def tiny_cfg(tmp_path_factory):
+    path = tmp_path_factory.mktemp("cfg") / "tiny.yaml"
+    path.write_text(yaml.safe_dump(TINY))
+    return load_config(path)
+
+
+@pytest.fixture(scope="module")
+def first_run(ray_session, tiny_cfg, tmp_path_factory):
+    work = tmp_path_factory.mktemp("work")
+    uri = f"sqlite:///{work / 'mlflow.db'}"
+    result = run_experiment(tiny_cfg, workdir=work / "runs", tracking_uri=uri, show_progress=False,
+                            command="pcpg run tiny.yaml")
+    return work, uri, result
+
+
+@pytest.mark.slow
+def test_run_produces_metrics_tables_figures(first_run):
+    work, uri, result = first_run
+    m = result.metrics
+    assert m["clustering/accuracy"] > 0.6
+    for p in ("1", "0.5"):
+        assert m[f"pcpg/accuracy/p{p}"] > m["random/accuracy"] + 0.2
+    summary = result.out_dir / "summary"
+    for name in ("metrics.json", "accuracy_vs_p.csv", "accuracy_vs_p.png", "clustering.csv", "run.json"):
+        assert (summary / name).is_file(), name
+    assert list((summary / "E1").glob("*.png")) and list((summary / "E1").glob("*.csv"))
+    assert result.computed == {"clustering": 1, "train_groups": 1, "evaluations": 1}
+
+
+@pytest.mark.slow
+def test_mlflow_runs_metrics_artifacts_and_agents(first_run):
+    import mlflow
+    import pandas as pd
+    from mlflow import MlflowClient
+
+    work, uri, result = first_run
+    client = MlflowClient(uri)
+    exp = client.get_experiment_by_name("tiny")
+    parents = client.search_runs([exp.experiment_id], filter_string="tags.`pcpg.role` = 'parent'")
+    assert len(parents) == 1 and parents[0].info.status == "FINISHED"
+    parent = parents[0]
+    assert parent.data.params["bc.hidden_size"] == "16"
+    assert {"pcpg.git_commit", "pcpg.config_hash", "pcpg.version"} <= set(parent.data.tags)
+    assert parent.data.metrics["pcpg/accuracy/p0.5"] == pytest.approx(result.metrics["pcpg/accuracy/p0.5"])
+    children = client.search_runs([exp.experiment_id],
+                                  filter_string=f"tags.`mlflow.parentRunId` = '{parent.info.run_id}'")
+    assert [c.data.tags["pcpg.env"] for c in children] == ["E1"]
+    child = children[0]
+    assert child.info.status == "FINISHED" and "clustering/ari" in child.data.metrics
+    assert any(a.path == "evaluation" for a in client.list_artifacts(child.info.run_id))
+    assert {a.path for a in client.list_artifacts(parent.info.run_id)} >= {"summary", "report"}
+    mlflow.set_tracking_uri(uri)
+    agents = mlflow.pyfunc.load_model(f"runs:/{parent.info.run_id}/agents")
+    df = pd.DataFrame({"style": [0, 1], "p": [1.0, 0.5], "s0": [1, 1], "s1": [1, 1], "s2": [0, 0],
+                       "s3": [0, 0], "valid": [0b0110, 0b0110]})
+    actions = agents.predict(df)
+    assert set(actions) <= {1, 2}  # only valid actions (right, down) are ever chosen
+
+
+@pytest.mark.slow
+def test_rerun_recomputes_nothing_and_duplicates_nothing(first_run, tiny_cfg):
+    from mlflow import MlflowClient
+
+    work, uri, result = first_run
+    again = run_experiment(tiny_cfg, workdir=work / "runs", tracking_uri=uri, show_progress=False)
+    assert again.computed == {"clustering": 0, "train_groups": 0, "evaluations": 0}
+    assert again.metrics == result.metrics
+    client = MlflowClient(uri)
+    exp = client.get_experiment_by_name("tiny")
+    assert len(client.search_runs([exp.experiment_id])) == 2  # one parent, one child
+
+
+@pytest.mark.slow
+def test_interrupted_sweep_resumes_with_same_metrics(first_run, tiny_cfg, monkeypatch):
+    """Kill the sweep inside evaluation (after training finished); the rerun resumes from there."""
+    import pcpg_dist.runner as runner
+    from mlflow import MlflowClient
+
+    work, uri, result = first_run
+    uri2 = f"sqlite:///{work / 'mlflow2.db'}"
+    real = runner.evaluate_task
+
+    def dying(*args, **kwargs):
+        raise KeyboardInterrupt("simulated Ctrl-C")
+
+    monkeypatch.setattr(runner, "evaluate_task", dying)
+    with pytest.raises(BaseException):
+        run_experiment(tiny_cfg, workdir=work / "runs2", tracking_uri=uri2, show_progress=False)
+    monkeypatch.setattr(runner, "evaluate_task", real)
+    client = MlflowClient(uri2)
+    exp = client.get_experiment_by_name("tiny")
+    assert [r.info.status for r in client.search_runs([exp.experiment_id])] == ["KILLED"]
+    resumed = run_experiment(tiny_cfg, workdir=work / "runs2", tracking_uri=uri2, show_progress=False)
+    assert resumed.computed["clustering"] == 0 and resumed.computed["train_groups"] == 0
+    assert resumed.computed["evaluations"] == 1
+    assert results_only(resumed.metrics) == results_only(result.metrics)  # same numbers as uninterrupted
+    runs = client.search_runs([exp.experiment_id])
+    assert sorted(r.info.status for r in runs) == ["FINISHED", "FINISHED"]
+
+
+@pytest.mark.slow
+def test_report_renders_everything(first_run, tmp_path):
+    from pcpg_dist.cli import main
+
+    work, uri, result = first_run
+    assert main(["report", "tiny", "--tracking-uri", uri, "--workdir", str(tmp_path),
+                 "--out", str(tmp_path / "rep")]) == 0
+    html = (tmp_path / "rep" / "report.html").read_text()
+    md = (tmp_path / "rep" / "report.md").read_text()
+    run = json.loads((result.out_dir / "summary" / "run.json").read_text())
+    for text in (html, md):
+        assert run["provenance"]["git_commit"] in text and run["provenance"]["uv_lock"] in text
+        assert "pcpg run tiny.yaml" in text and "0.57 / 0.64 / 0.63 / 0.69" in text
+        assert "accuracy_vs_p" in text and "Wall time per stage" in text
+    assert html.count("data:image/png;base64,") >= 3
+    acc = f"{result.metrics['clustering/accuracy']:.4g}"
+    assert acc in md
+    assert np.isfinite(result.metrics["cross/diagonal_mean"])
