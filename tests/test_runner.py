@@ -144,7 +144,7 @@ def test_report_renders_everything(first_run, tmp_path):
     run = json.loads((result.out_dir / "summary" / "run.json").read_text())
     for text in (html, md):
         assert run["provenance"]["git_commit"] in text and run["provenance"]["uv_lock"] in text
-        assert "pcpg run tiny.yaml" in text and "0.57 / 0.64 / 0.63 / 0.69" in text
+        assert run["command"] in text and "0.57 / 0.64 / 0.63 / 0.69" in text
         assert "accuracy_vs_p" in text and "Wall time per stage" in text
     assert html.count("data:image/png;base64,") >= 3
     acc = f"{result.metrics['clustering/accuracy']:.4g}"
