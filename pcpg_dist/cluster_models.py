@@ -53,12 +53,16 @@ def checked_sequences(dataset, where: str = "clustering") -> tuple[np.ndarray, n
     if states.ndim != 2 or states.shape[1] < 1:
         raise DataError(f"{where}: states must have shape (rows, d>=1), got {states.shape}")
     if (np.diff(offsets) < 1).any() or offsets[0] != 0 or offsets[-1] != len(states):
-        raise DataError(f"{where}: offsets must rise from 0 to {len(states)}; every trajectory needs a state")
+        raise DataError(
+            f"{where}: offsets must rise from 0 to {len(states)}; every trajectory needs a state"
+        )
     bad = ~np.isfinite(states)
     if bad.any():
         row = int(np.nonzero(bad.any(axis=1))[0][0])
         traj = int(np.searchsorted(offsets, row, side="right") - 1)
-        raise DataError(f"{where}: trajectory {traj} (row {row}) has a NaN or infinite state feature")
+        raise DataError(
+            f"{where}: trajectory {traj} (row {row}) has a NaN or infinite state feature"
+        )
     return states, offsets
 
 
@@ -103,9 +107,14 @@ def make_batches(states: np.ndarray, offsets: np.ndarray, batch_size: int) -> li
         rows = offsets[idx][slot] + t_idx
         batch_sizes = torch.from_numpy((lens[None, :] > np.arange(t_max)[:, None]).sum(axis=1))
         data = torch.from_numpy(np.ascontiguousarray(states[rows]))
-        batches.append(PackedBatch(torch.from_numpy(idx.copy()), PackedSequence(data, batch_sizes),
-                                   torch.from_numpy(slot.astype(np.int64)),
-                                   torch.from_numpy(lens.astype(np.float32))))
+        batches.append(
+            PackedBatch(
+                torch.from_numpy(idx.copy()),
+                PackedSequence(data, batch_sizes),
+                torch.from_numpy(slot.astype(np.int64)),
+                torch.from_numpy(lens.astype(np.float32)),
+            )
+        )
     return batches
 
 
@@ -113,7 +122,9 @@ def make_batches(states: np.ndarray, offsets: np.ndarray, batch_size: int) -> li
 class SequenceAutoencoder(nn.Module):
     """LSTM encoder -> latent z -> LSTM decoder that rebuilds the normalised states from z."""
 
-    def __init__(self, state_dim: int, hidden_size: int, latent_size: int, pooling: str = "last") -> None:
+    def __init__(
+        self, state_dim: int, hidden_size: int, latent_size: int, pooling: str = "last"
+    ) -> None:
         super().__init__()
         if pooling not in ("last", "last_mean"):
             raise DataError(f"unknown encoder pooling '{pooling}' (expected 'last' or 'last_mean')")
@@ -172,9 +183,17 @@ class ClusterModel:
     or ``summary_kmeans`` (features = normalised :func:`summary_features`).
     """
 
-    def __init__(self, method: str, config: dict, state_dim: int, mean: np.ndarray, std: np.ndarray,
-                 centroids: np.ndarray, autoencoder: SequenceAutoencoder | None,
-                 feature_names: tuple[str, ...] = ()) -> None:
+    def __init__(
+        self,
+        method: str,
+        config: dict,
+        state_dim: int,
+        mean: np.ndarray,
+        std: np.ndarray,
+        centroids: np.ndarray,
+        autoencoder: SequenceAutoencoder | None,
+        feature_names: tuple[str, ...] = (),
+    ) -> None:
         self.method = method
         self.config = dict(config)
         self.state_dim = int(state_dim)
@@ -192,8 +211,10 @@ class ClusterModel:
         """The space the centroids live in: latents (LSTM methods) or normalised summaries."""
         states, offsets = checked_sequences(dataset, where=f"{self.method} model")
         if states.shape[1] != self.state_dim:
-            raise DataError(f"{self.method} model was fitted on {self.state_dim} state features, "
-                            f"dataset {dataset.domain}-{dataset.env} has {states.shape[1]}")
+            raise DataError(
+                f"{self.method} model was fitted on {self.state_dim} state features, "
+                f"dataset {dataset.domain}-{dataset.env} has {states.shape[1]}"
+            )
         if self.autoencoder is None:
             return ((summary_features(states, offsets) - self.mean) / self.std).astype(np.float32)
         norm = (states - self.mean) / self.std
@@ -203,7 +224,9 @@ class ClusterModel:
 
     def assign(self, feats: np.ndarray) -> np.ndarray:
         """Nearest centroid (= argmax of DEC's Student-t assignment); ties go to the lower index."""
-        d2 = ((feats[:, None, :].astype(np.float64) - self.centroids[None].astype(np.float64)) ** 2).sum(-1)
+        d2 = (
+            (feats[:, None, :].astype(np.float64) - self.centroids[None].astype(np.float64)) ** 2
+        ).sum(-1)
         return np.argmin(d2, axis=1).astype(np.int64)
 
     def predict(self, dataset) -> np.ndarray:
@@ -215,13 +238,24 @@ class ClusterModel:
         """Write ``cluster_model.json`` (method, config, shapes) and ``cluster_model.pt`` (tensors)."""
         directory = Path(directory)
         directory.mkdir(parents=True, exist_ok=True)
-        tensors = {"mean": torch.from_numpy(self.mean), "std": torch.from_numpy(self.std),
-                   "centroids": torch.from_numpy(self.centroids)}
+        tensors = {
+            "mean": torch.from_numpy(self.mean),
+            "std": torch.from_numpy(self.std),
+            "centroids": torch.from_numpy(self.centroids),
+        }
         if self.autoencoder is not None:
-            tensors.update({f"ae.{k}": v.detach().clone() for k, v in self.autoencoder.state_dict().items()})
+            tensors.update(
+                {f"ae.{k}": v.detach().clone() for k, v in self.autoencoder.state_dict().items()}
+            )
         torch.save(tensors, directory / WEIGHTS_FILE)
-        meta = {"format_version": FORMAT_VERSION, "method": self.method, "config": self.config,
-                "state_dim": self.state_dim, "k": self.k, "feature_names": list(self.feature_names)}
+        meta = {
+            "format_version": FORMAT_VERSION,
+            "method": self.method,
+            "config": self.config,
+            "state_dim": self.state_dim,
+            "k": self.k,
+            "feature_names": list(self.feature_names),
+        }
         (directory / CONFIG_FILE).write_text(json.dumps(meta, indent=2, sort_keys=True))
         return directory
 
@@ -232,14 +266,18 @@ def load_model(directory: str | Path) -> ClusterModel:
     cfg_path, w_path = directory / CONFIG_FILE, directory / WEIGHTS_FILE
     for p in (cfg_path, w_path):
         if not p.is_file():
-            raise DataError(f"{p}: cluster model file not found (is {directory} a saved cluster model?)")
+            raise DataError(
+                f"{p}: cluster model file not found (is {directory} a saved cluster model?)"
+            )
     try:
         meta = json.loads(cfg_path.read_text())
         method, config, state_dim = meta["method"], meta["config"], int(meta["state_dim"])
     except (ValueError, KeyError, TypeError) as e:
         raise DataError(f"{cfg_path}: unreadable cluster model config ({e})") from None
     if meta.get("format_version") != FORMAT_VERSION:
-        raise DataError(f"{cfg_path}: format_version {meta.get('format_version')}, expected {FORMAT_VERSION}")
+        raise DataError(
+            f"{cfg_path}: format_version {meta.get('format_version')}, expected {FORMAT_VERSION}"
+        )
     try:
         tensors = torch.load(w_path, weights_only=True, map_location="cpu")
         mean, std, centroids = (tensors[k].numpy() for k in ("mean", "std", "centroids"))
@@ -248,12 +286,17 @@ def load_model(directory: str | Path) -> ClusterModel:
     ae = None
     if method in ("lstm_dec", "lstm_kmeans"):
         try:
-            ae = SequenceAutoencoder(state_dim, int(config["hidden_size"]), int(config["latent_size"]),
-                                     str(config.get("pooling", "last")))
+            ae = SequenceAutoencoder(
+                state_dim,
+                int(config["hidden_size"]),
+                int(config["latent_size"]),
+                str(config.get("pooling", "last")),
+            )
             ae.load_state_dict({k[3:]: v for k, v in tensors.items() if k.startswith("ae.")})
         except (KeyError, RuntimeError) as e:
             raise DataError(f"{w_path}: weights do not fit a {method} model ({e})") from None
     elif method != "summary_kmeans":
         raise DataError(f"{cfg_path}: unknown clustering method '{method}'")
-    return ClusterModel(method, config, state_dim, mean, std, centroids, ae,
-                        tuple(meta.get("feature_names") or ()))
+    return ClusterModel(
+        method, config, state_dim, mean, std, centroids, ae, tuple(meta.get("feature_names") or ())
+    )

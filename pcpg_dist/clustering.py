@@ -42,35 +42,79 @@ from pcpg_dist.cluster_models import (
 from pcpg_dist.errors import DataError
 from pcpg_dist.schema import StrictModel
 
-__all__ = ["ClusterConfig", "Clustering", "ClusterModel", "cluster", "clustering_metrics",
-           "cluster_sizes", "hungarian_mapping", "load_model"]
+__all__ = [
+    "ClusterConfig",
+    "Clustering",
+    "ClusterModel",
+    "cluster",
+    "clustering_metrics",
+    "cluster_sizes",
+    "hungarian_mapping",
+    "load_model",
+]
 
 
 class ClusterConfig(StrictModel):
     """Step A settings. Defaults meet the GridWorld targets (see docs/clustering.md)."""
 
     method: Literal["lstm_dec", "lstm_kmeans", "summary_kmeans"] = Field(
-        "lstm_dec", description="lstm_dec: autoencoder + DEC loss (the paper); lstm_kmeans: k-means on "
-        "pretrained latents; summary_kmeans: k-means on length, final and mean state.")
+        "lstm_dec",
+        description="lstm_dec: autoencoder + DEC loss (the paper); lstm_kmeans: k-means on "
+        "pretrained latents; summary_kmeans: k-means on length, final and mean state.",
+    )
     k: int = Field(4, ge=1, le=1000, description="Number of clusters (play-styles).")
-    hidden_size: int = Field(32, ge=1, le=1024, description="LSTM hidden units of encoder and decoder.")
+    hidden_size: int = Field(
+        32, ge=1, le=1024, description="LSTM hidden units of encoder and decoder."
+    )
     latent_size: int = Field(8, ge=1, le=512, description="Size of the latent trajectory code z.")
-    pooling: Literal["last", "last_mean"] = Field("last", description="Encoder summary: the last "
-        "hidden state, or the last beside the mean hidden state over all steps.")
-    pretrain_epochs: int = Field(12, ge=0, le=10_000, description="Epochs on reconstruction loss alone.")
-    dec_epochs: int = Field(8, ge=0, le=10_000, description="Epochs on reconstruction + clustering loss "
-                            "(lstm_dec only); the target distribution is refreshed every epoch.")
-    cluster_weight: float = Field(0.1, ge=0.0, le=1e4, description="Weight of the DEC KL term against "
-                                  "the reconstruction MSE (IDEC's gamma).")
-    alpha: float = Field(1.0, gt=0.0, le=1e3, description="Degrees of freedom of the Student-t kernel.")
-    batch_size: int = Field(256, ge=1, le=1_000_000, description="Trajectories per batch (batches are "
-                            "cut from trajectories sorted by length).")
+    pooling: Literal["last", "last_mean"] = Field(
+        "last",
+        description="Encoder summary: the last "
+        "hidden state, or the last beside the mean hidden state over all steps.",
+    )
+    pretrain_epochs: int = Field(
+        25, ge=0, le=10_000, description="Epochs on reconstruction loss alone."
+    )
+    dec_epochs: int = Field(
+        8,
+        ge=0,
+        le=10_000,
+        description="Epochs on reconstruction + clustering loss "
+        "(lstm_dec only); the target distribution is refreshed every epoch.",
+    )
+    cluster_weight: float = Field(
+        0.1,
+        ge=0.0,
+        le=1e4,
+        description="Weight of the DEC KL term against the reconstruction MSE (IDEC's gamma).",
+    )
+    alpha: float = Field(
+        1.0, gt=0.0, le=1e3, description="Degrees of freedom of the Student-t kernel."
+    )
+    batch_size: int = Field(
+        256,
+        ge=1,
+        le=1_000_000,
+        description="Trajectories per batch (batches are cut from trajectories sorted by length).",
+    )
     lr: float = Field(3e-3, gt=0.0, le=1.0, description="Adam learning rate.")
-    dec_tol: float = Field(0.001, ge=0.0, le=1.0, description="Stop DEC early once fewer than this "
-                           "fraction of labels change between epochs (0 = run all dec_epochs).")
-    kmeans_n_init: int = Field(10, ge=1, le=1000, description="k-means restarts (best inertia kept).")
-    silhouette_sample: int = Field(4000, ge=2, le=1_000_000, description="At most this many points "
-                                   "(seeded sample) for the silhouette score, which is O(n^2).")
+    dec_tol: float = Field(
+        0.001,
+        ge=0.0,
+        le=1.0,
+        description="Stop DEC early once fewer than this "
+        "fraction of labels change between epochs (0 = run all dec_epochs).",
+    )
+    kmeans_n_init: int = Field(
+        10, ge=1, le=1000, description="k-means restarts (best inertia kept)."
+    )
+    silhouette_sample: int = Field(
+        4000,
+        ge=2,
+        le=1_000_000,
+        description="At most this many points "
+        "(seeded sample) for the silhouette score, which is O(n^2).",
+    )
 
 
 @dataclass(frozen=True)
@@ -109,8 +153,13 @@ def _target(q: torch.Tensor) -> torch.Tensor:
     return w / w.sum(dim=1, keepdim=True)
 
 
-def _fit_lstm(states: np.ndarray, offsets: np.ndarray, cfg: ClusterConfig, seed: int,
-              metrics: dict[str, float]) -> tuple[SequenceAutoencoder, np.ndarray, np.ndarray, np.ndarray]:
+def _fit_lstm(
+    states: np.ndarray,
+    offsets: np.ndarray,
+    cfg: ClusterConfig,
+    seed: int,
+    metrics: dict[str, float],
+) -> tuple[SequenceAutoencoder, np.ndarray, np.ndarray, np.ndarray]:
     """Pretrain the autoencoder, init centroids by k-means, and (lstm_dec) run joint DEC training.
 
     Returns the autoencoder, normaliser (mean, std) and centroids.
@@ -147,11 +196,17 @@ def _fit_lstm(states: np.ndarray, offsets: np.ndarray, cfg: ClusterConfig, seed:
     ae.train()
     mu = torch.nn.Parameter(torch.from_numpy(centroids.copy()))
     opt = torch.optim.Adam([*ae.parameters(), mu], lr=cfg.lr)
-    labels = _student_t(z, mu.detach(), cfg.alpha).argmax(1)
+    labels = torch.empty(0, dtype=torch.long)
     epochs_run = 0
-    for _ in range(cfg.dec_epochs):
+    for epoch in range(cfg.dec_epochs):
+        # One pass gives both the new target and the stopping test (as in DEC): the labels of the
+        # weights at the start of this epoch against those at the start of the previous one.
         with torch.no_grad():
-            p_all = _target(_student_t(encode_all(ae, batches, n), mu, cfg.alpha))
+            q_all = _student_t(encode_all(ae, batches, n), mu, cfg.alpha)
+        new = q_all.argmax(1)
+        if epoch > 0 and float((new != labels).float().mean()) < cfg.dec_tol:
+            break
+        labels, p_all = new, _target(q_all)
         total_r, total_c = 0.0, 0.0
         for bi in torch.randperm(len(batches), generator=gen).tolist():
             b = batches[bi]
@@ -168,12 +223,6 @@ def _fit_lstm(states: np.ndarray, offsets: np.ndarray, cfg: ClusterConfig, seed:
             total_c += c_loss.item() * len(b.index)
         epochs_run += 1
         metrics["dec_recon_mse"], metrics["dec_kl"] = total_r / n, total_c / n
-        with torch.no_grad():
-            new = _student_t(encode_all(ae, batches, n), mu, cfg.alpha).argmax(1)
-        changed = float((new != labels).float().mean())
-        labels = new
-        if changed < cfg.dec_tol:
-            break
     metrics["dec_epochs_run"] = float(epochs_run)
     return ae, mean, std, mu.detach().numpy().copy()
 
@@ -188,8 +237,10 @@ def cluster(dataset, cfg: ClusterConfig, seed: int) -> Clustering:
     states, offsets = checked_sequences(dataset)
     n = len(offsets) - 1
     if n < cfg.k:
-        raise DataError(f"clustering: {n} trajectories in {dataset.domain}-{dataset.env}, "
-                        f"fewer than k={cfg.k} clusters")
+        raise DataError(
+            f"clustering: {n} trajectories in {dataset.domain}-{dataset.env}, "
+            f"fewer than k={cfg.k} clusters"
+        )
     metrics: dict[str, float] = {}
     config = cfg.model_dump()
     if cfg.method == "summary_kmeans":
@@ -197,8 +248,16 @@ def cluster(dataset, cfg: ClusterConfig, seed: int) -> Clustering:
         mean, std = fit_normaliser(feats)
         norm = ((feats - mean) / std).astype(np.float32)
         centroids = _kmeans(norm, cfg.k, seed, cfg.kmeans_n_init)
-        model = ClusterModel(cfg.method, config, states.shape[1], mean, std, centroids, None,
-                             tuple(dataset.feature_names))
+        model = ClusterModel(
+            cfg.method,
+            config,
+            states.shape[1],
+            mean,
+            std,
+            centroids,
+            None,
+            tuple(dataset.feature_names),
+        )
         latents = norm
     else:
         # Torch's global RNG is untouched (local generator); fork it anyway so nothing inside
@@ -206,30 +265,53 @@ def cluster(dataset, cfg: ClusterConfig, seed: int) -> Clustering:
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(seed)
             ae, mean, std, centroids = _fit_lstm(states, offsets, cfg, seed, metrics)
-        model = ClusterModel(cfg.method, config, states.shape[1], mean, std, centroids, ae,
-                             tuple(dataset.feature_names))
+        model = ClusterModel(
+            cfg.method,
+            config,
+            states.shape[1],
+            mean,
+            std,
+            centroids,
+            ae,
+            tuple(dataset.feature_names),
+        )
         latents = model.features(dataset)
     labels = model.assign(latents)
     metrics.update(_label_free_metrics(latents, labels, cfg.k, cfg.silhouette_sample, seed))
-    return Clustering(labels=labels, latents=latents, metrics=metrics, model=model,
-                      fit_seconds=time.perf_counter() - start)
+    return Clustering(
+        labels=labels,
+        latents=latents,
+        metrics=metrics,
+        model=model,
+        fit_seconds=time.perf_counter() - start,
+    )
 
 
 # --------------------------------------------------------------------- metrics
 def cluster_sizes(pred: np.ndarray, k: int) -> np.ndarray:
     """Trajectories per cluster 0..k-1."""
-    return np.bincount(np.asarray(pred, np.int64), minlength=k)[:max(k, 0)] if len(pred) else np.zeros(k, np.int64)
+    return (
+        np.bincount(np.asarray(pred, np.int64), minlength=k)[: max(k, 0)]
+        if len(pred)
+        else np.zeros(k, np.int64)
+    )
 
 
-def _label_free_metrics(latents: np.ndarray, labels: np.ndarray, k: int, sample: int,
-                        seed: int) -> dict[str, float]:
+def _label_free_metrics(
+    latents: np.ndarray, labels: np.ndarray, k: int, sample: int, seed: int
+) -> dict[str, float]:
     sizes = cluster_sizes(labels, k)
-    out = {"n_clusters_used": float((sizes > 0).sum()),
-           "size_min_frac": float(sizes.min() / len(labels)),
-           "size_max_frac": float(sizes.max() / len(labels))}
+    out = {
+        "n_clusters_used": float((sizes > 0).sum()),
+        "size_min_frac": float(sizes.min() / len(labels)),
+        "size_max_frac": float(sizes.max() / len(labels)),
+    }
     if 2 <= out["n_clusters_used"] < len(labels):
-        out["silhouette"] = float(silhouette_score(
-            latents, labels, sample_size=min(sample, len(labels)), random_state=seed))
+        out["silhouette"] = float(
+            silhouette_score(
+                latents, labels, sample_size=min(sample, len(labels)), random_state=seed
+            )
+        )
     return out
 
 
@@ -244,7 +326,9 @@ def _contingency(true: np.ndarray, pred: np.ndarray) -> tuple[np.ndarray, np.nda
 def _check_pair(true: np.ndarray, pred: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     true, pred = np.asarray(true).ravel(), np.asarray(pred).ravel()
     if true.shape != pred.shape:
-        raise DataError(f"true labels ({true.shape[0]}) and predicted labels ({pred.shape[0]}) differ in length")
+        raise DataError(
+            f"true labels ({true.shape[0]}) and predicted labels ({pred.shape[0]}) differ in length"
+        )
     if true.size == 0:
         raise DataError("cannot score a clustering of zero trajectories")
     return true, pred
@@ -264,16 +348,20 @@ def hungarian_mapping(true: np.ndarray, pred: np.ndarray) -> dict[int, int]:
     return mapping
 
 
-def clustering_metrics(true: np.ndarray, pred: np.ndarray,
-                       latents: np.ndarray | None = None) -> dict[str, float]:
+def clustering_metrics(
+    true: np.ndarray, pred: np.ndarray, latents: np.ndarray | None = None
+) -> dict[str, float]:
     """ARI, NMI and Hungarian-matched accuracy against true styles; silhouette when latents given."""
     true, pred = _check_pair(true, pred)
     mapping = hungarian_mapping(true, pred)
     mapped = np.array([mapping[int(p)] for p in pred])
-    out = {"ari": float(adjusted_rand_score(true, pred)),
-           "nmi": float(normalized_mutual_info_score(true, pred)),
-           "accuracy": float((mapped == true).mean())}
+    out = {
+        "ari": float(adjusted_rand_score(true, pred)),
+        "nmi": float(normalized_mutual_info_score(true, pred)),
+        "accuracy": float((mapped == true).mean()),
+    }
     if latents is not None and 2 <= len(np.unique(pred)) < len(pred):
-        out["silhouette"] = float(silhouette_score(latents, pred, sample_size=min(4000, len(pred)),
-                                                   random_state=0))
+        out["silhouette"] = float(
+            silhouette_score(latents, pred, sample_size=min(4000, len(pred)), random_state=0)
+        )
     return out
