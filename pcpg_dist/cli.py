@@ -55,6 +55,58 @@ def _cmd_report(args: argparse.Namespace) -> None:
     console.print(f"report: {html_path}\nmarkdown: {md_path}")
 
 
+def _cmd_cluster(args: argparse.Namespace) -> None:
+    """Step A alone: one clustering per environment on Ray; saves models + labels."""
+    import json
+
+    from pcpg_dist.config import load_config
+    from pcpg_dist.dataset import load_datasets
+    from pcpg_dist.generate import generate_to
+    from pcpg_dist.progress import console
+    from pcpg_dist.ray_utils import init_ray, run_tasks
+    from pcpg_dist.runner import cluster_task
+
+    cfg = load_config(args.config)
+    init_ray(args.ray_address)
+    out = Path(args.out)
+    if args.data:
+        datasets = load_datasets(Path(args.data))
+    else:
+        datasets = generate_to(cfg, out / "data", show_progress=not args.quiet)
+    envs = list(datasets)
+    results = run_tasks(cluster_task, [(datasets[e], cfg.clustering, cfg.seed, cfg.runner.cpus_per_task,
+                                        str(out / e)) for e in envs],
+                        "Step A: clustering", num_cpus=cfg.runner.cpus_per_task, show_progress=not args.quiet)
+    for env, res in zip(envs, results, strict=True):
+        (out / env / "labels.json").write_text(json.dumps(res["labels"]))
+        (out / env / "metrics.json").write_text(json.dumps(res["metrics"], indent=1))
+        shown = ", ".join(f"{k.split('/')[1]} {v:.3f}" for k, v in res["metrics"].items()
+                          if k.split("/")[1] in ("ari", "nmi", "accuracy", "silhouette", "fit_seconds"))
+        console.print(f"{env}: {shown}  model: {out / env / 'model'}")
+
+
+def _cmd_classify(args: argparse.Namespace) -> None:
+    """Label trajectories of a dataset with a fitted clustering model's styles."""
+    import pandas as pd
+
+    from pcpg_dist.clustering import clustering_metrics, load_model
+    from pcpg_dist.dataset import atomic_write_bytes, load_dataset
+    from pcpg_dist.progress import console
+
+    model = load_model(Path(args.model))
+    ds = load_dataset(Path(args.dataset))
+    pred = model.predict(ds)
+    out = Path(args.out) if args.out else Path(args.dataset).with_suffix(".styles.csv")
+    table = pd.DataFrame({"trajectory": ds.trajectory_ids, "predicted_style": pred})
+    atomic_write_bytes(out, table.to_csv(index=False).encode())
+    console.print(f"{ds.n_trajectories} trajectories -> {out}; cluster sizes "
+                  f"{[int((pred == c).sum()) for c in range(int(pred.max()) + 1)]}")
+    if (ds.styles >= 0).all():
+        m = clustering_metrics(ds.styles, pred)
+        console.print("against the true styles: " + ", ".join(f"{k} {v:.3f}" for k, v in m.items()
+                                                             if isinstance(v, float)))
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="pcpg", description="Play-style-centric agents from gameplay data (PCPG) at scale.")
@@ -79,6 +131,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-tracking", action="store_true", help="do not log to MLflow")
     common(p)
     p.set_defaults(func=_cmd_run)
+
+    p = sub.add_parser("cluster", help="Step A only: cluster each environment's trajectories by play-style")
+    p.add_argument("config", help="experiment YAML (its clustering section)")
+    p.add_argument("--out", required=True, help="output folder: <env>/model, labels.json, metrics.json")
+    p.add_argument("--data", default=None, help="dataset folder from `pcpg generate` (default: generate)")
+    common(p)
+    p.set_defaults(func=_cmd_cluster)
+
+    p = sub.add_parser("classify", help="assign play-styles to trajectories with a fitted clustering model")
+    p.add_argument("model", help="model folder written by `pcpg cluster` (<out>/<env>/model)")
+    p.add_argument("dataset", help="a dataset Parquet file")
+    p.add_argument("--out", default=None, help="CSV of (trajectory, predicted_style)")
+    p.set_defaults(func=_cmd_classify)
 
     p = sub.add_parser("report", help="write the reproducibility report of a sweep (HTML + Markdown)")
     p.add_argument("target", help="MLflow run id, experiment name, or a run's output folder (runs/NAME)")
