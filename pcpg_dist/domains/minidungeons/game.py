@@ -38,8 +38,9 @@ N_ACTIONS = 4
 #: (drow, dcol) per action.
 MOVES = ((-1, 0), (0, 1), (1, 0), (0, -1))
 PLAIN, SAFE, AVERSE, CAREFUL, PURE = "plain", "safe", "averse", "careful", "pure"
-#: Extra cost of entering a monster's cell under AVERSE: more than any detour on these levels.
-AVERSE_PENALTY = 100.0
+#: Extra cost of entering a monster's cell under AVERSE: more than any fight-free path can cost
+#: (at most 1 + 8 per cell), so ``distance // AVERSE_PENALTY`` counts the fights on the way.
+AVERSE_PENALTY = 10000.0
 #: Extra cost of a cell next to a live monster under AVERSE (2) and CAREFUL (4): the cautious
 #: proxies give monsters a berth when it is cheap.
 MARGIN_PENALTY = {AVERSE: 2.0, CAREFUL: 8.0}
@@ -60,13 +61,13 @@ FEATURES: tuple[str, ...] = (
     "kills",  # monsters killed so far / 10
     "exit_dy", "exit_dx",  # first move toward the exit, avoiding fights where possible (averse)
     "exit_plain_dy", "exit_plain_dx",  # first move of the shortest way to the exit (plain)
-    "treasure_dy", "treasure_dx",  # first move toward the nearest treasure reachable without a fight
-    "potion_dy", "potion_dx",  # first move toward the nearest potion reachable without a fight
+    "treasure_dy", "treasure_dx",  # first move toward the nearest treasure (averse) / (1 + fights)
+    "potion_dy", "potion_dx",  # first move toward the nearest potion (averse) / (1 + fights)
     "monster_dy", "monster_dx",  # first move toward the nearest monster (plain) / its distance
 )
 STATE_DIM = len(FEATURES)
 #: (target tile, metric) of each direction pair in FEATURES, in order.
-DIRECTION_FEATURES = ((EXIT, AVERSE), (EXIT, PLAIN), (TREASURE, SAFE), (POTION, SAFE), (MONSTER, PLAIN))
+DIRECTION_FEATURES = ((EXIT, AVERSE), (EXIT, PLAIN), (TREASURE, AVERSE), (POTION, AVERSE), (MONSTER, PLAIN))
 
 
 class Game:
@@ -232,6 +233,11 @@ class Game:
     def distance(self, target: int, metric: str) -> float:
         return float(self.field(target, metric)[self.pos])
 
+    def fights_to(self, target: int) -> int:
+        """Fights on the cheapest AVERSE way to the nearest ``target`` (-1 when none is left)."""
+        d = self.distance(target, AVERSE)
+        return int(d // AVERSE_PENALTY) if math.isfinite(d) else -1
+
     def direction(self, target: int, metric: str) -> int:
         """Action of the first move toward the nearest ``target`` under ``metric``; -1 if none.
 
@@ -259,8 +265,14 @@ class Game:
         for i, (target, metric) in enumerate(DIRECTION_FEATURES):
             a = self.direction(target, metric)
             if a >= 0:
-                # the monster's direction shrinks with distance: 1 means "next to you"
-                scale = 1.0 / self.distance(target, metric) if target == MONSTER else 1.0
+                # the monster's pair shrinks with distance (1 = next to you); treasure's and
+                # potion's with the fights on the way (1 = unguarded, 1/2 = one fight, ...)
+                if target == MONSTER:
+                    scale = 1.0 / self.distance(target, metric)
+                elif target in (TREASURE, POTION):
+                    scale = 1.0 / (1 + self.fights_to(target))
+                else:
+                    scale = 1.0
                 out[5 + 2 * i], out[6 + 2 * i] = MOVES[a][0] * scale, MOVES[a][1] * scale
         return out
 
