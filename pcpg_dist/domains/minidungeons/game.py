@@ -18,9 +18,10 @@ Rules (docs/minidungeons.md has the full table):
   of that turn (the props' REWARDS). The pipeline ranks by Eq. 3, not by this reward.
 
 Distance fields: the planners (proxies) and the state features both ask "which move leads
-toward the nearest X", under one of three metrics — ``plain`` (monsters are ordinary cells),
-``safe`` (monsters impassable) and ``averse`` (a monster costs 100 extra steps, so a path fights
-only when there is no other way). The exit is never passed through on the way to anything else.
+toward the nearest X", under a metric — ``plain`` (monsters are ordinary cells), ``safe``
+(monsters impassable), ``averse`` (a monster costs 10000 extra, a cell next to one 2, so a path
+fights only when there is no other way), ``careful`` (safe, +8 next to a monster, and items within
+two steps of a monster are not targets) and ``pure`` (safe, +3 per potion). The exit is never passed through on the way to anything else.
 Fields are multi-source Dijkstra from the targets, cached until a tile they depend on changes.
 """
 

@@ -3,26 +3,31 @@
 Each proxy is a priority list of (target, metric) goals over :class:`~.game.Game`'s distance
 fields, re-planned every turn (so it recovers from its own noisy moves). The metrics say how a
 proxy treats monsters: ``plain`` walks through them (fights), ``safe`` never enters one, ``averse``
-fights only when there is no other way. Skill varies by ``epsilon``: with that probability a turn is
+fights only when there is no other way, ``careful`` and ``pure`` are ``safe`` variants (see
+:mod:`.game`). Skill varies by ``epsilon``: with that probability a turn is
 a uniformly random valid move instead of the plan.
 
 Style ids (the Dataset's ``styles``) follow the paper's order:
 
 ====  =====================  ===============================================================
-id    proxy                  plan
+id    proxy                  plan (first reachable goal wins; exit ``averse`` last for all)
 ====  =====================  ===============================================================
-0     Safe Runner            exit, avoiding fights (averse)
-1     Reckless Runner        exit by the shortest way, fighting whatever stands on it (plain)
-2     Brave Treasure Hunter  nearest treasure by the shortest way, guarded or not, while a fight
-                             cannot kill it; when hurt: a safe potion, then safe treasure; exit
-3     Pure Treasure Hunter   nearest treasure reachable without a fight (safe), then exit
-4     Safety-First           nearest treasure *or potion* reachable without a fight, then exit
-5     Monster Killer         nearest monster while a fight cannot kill it; when hurt: a safe
-                             potion; then exit (averse)
+0     Safe Runner            exit, avoiding fights and giving monsters a berth (averse)
+1     Reckless Runner        a monster within two steps while healthy; exit by the shortest
+                             way, fighting whatever stands on it (plain)
+2     Brave Treasure Hunter  healthy: nearest treasure by the shortest way, guarded or not
+                             (plain); hurt: a potion, then treasure, reachable without a fight
+3     Pure Treasure Hunter   nearest treasure reachable without a fight, leaving potions (pure)
+4     Safety-First           nearest treasure or potion away from monsters (careful); healthy:
+                             a guarded potion (averse) — the potion pays the fight back
+5     Monster Killer         healthy: nearest monster (plain); hurt: a potion reachable without
+                             a fight
 ====  =====================  ===============================================================
 
-"Cannot kill it" means hit points above the level's worst damage (ENEMY_POWER_MAX when random),
-so the Killer and the Brave Hunter never die of a fight they chose; the Reckless Runner can.
+"Healthy" means hit points above the level's worst damage (ENEMY_POWER_MAX when random),
+so no proxy *seeks* a fight that may kill it. The Reckless Runner still walks its shortest way
+out through monsters when hurt, and dies of it; the others die only of forced fights (a way out
+lined with monsters) or of noisy moves.
 """
 
 from __future__ import annotations
