@@ -38,7 +38,9 @@ class BCConfig(StrictModel):
 
     hidden_layers: int = Field(3, ge=0, le=8, description="Hidden layers of the MLP (paper: 3).")
     hidden_size: int = Field(5, ge=1, le=1024, description="Units per hidden layer (paper: 5).")
-    activation: Literal["relu", "tanh"] = Field("relu", description="Hidden activation.")
+    activation: Literal["relu", "tanh"] = Field("tanh", description=(
+        "Hidden activation. tanh by default: with 5-unit layers relu units die and some seeds "
+        "lose a style (measured on GridWorld, docs/bc_and_evaluation.md)."))
     epochs: int = Field(2000, ge=0, description="Full-batch Adam steps (paper: '2000 episodes').")
     lr: float = Field(0.01, gt=0.0, description="Adam learning rate.")
     betas: tuple[float, float] = Field((0.9, 0.999), description="Adam beta1, beta2.")

@@ -58,20 +58,21 @@ def test_batched_equals_alone(toy):
         np.testing.assert_allclose(batch.params[name][i], alone.params[name][0], atol=1e-5)
 
 
-def test_engines_agree_with_autograd_and_torch_adam(toy):
-    """One epoch of either engine = one torch.optim.Adam step on the autograd gradient."""
+@pytest.mark.parametrize("activation", ["tanh", "relu"])
+def test_engines_agree_with_autograd_and_torch_adam(toy, activation):
+    """Three epochs of either engine = three torch.optim.Adam steps on autograd gradients."""
     _, _, cells = toy
     cell = cells[2]
     sizes = (4, 5, 5, 5, 4)
     params = [torch.tensor(p, dtype=torch.float64, requires_grad=True) for p in init_params(sizes, 0)]
     opt = torch.optim.Adam(params, lr=0.01)
     for _ in range(3):
-        _, grads = weighted_loss_and_grad(cell, [p.detach().numpy() for p in params])
+        _, grads = weighted_loss_and_grad(cell, [p.detach().numpy() for p in params], activation)
         for p, g in zip(params, grads, strict=True):
             p.grad = torch.tensor(g)
         opt.step()
     for engine in ("numba", "torch"):
-        got = train_cells([cell], BCConfig(epochs=3, engine=engine))
+        got = train_cells([cell], BCConfig(epochs=3, engine=engine, activation=activation))
         for i in range(4):
             np.testing.assert_allclose(got.params[f"W{i}"][0], params[2 * i].detach().numpy(), atol=2e-6)
             np.testing.assert_allclose(got.params[f"b{i}"][0], params[2 * i + 1].detach().numpy(), atol=2e-6)
