@@ -18,11 +18,14 @@ from pydantic import Field, ValidationError, ValidationInfo, field_validator, mo
 
 from pcpg_dist.bc import BCConfig
 from pcpg_dist.clustering import ClusterConfig
+from pcpg_dist.domains.mario import MarioLoadConfig
+from pcpg_dist.domains.minidungeons.level import LEVELS_TEST, LEVELS_TRAIN, level_names
 from pcpg_dist.errors import ConfigError
 from pcpg_dist.evaluation import EvalConfig
 from pcpg_dist.pbtg import PBTGConfig
 from pcpg_dist.ranking import RankConfig
 from pcpg_dist.schema import StrictModel
+from pcpg_dist.tuning import TuneConfig
 
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]*$"
 
@@ -61,6 +64,34 @@ class GridWorldConfig(StrictModel):
         return self.layout_dir / f"{env}.txt"
 
 
+class MiniDungeonsConfig(StrictModel):
+    """Which MiniDungeons levels train and test the agents, and how the proxies play."""
+
+    train_levels: Annotated[list[str], Field(min_length=1, description="levels whose trajectories train "
+                                             "the agents (paper: test, hard, random_1, random_2, gene_1, "
+                                             "gene_2, strand_1)")] = list(LEVELS_TRAIN)
+    test_levels: Annotated[list[str], Field(min_length=1, description="held-out levels for accuracy and "
+                                            "rollouts (paper: holmgard_1, 2, 4, 6, 9, 10)")] = list(LEVELS_TEST)
+    runs_per_level: Annotated[int, Field(ge=1, description="episodes per (level, proxy) (paper: 10)")] = 10
+    noise_min: Annotated[float, Field(ge=0, le=1, description="lower end of a run's proxy noise")] = 0.0
+    noise_max: Annotated[float, Field(ge=0, le=1, description="upper end of a run's proxy noise")] = 0.2
+    max_steps: Annotated[int, Field(ge=1, description="turn cap of an episode (a cap is a failure)")] = 200
+
+    @model_validator(mode="after")
+    def _levels(self) -> MiniDungeonsConfig:
+        known = set(level_names())
+        for key in ("train_levels", "test_levels"):
+            for lv in getattr(self, key):
+                if lv not in known:
+                    raise ValueError(f"unknown level {lv!r} in {key}; available: {', '.join(sorted(known))}")
+        overlap = set(self.train_levels) & set(self.test_levels)
+        if overlap:
+            raise ValueError(f"levels {sorted(overlap)} are both train and test levels")
+        if self.noise_min > self.noise_max:
+            raise ValueError("noise_min must be <= noise_max")
+        return self
+
+
 class RunnerConfig(StrictModel):
     """How work is fanned out on Ray."""
 
@@ -77,12 +108,16 @@ class ExperimentConfig(StrictModel):
     seeds: Annotated[list[int], Field(min_length=1, description="repetition seeds (clustering, split, BC init); "
                                                                 "results report mean and std over them")] = [0, 1, 2, 3]
     gridworld: GridWorldConfig = GridWorldConfig()
+    minidungeons: MiniDungeonsConfig = MiniDungeonsConfig()
+    mario: MarioLoadConfig = MarioLoadConfig()
     pbtg: PBTGConfig = PBTGConfig()
     clustering: ClusterConfig = ClusterConfig()
     ranking: RankConfig = RankConfig()
     bc: BCConfig = BCConfig()
     evaluation: EvalConfig = EvalConfig()
     runner: RunnerConfig = RunnerConfig()
+    tuning: Annotated[TuneConfig, Field(description="`pcpg tune`: search space, objective and study "
+                                                   "(ignored by `pcpg run`)")] = TuneConfig()
 
     @field_validator("name")
     @classmethod

@@ -20,9 +20,8 @@ import numpy as np
 
 from pcpg_dist.cache import Cache, content_key
 from pcpg_dist.config import ExperimentConfig
-from pcpg_dist.dataset import Dataset, atomic_write_bytes, load_datasets
+from pcpg_dist.dataset import Dataset, atomic_write_bytes, load_datasets, sha256_file
 from pcpg_dist.parallel import set_threads
-from pcpg_dist.progress import console
 from pcpg_dist.ray_utils import run_tasks
 
 CODE_VERSION = "1"  # bump when a stage's numbers change for the same config
@@ -55,27 +54,17 @@ def _collect_agents(target: Path, models: dict[str, list[Path]]) -> Path:
     return target
 
 
-# --------------------------------------------------------------------------- domains
-def _hooks(cfg: ExperimentConfig, env: str):
-    """Rollout/reward/drawing callables of a simulating domain (None where it cannot simulate)."""
-    from pcpg_dist.evaluation import DomainHooks
-
-    if cfg.domain == "gridworld":
-        from pcpg_dist.domains import gridworld as gw
-
-        layout = gw.load_layout(cfg.gridworld.layout_path(env), check_styles=False)
-        steps = cfg.evaluation.max_steps
-        return DomainHooks(
-            rollout=lambda policy, n, rng: gw.rollout(layout, policy, n, rng, max_steps=steps),
-            returns=gw.returns, optimal_return=lambda r: gw.optimal_return(layout, r, max_steps=steps),
-            draw=lambda ax, ds: gw.draw_trajectory(ax, layout, ds))
-    return None
-
-
+# --------------------------------------------------------------------------- data
 def data_key(cfg: ExperimentConfig) -> str:
-    layouts = ([cfg.gridworld.layout_path(e).read_text() for e in cfg.gridworld.environments]
-               if cfg.domain == "gridworld" else [])
-    return content_key(CODE_VERSION, cfg.domain, cfg.seed, cfg.pbtg, cfg.gridworld.environments, layouts)
+    """Content key of the data: the domain's own config slice (and layout texts), the base seed."""
+    if cfg.domain == "gridworld":
+        layouts = [cfg.gridworld.layout_path(e).read_text() for e in cfg.gridworld.environments]
+        return content_key(CODE_VERSION, cfg.domain, cfg.seed, cfg.pbtg, cfg.gridworld.environments, layouts)
+    if cfg.domain == "minidungeons":
+        return content_key(CODE_VERSION, cfg.domain, cfg.seed, cfg.minidungeons)
+    log = cfg.mario.path
+    return content_key(CODE_VERSION, cfg.domain, cfg.mario,
+                       sha256_file(log) if log is not None and log.is_file() else "shipped")
 
 
 def load_or_generate(cfg: ExperimentConfig, cache: Cache, show_progress: bool) -> tuple[dict[str, Dataset], str]:
@@ -122,12 +111,14 @@ def evaluate_task(dataset: Dataset, labels: np.ndarray, test_idx: np.ndarray, mo
     """Evaluate one environment (a Ray task) and log its child runs to MLflow from the worker."""
     from pcpg_dist.bc import TrainedCells
     from pcpg_dist.evaluation import evaluate
+    from pcpg_dist.generate import hooks
 
     set_threads(threads)
     trained = TrainedCells.concat([TrainedCells.load(p) for p in model_paths])
     result = evaluate(dataset, labels, test_idx, trained, cfg.ranking, cfg.evaluation,
-                      out_dir=out_dir, hooks=_hooks(cfg, env), k=cfg.clustering.k)
+                      out_dir=out_dir, hooks=hooks(cfg, env), k=cfg.clustering.k)
     metrics = {k: float(v) for k, v in result.metrics.items() if np.isfinite(v)}
+    metrics.update(domain_extras(cfg, dataset, labels, test_idx, trained, Path(out_dir)))
     atomic_write_bytes(Path(out_dir) / "metrics.json", json.dumps(metrics, indent=1, sort_keys=True).encode())
     if tracking is not None:
         from pcpg_dist.tracking import log_environment
@@ -136,12 +127,55 @@ def evaluate_task(dataset: Dataset, labels: np.ndarray, test_idx: np.ndarray, mo
     return metrics
 
 
+def domain_extras(cfg: ExperimentConfig, dataset: Dataset, labels: np.ndarray, test_idx: np.ndarray,
+                  trained, out: Path) -> dict[str, float]:
+    """Domain-specific tables: MiniDungeons outcomes of agents vs proxies; Mario cluster profiles."""
+    metrics: dict[str, float] = {}
+    if cfg.domain == "minidungeons":
+        import pandas as pd
+
+        from pcpg_dist.domains.minidungeons import PROXY_NAMES, outcome_stats
+        from pcpg_dist.evaluation import style_of_clusters
+        from pcpg_dist.generate import minidungeons_rollout
+
+        style = style_of_clusters(dataset, labels, cfg.clustering.k)
+        seed, p = min(cfg.seeds), max(cfg.ranking.ps)
+        rows = []
+        proxies = outcome_stats(dataset.subset(test_idx)).assign(style=dataset.styles[test_idx])
+        for k in range(cfg.clustering.k):
+            key = f"k{k}-p{p:g}-s{seed}"
+            if key not in trained.keys:
+                continue
+            rng = np.random.default_rng([cfg.evaluation.rollout_seed, k])
+            roll = minidungeons_rollout(cfg, trained.policy(key, greedy=cfg.evaluation.greedy),
+                                        cfg.evaluation.rollouts_per_policy, rng)
+            agent = outcome_stats(roll).mean(numeric_only=True)
+            own = proxies[proxies["style"] == style[k]].mean(numeric_only=True)
+            for stat in agent.index:
+                if stat == "style":
+                    continue
+                rows.append({"cluster": k, "proxy": PROXY_NAMES[style[k]], "stat": stat,
+                             "agent": float(agent[stat]), "proxy_value": float(own.get(stat, np.nan))})
+                metrics[f"outcome/{stat}/k{k}"] = float(agent[stat])
+        table = pd.DataFrame(rows)
+        table.to_csv(out / "outcomes.csv", index=False)
+        table.to_json(out / "outcomes.json", orient="records", indent=1)
+    if cfg.domain == "mario":
+        from pcpg_dist.domains.mario import cluster_profile, plot_profile
+
+        profile = cluster_profile(dataset, labels)
+        profile.to_csv(out / "cluster_profile.csv")
+        profile.to_json(out / "cluster_profile.json", orient="index", indent=1)
+        plot_profile(profile, out / "cluster_profile.png")
+    return metrics
+
+
 # --------------------------------------------------------------------------- the run
 def run_experiment(cfg: ExperimentConfig, workdir: Path = Path("runs"), tracking_uri: str | None = None,
                    track: bool = True, show_progress: bool = True, command: str = "") -> RunResult:
     """Run (or resume) a whole experiment; Ray must be initialised by the caller."""
     from pcpg_dist.bc import TrainedCells  # noqa: F401 - import torch once in the driver
-    from pcpg_dist.ranking import plan_cells, split_trajectories
+    from pcpg_dist.ranking import plan_cells
 
     out = Path(workdir).resolve() / cfg.name
     cache = Cache(out / "cache")
@@ -155,8 +189,13 @@ def run_experiment(cfg: ExperimentConfig, workdir: Path = Path("runs"), tracking
         tracker = Tracker.start(cfg, tracking_uri, out)
 
     try:
+        from pcpg_dist.generate import units as make_units
+
         t0 = time.perf_counter()
-        datasets, dkey = load_or_generate(cfg, cache, show_progress)
+        files, dkey = load_or_generate(cfg, cache, show_progress)
+        the_units = make_units(cfg, files)
+        datasets = {u.name: u.dataset for u in the_units}
+        test_of = {u.name: u.test_idx for u in the_units}
         times["generate"] = time.perf_counter() - t0
 
         # ---- Step A: one clustering per environment
@@ -188,7 +227,8 @@ def run_experiment(cfg: ExperimentConfig, workdir: Path = Path("runs"), tracking
         for e in envs:
             ds = datasets[e]
             labels = np.asarray(clusters[e]["labels"], np.int64)
-            train_idx, test_idx = split_trajectories(ds.n_trajectories, cfg.ranking.test_fraction, cfg.seed)
+            test_idx = test_of[e]
+            train_idx = np.setdiff1d(np.arange(ds.n_trajectories), test_idx)
             splits[e] = (labels, test_idx)
             corrupt = cfg.evaluation.corruption_levels if (ds.styles >= 0).all() else ()
             cells = plan_cells(ds, labels, train_idx, cfg.ranking, cfg.seeds, k=cfg.clustering.k,
