@@ -324,6 +324,9 @@ def _train_numba(cells: Sequence[Cell], data: list[tuple[np.ndarray, ...]], size
                       for c in cells]).astype(np.float32)
     numel = [x for a, b in zip(sizes[:-1], sizes[1:], strict=True) for x in (a * b, b)]
     offs = np.r_[0, np.cumsum(numel)].astype(np.int64)
+    # follow the thread count the caller gave torch (parallel.set_threads): an oversubscribed
+    # prange on a busy machine waits for its slowest thread
+    numba.set_num_threads(max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)))
     schedule, sched_off = _thread_schedule(rows, numba.get_num_threads())
     losses = np.zeros(len(cells))
     train_kernel(np.ascontiguousarray(xt.T, np.float32), np.ascontiguousarray(neg.T), acts, wn,

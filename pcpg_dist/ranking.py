@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 from pydantic import Field, field_validator
@@ -43,6 +44,10 @@ class RankConfig(StrictModel):
         "that PCPG and No Clustering are compared on the same unseen trajectories."))
     corruption_seed: int = Field(0, ge=0, description=(
         "Base seed of the label-corruption draws (combined with each model seed and level c)."))
+    corruption_mode: Literal["wrong", "random"] = Field("wrong", description=(
+        "How a corrupted label is drawn: 'wrong' = uniformly among the k-1 other labels (c = 1: "
+        "every label wrong); 'random' = uniformly among all k labels (c = 1: a random "
+        "clustering, the No Clustering situation with 1/k of the data)."))
 
     @field_validator("ps")
     @classmethod
@@ -134,10 +139,12 @@ def threshold_all(indices: np.ndarray, scores: np.ndarray, ids: np.ndarray,
     return {float(p): top_p(indices, scores, p, ids) for p in ps}
 
 
-def corrupt_labels(labels: np.ndarray, c: float, k: int, rng: np.random.Generator) -> np.ndarray:
-    """Replace exactly ``round(c n)`` labels by a *different* label drawn uniformly.
+def corrupt_labels(labels: np.ndarray, c: float, k: int, rng: np.random.Generator,
+                   mode: str = "wrong") -> np.ndarray:
+    """Replace exactly ``round(c n)`` labels by a *different* label drawn uniformly
+    (``mode="wrong"``), or by a label drawn uniformly among all k (``mode="random"``).
 
-    c = 0 leaves the clustering perfect; c = 1 makes every label wrong.
+    c = 0 leaves the clustering perfect; c = 1 makes every label wrong (or random).
     """
     labels = np.asarray(labels, dtype=np.int64)
     if not 0.0 <= c <= 1.0:
@@ -148,7 +155,10 @@ def corrupt_labels(labels: np.ndarray, c: float, k: int, rng: np.random.Generato
     n_bad = int(round(c * len(labels)))
     which = rng.permutation(len(labels))[:n_bad]
     # a shift of 1..k-1 modulo k is a uniform draw among the k-1 other labels
-    out[which] = (labels[which] + rng.integers(1, k, size=n_bad)) % k
+    if mode == "random":
+        out[which] = rng.integers(0, k, size=n_bad)
+    else:
+        out[which] = (labels[which] + rng.integers(1, k, size=n_bad)) % k
     return out
 
 
@@ -328,7 +338,8 @@ def plan_cells(
             for p, idx in threshold_all(train_idx, scores, ids, cfg.ps).items():
                 cells.append(make(CellSpec(f"{prefix}nc-p{fmt(p)}-s{seed}", "nc", -1, p, seed), idx))
         for level in corruption_levels:
-            bad = corrupt_labels(labels, level, k, corruption_rng(cfg.corruption_seed, seed, level))
+            bad = corrupt_labels(labels, level, k, corruption_rng(cfg.corruption_seed, seed, level),
+                                 cfg.corruption_mode)
             for (c, p), idx in threshold(bad, train_idx, scores, ids, corruption_ps, k).items():
                 key = f"{prefix}corrupt{fmt(level)}-k{c}-p{fmt(p)}-s{seed}"
                 cells.append(make(CellSpec(key, "corrupt", c, p, seed, float(level)), idx))

@@ -98,6 +98,9 @@ def test_corrupt_labels_exact_fraction_and_always_wrong(rng):
     # wrong labels are uniform over the 3 others: each other label gets ~1/3 of a class
     counts = np.bincount(bad[labels == 0], minlength=4)
     assert counts[0] == 0 and counts[1:].min() > 60
+    # "random" mode draws among all k: at c = 1 about 1/k of the labels stay right by chance
+    rand = corrupt_labels(labels, 1.0, 4, rng, mode="random")
+    assert 0.18 < (rand == labels).mean() < 0.32
 
 
 def test_plan_cells_builds_pcpg_baseline_and_corruption_cells(toy):
