@@ -107,6 +107,27 @@ def _cmd_classify(args: argparse.Namespace) -> None:
                                                              if isinstance(v, float)))
 
 
+def _cmd_tune(args: argparse.Namespace) -> None:
+    """Optuna study over k and the network sizes; writes the best parameters as a config."""
+    from pcpg_dist.config import load_config
+    from pcpg_dist.progress import console
+    from pcpg_dist.ray_utils import init_ray
+    from pcpg_dist.tuning import run_study
+
+    cfg = load_config(args.config)
+    init_ray(args.ray_address)
+    res = run_study(cfg, storage_url=args.optuna_storage, workdir=Path(args.workdir),
+                    tracking_uri=args.tracking_uri, track=not args.no_tracking,
+                    show_progress=not args.quiet, n_trials=args.n_trials, study_name=args.study_name,
+                    out=Path(args.out) if args.out else None)
+    shown = ", ".join(f"{k}={v}" for k, v in res.best_params.items())
+    console.print(f"study {res.study_name}: trials {res.n_trials}; best score {res.best_value:.4f} with {shown}")
+    if res.failed_stale:
+        console.print(f"failed and re-queued stale trials {res.failed_stale} (their driver had stopped)")
+    console.print(f"best config: {res.best_config}  (run it: pcpg run {res.best_config})")
+    console.print(f"dashboard: uv run optuna-dashboard {res.storage} --host 127.0.0.1")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="pcpg", description="Play-style-centric agents from gameplay data (PCPG) at scale.")
@@ -151,6 +172,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workdir", default="runs", help="where downloaded artifacts are kept")
     p.add_argument("--tracking-uri", default=None, help="MLflow tracking URI (default: as for run)")
     p.set_defaults(func=_cmd_report)
+
+    p = sub.add_parser("tune", help="tune k and the network sizes with Optuna (trials on Ray)")
+    p.add_argument("config", help="experiment YAML (its tuning section: search space, objective)")
+    p.add_argument("--optuna-storage", default=None,
+                   help="study storage: a journal file path (default: ./optuna_journal.log) or an RDB "
+                        "URL for teams, e.g. postgresql://user@host:5432/db")
+    p.add_argument("--study-name", default=None, help="study name (default: tuning.study_name, else NAME-tune)")
+    p.add_argument("--n-trials", type=int, default=None, help="finished trials the study should hold "
+                   "(default: tuning.n_trials); a rerun with more continues the study")
+    p.add_argument("--out", default=None, help="folder of best_config.yaml, trials.csv, score_vs_k.png "
+                   "(default: WORKDIR/NAME/tuning)")
+    p.add_argument("--workdir", default="runs", help="data cache and outputs (default: runs/)")
+    p.add_argument("--tracking-uri", default=None,
+                   help="MLflow tracking URI (default: $MLFLOW_TRACKING_URI, else sqlite:///mlflow.db)")
+    p.add_argument("--no-tracking", action="store_true", help="do not log to MLflow")
+    common(p)
+    p.set_defaults(func=_cmd_tune)
     return parser
 
 

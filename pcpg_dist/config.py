@@ -26,6 +26,7 @@ from pcpg_dist.pbtg import PBTGConfig
 from pcpg_dist.ranking import RankConfig
 from pcpg_dist.schema import StrictModel
 from pcpg_dist.tuning import TuneConfig
+from pcpg_dist.tuning import TuneConfig
 
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]*$"
 
@@ -116,6 +117,8 @@ class ExperimentConfig(StrictModel):
     bc: BCConfig = BCConfig()
     evaluation: EvalConfig = EvalConfig()
     runner: RunnerConfig = RunnerConfig()
+    tuning: Annotated[TuneConfig, Field(description="`pcpg tune`: search space, objective and study "
+                                                   "(ignored by `pcpg run`)")] = TuneConfig()
     tuning: Annotated[TuneConfig, Field(description="`pcpg tune`: search space, objective and study "
                                                    "(ignored by `pcpg run`)")] = TuneConfig()
 

@@ -1,0 +1,587 @@
+"""`pcpg tune`: choose k and the network sizes with Optuna, one Ray task per trial.
+
+Why this shape:
+
+- **The objective uses no true labels.** A trial clusters one (or a few) environments, trains
+  the PCPG agents and scores their teacher-forced accuracy on held-out trajectories. Accuracy
+  alone keeps rising with k (smaller, more homogeneous subsets are easier to imitate), so the score
+  is ``mean PCPG accuracy - penalty * (k - 1)``: one more cluster must buy more than ``penalty``
+  accuracy. A clustering whose smallest cluster holds less than ``min_cluster_fraction`` of the
+  training trajectories is PRUNED (a cluster that small is noise, not a play-style). The gain
+  over No Clustering is logged beside it but is not the objective: it would reward *small* BC
+  networks, which No Clustering cannot fit a mixture with (see docs/tuning.md).
+- **Ask/tell from the driver.** The driver keeps ``parallel_trials`` Ray tasks in flight, tells
+  Optuna each result as it arrives, and logs every finished trial as an MLflow child run of one
+  study parent run. A task that raises is told FAIL with its error in the trial's user attributes,
+  and the study goes on.
+- **Storage.** Default: a journal file in the working directory (one machine, one driver at a
+  time: RUNNING trials found at start belong to a driver that died and are failed and retried).
+  For a team: an RDB URL (PostgreSQL) with heartbeats; since ``optimize()`` is not used, the
+  driver records heartbeats for its in-flight trials and calls ``fail_stale_trials`` itself, and
+  the storage's :class:`~optuna.storages.RetryHeartbeatStaleTrialCallback` re-queues stale trials.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from pydantic import Field, field_validator, model_validator
+
+from pcpg_dist.errors import ConfigError, DataError, ServiceError
+from pcpg_dist.schema import StrictModel
+
+if TYPE_CHECKING:
+    from pcpg_dist.config import ExperimentConfig
+    from pcpg_dist.dataset import Dataset
+
+DEFAULT_STORAGE = "optuna_journal.log"  # in the working directory
+PARAMS = ("k", "lstm_hidden", "latent", "bc_layers", "bc_width")
+#: trial parameter -> (config section, field) it sets in the tuned config
+TARGETS = {"k": ("clustering", "k"), "lstm_hidden": ("clustering", "hidden_size"),
+           "latent": ("clustering", "latent_size"), "bc_layers": ("bc", "hidden_layers"),
+           "bc_width": ("bc", "hidden_size")}
+
+
+class TuneConfig(StrictModel):
+    """The search space, the objective and the study of `pcpg tune` (section ``tuning``)."""
+
+    study_name: str | None = Field(None, description="Optuna study name (default: '<config name>-tune'); "
+                                   "the same name in the same storage resumes the study.")
+    n_trials: int = Field(24, ge=1, description="Finished trials (complete, pruned or failed) the study "
+                          "should hold; a rerun with a larger number continues it.")
+    parallel_trials: int = Field(2, ge=1, description="Trials in flight at once (Ray tasks).")
+    environments: list[str] | None = Field(None, description="Environments a trial trains on (default: "
+                                           "the first one of the config); the score is their mean.")
+    k_range: tuple[int, int] = Field((2, 8), description="Smallest and largest cluster count tried.")
+    lstm_hidden_sizes: tuple[int, ...] = Field((16, 32, 64), min_length=1, description=(
+        "LSTM hidden sizes tried (clustering.hidden_size); one value = fixed, not searched."))
+    latent_sizes: tuple[int, ...] = Field((4, 8, 16), min_length=1, description=(
+        "Latent sizes tried (clustering.latent_size); one value = fixed."))
+    bc_layers_range: tuple[int, int] = Field((1, 3), description="Fewest and most BC hidden layers tried.")
+    bc_widths: tuple[int, ...] = Field((5, 16, 32, 64), min_length=1, description=(
+        "BC hidden-layer widths tried (bc.hidden_size); one value = fixed."))
+    ps: tuple[float, ...] | None = Field(None, description="p values scored (default: ranking.ps).")
+    seeds: list[int] | None = Field(None, description="BC seeds per trial (default: the first of seeds).")
+    penalty: float = Field(0.01, ge=0.0, description=(
+        "lambda: accuracy one more cluster must gain to be worth it; score = accuracy - lambda (k - 1)."))
+    min_cluster_fraction: float = Field(0.02, ge=0.0, lt=1.0, description=(
+        "A trial whose smallest cluster holds less than this fraction of the training trajectories "
+        "is pruned."))
+    sampler_seed: int = Field(0, ge=0, description="Seed of the TPE sampler.")
+    n_startup_trials: int = Field(8, ge=0, description="Random trials before TPE models the results.")
+    enqueue: list[dict[str, int]] = Field([], description=(
+        "Parameter sets tried first, e.g. [{k: 4}] (missing parameters are sampled)."))
+    heartbeat_interval: int = Field(30, ge=1, description="RDB storage: seconds between heartbeats.")
+    grace_period: int = Field(120, ge=1, description=(
+        "RDB storage: a RUNNING trial without a heartbeat for this long is failed and retried."))
+    max_retry: int = Field(2, ge=0, description="How often a trial whose driver or worker died is retried.")
+
+    @field_validator("k_range", "bc_layers_range")
+    @classmethod
+    def _range(cls, v: tuple[int, int]) -> tuple[int, int]:
+        if v[0] > v[1] or v[0] < 0:
+            raise ValueError(f"a range must be [low, high] with 0 <= low <= high, got {list(v)}")
+        return v
+
+    @model_validator(mode="after")
+    def _checks(self) -> TuneConfig:
+        if self.k_range[0] < 1:
+            raise ValueError("k_range must start at 1 or more")
+        for values, name in ((self.lstm_hidden_sizes, "lstm_hidden_sizes"), (self.latent_sizes, "latent_sizes"),
+                             (self.bc_widths, "bc_widths")):
+            if min(values) < 1 or len(set(values)) != len(values):
+                raise ValueError(f"{name} must be distinct positive sizes, got {list(values)}")
+        for entry in self.enqueue:
+            unknown = set(entry) - set(PARAMS)
+            if unknown:
+                raise ValueError(f"enqueue: unknown parameter(s) {sorted(unknown)}; known: {list(PARAMS)}")
+        return self
+
+
+# ----------------------------------------------------------------------------- search space
+def suggest(trial: Any, tune: TuneConfig) -> dict[str, int]:
+    """Draw one parameter set; a dimension with one value is fixed and not shown to the sampler."""
+
+    def integer(name: str, low: int, high: int) -> int:
+        return low if low == high else trial.suggest_int(name, low, high)
+
+    def choice(name: str, values: tuple[int, ...]) -> int:
+        return values[0] if len(values) == 1 else int(trial.suggest_categorical(name, list(values)))
+
+    return {"k": integer("k", *tune.k_range), "lstm_hidden": choice("lstm_hidden", tune.lstm_hidden_sizes),
+            "latent": choice("latent", tune.latent_sizes),
+            "bc_layers": integer("bc_layers", *tune.bc_layers_range), "bc_width": choice("bc_width", tune.bc_widths)}
+
+
+def apply_params(cfg: ExperimentConfig, params: dict[str, int]) -> ExperimentConfig:
+    """The config with a trial's parameters put in place (validated again, so bad values fail here)."""
+    data = cfg.model_dump()
+    for name, value in params.items():
+        section, key = TARGETS[name]
+        data[section][key] = int(value)
+    return type(cfg).model_validate(data)
+
+
+def objective_key(cfg: ExperimentConfig, tune: TuneConfig) -> str:
+    """Everything that changes a trial's numbers; a study is only resumed with the same key."""
+    from pcpg_dist.cache import content_key
+    from pcpg_dist.runner import CODE_VERSION, data_key
+
+    space = tune.model_dump(exclude={"study_name", "n_trials", "parallel_trials", "enqueue",
+                                     "heartbeat_interval", "grace_period", "max_retry"})
+    return content_key(CODE_VERSION, data_key(cfg), cfg.clustering, cfg.bc, cfg.ranking, cfg.seed,
+                       cfg.seeds, space)
+
+
+# ----------------------------------------------------------------------------- one trial
+def trial_environments(cfg: ExperimentConfig, tune: TuneConfig, available: list[str]) -> list[str]:
+    envs = tune.environments or available[:1]
+    missing = [e for e in envs if e not in available]
+    if missing:
+        raise ConfigError(f"tuning.environments: {missing} not in the data's environments {available}")
+    return envs
+
+
+def score_trial(datasets: dict[str, Dataset], cfg: ExperimentConfig, tune: TuneConfig,
+                params: dict[str, int]) -> dict[str, Any]:
+    """Cluster -> plan cells -> train -> held-out accuracy for each environment; no true labels.
+
+    Returns ``{"value": score or None, "pruned": reason or None, "metrics": {...}}``. True styles,
+    where the data has them, only go into the metrics (``*/ari``), never into the score.
+    """
+    from pcpg_dist.bc import train_cells
+    from pcpg_dist.clustering import cluster, clustering_metrics
+    from pcpg_dist.evaluation import EvalConfig, evaluate
+    from pcpg_dist.ranking import fmt, plan_cells, split_trajectories
+
+    trial_cfg = apply_params(cfg, params)
+    k = trial_cfg.clustering.k
+    rank = trial_cfg.ranking.model_copy(update={"ps": tuple(tune.ps or trial_cfg.ranking.ps)})
+    seeds = tune.seeds or trial_cfg.seeds[:1]
+    eval_cfg = EvalConfig(figures=False, corruption_levels=())
+    metrics: dict[str, float] = {}
+    pcpg, gain = [], []
+    for env, ds in datasets.items():
+        result = cluster(ds, trial_cfg.clustering, trial_cfg.seed)
+        labels = result.labels
+        if (ds.styles >= 0).all():  # reported only, never scored
+            metrics[f"{env}/ari"] = clustering_metrics(ds.styles, labels)["ari"]
+        train_idx, test_idx = split_trajectories(ds.n_trajectories, rank.test_fraction, rank.split_seed)
+        sizes = np.bincount(labels[train_idx], minlength=k)
+        metrics[f"{env}/size_min_frac"] = float(sizes.min() / len(train_idx))
+        metrics[f"{env}/silhouette"] = float(result.metrics.get("silhouette", float("nan")))
+        if sizes.min() == 0 or sizes.min() / len(train_idx) < tune.min_cluster_fraction:
+            return {"value": None, "metrics": metrics,
+                    "pruned": f"{env}: smallest cluster holds {int(sizes.min())} of {len(train_idx)} training "
+                              f"trajectories (< min_cluster_fraction {tune.min_cluster_fraction})"}
+        cells = plan_cells(ds, labels, train_idx, rank, seeds, k=k)
+        ev = evaluate(ds, labels, test_idx, train_cells(cells, trial_cfg.bc), rank, eval_cfg, k=k).metrics
+        acc = float(np.mean([ev[f"pcpg/accuracy/p{fmt(p)}"] for p in rank.ps]))
+        base = float(np.mean([ev[f"baseline/accuracy/p{fmt(p)}"] for p in rank.ps]))
+        metrics.update({f"{env}/pcpg_accuracy": acc, f"{env}/no_clustering_accuracy": base})
+        pcpg.append(acc)
+        gain.append(acc - base)
+    metrics["pcpg_accuracy"], metrics["gain_over_no_clustering"] = float(np.mean(pcpg)), float(np.mean(gain))
+    value = metrics["pcpg_accuracy"] - tune.penalty * (k - 1)
+    if not math.isfinite(value):
+        raise DataError(f"trial {params}: the score is not finite (no test steps?)")
+    metrics["score"] = value
+    return {"value": value, "pruned": None, "metrics": metrics}
+
+
+def trial_task(datasets: dict[str, Dataset], cfg: ExperimentConfig, tune: TuneConfig,
+               params: dict[str, int], threads: int) -> dict[str, Any]:
+    """One trial as a Ray task: in-process and single-threaded unless given more CPUs."""
+    from pcpg_dist.parallel import set_threads
+
+    set_threads(threads)
+    start = time.perf_counter()
+    out = score_trial(datasets, cfg, tune, params)
+    out["metrics"]["trial_seconds"] = time.perf_counter() - start
+    return out
+
+
+# ----------------------------------------------------------------------------- storage
+@dataclass
+class Storage:
+    """An opened study storage and what the driver must do for stale trials on it."""
+
+    url: str
+    storage: Any
+    heartbeat: bool  # RDB: heartbeats + fail_stale_trials; journal: fail RUNNING trials at start
+
+    @property
+    def shown(self) -> str:
+        """The URL without a password, for messages and MLflow tags."""
+        if "://" in self.url and "@" in self.url:
+            scheme, rest = self.url.split("://", 1)
+            cred, host = rest.rsplit("@", 1)
+            return f"{scheme}://{cred.split(':', 1)[0]}@{host}"
+        return self.url
+
+
+def rdb_url(url: str) -> str:
+    """``postgresql://`` names the psycopg2 driver explicitly: SQLAlchemy 2.1 would pick psycopg 3,
+    which is not installed (the project ships psycopg2-binary)."""
+    return "postgresql+psycopg2://" + url.removeprefix("postgresql://") if url.startswith("postgresql://") else url
+
+
+def open_storage(url: str | None, tune: TuneConfig) -> Storage:
+    """A URL with ``://`` is an RDB (PostgreSQL for teams); anything else is a journal file path."""
+    import optuna
+    from optuna.storages import RDBStorage, RetryHeartbeatStaleTrialCallback
+    from optuna.storages.journal import JournalFileBackend, JournalStorage
+
+    url = url or str(Path.cwd() / DEFAULT_STORAGE)
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    if "://" not in url:
+        path = Path(url).resolve()
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            return Storage(str(path), JournalStorage(JournalFileBackend(str(path))), heartbeat=False)
+        except OSError as e:
+            raise ServiceError(f"cannot open the Optuna journal {path}: {e.strerror}") from None
+    url = rdb_url(url)
+    try:
+        rdb = RDBStorage(url, engine_kwargs={"pool_pre_ping": True}, heartbeat_interval=tune.heartbeat_interval,
+                         grace_period=tune.grace_period,
+                         heartbeat_stale_trial_callback=RetryHeartbeatStaleTrialCallback(max_retry=tune.max_retry))
+    except Exception as e:  # noqa: BLE001 - sqlalchemy/driver errors of many kinds
+        shown = Storage(url, None, True).shown
+        raise ServiceError(f"cannot open the Optuna storage {shown}: {str(e).splitlines()[0]}") from None
+    return Storage(url, rdb, heartbeat=True)
+
+
+def fail_stale(study: Any, storage: Storage, tune: TuneConfig, mine: set[int]) -> list[int]:
+    """Fail RUNNING trials whose driver died and re-queue their parameters (up to max_retry).
+
+    RDB: trials whose heartbeat is older than the grace period (any driver's). Journal: every
+    RUNNING trial not in ``mine`` (one driver at a time uses a journal file).
+    """
+    from optuna.storages import RetryHeartbeatStaleTrialCallback, fail_stale_trials
+    from optuna.trial import TrialState
+
+    before = {t.number for t in study.get_trials(deepcopy=False, states=(TrialState.RUNNING,))}
+    if storage.heartbeat:
+        fail_stale_trials(study)
+    else:
+        retry = RetryHeartbeatStaleTrialCallback(max_retry=tune.max_retry)
+        for t in study.get_trials(deepcopy=False, states=(TrialState.RUNNING,)):
+            if t._trial_id in mine:
+                continue
+            study._storage.set_trial_user_attr(t._trial_id, "error", "stale: its driver stopped")
+            if study._storage.set_trial_state_values(t._trial_id, TrialState.FAIL):
+                retry(study, study._storage.get_trial(t._trial_id))
+    after = {t.number for t in study.get_trials(deepcopy=False, states=(TrialState.RUNNING,))}
+    return sorted(before - after)
+
+
+# ----------------------------------------------------------------------------- the study
+@dataclass
+class TuneResult:
+    """What `pcpg tune` produced."""
+
+    study_name: str
+    storage: str
+    best_params: dict[str, int]
+    best_value: float
+    best_config: Path
+    n_trials: dict[str, int]  # trials per state
+    parent_run_id: str | None = None
+    failed_stale: list[int] = field(default_factory=list)
+    out_dir: Path | None = None
+
+
+TrialFn = Callable[..., dict[str, Any]]
+
+
+def _state_counts(study: Any) -> dict[str, int]:
+    counts: dict[str, int] = {}
+    for t in study.get_trials(deepcopy=False):
+        counts[t.state.name] = counts.get(t.state.name, 0) + 1
+    return counts
+
+
+def _finished(study: Any) -> int:
+    from optuna.trial import TrialState
+
+    return len(study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.PRUNED,
+                                                        TrialState.FAIL)))
+
+
+def _error_text(exc: BaseException) -> str:
+    """One line naming the trial's own exception (not Ray's wrapper)."""
+    cause = getattr(exc, "cause", None) or exc
+    text = f"{type(cause).__name__}: {cause}".splitlines()[0] if str(cause) else type(cause).__name__
+    return text[:500]
+
+
+def run_study(cfg: ExperimentConfig, storage_url: str | None = None, workdir: Path = Path("runs"),
+              tracking_uri: str | None = None, track: bool = True, show_progress: bool = True,
+              n_trials: int | None = None, study_name: str | None = None, out: Path | None = None,
+              trial_fn: TrialFn = trial_task) -> TuneResult:
+    """Create or resume the study, run trials on Ray until it holds ``n_trials`` finished ones,
+    and write the best parameters as a config `pcpg run` accepts. Ray must be initialised.
+
+    ``trial_fn(datasets, cfg, tune, params, threads) -> {"value", "pruned", "metrics"}`` is the
+    Ray task of one trial (a parameter so tests can make trials fail).
+    """
+    import optuna
+    import ray
+    from optuna.trial import TrialState
+
+    from pcpg_dist.cache import Cache
+    from pcpg_dist.progress import progress_bar
+    from pcpg_dist.runner import load_or_generate
+
+    tune = cfg.tuning
+    if n_trials is not None:
+        tune = tune.model_copy(update={"n_trials": n_trials})
+    name = study_name or tune.study_name or f"{cfg.name}-tune"
+    storage = open_storage(storage_url, tune)
+    key = objective_key(cfg, tune)
+    sampler = optuna.samplers.TPESampler(seed=tune.sampler_seed, n_startup_trials=tune.n_startup_trials)
+    study = optuna.create_study(study_name=name, storage=storage.storage, sampler=sampler,
+                                direction="maximize", load_if_exists=True)
+    known = study.user_attrs.get("pcpg.objective_key")
+    if known is None:
+        study.set_user_attr("pcpg.objective_key", key)
+        study.set_user_attr("pcpg.config_name", cfg.name)
+    elif known != key:
+        raise ConfigError(f"study {name!r} in {storage.shown} was run with other data, search space or "
+                          f"objective settings; pass --study-name NEW to start another study")
+    out = Path(out) if out else Path(workdir).resolve() / cfg.name / "tuning"
+    stale = fail_stale(study, storage, tune, mine=set())
+    queued = {tuple(sorted(t.params.items())) for t in study.get_trials(deepcopy=False)}
+    for params in tune.enqueue:
+        if tuple(sorted(params.items())) not in queued:
+            study.enqueue_trial(params)
+
+    datasets, _ = load_or_generate(cfg, Cache(Path(workdir).resolve() / cfg.name / "cache"), show_progress)
+    envs = trial_environments(cfg, tune, list(datasets))
+    data_ref = ray.put({e: datasets[e] for e in envs})
+    threads = cfg.runner.cpus_per_task
+    remote = ray.remote(num_cpus=threads, max_retries=tune.max_retry)(trial_fn)
+    tracker = StudyTracker.start(cfg, name, storage.shown, tracking_uri, study) if track else None
+
+    in_flight: dict[Any, Any] = {}  # ObjectRef -> optuna Trial
+    last_check = time.monotonic()
+    try:
+        with progress_bar(f"Optuna study {name}", total=tune.n_trials, enabled=show_progress) as advance:
+            for _ in range(min(_finished(study), tune.n_trials)):
+                advance()
+            while True:
+                while len(in_flight) < tune.parallel_trials and _finished(study) + len(in_flight) < tune.n_trials:
+                    trial = study.ask()
+                    if storage.heartbeat:
+                        storage.storage.record_heartbeat(trial._trial_id)
+                    params = suggest(trial, tune)
+                    trial.set_user_attr("params_full", params)
+                    in_flight[remote.remote(data_ref, cfg, tune, params, threads)] = trial
+                if not in_flight:
+                    break
+                done, _ = ray.wait(list(in_flight), num_returns=1,
+                                   timeout=tune.heartbeat_interval if storage.heartbeat else None)
+                if storage.heartbeat:
+                    for t in in_flight.values():
+                        storage.storage.record_heartbeat(t._trial_id)
+                    if time.monotonic() - last_check > tune.heartbeat_interval:
+                        stale += fail_stale(study, storage, tune, mine={t._trial_id for t in in_flight.values()})
+                        last_check = time.monotonic()
+                for ref in done:
+                    trial = in_flight.pop(ref)
+                    _tell(study, trial, ref)
+                    if tracker is not None:
+                        tracker.log_finished(study)
+                    advance()
+    except BaseException:
+        for trial in in_flight.values():  # interrupted: these can never report now
+            study.tell(trial, state=TrialState.FAIL)
+        if tracker is not None:
+            tracker.log_finished(study)
+            tracker.fail()
+        raise
+    if not study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)):
+        raise DataError(f"study {name!r}: no trial completed ({_state_counts(study)}); see the trials' "
+                        f"'error' / 'pruned_reason' attributes (uv run optuna-dashboard {storage.shown})")
+    best = study.best_trial
+    best_params = {**best.user_attrs.get("params_full", {}), **best.params}
+    best_config = write_outputs(cfg, study, best_params, out)
+    result = TuneResult(name, storage.shown, best_params, float(best.value), best_config, _state_counts(study),
+                        tracker.parent_id if tracker else None, stale, out)
+    if tracker is not None:
+        tracker.finish(result)
+    return result
+
+
+def _tell(study: Any, trial: Any, ref: Any) -> None:
+    """Report one finished Ray task to Optuna: COMPLETE, PRUNED (with reason) or FAIL (with error)."""
+    import ray
+    from optuna.trial import TrialState
+
+    try:
+        res = ray.get(ref)
+    except Exception as e:  # noqa: BLE001 - any trial error: record it, the study goes on
+        trial.set_user_attr("error", _error_text(e))
+        study.tell(trial, state=TrialState.FAIL)
+        return
+    for k, v in res["metrics"].items():
+        if isinstance(v, float) and math.isfinite(v):
+            trial.set_user_attr(k, v)
+    if res["pruned"]:
+        trial.set_user_attr("pruned_reason", res["pruned"])
+        study.tell(trial, state=TrialState.PRUNED)
+    else:
+        study.tell(trial, res["value"])
+
+
+# ----------------------------------------------------------------------------- outputs
+def best_config_data(cfg: ExperimentConfig, params: dict[str, int], where: Path) -> dict[str, Any]:
+    """The config with the best parameters, as YAML data for a file in folder ``where``.
+
+    Named ``<name>_tuned`` (its own MLflow experiment and output folder), without the ``tuning``
+    section, and with the layout folder relative to ``where`` so the file can move with its tree.
+    """
+    import os
+
+    data = apply_params(cfg, params).model_dump(mode="json", exclude={"tuning"})
+    data["name"] = f"{cfg.name}_tuned"
+    layout = Path(data["gridworld"]["layout_dir"])
+    if layout.is_absolute():
+        data["gridworld"]["layout_dir"] = os.path.relpath(layout, where.resolve())
+    return data
+
+
+def write_outputs(cfg: ExperimentConfig, study: Any, best_params: dict[str, int], out: Path) -> Path:
+    """``best_config.yaml`` (checked by loading it back), ``trials.csv`` and ``score_vs_k.png``."""
+    import yaml
+
+    from pcpg_dist.config import load_config
+    from pcpg_dist.dataset import atomic_write_bytes
+
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "best_config.yaml"
+    header = (f"# Best parameters of Optuna study {study.study_name!r} ({', '.join(f'{k}={v}' for k, v in best_params.items())}),\n"
+              f"# score {study.best_value:.4f}. Run it with: pcpg run {path.name}\n")
+    data = best_config_data(cfg, best_params, out)
+    atomic_write_bytes(path, (header + yaml.safe_dump(data, sort_keys=False)).encode())
+    load_config(path)  # what `pcpg run` will do: fail here, not later, if it is not loadable
+    table = study.trials_dataframe(attrs=("number", "state", "value", "params", "user_attrs"))
+    atomic_write_bytes(out / "trials.csv", table.to_csv(index=False).encode())
+    _plot_score_vs_k(study, out / "score_vs_k.png")
+    return path
+
+
+def _plot_score_vs_k(study: Any, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from optuna.trial import TrialState
+
+    done = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
+    k = np.array([t.user_attrs.get("params_full", t.params).get("k", 0) for t in done], float)
+    score = np.array([t.value for t in done])
+    acc = np.array([t.user_attrs.get("pcpg_accuracy", np.nan) for t in done])
+    fig, ax = plt.subplots(figsize=(6, 4))
+    jitter = np.random.default_rng(0).uniform(-0.12, 0.12, len(k))  # seeded: same figure for same study
+    ax.scatter(k + jitter, acc, marker="x", color="0.6", label="held-out PCPG accuracy")
+    ax.scatter(k + jitter, score, color="C0", label="score = accuracy - penalty (k - 1)")
+    for kk in np.unique(k):
+        ax.plot([kk - 0.3, kk + 0.3], [score[k == kk].max()] * 2, color="C1")
+    ax.set_xlabel("k (clusters)")
+    ax.set_ylabel("accuracy / score")
+    ax.set_title(f"{study.study_name}: best k = {study.best_trial.params.get('k', '-')}")
+    ax.legend(loc="lower right", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+# ----------------------------------------------------------------------------- MLflow
+@dataclass
+class StudyTracker:
+    """One MLflow parent run per study (found again on resume), one child run per finished trial."""
+
+    uri: str
+    experiment_id: str
+    parent_id: str
+    logged: set[int]
+
+    @staticmethod
+    def start(cfg: ExperimentConfig, study_name: str, storage: str, uri: str | None, study: Any) -> StudyTracker:
+        from pcpg_dist.tracking import ROLE, _client, _retry, check_reachable, default_tracking_uri
+
+        uri = uri or default_tracking_uri()
+        check_reachable(uri)
+        client = _client(uri)
+        exp = _retry(client.get_experiment_by_name, cfg.name)
+        if exp is None:
+            location = None
+            if uri.startswith("sqlite:"):
+                location = (Path(uri.removeprefix("sqlite:///")).parent / "mlruns").resolve().as_uri()
+            exp_id = _retry(client.create_experiment, cfg.name, artifact_location=location)
+        else:
+            exp_id = exp.experiment_id
+        found = _retry(client.search_runs, [exp_id], filter_string=f"tags.`{ROLE}` = 'study' and "
+                       f"tags.`pcpg.study` = '{study_name}'", max_results=1)
+        if found:
+            parent = found[0].info.run_id
+            _retry(client.update_run, parent, status="RUNNING")
+        else:
+            tags = {ROLE: "study", "pcpg.study": study_name, "pcpg.optuna_storage": storage,
+                    "mlflow.runName": study_name, "pcpg.config_hash": cfg.hash()}
+            parent = _retry(client.create_run, exp_id, tags=tags).info.run_id
+        children = _retry(client.search_runs, [exp_id], filter_string=f"tags.`mlflow.parentRunId` = '{parent}'")
+        logged = {int(r.data.tags["pcpg.trial"]) for r in children if "pcpg.trial" in r.data.tags}
+        return StudyTracker(uri, exp_id, parent, logged)
+
+    def log_finished(self, study: Any) -> None:
+        """A child run for every finished trial not logged yet (so a crash never loses one)."""
+        from optuna.trial import TrialState
+
+        from pcpg_dist.tracking import ROLE, _client, _log_metrics, _log_params, _retry
+
+        client = _client(self.uri)
+        for t in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.PRUNED, TrialState.FAIL)):
+            if t.number in self.logged:
+                continue
+            tags = {"mlflow.parentRunId": self.parent_id, "mlflow.runName": f"trial-{t.number}",
+                    ROLE: "trial", "pcpg.trial": str(t.number), "pcpg.trial_state": t.state.name}
+            for attr in ("error", "pruned_reason"):
+                if attr in t.user_attrs:
+                    tags[f"pcpg.{attr}"] = str(t.user_attrs[attr])[:5000]
+            start = int(t.datetime_start.timestamp() * 1000) if t.datetime_start else None
+            run_id = _retry(client.create_run, self.experiment_id, start_time=start, tags=tags).info.run_id
+            _log_params(client, run_id, {**t.user_attrs.get("params_full", {}), **t.params})
+            metrics = {k: v for k, v in t.user_attrs.items() if isinstance(v, float)}
+            if t.value is not None:
+                metrics["score"] = t.value
+            _log_metrics(client, run_id, metrics)
+            end = int(t.datetime_complete.timestamp() * 1000) if t.datetime_complete else None
+            _retry(client.set_terminated, run_id, "FAILED" if t.state == TrialState.FAIL else "FINISHED", end)
+            self.logged.add(t.number)
+
+    def finish(self, result: TuneResult) -> None:
+        from pcpg_dist.tracking import _client, _log_metrics, _retry
+
+        client = _client(self.uri)
+        _log_metrics(client, self.parent_id, {"best/score": result.best_value,
+                                              **{f"best/{k}": float(v) for k, v in result.best_params.items()},
+                                              **{f"trials/{k.lower()}": float(v) for k, v in result.n_trials.items()}})
+        if result.out_dir is not None:
+            _retry(client.log_artifacts, self.parent_id, str(result.out_dir), "tuning")
+        _retry(client.set_terminated, self.parent_id, "FINISHED")
+
+    def fail(self) -> None:
+        from pcpg_dist.tracking import _client, _retry
+
+        with contextlib.suppress(Exception):  # best effort while already failing
+            _retry(_client(self.uri).set_terminated, self.parent_id, "KILLED", attempts=2)

@@ -1,0 +1,256 @@
+"""`pcpg tune`: the search space, the best config, MLflow child runs, resume, failing trials, and
+the same on a real PostgreSQL server (team mode)."""
+
+from __future__ import annotations
+
+import contextlib
+import sys
+import uuid
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from pcpg_dist.config import load_config, parse_config
+from pcpg_dist.errors import ConfigError
+from pcpg_dist.tuning import (
+    PARAMS,
+    TuneConfig,
+    apply_params,
+    best_config_data,
+    rdb_url,
+    run_study,
+    suggest,
+    trial_task,
+)
+
+ROOT = Path(__file__).resolve().parent.parent
+POSTGRES = "postgresql://postgres@127.0.0.1:5432/test"  # local server, trust auth
+
+TINY = {
+    "name": "tinytune", "seed": 3, "seeds": [0],
+    "gridworld": {"layout_dir": str(ROOT / "experiments" / "gridworlds"), "environments": ["E1"]},
+    "pbtg": {"episodes": 5000, "trajectories_per_style": 60, "dataset_per_style": 30},
+    "clustering": {"pretrain_epochs": 3, "dec_epochs": 2, "kmeans_n_init": 2},
+    "ranking": {"ps": [1.0, 0.5]},
+    "bc": {"epochs": 80},
+    "runner": {"cpus_per_task": 1},
+    "tuning": {"n_trials": 2, "parallel_trials": 2, "k_range": [2, 4], "lstm_hidden_sizes": [8],
+               "latent_sizes": [4], "bc_layers_range": [1, 2], "bc_widths": [8, 16],
+               "min_cluster_fraction": 0.0, "n_startup_trials": 2},
+}
+
+
+def config(tmp_path: Path, **tuning) -> object:
+    data = {**TINY, "tuning": {**TINY["tuning"], **tuning}}
+    path = tmp_path / f"tiny-{uuid.uuid4().hex[:6]}.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return load_config(path)
+
+
+def unique(prefix: str) -> str:
+    return f"{prefix}-{uuid.uuid4().hex[:10]}"
+
+
+@pytest.fixture(scope="module")
+def workdir(tmp_path_factory) -> Path:
+    """One data cache for the module: every study below reuses the same generated dataset."""
+    return tmp_path_factory.mktemp("tune-work")
+
+
+def flaky_trial(datasets, cfg, tune, params, threads):
+    """A trial that raises for k == 3 (pickled by value into the Ray workers)."""
+    if params["k"] == 3:
+        raise RuntimeError("boom: k=3 is broken on purpose")
+    return trial_task(datasets, cfg, tune, params, threads)
+
+
+# ------------------------------------------------------------------------------ fast
+def test_tuning_section_is_optional_and_validated(tmp_path):
+    assert load_config(ROOT / "experiments" / "quick.yaml").tuning == TuneConfig()
+    assert load_config(ROOT / "experiments" / "tune_gridworld.yaml").tuning.k_range == (2, 8)
+    base = {"name": "x", "gridworld": TINY["gridworld"]}
+    for bad, words in (({"k_range": [5, 2]}, "tuning.k_range"), ({"bc_widths": [8, 8]}, "bc_widths"),
+                       ({"enqueue": [{"kk": 3}]}, "unknown parameter"), ({"penalty": -1}, "tuning.penalty"),
+                       ({"n_trails": 3}, "unknown key 'tuning.n_trails'")):
+        with pytest.raises(ConfigError, match=words):
+            parse_config({**base, "tuning": bad})
+
+
+def test_suggest_fixes_single_value_dimensions_and_apply_sets_the_config(tmp_path):
+    import optuna
+
+    cfg = config(tmp_path, lstm_hidden_sizes=[8], latent_sizes=[4], bc_layers_range=[2, 2])
+    study = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=0), direction="maximize")
+    seen = []
+    for _ in range(12):
+        trial = study.ask()
+        params = suggest(trial, cfg.tuning)
+        assert set(params) == set(PARAMS)
+        assert set(trial.params) == {"k", "bc_width"}  # fixed ones are not searched
+        seen.append(params["k"])
+        study.tell(trial, 0.0)
+    assert set(seen) == {2, 3, 4}
+    tuned = apply_params(cfg, {"k": 3, "lstm_hidden": 8, "latent": 4, "bc_layers": 2, "bc_width": 16})
+    assert (tuned.clustering.k, tuned.clustering.hidden_size, tuned.clustering.latent_size,
+            tuned.bc.hidden_layers, tuned.bc.hidden_size) == (3, 8, 4, 2, 16)
+    assert tuned.clustering.pretrain_epochs == cfg.clustering.pretrain_epochs
+
+
+def test_best_config_is_loadable_elsewhere(tmp_path):
+    cfg = config(tmp_path)
+    where = tmp_path / "deep" / "out"
+    where.mkdir(parents=True)
+    data = best_config_data(cfg, {"k": 3, "bc_width": 16}, where)
+    assert "tuning" not in data and data["name"] == "tinytune_tuned"
+    assert not Path(data["gridworld"]["layout_dir"]).is_absolute()
+    (where / "best.yaml").write_text(yaml.safe_dump(data))
+    back = load_config(where / "best.yaml")
+    assert back.clustering.k == 3 and back.bc.hidden_size == 16
+    assert back.gridworld.layout_dir == cfg.gridworld.layout_dir
+    assert back.pbtg == cfg.pbtg and back.ranking == cfg.ranking
+
+
+# ------------------------------------------------------------------------------ studies on Ray
+@pytest.mark.slow
+def test_small_study_writes_best_config_and_mlflow_children(ray_session, tmp_path, workdir):
+    from mlflow import MlflowClient
+
+    cfg = config(tmp_path, n_trials=3, k_range=[1, 4], enqueue=[{"k": 4}, {"k": 1}], min_cluster_fraction=0.26)
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    journal = tmp_path / "journal.log"
+    res = run_study(cfg, storage_url=str(journal), workdir=workdir, tracking_uri=uri, show_progress=False,
+                    study_name=unique("small"), out=tmp_path / "out")
+    assert journal.is_file()
+    # k=4 cannot give every cluster >= 26 % of the trajectories: pruned, with the reason kept;
+    # k=1 always passes
+    assert res.n_trials.get("PRUNED", 0) >= 1 and res.n_trials.get("COMPLETE", 0) >= 1
+    assert sum(res.n_trials.values()) == 3
+    best = load_config(res.best_config)
+    assert best.clustering.k == res.best_params["k"] and best.bc.hidden_size == res.best_params["bc_width"]
+    assert best.name == "tinytune_tuned"
+    assert (tmp_path / "out" / "trials.csv").is_file() and (tmp_path / "out" / "score_vs_k.png").is_file()
+
+    client = MlflowClient(uri)
+    exp = client.get_experiment_by_name("tinytune")
+    parents = client.search_runs([exp.experiment_id], filter_string="tags.`pcpg.role` = 'study'")
+    assert len(parents) == 1 and parents[0].info.run_id == res.parent_run_id
+    assert parents[0].info.status == "FINISHED"
+    assert parents[0].data.metrics["best/score"] == pytest.approx(res.best_value)
+    children = client.search_runs([exp.experiment_id],
+                                  filter_string=f"tags.`mlflow.parentRunId` = '{res.parent_run_id}'")
+    assert sorted(int(r.data.tags["pcpg.trial"]) for r in children) == [0, 1, 2]
+    by_state = {r.data.tags["pcpg.trial_state"]: r for r in children}
+    assert "min_cluster_fraction" in by_state["PRUNED"].data.tags["pcpg.pruned_reason"]
+    done = by_state["COMPLETE"]
+    m, k = done.data.metrics, int(done.data.params["k"])
+    # the score is the label-free objective: accuracy minus the per-cluster penalty
+    assert m["score"] == pytest.approx(m["pcpg_accuracy"] - cfg.tuning.penalty * (k - 1))
+    assert 0.3 < m["pcpg_accuracy"] <= 1.0 and "E1/ari" in m
+
+
+@pytest.mark.slow
+def test_resume_continues_the_trial_count_and_retries_stale_trials(ray_session, tmp_path, workdir):
+    import optuna
+
+    cfg = config(tmp_path)
+    name, journal = unique("resume"), str(tmp_path / "journal.log")
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    first = run_study(cfg, storage_url=journal, workdir=workdir, tracking_uri=uri, show_progress=False,
+                      study_name=name, out=tmp_path / "a")
+    assert sum(first.n_trials.values()) == 2
+    # a driver that died mid-trial leaves a RUNNING trial behind
+    from optuna.storages.journal import JournalFileBackend, JournalStorage
+
+    study = optuna.load_study(study_name=name, storage=JournalStorage(JournalFileBackend(journal)))
+    orphan = study.ask({"k": optuna.distributions.IntDistribution(2, 4)})
+    second = run_study(cfg, storage_url=journal, workdir=workdir, tracking_uri=uri, show_progress=False,
+                       study_name=name, n_trials=4, out=tmp_path / "b")
+    assert second.failed_stale == [orphan.number]
+    trials = study.get_trials()
+    assert [t.number for t in trials] == list(range(len(trials)))  # numbering continued, not restarted
+    assert trials[orphan.number].state.name == "FAIL"
+    assert "stale" in trials[orphan.number].user_attrs["error"]
+    retried = [t for t in trials if t.system_attrs.get("failed_trial") == orphan.number]
+    assert len(retried) == 1 and retried[0].state.name == "COMPLETE"
+    assert retried[0].params["k"] == orphan.params["k"]
+    assert sum(1 for t in trials if t.state.name in ("COMPLETE", "PRUNED", "FAIL")) == 4
+    # one MLflow parent across both runs, one child per finished trial, none twice
+    assert second.parent_run_id == first.parent_run_id
+    from mlflow import MlflowClient
+
+    client = MlflowClient(uri)
+    exp = client.get_experiment_by_name("tinytune")
+    kids = client.search_runs([exp.experiment_id],
+                              filter_string=f"tags.`mlflow.parentRunId` = '{first.parent_run_id}'")
+    numbers = [int(r.data.tags["pcpg.trial"]) for r in kids]
+    assert len(numbers) == len(set(numbers)) == 4
+    # a changed objective must not silently mix into the same study
+    with pytest.raises(ConfigError, match="other data, search space or objective"):
+        run_study(config(tmp_path, penalty=0.5), storage_url=journal, workdir=workdir, track=False,
+                  show_progress=False, study_name=name)
+
+
+@pytest.mark.slow
+def test_a_raising_trial_is_recorded_failed_and_the_study_goes_on(ray_session, tmp_path, workdir):
+    import optuna
+    import ray.cloudpickle
+
+    ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
+    cfg = config(tmp_path, n_trials=3, enqueue=[{"k": 3}, {"k": 2}, {"k": 4}])
+    name, journal = unique("raise"), str(tmp_path / "journal.log")
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    res = run_study(cfg, storage_url=journal, workdir=workdir, tracking_uri=uri, show_progress=False,
+                    study_name=name, trial_fn=flaky_trial)
+    assert res.n_trials == {"FAIL": 1, "COMPLETE": 2}
+    assert res.best_params["k"] in (2, 4)
+    from optuna.storages.journal import JournalFileBackend, JournalStorage
+
+    trials = optuna.load_study(study_name=name, storage=JournalStorage(JournalFileBackend(journal))).trials
+    failed = [t for t in trials if t.state.name == "FAIL"]
+    assert len(failed) == 1 and failed[0].params["k"] == 3
+    assert failed[0].user_attrs["error"] == "RuntimeError: boom: k=3 is broken on purpose"
+    from mlflow import MlflowClient
+
+    client = MlflowClient(uri)
+    exp = client.get_experiment_by_name("tinytune")
+    runs = client.search_runs([exp.experiment_id], filter_string="tags.`pcpg.trial_state` = 'FAIL'")
+    assert len(runs) == 1 and runs[0].info.status == "FAILED"
+    assert "boom" in runs[0].data.tags["pcpg.error"]
+
+
+@pytest.mark.slow
+@pytest.mark.services
+def test_postgres_storage_with_heartbeats_retries_a_dead_drivers_trial(ray_session, tmp_path, workdir):
+    import time
+
+    import optuna
+    from optuna.storages import RDBStorage
+
+    pytest.importorskip("psycopg2")
+    cfg = config(tmp_path, heartbeat_interval=1, grace_period=2)
+    name = unique("pg")
+    # another driver asked a trial, sent one heartbeat, and died
+    url = rdb_url(POSTGRES)
+    assert url.startswith("postgresql+psycopg2://")
+    storage = RDBStorage(url, heartbeat_interval=1, grace_period=2)
+    try:
+        study = optuna.create_study(study_name=name, storage=storage, direction="maximize")
+        orphan = study.ask({"k": optuna.distributions.IntDistribution(2, 4)})
+        storage.record_heartbeat(orphan._trial_id)
+        time.sleep(3)
+        # the dead driver's study has no objective key yet: adopt it, as `pcpg tune` would
+        res = run_study(cfg, storage_url=POSTGRES, workdir=workdir, track=False, show_progress=False,
+                        study_name=name, out=tmp_path / "out")
+        assert res.storage == url and res.failed_stale == [orphan.number]
+        trials = optuna.load_study(study_name=name, storage=url).trials
+        assert trials[orphan.number].state.name == "FAIL"
+        retried = [t for t in trials if t.system_attrs.get("failed_trial") == orphan.number]
+        assert len(retried) == 1 and retried[0].state.name == "COMPLETE"
+        assert sum(t.state.name == "COMPLETE" for t in trials) == 2
+        assert load_config(res.best_config).clustering.k == res.best_params["k"]
+        assert np.isfinite(res.best_value)
+    finally:
+        with contextlib.suppress(KeyError):
+            optuna.delete_study(study_name=name, storage=url)
