@@ -32,14 +32,14 @@ from pcpg_dist.ranking import (
 )
 
 
-def plain_loop(states, valid, actions, mean, std, sizes, epochs, batch, lr, seed):
+def plain_loop(states, valid, actions, mean, std, sizes, epochs, batch, lr, seed, activation):
     """What a user would write: one model, shuffled minibatches, autograd, torch.optim.Adam."""
     torch.manual_seed(seed)
     layers: list[torch.nn.Module] = []
     for i, (a, b) in enumerate(zip(sizes[:-1], sizes[1:], strict=True)):
         layers.append(torch.nn.Linear(a, b))
         if i < len(sizes) - 2:
-            layers.append(torch.nn.ReLU())
+            layers.append(torch.nn.Tanh() if activation == "tanh" else torch.nn.ReLU())
     model = torch.nn.Sequential(*layers)
     opt = torch.optim.Adam(model.parameters(), lr=lr)
     x = torch.tensor((states - mean) / std, dtype=torch.float32)
@@ -72,10 +72,6 @@ def main() -> None:
     ap.add_argument("--plain-lr", type=float, default=0.01)
     ap.add_argument("--epochs", type=int, default=2000)
     args = ap.parse_args()
-    set_threads(args.threads)
-    import numba
-
-    numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
     if not Path(args.data).is_dir():
         raise SystemExit(f"{args.data}: run `uv run pcpg generate experiments/gridworld_paper.yaml "
                          f"--out {args.data}` first")
@@ -93,19 +89,13 @@ def main() -> None:
     rows = sum(c.n_rows for c in cells)
     print(f"{len(cells)} models, {raw:.0f} raw steps -> {rows} distinct rows "
           f"({raw / rows:.0f}x fewer); planning {plan_s:.1f} s")
-    train_cells(cells[:1], BCConfig(epochs=1))  # compile (cached on disk after the first run)
-    t0, c0 = time.perf_counter(), time.process_time()
-    model = train_cells(cells, cfg)
-    batched_s, batched_cpu = time.perf_counter() - t0, time.process_time() - c0
-    print(f"batched: {len(cells)} models x {cfg.epochs} epochs in {batched_s:.1f} s wall "
-          f"({batched_cpu:.1f} CPU-s, {args.threads} threads) = {batched_s / len(cells) * 1e3:.1f} ms/model")
-
-    # a per-model loop of a 5-unit net gains nothing from threads, and 2 torch threads on a busy
-    # 2-core machine were measured ~100x slower: the plain loop gets one thread
+    # the plain loop runs first (before numba starts its threads) with one thread: a per-model
+    # loop of a 5-unit net gains nothing from threads, and 2 torch threads on a busy 2-core
+    # machine were measured ~100x slower
     set_threads(1)
     rng = np.random.default_rng(0)
     sample = sorted(rng.choice(len(cells), size=min(args.sample, len(cells)), replace=False))
-    plain_s, plain_cpu, acc_b, acc_p = [], [], [], []
+    plain_s, plain_cpu, acc_b, acc_p, tests = [], [], [], [], []
     for i in sample:
         cell = cells[i]
         env = cell.key.split("/")[0]
@@ -120,15 +110,25 @@ def main() -> None:
         s, v, a = test_rows(ds, subset)
         t0, c0 = time.perf_counter(), time.process_time()
         net = plain_loop(raw_cell.states, raw_cell.valid, raw_cell.actions, cell.mean, cell.std,
-                         model.sizes, args.plain_epochs, 64, args.plain_lr, spec.seed)
+                         (cells[0].state_dim, *[cfg.hidden_size] * cfg.hidden_layers, cells[0].n_actions), args.plain_epochs, 64, args.plain_lr, spec.seed, cfg.activation)
         plain_s.append(time.perf_counter() - t0)
         plain_cpu.append(time.process_time() - c0)
         with torch.no_grad():
             logits = net(torch.tensor((s - cell.mean) / cell.std)).masked_fill(~torch.tensor(v), float("-inf"))
         acc_p.append(float((logits.argmax(1).numpy() == a).mean()))
-        acc_b.append(float((model.predict(s, v, i) == a).mean()))
+        tests.append((i, s, v, a))
         print(f"  {cell.key:24s} raw steps {raw_cell.n_rows:6d}  plain {plain_s[-1]:6.2f} s  "
-              f"acc plain {acc_p[-1]:.3f} batched {acc_b[-1]:.3f}")
+              f"acc plain {acc_p[-1]:.3f}")
+    set_threads(args.threads)
+    train_cells(cells[:1], BCConfig(epochs=1))  # compile (cached on disk after the first run)
+    t0, c0 = time.perf_counter(), time.process_time()
+    model = train_cells(cells, cfg)
+    batched_s, batched_cpu = time.perf_counter() - t0, time.process_time() - c0
+    print(f"batched: {len(cells)} models x {cfg.epochs} epochs in {batched_s:.1f} s wall "
+          f"({batched_cpu:.1f} CPU-s, {args.threads} threads) = {batched_s / len(cells) * 1e3:.1f} ms/model")
+
+    for i, s, v, a in tests:
+        acc_b.append(float((model.predict(s, v, i) == a).mean()))
     per_plain, per_batched = float(np.mean(plain_s)), batched_s / len(cells)
     cpu_plain, cpu_batched = float(np.mean(plain_cpu)), batched_cpu / len(cells)
     print(f"plain loop ({args.plain_epochs} epochs, minibatch 64, 1 thread): {per_plain:.2f} s/model "
