@@ -200,6 +200,11 @@ def main(argv: list[str] | None = None) -> int:
     except PcpgError as e:
         print(f"pcpg: error: {e}", file=sys.stderr)
         return 2
+    except OSError as e:
+        # Disk full, permission denied, missing folder: say which file and why, no traceback.
+        where = f" {e.filename}" if getattr(e, "filename", None) else ""
+        print(f"pcpg: error: cannot access{where}: {e.strerror or e}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print("pcpg: interrupted; rerun the same command to resume", file=sys.stderr)
         return 130

@@ -26,6 +26,7 @@ from __future__ import annotations
 import contextlib
 import math
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -241,6 +242,9 @@ def open_storage(url: str | None, tune: TuneConfig) -> Storage:
 
     url = url or str(Path.cwd() / DEFAULT_STORAGE)
     optuna.logging.set_verbosity(optuna.logging.WARNING)
+    # heartbeats and the retry callback are marked experimental; they are what team mode needs
+    warnings.filterwarnings("ignore", category=optuna.exceptions.ExperimentalWarning)
+    warnings.filterwarnings("ignore", message="Heartbeat of storage is supposed to be used with Study.optimize")
     if "://" not in url:
         path = Path(url).resolve()
         try:
@@ -335,6 +339,7 @@ def run_study(cfg: ExperimentConfig, storage_url: str | None = None, workdir: Pa
     """
     import optuna
     import ray
+    from optuna.storages import RetryHeartbeatStaleTrialCallback
     from optuna.trial import TrialState
 
     from pcpg_dist.cache import Cache
@@ -371,43 +376,61 @@ def run_study(cfg: ExperimentConfig, storage_url: str | None = None, workdir: Pa
     remote = ray.remote(num_cpus=threads, max_retries=tune.max_retry)(trial_fn)
     tracker = StudyTracker.start(cfg, name, storage.shown, tracking_uri, study) if track else None
 
-    in_flight: dict[Any, Any] = {}  # ObjectRef -> optuna Trial
+    # ObjectRef -> the trials waiting on it: a trial that draws the parameters of one in flight
+    # shares its task, one that draws those of a finished trial reuses its result (deterministic)
+    in_flight: dict[Any, list[Any]] = {}
+    by_params: dict[tuple, Any] = {}
     last_check = time.monotonic()
     try:
         with progress_bar(f"Optuna study {name}", total=tune.n_trials, enabled=show_progress) as advance:
             for _ in range(min(_finished(study), tune.n_trials)):
                 advance()
             while True:
-                while len(in_flight) < tune.parallel_trials and _finished(study) + len(in_flight) < tune.n_trials:
+                while (len(in_flight) < tune.parallel_trials
+                       and _finished(study) + sum(map(len, in_flight.values())) < tune.n_trials):
                     trial = study.ask()
                     if storage.heartbeat:
                         storage.storage.record_heartbeat(trial._trial_id)
                     params = suggest(trial, tune)
                     trial.set_user_attr("params_full", params)
-                    in_flight[remote.remote(data_ref, cfg, tune, params, threads)] = trial
+                    key = tuple(sorted(params.items()))
+                    if key in by_params:
+                        in_flight[by_params[key]].append(trial)
+                    elif _reuse(study, trial, key):
+                        advance()
+                    else:
+                        ref = remote.remote(data_ref, cfg, tune, params, threads)
+                        in_flight[ref], by_params[key] = [trial], ref
                 if not in_flight:
                     break
                 done, _ = ray.wait(list(in_flight), num_returns=1,
                                    timeout=tune.heartbeat_interval if storage.heartbeat else None)
+                waiting = [t for ts in in_flight.values() for t in ts]
                 if storage.heartbeat:
-                    for t in in_flight.values():
+                    for t in waiting:
                         storage.storage.record_heartbeat(t._trial_id)
                     if time.monotonic() - last_check > tune.heartbeat_interval:
-                        stale += fail_stale(study, storage, tune, mine={t._trial_id for t in in_flight.values()})
+                        stale += fail_stale(study, storage, tune, mine={t._trial_id for t in waiting})
                         last_check = time.monotonic()
                 for ref in done:
-                    trial = in_flight.pop(ref)
-                    _tell(study, trial, ref)
+                    by_params = {k: r for k, r in by_params.items() if r != ref}
+                    for trial in in_flight.pop(ref):
+                        _tell(study, trial, ref)
+                        advance()
                     if tracker is not None:
                         tracker.log_finished(study)
-                    advance()
     except BaseException:
-        for trial in in_flight.values():  # interrupted: these can never report now
+        retry = RetryHeartbeatStaleTrialCallback(max_retry=tune.max_retry)
+        for trial in (t for ts in in_flight.values() for t in ts):  # interrupted: fail now, rerun on resume
+            trial.set_user_attr("error", "interrupted: the driver stopped")
             study.tell(trial, state=TrialState.FAIL)
+            retry(study, study._storage.get_trial(trial._trial_id))
         if tracker is not None:
             tracker.log_finished(study)
             tracker.fail()
         raise
+    if tracker is not None:
+        tracker.log_finished(study)  # trials answered from earlier results
     if not study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)):
         raise DataError(f"study {name!r}: no trial completed ({_state_counts(study)}); see the trials' "
                         f"'error' / 'pruned_reason' attributes (uv run optuna-dashboard {storage.shown})")
@@ -419,6 +442,23 @@ def run_study(cfg: ExperimentConfig, storage_url: str | None = None, workdir: Pa
     if tracker is not None:
         tracker.finish(result)
     return result
+
+
+def _reuse(study: Any, trial: Any, key: tuple) -> bool:
+    """Tell ``trial`` the outcome of a finished trial with the same parameters, if there is one."""
+    from optuna.trial import TrialState
+
+    for old in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.PRUNED)):
+        if tuple(sorted(old.user_attrs.get("params_full", {}).items())) == key:
+            for k, v in old.user_attrs.items():
+                trial.set_user_attr(k, v)
+            trial.set_user_attr("duplicate_of", old.number)
+            if old.state == TrialState.COMPLETE:
+                study.tell(trial, old.value)
+            else:
+                study.tell(trial, state=TrialState.PRUNED)
+            return True
+    return False
 
 
 def _tell(study: Any, trial: Any, ref: Any) -> None:
