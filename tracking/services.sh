@@ -33,6 +33,7 @@
 #   PCPG_SERVICES_DIR    [${XDG_STATE_HOME:-~/.local/state}/pcpg-services] pids, logs, auth config
 #   PCPG_BIN             [<repo>/.venv/bin, else PATH] where python, mlflow and ray are
 #   PCPG_START_TIMEOUT   [300]          seconds to wait for a server to answer
+#   PCPG_RAY_START_ATTEMPTS [3]         tries of `ray start` (its raylet must register within 30 s)
 set -euo pipefail
 
 REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -208,8 +209,16 @@ ray_node() {  # ray_node NAME [ray start arguments...]
   [[ -z "${PCPG_RAY_CPUS:-}" ]] || args+=(--num-cpus "$PCPG_RAY_CPUS")
   # shellcheck disable=SC2206
   args+=(${PCPG_RAY_ARGS:-})
-  launch "$name" env "RAY_AUTH_MODE=$RAY_AUTH" "$RAY" "${args[@]}"
-  wait_for "$name" ray_started "$name"
+  # `ray start` gives the raylet a fixed 30 s to register with the GCS; a busy machine can miss
+  # that, after which Ray has cleaned up and a second try usually succeeds.
+  local attempt attempts="${PCPG_RAY_START_ATTEMPTS:-3}"
+  for ((attempt = 1; ; attempt++)); do
+    launch "$name" env "RAY_AUTH_MODE=$RAY_AUTH" "$RAY" "${args[@]}"
+    if (wait_for "$name" ray_started "$name"); then break; fi
+    stop_one "$name" >/dev/null
+    ((attempt < attempts)) || die "$name did not start in $attempts attempts; log: $(logfile "$name")"
+    say "$name start attempt $attempt failed; retrying"
+  done
   say "$name is up (pid $(running_pid "$name")); auth mode: $RAY_AUTH"
 }
 
