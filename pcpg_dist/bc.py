@@ -192,8 +192,8 @@ class TrainedCells:
             params = {f"{w}{i}": arrays[f"{w}{i}"] for i in range(n_layers) for w in "Wb"}
             return TrainedCells(specs, tuple(meta["sizes"]), meta["activation"], params,
                                 arrays["mean"], arrays["std"], arrays["final_loss"])
-        except (OSError, ValueError, KeyError, TypeError, RuntimeError) as e:
-            raise DataError(f"{path}: unreadable model files ({e})") from None
+        except Exception as e:  # noqa: BLE001 - torch's UnpicklingError for a tampered file, too
+            raise DataError(f"{path}: unreadable model files ({type(e).__name__}: {e})") from None
 
 
 def _check_valid(valid: np.ndarray, rows: int, n_actions: int) -> np.ndarray:

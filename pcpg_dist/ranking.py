@@ -44,7 +44,7 @@ class RankConfig(StrictModel):
         "that PCPG and No Clustering are compared on the same unseen trajectories."))
     corruption_seed: int = Field(0, ge=0, description=(
         "Base seed of the label-corruption draws (combined with each model seed and level c)."))
-    corruption_mode: Literal["wrong", "random"] = Field("wrong", description=(
+    corruption_mode: Literal["wrong", "random"] = Field("random", description=(
         "How a corrupted label is drawn: 'wrong' = uniformly among the k-1 other labels (c = 1: "
         "every label wrong); 'random' = uniformly among all k labels (c = 1: a random "
         "clustering, the No Clustering situation with 1/k of the data)."))

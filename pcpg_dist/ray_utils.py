@@ -6,6 +6,7 @@ Embedded default: Ray in-process on this machine's CPUs. With ``--ray-address`` 
 
 from __future__ import annotations
 
+import logging
 import os
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -36,7 +37,8 @@ def init_ray(address: str | None = None, num_cpus: int | None = None) -> None:
             ray.init(address=address, log_to_driver=False, runtime_env=runtime_env)
         else:
             ray.init(num_cpus=num_cpus or available_cpus(), include_dashboard=False,
-                     object_store_memory=300_000_000, log_to_driver=False, runtime_env=runtime_env)
+                     object_store_memory=300_000_000, log_to_driver=False, runtime_env=runtime_env,
+                     logging_level=logging.WARNING)
     except (ConnectionError, RuntimeError, ValueError) as e:
         raise ServiceError(f"cannot start or join Ray at {address or 'local'}: {e}") from None
 

@@ -13,7 +13,8 @@ from pcpg_dist.bc import BCConfig, train_cells
 from pcpg_dist.evaluation import DomainHooks, EvalConfig, Scorer, evaluate, summarize
 from pcpg_dist.ranking import RankConfig, plan_cells, split_trajectories
 
-RANK = RankConfig(ps=(1.0, 0.5, 0.25))
+# With k = 2, "wrong" labels at c = 0.5 are a fully random labelling: the clearest check.
+RANK = RankConfig(ps=(1.0, 0.5, 0.25), corruption_mode="wrong")
 EVAL = EvalConfig(rollouts_per_policy=10, corruption_levels=(0.0, 0.5))
 
 
