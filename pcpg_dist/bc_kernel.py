@@ -15,7 +15,6 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-
 _F = np.float32
 _CLAMP = _F(7.90531110763549805)
 _A = [_F(c) for c in (-2.76076847742355e-16, 2.00018790482477e-13, -8.60467152213735e-11,

@@ -26,7 +26,6 @@ from pcpg_dist.pbtg import PBTGConfig
 from pcpg_dist.ranking import RankConfig
 from pcpg_dist.schema import StrictModel
 from pcpg_dist.tuning import TuneConfig
-from pcpg_dist.tuning import TuneConfig
 
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]*$"
 
@@ -119,8 +118,6 @@ class ExperimentConfig(StrictModel):
     runner: RunnerConfig = RunnerConfig()
     tuning: Annotated[TuneConfig, Field(description="`pcpg tune`: search space, objective and study "
                                                    "(ignored by `pcpg run`)")] = TuneConfig()
-    tuning: Annotated[TuneConfig, Field(description="`pcpg tune`: search space, objective and study "
-                                                   "(ignored by `pcpg run`)")] = TuneConfig()
 
     @field_validator("name")
     @classmethod
@@ -144,8 +141,10 @@ class ExperimentConfig(StrictModel):
         return self
 
     def hash(self) -> str:
-        """Content hash of the config (paths included), for tags and cache keys."""
-        return hashlib.sha256(self.model_dump_json().encode()).hexdigest()[:16]
+        """Content hash of what determines a sweep's results (paths included): `tuning` (used only
+        by `pcpg tune`) and `runner` (how work is spread) are left out, so editing them reuses
+        the sweep's MLflow parent run."""
+        return hashlib.sha256(self.model_dump_json(exclude={"tuning", "runner"}).encode()).hexdigest()[:16]
 
     def flat(self) -> dict[str, str]:
         """Flattened ``section.key -> value`` strings, for MLflow params."""
