@@ -73,7 +73,7 @@ def render(summary: Path, out_dir: Path) -> tuple[Path, Path]:
           f"- uv.lock sha256: `{run['provenance']['uv_lock']}`",
           f"- config hash: `{run['config_hash']}`; base seed {cfg['seed']}; repetition seeds {cfg['seeds']}",
           f"- machine: {run['provenance']['machine']}",
-          f"- versions: " + ", ".join(f"{k} {v}" for k, v in run['provenance']['versions'].items()),
+          "- versions: " + ", ".join(f"{k} {v}" for k, v in run['provenance']['versions'].items()),
           f"- MLflow parent run: `{run.get('parent_run_id')}`", "",
           "## Wall time per stage", "",
           _md_table(pd.DataFrame([{"stage": k, "seconds": round(v, 2)} for k, v in run["stage_seconds"].items()])),

@@ -12,6 +12,7 @@ half-written by a killed process is deleted and logged again.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import time
 import urllib.error
@@ -19,10 +20,9 @@ import urllib.request
 from dataclasses import dataclass
 from pathlib import Path
 
+import pcpg_dist
 from pcpg_dist.errors import ServiceError
 from pcpg_dist.provenance import git_commit, uv_lock_hash
-
-import pcpg_dist
 
 ROLE, UNIT, CONFIG_HASH = "pcpg.role", "pcpg.unit_key", "pcpg.config_hash"
 PARAM_BATCH = 100  # MLflow's limit of params per log_batch call
@@ -169,10 +169,8 @@ class Tracker:
             mlflow.log_text("yes", "agents_logged")
 
     def fail(self) -> None:
-        try:
+        with contextlib.suppress(Exception):  # best effort while already failing
             _retry(_client(self.uri).set_terminated, self.parent_id, "KILLED", attempts=2)
-        except Exception:  # noqa: BLE001 - best effort while already failing
-            pass
 
 
 def log_environment(info: dict, env: str, out_dir: str, metrics: dict[str, float],

@@ -17,7 +17,7 @@ from pcpg_dist.errors import DataError
 def small(env: str = "E1", n: int = 5, seed: int = 0) -> Dataset:
     rng = np.random.default_rng(seed)
     trajs = []
-    for i in range(n):
+    for _ in range(n):
         T = int(rng.integers(0, 6))
         trajs.append({"states": rng.random((T + 1, 3)), "actions": rng.integers(0, 4, T),
                       "valid": np.full(T + 1, 15), "rewards": rng.random(T)})

@@ -8,7 +8,13 @@ import numpy as np
 import pytest
 
 from pcpg_dist.domains import gridworld as gw
-from pcpg_dist.pbtg import PBTGConfig, assemble_dataset, generate_pair, q_learning, sample_trajectories
+from pcpg_dist.pbtg import (
+    PBTGConfig,
+    assemble_dataset,
+    generate_pair,
+    q_learning,
+    sample_trajectories,
+)
 
 LAYOUTS = Path(__file__).resolve().parent.parent / "experiments" / "gridworlds"
 

@@ -107,8 +107,9 @@ def test_rerun_recomputes_nothing_and_duplicates_nothing(first_run, tiny_cfg):
 @pytest.mark.slow
 def test_interrupted_sweep_resumes_with_same_metrics(first_run, tiny_cfg, monkeypatch):
     """Kill the sweep inside evaluation (after training finished); the rerun resumes from there."""
-    import pcpg_dist.runner as runner
     from mlflow import MlflowClient
+
+    import pcpg_dist.runner as runner
 
     work, uri, result = first_run
     uri2 = f"sqlite:///{work / 'mlflow2.db'}"
@@ -118,7 +119,7 @@ def test_interrupted_sweep_resumes_with_same_metrics(first_run, tiny_cfg, monkey
         raise KeyboardInterrupt("simulated Ctrl-C")
 
     monkeypatch.setattr(runner, "evaluate_task", dying)
-    with pytest.raises(BaseException):
+    with pytest.raises(KeyboardInterrupt):
         run_experiment(tiny_cfg, workdir=work / "runs2", tracking_uri=uri2, show_progress=False)
     monkeypatch.setattr(runner, "evaluate_task", real)
     client = MlflowClient(uri2)
