@@ -31,7 +31,8 @@
 #   PCPG_RAY_ARGS        []             extra `ray start` arguments
 #   PCPG_RAY_TEMP        [/tmp/pcpg-ray-$UID] Ray's temp/session dir (keep it short: Unix sockets)
 #   PCPG_SERVICES_DIR    [${XDG_STATE_HOME:-~/.local/state}/pcpg-services] pids, logs, auth config
-#   PCPG_BIN             [<repo>/.venv/bin, else PATH] where python, mlflow and ray are
+#   PCPG_BIN             [<repo>/.venv/bin, else PATH] where python, mlflow and ray are; the word
+#                        PATH takes them from $PATH (e.g. under `uv run --with 'flask-wtf<2'`)
 #   PCPG_START_TIMEOUT   [300]          seconds to wait for a server to answer
 #   PCPG_RAY_START_ATTEMPTS [3]         tries of `ray start` (its raylet must register within 30 s)
 set -euo pipefail
@@ -40,6 +41,8 @@ REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 HOST="${PCPG_HOST:-127.0.0.1}"
 PG_URL="${PCPG_PG_URL:-postgresql+psycopg2://postgres@127.0.0.1:5432}"
 PG_URL="${PG_URL%/}"
+# SQLAlchemy 2.1 reads a bare postgresql:// as psycopg 3, which is not installed; name psycopg2.
+[[ "$PG_URL" != postgresql://* ]] || PG_URL="postgresql+psycopg2://${PG_URL#postgresql://}"
 MLFLOW_DB="${PCPG_MLFLOW_DB:-pcpg_mlflow}"
 OPTUNA_DB="${PCPG_OPTUNA_DB:-pcpg_optuna}"
 MLFLOW_PORT="${PCPG_MLFLOW_PORT:-5000}"
@@ -51,11 +54,12 @@ RAY_TEMP="${PCPG_RAY_TEMP:-/tmp/pcpg-ray-$(id -u)}"
 STATE="${PCPG_SERVICES_DIR:-${XDG_STATE_HOME:-$HOME/.local/state}/pcpg-services}"
 ARTIFACTS="${PCPG_MLFLOW_ARTIFACTS:-$STATE/mlartifacts}"
 TIMEOUT="${PCPG_START_TIMEOUT:-300}"
-if [[ -n "${PCPG_BIN:-}" ]]; then BIN="$PCPG_BIN/"
+if [[ "${PCPG_BIN:-}" == PATH ]]; then BIN=""
+elif [[ -n "${PCPG_BIN:-}" ]]; then BIN="$PCPG_BIN/"
 elif [[ -x "$REPO/.venv/bin/python" ]]; then BIN="$REPO/.venv/bin/"
 else BIN=""; fi
 PY="${BIN}python"
-MLFLOW="${PCPG_MLFLOW:-${BIN}mlflow}"
+MLFLOW="${BIN}mlflow"
 RAY="${BIN}ray"
 
 die() { echo "services.sh: $*" >&2; exit 1; }
