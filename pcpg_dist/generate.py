@@ -90,7 +90,8 @@ def units(cfg: ExperimentConfig, datasets: dict[str, Dataset]) -> list[Unit]:
     from pcpg_dist.ranking import split_trajectories
 
     if cfg.domain == "gridworld":
-        return [Unit(env, ds, split_trajectories(ds.n_trajectories, cfg.ranking.test_fraction, cfg.seed)[1])
+        return [Unit(env, ds, split_trajectories(ds.n_trajectories, cfg.ranking.test_fraction,
+                                                   cfg.ranking.split_seed)[1])
                 for env, ds in datasets.items()]
     if cfg.domain == "minidungeons":
         md = cfg.minidungeons
@@ -105,7 +106,8 @@ def units(cfg: ExperimentConfig, datasets: dict[str, Dataset]) -> list[Unit]:
     from pcpg_dist.domains.mario import valid_mask_from, with_valid
 
     (env, ds), = datasets.items()
-    train_idx, test_idx = split_trajectories(ds.n_trajectories, cfg.ranking.test_fraction, cfg.seed)
+    train_idx, test_idx = split_trajectories(ds.n_trajectories, cfg.ranking.test_fraction,
+                                             cfg.ranking.split_seed)
     return [Unit(env, with_valid(ds, valid_mask_from(ds.subset(train_idx))), test_idx)]
 
 

@@ -40,7 +40,7 @@ from pcpg_dist.schema import StrictModel
 
 if TYPE_CHECKING:
     from pcpg_dist.config import ExperimentConfig
-    from pcpg_dist.dataset import Dataset
+    from pcpg_dist.generate import Unit
 
 DEFAULT_STORAGE = "optuna_journal.log"  # in the working directory
 PARAMS = ("k", "lstm_hidden", "latent", "bc_layers", "bc_width")
@@ -150,7 +150,7 @@ def trial_environments(cfg: ExperimentConfig, tune: TuneConfig, available: list[
     return envs
 
 
-def score_trial(datasets: dict[str, Dataset], cfg: ExperimentConfig, tune: TuneConfig,
+def score_trial(datasets: dict[str, Unit], cfg: ExperimentConfig, tune: TuneConfig,
                 params: dict[str, int]) -> dict[str, Any]:
     """Cluster -> plan cells -> train -> held-out accuracy for each environment; no true labels.
 
@@ -160,7 +160,7 @@ def score_trial(datasets: dict[str, Dataset], cfg: ExperimentConfig, tune: TuneC
     from pcpg_dist.bc import train_cells
     from pcpg_dist.clustering import cluster, clustering_metrics
     from pcpg_dist.evaluation import EvalConfig, evaluate
-    from pcpg_dist.ranking import fmt, plan_cells, split_trajectories
+    from pcpg_dist.ranking import fmt, plan_cells
 
     trial_cfg = apply_params(cfg, params)
     k = trial_cfg.clustering.k
@@ -169,12 +169,14 @@ def score_trial(datasets: dict[str, Dataset], cfg: ExperimentConfig, tune: TuneC
     eval_cfg = EvalConfig(figures=False, corruption_levels=())
     metrics: dict[str, float] = {}
     pcpg, gain = [], []
-    for env, ds in datasets.items():
+    for env, unit in datasets.items():
+        ds = unit.dataset
         result = cluster(ds, trial_cfg.clustering, trial_cfg.seed)
         labels = result.labels
         if (ds.styles >= 0).all():  # reported only, never scored
             metrics[f"{env}/ari"] = clustering_metrics(ds.styles, labels)["ari"]
-        train_idx, test_idx = split_trajectories(ds.n_trajectories, rank.test_fraction, rank.split_seed)
+        test_idx = unit.test_idx  # the same held-out trajectories as `pcpg run`
+        train_idx = np.setdiff1d(np.arange(ds.n_trajectories), test_idx)
         sizes = np.bincount(labels[train_idx], minlength=k)
         metrics[f"{env}/size_min_frac"] = float(sizes.min() / len(train_idx))
         metrics[f"{env}/silhouette"] = float(result.metrics.get("silhouette", float("nan")))
@@ -197,7 +199,7 @@ def score_trial(datasets: dict[str, Dataset], cfg: ExperimentConfig, tune: TuneC
     return {"value": value, "pruned": None, "metrics": metrics}
 
 
-def trial_task(datasets: dict[str, Dataset], cfg: ExperimentConfig, tune: TuneConfig,
+def trial_task(datasets: dict[str, Unit], cfg: ExperimentConfig, tune: TuneConfig,
                params: dict[str, int], threads: int) -> dict[str, Any]:
     """One trial as a Ray task: in-process and single-threaded unless given more CPUs."""
     from pcpg_dist.parallel import set_threads
@@ -343,6 +345,7 @@ def run_study(cfg: ExperimentConfig, storage_url: str | None = None, workdir: Pa
     from optuna.trial import TrialState
 
     from pcpg_dist.cache import Cache
+    from pcpg_dist.generate import units
     from pcpg_dist.progress import progress_bar
     from pcpg_dist.runner import load_or_generate
 
@@ -369,7 +372,8 @@ def run_study(cfg: ExperimentConfig, storage_url: str | None = None, workdir: Pa
         if tuple(sorted(params.items())) not in queued:
             study.enqueue_trial(params)
 
-    datasets, _ = load_or_generate(cfg, Cache(Path(workdir).resolve() / cfg.name / "cache"), show_progress)
+    files, _ = load_or_generate(cfg, Cache(Path(workdir).resolve() / cfg.name / "cache"), show_progress)
+    datasets = {u.name: u for u in units(cfg, files)}
     envs = trial_environments(cfg, tune, list(datasets))
     data_ref = ray.put({e: datasets[e] for e in envs})
     threads = cfg.runner.cpus_per_task
