@@ -38,8 +38,11 @@ def _cmd_run(args: argparse.Namespace) -> None:
                             command=" ".join(["pcpg", *sys.argv[1:]]))
     print_summary(result, console)
     if result.parent_run_id:
-        console.print(f"MLflow parent run: {result.parent_run_id}  (view: uv run mlflow ui "
-                      f"--backend-store-uri {args.tracking_uri or 'sqlite:///mlflow.db'})")
+        from pcpg_dist.tracking import default_tracking_uri
+
+        uri = args.tracking_uri or default_tracking_uri()
+        view = (f"uv run mlflow ui --backend-store-uri {uri}" if uri.startswith("sqlite:") else f"open {uri}")
+        console.print(f"MLflow parent run: {result.parent_run_id}  (view: {view})")
     console.print(f"outputs: {result.out_dir}/summary")
     if getattr(result, "report", None):
         console.print(f"report: {result.report}")

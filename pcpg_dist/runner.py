@@ -6,7 +6,8 @@ Ctrl-C or a killed process continues where it stopped and ends with the same num
 
 Units: the data (one Ray task per (environment, style)), one clustering per environment, BC
 training in groups of ``runner.group_size`` cells (never one task per tiny model), one evaluation
-per environment (which also logs that environment's MLflow child runs from the worker).
+per environment. MLflow comes last: one logging task per environment (its child run, from the
+worker) once every local result is written, so a tracking server that goes down costs no work.
 """
 
 from __future__ import annotations
@@ -106,9 +107,8 @@ def train_task(cells: list, cfg, threads: int, out_path: str) -> str:
 
 
 def evaluate_task(dataset: Dataset, labels: np.ndarray, test_idx: np.ndarray, model_paths: list[str],
-                  cfg: ExperimentConfig, env: str, out_dir: str, threads: int,
-                  tracking: dict | None) -> dict:
-    """Evaluate one environment (a Ray task) and log its child runs to MLflow from the worker."""
+                  cfg: ExperimentConfig, env: str, out_dir: str, threads: int) -> dict:
+    """Evaluate one environment (a Ray task); its tables and ``metrics.json`` go to ``out_dir``."""
     from pcpg_dist.bc import TrainedCells
     from pcpg_dist.evaluation import evaluate
     from pcpg_dist.generate import hooks
@@ -120,11 +120,18 @@ def evaluate_task(dataset: Dataset, labels: np.ndarray, test_idx: np.ndarray, mo
     metrics = {k: float(v) for k, v in result.metrics.items() if np.isfinite(v)}
     metrics.update(domain_extras(cfg, dataset, labels, test_idx, trained, Path(out_dir)))
     atomic_write_bytes(Path(out_dir) / "metrics.json", json.dumps(metrics, indent=1, sort_keys=True).encode())
-    if tracking is not None:
-        from pcpg_dist.tracking import log_environment
-
-        log_environment(tracking, env, out_dir, metrics, model_paths)
     return metrics
+
+
+def log_task(tracking: dict, env: str, out_dir: str, metrics: dict[str, float], model_paths: list[str]) -> str:
+    """Log one finished evaluation as the environment's MLflow child run (a Ray task, on the worker).
+
+    Separate from :func:`evaluate_task` so that an unreachable tracking server never costs the
+    evaluation: its unit is done and kept, and a rerun only logs it.
+    """
+    from pcpg_dist.tracking import log_environment
+
+    return log_environment(tracking, env, out_dir, metrics, model_paths)
 
 
 def domain_extras(cfg: ExperimentConfig, dataset: Dataset, labels: np.ndarray, test_idx: np.ndarray,
@@ -196,12 +203,13 @@ def run_experiment(cfg: ExperimentConfig, workdir: Path = Path("runs"), tracking
         the_units = make_units(cfg, files)
         datasets = {u.name: u.dataset for u in the_units}
         test_of = {u.name: u.test_idx for u in the_units}
+        clustered = {u.name: (u.clustered, u.cluster_input_note) for u in the_units}
         times["generate"] = time.perf_counter() - t0
 
         # ---- Step A: one clustering per environment
         t0 = time.perf_counter()
         envs = list(datasets)
-        ckeys = {e: content_key(CODE_VERSION, dkey, e, cfg.clustering, cfg.seed) for e in envs}
+        ckeys = {e: content_key(CODE_VERSION, dkey, e, cfg.clustering, cfg.seed, clustered[e][1]) for e in envs}
         todo = [e for e in envs if cache.done("cluster", ckeys[e]) is None]
         for e in todo:
             cache.start("cluster", ckeys[e])
@@ -212,7 +220,7 @@ def run_experiment(cfg: ExperimentConfig, workdir: Path = Path("runs"), tracking
             atomic_write_bytes(path / "result.json", json.dumps(res).encode())
             cache.finish("cluster", ckeys[e], {"env": e})
 
-        run_tasks(cluster_task, [(datasets[e], cfg.clustering, cfg.seed, threads,
+        run_tasks(cluster_task, [(clustered[e][0], cfg.clustering, cfg.seed, threads,
                                   str(cache.path("cluster", ckeys[e]))) for e in todo],
                   "Step A: clustering", num_cpus=threads, on_result=save_cluster,
                   show_progress=show_progress and bool(todo))
@@ -252,21 +260,16 @@ def run_experiment(cfg: ExperimentConfig, workdir: Path = Path("runs"), tracking
         computed["train_groups"] = len(pending)
         times["train"] = time.perf_counter() - t0
 
-        # ---- Evaluation (+ MLflow child runs) per environment
+        # ---- Evaluation per environment (MLflow child runs are logged after the summary)
         t0 = time.perf_counter()
         ekeys = {e: content_key(CODE_VERSION, [k for ge, k, _ in groups if ge == e], cfg.evaluation,
                                 cfg.ranking) for e in envs}
-        todo = [e for e in envs if cache.done("evaluate", ekeys[e]) is None
-                or (tracker is not None and not tracker.env_logged(e, ekeys[e]))]
+        models = {e: [str(cache.path("train", k) / "cells.pt") for ge, k, _ in groups if ge == e] for e in envs}
+        todo = [e for e in envs if cache.done("evaluate", ekeys[e]) is None]
         for e in todo:
             cache.start("evaluate", ekeys[e])
-        calls = []
-        for e in todo:
-            labels, test_idx = splits[e]
-            models = [str(cache.path("train", k) / "cells.pt") for ge, k, _ in groups if ge == e]
-            track_info = tracker.child_info(e, ekeys[e], clusters[e]["metrics"]) if tracker else None
-            calls.append((datasets[e], labels, test_idx, models, cfg, e,
-                          str(cache.path("evaluate", ekeys[e])), threads, track_info))
+        calls = [(datasets[e], *splits[e], models[e], cfg, e, str(cache.path("evaluate", ekeys[e])), threads)
+                 for e in todo]
 
         def save_eval(i: int, metrics: dict) -> None:
             cache.finish("evaluate", ekeys[todo[i]], {"env": todo[i]})
@@ -298,6 +301,12 @@ def run_experiment(cfg: ExperimentConfig, workdir: Path = Path("runs"), tracking
         atomic_write_bytes(out / "summary" / "run.json", json.dumps(run_info, indent=1, default=str).encode())
         result.report = render(out / "summary", out / "report")[0]
         if tracker is not None:
+            # Last, so that every local result above is kept when the server is down; a rerun
+            # logs only the environments without a FINISHED child run, recomputing nothing.
+            unlogged = [e for e in envs if not tracker.env_logged(e, ekeys[e])]
+            run_tasks(log_task, [(tracker.child_info(e, ekeys[e], clusters[e]["metrics"]), e,
+                                  str(cache.path("evaluate", ekeys[e])), per_env[e], models[e]) for e in unlogged],
+                      "MLflow child runs", num_cpus=1, show_progress=show_progress and bool(unlogged))
             tracker.finish(result, agents_dir=agents, report_dir=out / "report")
         return result
     except BaseException:

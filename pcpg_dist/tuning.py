@@ -171,7 +171,7 @@ def score_trial(datasets: dict[str, Unit], cfg: ExperimentConfig, tune: TuneConf
     pcpg, gain = [], []
     for env, unit in datasets.items():
         ds = unit.dataset
-        result = cluster(ds, trial_cfg.clustering, trial_cfg.seed)
+        result = cluster(unit.clustered, trial_cfg.clustering, trial_cfg.seed)
         labels = result.labels
         if (ds.styles >= 0).all():  # reported only, never scored
             metrics[f"{env}/ari"] = clustering_metrics(ds.styles, labels)["ari"]
