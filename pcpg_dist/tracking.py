@@ -56,16 +56,25 @@ def _client(uri: str):
 
 
 def _retry(fn, *args, attempts: int = 5, **kwargs):
-    """Call an MLflow client method, retrying transient failures with exponential backoff."""
+    """Call an MLflow client method, retrying transient failures with exponential backoff.
+
+    When the attempts run out the failure becomes a one-line :class:`ServiceError` naming the
+    server (the CLI prints it and exits 2): the local results are already written, and rerunning
+    the same command logs them without recomputing anything.
+    """
     from mlflow.exceptions import MlflowException
 
     for i in range(attempts):
         try:
             return fn(*args, **kwargs)
         except (MlflowException, OSError) as e:
-            if i == attempts - 1 or getattr(e, "error_code", "") in ("INVALID_PARAMETER_VALUE",
-                                                                       "RESOURCE_ALREADY_EXISTS"):
+            if getattr(e, "error_code", "") in ("INVALID_PARAMETER_VALUE", "RESOURCE_ALREADY_EXISTS"):
                 raise
+            if i == attempts - 1:
+                uri = getattr(getattr(fn, "__self__", None), "tracking_uri", "(unknown URI)")
+                first = (str(e).strip().splitlines() or [type(e).__name__])[0][:300]
+                raise ServiceError(f"MLflow tracking server {uri} failed ({first}); local results are kept: "
+                                   f"rerun the same command once it is reachable to log them") from None
             time.sleep(min(2 ** i, 10))
     return None
 
@@ -152,7 +161,7 @@ class Tracker:
         _retry(client.set_terminated, self.parent_id, "FINISHED")
 
     def _has_agents(self, client) -> bool:
-        return any(a.path == "agents_logged" for a in client.list_artifacts(self.parent_id))
+        return any(a.path == "agents_logged" for a in _retry(client.list_artifacts, self.parent_id))
 
     def _log_agents(self, agents_dir: Path) -> None:
         """The sweep's agents as one pyfunc model (driver only: log_model needs the fluent API)."""
