@@ -24,6 +24,9 @@ import pcpg_dist
 from pcpg_dist.errors import ServiceError
 from pcpg_dist.provenance import git_commit, uv_lock_hash
 
+# Progress bars of artifact transfers would interleave with ours in the terminal.
+os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
+
 ROLE, UNIT, CONFIG_HASH = "pcpg.role", "pcpg.unit_key", "pcpg.config_hash"
 PARAM_BATCH = 100  # MLflow's limit of params per log_batch call
 
