@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import json
 import math
-import pickle  # only for its UnpicklingError: torch.load(weights_only=True) raises it on a corrupt file
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -281,7 +280,7 @@ def load_model(directory: str | Path) -> ClusterModel:
     try:
         tensors = torch.load(w_path, weights_only=True, map_location="cpu")
         mean, std, centroids = (tensors[k].numpy() for k in ("mean", "std", "centroids"))
-    except (RuntimeError, KeyError, OSError, EOFError, ValueError, pickle.UnpicklingError) as e:
+    except Exception as e:  # noqa: BLE001 - incl. torch's UnpicklingError for a tampered or corrupt file
         raise DataError(f"{w_path}: unreadable cluster model weights ({e})") from None
     ae = None
     if method in ("lstm_dec", "lstm_kmeans"):

@@ -99,6 +99,24 @@ def _log_metrics(client, run_id: str, metrics: dict[str, float]) -> None:
         _retry(client.log_batch, run_id, metrics=items[i: i + 1000])
 
 
+def open_experiment(name: str, uri: str | None):
+    """Check the server, then get or create the experiment; returns (uri, client, experiment id).
+
+    On SQLite the artifacts go to ``mlruns/`` beside the database, as an absolute URI, so Ray
+    workers log to the same place whatever their working directory.
+    """
+    uri = uri or default_tracking_uri()
+    check_reachable(uri)
+    client = _client(uri)
+    exp = _retry(client.get_experiment_by_name, name)
+    if exp is not None:
+        return uri, client, exp.experiment_id
+    location = None
+    if uri.startswith("sqlite:"):
+        location = (Path(uri.removeprefix("sqlite:///")).parent / "mlruns").resolve().as_uri()
+    return uri, client, _retry(client.create_experiment, name, artifact_location=location)
+
+
 @dataclass
 class Tracker:
     """The driver's handle on a sweep's MLflow experiment and parent run."""
@@ -110,17 +128,7 @@ class Tracker:
 
     @staticmethod
     def start(cfg, uri: str | None, out_dir: Path) -> Tracker:
-        uri = uri or default_tracking_uri()
-        check_reachable(uri)
-        client = _client(uri)
-        exp = _retry(client.get_experiment_by_name, cfg.name)
-        if exp is None:
-            location = None
-            if uri.startswith("sqlite:"):
-                location = (Path(uri.removeprefix("sqlite:///")).parent / "mlruns").resolve().as_uri()
-            exp_id = _retry(client.create_experiment, cfg.name, artifact_location=location)
-        else:
-            exp_id = exp.experiment_id
+        uri, client, exp_id = open_experiment(cfg.name, uri)
         chash = cfg.hash()
         found = _retry(client.search_runs, [exp_id],
                        filter_string=f"tags.`{ROLE}` = 'parent' and tags.`{CONFIG_HASH}` = '{chash}'",

@@ -561,19 +561,9 @@ class StudyTracker:
 
     @staticmethod
     def start(cfg: ExperimentConfig, study_name: str, storage: str, uri: str | None, study: Any) -> StudyTracker:
-        from pcpg_dist.tracking import ROLE, _client, _retry, check_reachable, default_tracking_uri
+        from pcpg_dist.tracking import ROLE, _retry, open_experiment
 
-        uri = uri or default_tracking_uri()
-        check_reachable(uri)
-        client = _client(uri)
-        exp = _retry(client.get_experiment_by_name, cfg.name)
-        if exp is None:
-            location = None
-            if uri.startswith("sqlite:"):
-                location = (Path(uri.removeprefix("sqlite:///")).parent / "mlruns").resolve().as_uri()
-            exp_id = _retry(client.create_experiment, cfg.name, artifact_location=location)
-        else:
-            exp_id = exp.experiment_id
+        uri, client, exp_id = open_experiment(cfg.name, uri)
         found = _retry(client.search_runs, [exp_id], filter_string=f"tags.`{ROLE}` = 'study' and "
                        f"tags.`pcpg.study` = '{study_name}'", max_results=1)
         if found:
