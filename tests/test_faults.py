@@ -250,16 +250,17 @@ def test_killed_driver_resumes_without_recomputing_or_duplicating(reference, cfg
     argv = run_argv(cfg_path, work, uri)
     with sweep(argv, tmp_path, tmp_path / "killed.log") as s:
         done = s.wait_for(lambda: unit_done(work, "cluster"), "a finished clustering unit")[0]
-        ray_procs = descendants(s.proc.pid)  # its gcs_server, raylet, workers
+        ray_procs = descendants(s.proc.pid)  # its gcs_server, raylet, workers, node agents
+        names = {p.pid: cmdline(p).strip() for p in ray_procs}
         os.kill(s.proc.pid, signal.SIGKILL)
         assert s.proc.wait(timeout=30) == -signal.SIGKILL
     assert not (work / NAME / "summary" / "run.json").exists(), "the driver finished before it was killed"
     # The GCS, the raylet and the workers share the driver's fate. Ray's two node agents do not
     # (measured: still alive 30 s later); they hold nothing of the sweep, and are killed here.
-    _, alive = psutil.wait_procs(ray_procs, timeout=30)
-    lingering = [cmdline(p).strip() or str(p.pid) for p in alive]
-    kill_all(alive)
-    assert not [c for c in lingering if c not in AGENTS], f"outlived their killed driver: {lingering}"
+    agents = [p for p in ray_procs if names[p.pid] in AGENTS]
+    _, alive = psutil.wait_procs([p for p in ray_procs if names[p.pid] not in AGENTS], timeout=30)
+    kill_all([*alive, *agents])
+    assert not alive, f"outlived their killed driver: {[names[p.pid] for p in alive]}"
     cluster_mtime = done.stat().st_mtime_ns
 
     finished(argv, tmp_path, tmp_path / "resumed.log")
@@ -288,23 +289,16 @@ def test_unreachable_server_at_start_is_one_line_exit_2(cfg_path, tmp_path):
     uri = f"http://127.0.0.1:{free_port()}"
     argv = [sys.executable, "-m", "pcpg_dist.cli", "run", str(cfg_path), "--workdir", str(tmp_path / "runs"),
             "--tracking-uri", uri, "--quiet"]
+    t0 = time.monotonic()
     res = subprocess.run(argv, cwd=tmp_path, env=sweep_env(), capture_output=True, text=True, timeout=SWEEP_TIMEOUT)
+    elapsed = time.monotonic() - t0
     assert res.returncode == 2, res.stdout + res.stderr
     err = res.stderr.strip()
     assert err.count("\n") == 0 and err.startswith("pcpg: error:") and uri in err and "unreachable" in err
     assert not (tmp_path / "runs").exists()
-
-
-@pytest.mark.xfail(strict=True, reason="cli._cmd_run starts Ray (and imports torch) before the tracking "
-                   "check; ~50 s on a loaded 2-core machine. Fix: call check_reachable before init_ray "
-                   "(docs/reliability.md)")
-def test_unreachable_server_at_start_fails_within_10_s(cfg_path, tmp_path):
-    uri = f"http://127.0.0.1:{free_port()}"
-    argv = [sys.executable, "-m", "pcpg_dist.cli", "run", str(cfg_path), "--workdir", str(tmp_path / "runs"),
-            "--tracking-uri", uri, "--quiet"]
-    t0 = time.monotonic()
-    res = subprocess.run(argv, cwd=tmp_path, env=sweep_env(), capture_output=True, text=True, timeout=SWEEP_TIMEOUT)
-    assert res.returncode == 2 and time.monotonic() - t0 < 10
+    if elapsed >= 10:
+        pytest.xfail(f"the right error, but after {elapsed:.0f} s, not within 10 s: cli._cmd_run starts Ray "
+                     "(and imports torch) before the tracking check (fix: docs/reliability.md)")
 
 
 class MlflowServer:
