@@ -32,6 +32,10 @@ def _cmd_run(args: argparse.Namespace) -> None:
     from pcpg_dist.summary import print_summary
 
     cfg = load_config(args.config)
+    if not args.no_tracking:  # fail in seconds on a dead server, before Ray and torch start
+        from pcpg_dist.tracking import check_reachable, default_tracking_uri
+
+        check_reachable(args.tracking_uri or default_tracking_uri())
     init_ray(args.ray_address)
     result = run_experiment(cfg, workdir=Path(args.workdir), tracking_uri=args.tracking_uri,
                             track=not args.no_tracking, show_progress=not args.quiet,
@@ -118,6 +122,10 @@ def _cmd_tune(args: argparse.Namespace) -> None:
     from pcpg_dist.tuning import run_study
 
     cfg = load_config(args.config)
+    if not args.no_tracking:  # fail in seconds on a dead server, before Ray starts
+        from pcpg_dist.tracking import check_reachable, default_tracking_uri
+
+        check_reachable(args.tracking_uri or default_tracking_uri())
     init_ray(args.ray_address)
     res = run_study(cfg, storage_url=args.optuna_storage, workdir=Path(args.workdir),
                     tracking_uri=args.tracking_uri, track=not args.no_tracking,

@@ -143,9 +143,11 @@ def test_report_renders_everything(first_run, tmp_path):
     html = (tmp_path / "rep" / "report.html").read_text()
     md = (tmp_path / "rep" / "report.md").read_text()
     run = json.loads((result.out_dir / "summary" / "run.json").read_text())
-    for text in (html, md):
+    import html as html_lib
+
+    for text, command in ((html, html_lib.escape(run["command"])), (md, run["command"])):
         assert run["provenance"]["git_commit"] in text and run["provenance"]["uv_lock"] in text
-        assert run["command"] in text and "0.57 / 0.64 / 0.63 / 0.69" in text
+        assert command in text and "0.57 / 0.64 / 0.63 / 0.69" in text
         assert "accuracy_vs_p" in text and "Wall time per stage" in text
     assert html.count("data:image/png;base64,") >= 3
     acc = f"{result.metrics['clustering/accuracy']:.4g}"
