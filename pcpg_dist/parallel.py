@@ -13,8 +13,13 @@ import os
 def set_threads(n: int) -> None:
     """Limit torch (and BLAS via env vars for subprocesses) to ``n`` threads in this process."""
     n = max(1, int(n))
-    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMBA_NUM_THREADS"):
+    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
         os.environ[var] = str(n)
+    # numba: the runtime setting, never NUMBA_NUM_THREADS (numba rejects a changed value once
+    # its thread pool runs, at the next compile); capped at the pool size it started with.
+    import numba
+
+    numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
     import torch
 
     if torch.get_num_threads() != n:
