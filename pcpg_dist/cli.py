@@ -24,6 +24,14 @@ def _cmd_generate(args: argparse.Namespace) -> None:
     console.print(f"wrote {args.out}/manifest.json")
 
 
+def _check_tracking(args: argparse.Namespace) -> None:
+    """Fail in seconds on a dead MLflow server, before Ray and torch start."""
+    if not args.no_tracking:
+        from pcpg_dist.tracking import check_reachable, default_tracking_uri
+
+        check_reachable(args.tracking_uri or default_tracking_uri())
+
+
 def _cmd_run(args: argparse.Namespace) -> None:
     from pcpg_dist.config import load_config
     from pcpg_dist.progress import console
@@ -32,10 +40,7 @@ def _cmd_run(args: argparse.Namespace) -> None:
     from pcpg_dist.summary import print_summary
 
     cfg = load_config(args.config)
-    if not args.no_tracking:  # fail in seconds on a dead server, before Ray and torch start
-        from pcpg_dist.tracking import check_reachable, default_tracking_uri
-
-        check_reachable(args.tracking_uri or default_tracking_uri())
+    _check_tracking(args)
     init_ray(args.ray_address)
     result = run_experiment(cfg, workdir=Path(args.workdir), tracking_uri=args.tracking_uri,
                             track=not args.no_tracking, show_progress=not args.quiet,
@@ -122,10 +127,7 @@ def _cmd_tune(args: argparse.Namespace) -> None:
     from pcpg_dist.tuning import run_study
 
     cfg = load_config(args.config)
-    if not args.no_tracking:  # fail in seconds on a dead server, before Ray starts
-        from pcpg_dist.tracking import check_reachable, default_tracking_uri
-
-        check_reachable(args.tracking_uri or default_tracking_uri())
+    _check_tracking(args)
     init_ray(args.ray_address)
     res = run_study(cfg, storage_url=args.optuna_storage, workdir=Path(args.workdir),
                     tracking_uri=args.tracking_uri, track=not args.no_tracking,
@@ -149,6 +151,11 @@ def build_parser() -> argparse.ArgumentParser:
                        help="join this Ray cluster (default: $RAY_ADDRESS, else Ray in-process)")
         p.add_argument("--quiet", action="store_true", help="no progress bars")
 
+    def tracking(p: argparse.ArgumentParser) -> None:
+        p.add_argument("--tracking-uri", default=None,
+                       help="MLflow tracking URI (default: $MLFLOW_TRACKING_URI, else sqlite:///mlflow.db)")
+        p.add_argument("--no-tracking", action="store_true", help="do not log to MLflow")
+
     p = sub.add_parser("generate", help="generate the datasets of a config (PBTG on Ray)")
     p.add_argument("config", help="experiment YAML")
     p.add_argument("--out", required=True, help="output folder (Parquet files + manifest.json)")
@@ -158,9 +165,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("run", help="run a whole experiment: generate, cluster, rank, train, evaluate, log")
     p.add_argument("config", help="experiment YAML")
     p.add_argument("--workdir", default="runs", help="outputs and the resumable cache (default: runs/)")
-    p.add_argument("--tracking-uri", default=None,
-                   help="MLflow tracking URI (default: $MLFLOW_TRACKING_URI, else sqlite:///mlflow.db)")
-    p.add_argument("--no-tracking", action="store_true", help="do not log to MLflow")
+    tracking(p)
     common(p)
     p.set_defaults(func=_cmd_run)
 
@@ -195,9 +200,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default=None, help="folder of best_config.yaml, trials.csv, score_vs_k.png "
                    "(default: WORKDIR/NAME/tuning)")
     p.add_argument("--workdir", default="runs", help="data cache and outputs (default: runs/)")
-    p.add_argument("--tracking-uri", default=None,
-                   help="MLflow tracking URI (default: $MLFLOW_TRACKING_URI, else sqlite:///mlflow.db)")
-    p.add_argument("--no-tracking", action="store_true", help="do not log to MLflow")
+    tracking(p)
     common(p)
     p.set_defaults(func=_cmd_tune)
     return parser

@@ -20,7 +20,7 @@ import json
 import os
 import tempfile
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -143,7 +143,7 @@ class Dataset:
         styles = np.asarray(styles, dtype=np.int64)
         if styles.shape != (self.n_trajectories,):
             raise DataError(f"styles must have shape ({self.n_trajectories},), got {styles.shape}")
-        return Dataset(**{**self.__dict__, "styles": styles})
+        return replace(self, styles=styles)
 
     @staticmethod
     def concat(parts: Sequence[Dataset], renumber: bool = True) -> Dataset:

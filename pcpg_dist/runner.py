@@ -158,9 +158,7 @@ def domain_extras(cfg: ExperimentConfig, dataset: Dataset, labels: np.ndarray, t
                                         cfg.evaluation.rollouts_per_policy, rng)
             agent = outcome_stats(roll).mean(numeric_only=True)
             own = proxies[proxies["style"] == style[k]].mean(numeric_only=True)
-            for stat in agent.index:
-                if stat == "style":
-                    continue
+            for stat in agent.index.drop(["trajectory", "style"], errors="ignore"):
                 rows.append({"cluster": k, "proxy": PROXY_NAMES[style[k]], "stat": stat,
                              "agent": float(agent[stat]), "proxy_value": float(own.get(stat, np.nan))})
                 metrics[f"outcome/{stat}/k{k}"] = float(agent[stat])
