@@ -7,6 +7,7 @@ import logging
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pydantic
 import pytest
 
@@ -33,7 +34,7 @@ GOOD_B = line("0,0,0,0,0,0", "0,0,1,0,0,25", "0,0,1,0,1,24", "0,0,1,1,1,6", "0,0
 
 @pytest.fixture(scope="module")
 def shipped() -> mario.LoadResult:
-    return mario.load_default()
+    return mario.load_default(event="id")  # the log's six values as given
 
 
 # ------------------------------------------------------------------ the shipped log
@@ -89,7 +90,7 @@ def test_terminator_blank_lines_bom_and_crlf_are_accepted(tmp_path: Path) -> Non
     assert list(ds.actions[:4]) == [3, 13, 17, -1]
     assert list(ds.actions[4:]) == [25, 24, 6, 22, -1]
     assert list(ds.success) == [True, False]
-    bom_first = mario.load_play_log(write(tmp_path, "\ufeff" + GOOD_A, "bom.log")).dataset
+    bom_first = mario.load_play_log(write(tmp_path, "\ufeff" + GOOD_A, "bom.log"), event="id").dataset
     np.testing.assert_array_equal(bom_first.states[0], np.zeros(6))
 
 
@@ -105,10 +106,26 @@ def test_goal_options_on_hand_made_log(tmp_path: Path) -> None:
 def test_increments_option(tmp_path: Path) -> None:
     # starts mid-count (a kill on the first step, as 18 shipped episodes do)
     ds = mario.load_play_log(write(tmp_path, line("0,1,0,0,0,14", "1,1,0,0,0,3", "1,1,0,2,0,6")),
-                             increments=True).dataset
+                             increments=True, event="id").dataset
     assert ds.feature_names == (*mario.FEATURES, *mario.INCREMENTS)
     np.testing.assert_array_equal(ds.states[:, 6:], [[0, 1, 0, 0, 0], [1, 0, 0, 0, 0], [0, 0, 0, 2, 0]])
     np.testing.assert_array_equal(ds.states[:, :6], [[0, 1, 0, 0, 0, 14], [1, 1, 0, 0, 0, 3], [1, 1, 0, 2, 0, 6]])
+
+
+def test_state_encodings(tmp_path: Path) -> None:
+    path = write(tmp_path, line("0,1,0,0,0,14", "1,1,0,0,0,3", "1,1,0,2,0,38"))
+    raw = mario.load_play_log(path, event="id").dataset
+    onehot = mario.load_play_log(path).dataset  # the default: counters + one-hot event
+    assert onehot.feature_names == (*mario.COUNTERS, *(f"event_{i}" for i in range(39)))
+    np.testing.assert_array_equal(onehot.states[:, :5], raw.states[:, :5])
+    np.testing.assert_array_equal(onehot.states[:, 5:].argmax(axis=1), [14, 3, 38])
+    assert (onehot.states[:, 5:].sum(axis=1) == 1).all()
+    lean = mario.load_play_log(path, counters=False, increments=True).dataset
+    assert lean.feature_names == (*(f"event_{i}" for i in range(39)), *mario.INCREMENTS)
+    np.testing.assert_array_equal(lean.states[:, 39:], [[0, 1, 0, 0, 0], [1, 0, 0, 0, 0], [0, 0, 0, 2, 0]])
+    np.testing.assert_array_equal(lean.actions, raw.actions)
+    with pytest.raises(DataError, match="event must be"):
+        mario.load_play_log(path, event="embedding")  # type: ignore[arg-type]
 
 
 def test_single_step_episode_has_no_action(tmp_path: Path) -> None:
@@ -200,9 +217,11 @@ def test_nothing_readable_fails_even_when_lenient(tmp_path: Path) -> None:
 
 def test_config_model(tmp_path: Path) -> None:
     path = write(tmp_path, GOOD_A + GOOD_B)
-    cfg = mario.MarioLoadConfig(path=path, goal="any", increments=True)
+    cfg = mario.MarioLoadConfig(path=path, goal="any", increments=True, event="id")
     ds = mario.load(cfg).dataset
     assert ds.success.all() and ds.state_dim == 11 and ds.n_trajectories == 2
+    with pytest.raises(pydantic.ValidationError):
+        mario.MarioLoadConfig(event="embedding")
     assert mario.load(mario.MarioLoadConfig()).dataset.n_trajectories == 225
     with pytest.raises(pydantic.ValidationError):
         mario.MarioLoadConfig(goal="finish")
@@ -277,6 +296,9 @@ def test_cluster_profile_values(tmp_path: Path) -> None:
                   "0,0,0,3,0,6", "0,0,0,3,0,6", "0,0,0,3,0,17")  # 8 steps
     ds = mario.load_play_log(write(tmp_path, runner + killer + coiner + runner)).dataset
     profile = mario.cluster_profile(ds, np.array([5, 1, 1, 5]))
+    lean = mario.load_play_log(write(tmp_path, runner + killer + coiner + runner, "lean.log"),
+                               counters=False, increments=True).dataset
+    pd.testing.assert_frame_equal(mario.cluster_profile(lean, np.array([5, 1, 1, 5])), profile)
     assert list(profile.index) == [1, 5]
     assert list(profile["size"]) == [2, 2]
     assert list(profile["mean_length"]) == [6.0, 4.0]
@@ -302,7 +324,7 @@ def test_cluster_profile_rejects_bad_input(tmp_path: Path) -> None:
     anonymous = Dataset.from_trajectories("x", "y", 2, [{"states": np.zeros((2, 6)), "actions": [0],
                                                          "valid": [3, 3], "rewards": [0.0]}],
                                           styles=[-1], success=[True])
-    with pytest.raises(DataError, match="lacks Mario features"):
+    with pytest.raises(DataError, match="neither the Mario counters"):
         mario.cluster_profile(anonymous, np.zeros(1))
     with pytest.raises(DataError, match="profile lacks columns"):
         mario.plot_profile(mario.cluster_profile(ds, np.zeros(2)).drop(columns="size"), tmp_path / "p.png")

@@ -9,7 +9,8 @@ paper's state tuple (j, k, r, c, d, e).
 
 How the paper's pipeline reads it (documented in docs/mario.md):
 
-- **State**: the six values as given (optionally plus the five per-step increments).
+- **State**: the five counters, the current event (one-hot by default; ``event="id"`` keeps the
+  raw number), optionally the five per-step increments; ``counters=False`` drops the counters.
 - **Action** (the behavioural-cloning target): the *next* step's event id; the final row has -1.
   ``n_actions`` = 39. By default every event is valid; :func:`valid_mask_from` and
   :func:`with_valid` restrict the valid set to the events seen in a training split.
@@ -57,6 +58,8 @@ SHIPPED_SHA256 = "ff427eb617213f81c138d67c707a6ec953fa79154d3566c940ffbe1ae08e87
 SHIPPED_EPISODES = 225
 
 Goal = Literal["no_death", "any", "won_level"]
+EventEncoding = Literal["onehot", "id"]
+EVENT_ONEHOT = tuple(f"event_{i}" for i in range(N_ACTIONS))
 
 
 class MarioLoadConfig(StrictModel):
@@ -69,8 +72,14 @@ class MarioLoadConfig(StrictModel):
     goal: Goal = Field("no_death", description="Which episodes reached the goal (Performance, "
                        "Eq. 3): 'no_death' = ends with the death counter at 0; 'any' = every "
                        "episode; 'won_level' = the final event is 17 (inferred level-won event).")
+    event: EventEncoding = Field("onehot", description="How the current event id enters the "
+                                 "state: 'onehot' = 39 indicator features event_0..event_38; 'id' "
+                                 "= the id as one number, as in the log (an arbitrary scale: a BC "
+                                 "model then scores below the majority-class baseline).")
+    counters: bool = Field(True, description="Include the five cumulative counters (jumps .. "
+                           "deaths since the episode began).")
     increments: bool = Field(False, description="Append the five per-step counter increments "
-                             "(d_jumps .. d_deaths) to the six raw features.")
+                             "(d_jumps .. d_deaths).")
 
 
 @dataclass(frozen=True)
@@ -125,20 +134,30 @@ def _success(steps: np.ndarray, goal: Goal) -> bool:
     return True
 
 
-def _episode_arrays(steps: np.ndarray, increments: bool) -> dict[str, np.ndarray]:
+def feature_names(event: EventEncoding = "onehot", counters: bool = True,
+                  increments: bool = False) -> tuple[str, ...]:
+    """State feature names, in order: counters, the event, increments (each where chosen)."""
+    return ((*COUNTERS,) if counters else ()) + (EVENT_ONEHOT if event == "onehot" else ("event",)) \
+        + (INCREMENTS if increments else ())
+
+
+def _episode_arrays(steps: np.ndarray, event: EventEncoding, counters: bool,
+                    increments: bool) -> dict[str, np.ndarray]:
     """States, next-event actions, all-valid mask and zero rewards of one episode."""
-    states = steps.astype(np.float32)
+    parts = [steps[:, :DEATHS + 1]] if counters else []
+    parts.append(np.eye(N_ACTIONS)[steps[:, -1]] if event == "onehot" else steps[:, -1:])
     if increments:
         # Counters start from an implicit zero before the first step (18 shipped episodes open
         # on a kill, so their first step already counts 1): the first increment is steps[0].
-        deltas = np.diff(steps[:, :DEATHS + 1], axis=0, prepend=0).astype(np.float32)
-        states = np.concatenate([states, deltas], axis=1)
+        parts.append(np.diff(steps[:, :DEATHS + 1], axis=0, prepend=0))
+    states = np.concatenate(parts, axis=1).astype(np.float32)
     return {"states": states, "actions": steps[1:, -1], "valid": np.full(len(steps), ALL_VALID),
             "rewards": np.zeros(len(steps) - 1)}
 
 
 def load_play_log(path: str | Path, strict: bool = True, goal: Goal = "no_death",
-                  increments: bool = False) -> LoadResult:
+                  increments: bool = False, event: EventEncoding = "onehot",
+                  counters: bool = True) -> LoadResult:
     """Read an S-TLI play log into a Dataset (domain 'mario', env 'smb', styles unknown).
 
     Every problem names the file, the line, the episode (0-based, counting non-blank lines)
@@ -151,6 +170,8 @@ def load_play_log(path: str | Path, strict: bool = True, goal: Goal = "no_death"
     path = Path(path)
     if goal not in ("no_death", "any", "won_level"):
         raise DataError(f"goal must be 'no_death', 'any' or 'won_level', got {goal!r}")
+    if event not in ("onehot", "id"):
+        raise DataError(f"event must be 'onehot' or 'id', got {event!r}")
     try:
         text = path.read_text(encoding="utf-8-sig", errors="replace")  # a BOM is not data
     except OSError as e:
@@ -202,13 +223,13 @@ def load_play_log(path: str | Path, strict: bool = True, goal: Goal = "no_death"
             problem(f"{where} step {step + 1}: cumulative counter '{COUNTERS[col]}' decreases "
                     f"from {arr[step, col]} to {arr[step + 1, col]}")
             continue
-        trajectories.append(_episode_arrays(arr, increments))
+        trajectories.append(_episode_arrays(arr, event, counters, increments))
         success.append(_success(arr, goal))
 
     if not trajectories:
         raise DataError(f"{path}: no readable episode ({len(problems)} problems; first: "
                         f"{problems[0] if problems else 'the file is empty'})")
-    names = FEATURES + INCREMENTS if increments else FEATURES
+    names = feature_names(event, counters, increments)
     dataset = Dataset.from_trajectories(DOMAIN, ENV, N_ACTIONS, trajectories,
                                         styles=[-1] * len(trajectories), success=success,
                                         feature_names=names)
@@ -225,14 +246,16 @@ def load(cfg: MarioLoadConfig) -> LoadResult:
     return load_default(**options) if cfg.path is None else load_play_log(cfg.path, **options)
 
 
-def load_default(strict: bool = True, goal: Goal = "no_death", increments: bool = False) -> LoadResult:
+def load_default(strict: bool = True, goal: Goal = "no_death", increments: bool = False,
+                 event: EventEncoding = "onehot", counters: bool = True) -> LoadResult:
     """The shipped log (225 human episodes), read from package data — never from /work/shared."""
     resource = resources.files(SHIPPED_PACKAGE).joinpath(*SHIPPED_PATH)
     with resources.as_file(resource) as path:
         if not Path(path).is_file():
             raise DataError(f"{path}: the shipped Mario play log is missing from the installed "
                             "package (was pcpg_dist/data/ left out of the build?)")
-        return load_play_log(path, strict=strict, goal=goal, increments=increments)
+        return load_play_log(path, strict=strict, goal=goal, increments=increments, event=event,
+                             counters=counters)
 
 
 def shipped_log_path() -> Path:
@@ -296,13 +319,19 @@ def cluster_profile(dataset: Dataset, labels: np.ndarray) -> pd.DataFrame:
     labels = np.asarray(labels)
     if labels.shape != (dataset.n_trajectories,):
         raise DataError(f"labels must have shape ({dataset.n_trajectories},), got {labels.shape}")
-    missing = [c for c in COUNTERS if c not in dataset.feature_names]
-    if missing:
-        raise DataError(f"dataset {dataset.domain}-{dataset.env} lacks Mario features {missing} "
-                        f"(feature_names={list(dataset.feature_names)})")
-    cols = [dataset.feature_names.index(c) for c in COUNTERS]
     lengths = dataset.lengths
-    finals = dataset.states[dataset.offsets[1:] - 1][:, cols].astype(np.float64)
+    names = dataset.feature_names
+    if all(c in names for c in COUNTERS):
+        cols = [names.index(c) for c in COUNTERS]
+        finals = dataset.states[dataset.offsets[1:] - 1][:, cols].astype(np.float64)
+    elif all(c in names for c in INCREMENTS):  # a counter's final value is its increments' sum
+        cols = [names.index(c) for c in INCREMENTS]
+        per_row = dataset.states[:, cols].astype(np.float64)
+        finals = np.add.reduceat(per_row, dataset.offsets[:-1], axis=0)
+    else:
+        raise DataError(f"dataset {dataset.domain}-{dataset.env} has neither the Mario counters "
+                        f"{list(COUNTERS)} nor their increments {list(INCREMENTS)} "
+                        f"(feature_names={list(names)})")
     frame = pd.DataFrame(finals / lengths[:, None], columns=list(RATE_COLUMNS))
     frame["length"] = lengths
     frame["success"] = dataset.success.astype(np.float64)
