@@ -191,7 +191,16 @@ def evaluate(
         mean, std = _mean_std(values)
         metrics[name], metrics[f"{name}/std"] = mean, std
 
-    # ---- Fig. 4: accuracy vs p, PCPG against No Clustering and random
+    # ---- Fig. 4: accuracy vs p, PCPG against No Clustering, random and the majority class
+    train_actions = dataset.subset(train_idx).actions
+    majority = int(np.bincount(train_actions[train_actions >= 0], minlength=dataset.n_actions).argmax())
+
+    def majority_accuracy(idx: np.ndarray) -> float:
+        """Accuracy of always predicting the training split's most frequent action (masks ignored)."""
+        acts = dataset.subset(idx).actions
+        acts = acts[acts >= 0]
+        return float(np.mean(acts == majority)) if len(acts) else float("nan")
+
     rows = []
     for p in ps:
         union = np.unique(np.concatenate([h_test[(c, p)] for c in range(k)]))
@@ -211,6 +220,9 @@ def evaluate(
                 rows.append({"method": method, "p": p, "mean": _mean_std(vals)[0],
                              "std": _mean_std(vals)[1], "seeds": len(vals)})
         rows.append({"method": "random", "p": p, "mean": rnd, "std": 0.0, "seeds": 0})
+        maj = majority_accuracy(union)
+        rows.append({"method": "majority", "p": p, "mean": maj, "std": 0.0, "seeds": 0})
+        metrics[f"majority/accuracy/p{fmt(p)}"] = maj
         if pc:
             put(f"pcpg/accuracy/p{fmt(p)}", pc)
         if nc:
@@ -222,6 +234,7 @@ def evaluate(
             if vals:
                 put(f"pcpg/accuracy/k{c}/p{fmt(p)}", vals)
     metrics["random/accuracy"] = scorer.random_accuracy(test_idx)
+    metrics["majority/accuracy"] = majority_accuracy(test_idx)
     tables["accuracy"] = pd.DataFrame(rows)
     if any(f"pcpg/accuracy/p{fmt(p)}" in metrics and f"baseline/accuracy/p{fmt(p)}" in metrics
            for p in ps):
@@ -256,6 +269,21 @@ def evaluate(
         metrics["cross/offdiagonal_mean"] = float(m[off].mean()) if k > 1 else float("nan")
         metrics["cross/diagonal_is_row_max"] = float(np.mean(m.argmax(axis=1) == np.arange(k)))
         metrics["correlation/diagonal_mean"] = float(np.diagonal(corr.mean(axis=(0, 1))).mean())
+
+    # ---- Fig. 6 from the data: mean length of the training subsets each agent imitates. The only
+    # Fig. 6 a domain without a simulator (Mario) can have; beside rollouts it shows what they copy.
+    h_train = threshold(labels, train_idx, scores, ids, ps, k)
+    nc_train = threshold_all(train_idx, scores, ids, ps)
+    lengths = dataset.lengths
+    subset_rows = [{"method": "pcpg", "k": c, "p": p, "mean": float(lengths[h_train[(c, p)]].mean()),
+                    "std": float(lengths[h_train[(c, p)]].std()), "n": len(h_train[(c, p)])}
+                   for c in range(k) for p in ps if len(h_train[(c, p)])]
+    subset_rows += [{"method": "nc", "k": -1, "p": p, "mean": float(lengths[nc_train[p]].mean()),
+                     "std": float(lengths[nc_train[p]].std()), "n": len(nc_train[p])} for p in ps]
+    tables["subset_length"] = pd.DataFrame(subset_rows)
+    for row in subset_rows:
+        who = "nc" if row["method"] == "nc" else f"k{row['k']}"
+        metrics[f"subset/length/{who}/p{fmt(row['p'])}"] = row["mean"]
 
     # ---- rollouts: Table 3, Fig. 5/6, Fig. 8
     rollout_sets: dict[tuple, Dataset] = {}

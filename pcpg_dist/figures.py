@@ -55,8 +55,9 @@ def heatmap(matrix: pd.DataFrame, path: Path, title: str, vmin: float | None = N
     return _save(fig, path)
 
 
-def rollout_length(length: pd.DataFrame, path: Path, mode: str) -> Path:
-    """Fig. 5/6: mean rollout length vs p per style and for No Clustering."""
+def rollout_length(length: pd.DataFrame, path: Path, mode: str,
+                   ylabel: str | None = None) -> Path:
+    """Fig. 5/6: mean rollout (or kept-trajectory) length vs p per style and for No Clustering."""
     fig, ax = plt.subplots(figsize=(4.5, 3.2))
     for (method, k), d in length.groupby(["method", "k"]):
         d = d.sort_values("p")
@@ -64,7 +65,7 @@ def rollout_length(length: pd.DataFrame, path: Path, mode: str) -> Path:
         ax.errorbar(d.p, d["mean"], yerr=d["std"].fillna(0), fmt="s--" if method == "nc" else "o-",
                     capsize=3, label=label)
     ax.set_xlabel("p")
-    ax.set_ylabel(f"mean rollout length ({mode} actions)")
+    ax.set_ylabel(ylabel or f"mean rollout length ({mode} actions)")
     ax.invert_xaxis()
     ax.legend(fontsize=7)
     return _save(fig, path)
@@ -109,6 +110,9 @@ def write_all(tables: dict[str, pd.DataFrame], out: Path,
                                       "corr(per-trajectory accuracy, in H_k')", -1, 1, "coolwarm")
     if "rollout_length" in tables:
         figs["rollout_length"] = rollout_length(tables["rollout_length"], out / "rollout_length.png", mode)
+    if "subset_length" in tables:
+        figs["subset_length"] = rollout_length(tables["subset_length"], out / "subset_length.png",
+                                               mode, "mean length of kept training trajectories")
     if "corruption_accuracy" in tables:
         figs["corruption"] = corruption(tables["corruption_accuracy"], out / "corruption.png")
     if rollouts and draw is not None:

@@ -172,6 +172,8 @@ def domain_extras(cfg: ExperimentConfig, dataset: Dataset, labels: np.ndarray, t
         profile.to_csv(out / "cluster_profile.csv")
         profile.to_json(out / "cluster_profile.json", orient="index", indent=1)
         plot_profile(profile, out / "cluster_profile.png")
+        for k, row in profile.iterrows():  # so the MLflow UI can chart and compare styles
+            metrics.update({f"profile/{col}/k{k}": float(v) for col, v in row.items()})
     return metrics
 
 

@@ -46,7 +46,8 @@ def accuracy_table(per_env: dict[str, dict[str, float]], ps: tuple[float, ...]) 
                          "pcpg_std": m.get(f"pcpg/accuracy/p{p:g}/std", np.nan),
                          "no_clustering": m.get(f"baseline/accuracy/p{p:g}", np.nan),
                          "no_clustering_std": m.get(f"baseline/accuracy/p{p:g}/std", np.nan),
-                         "random": m.get("random/accuracy", np.nan)})
+                         "random": m.get("random/accuracy", np.nan),
+                         "majority": m.get(f"majority/accuracy/p{p:g}", np.nan)})
     return pd.DataFrame(rows)
 
 
@@ -83,6 +84,7 @@ def _figure(acc: pd.DataFrame, path: Path) -> None:
         ax.errorbar(d["p"], d["no_clustering"], yerr=d["no_clustering_std"], marker="s",
                     label="No Clustering", capsize=3)
         ax.plot(d["p"], d["random"], "k:", label="random")
+        ax.plot(d["p"], d["majority"], color="grey", ls="--", label="majority class")
         ax.set_title(env)
         ax.set_xlabel("p")
         ax.set_ylim(0, 1)
@@ -103,10 +105,12 @@ def print_summary(result, console) -> None:
     t.add_column("p", justify="right")
     t.add_column("PCPG", justify="right")
     t.add_column("No Clustering", justify="right")
+    t.add_column("majority class", justify="right")
     t.add_column("random", justify="right")
     for p in ps:
         t.add_row(f"{p:g}", f"{m.get(f'pcpg/accuracy/p{p:g}', float('nan')):.3f}",
                   f"{m.get(f'baseline/accuracy/p{p:g}', float('nan')):.3f}",
+                  f"{m.get(f'majority/accuracy/p{p:g}', float('nan')):.3f}",
                   f"{m.get('random/accuracy', float('nan')):.3f}")
     console.print(t)
     c = Table(title="Clustering")
