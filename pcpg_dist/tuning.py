@@ -534,16 +534,18 @@ def _plot_score_vs_k(study: Any, path: Path) -> None:
     k = np.array([t.user_attrs.get("params_full", t.params).get("k", 0) for t in done], float)
     score = np.array([t.value for t in done])
     acc = np.array([t.user_attrs.get("pcpg_accuracy", np.nan) for t in done])
-    fig, ax = plt.subplots(figsize=(6, 4))
+    fig, ax = plt.subplots(figsize=(6, 4.6))
     jitter = np.random.default_rng(0).uniform(-0.12, 0.12, len(k))  # seeded: same figure for same study
     ax.scatter(k + jitter, acc, marker="x", color="0.6", label="held-out PCPG accuracy")
     ax.scatter(k + jitter, score, color="C0", label="score = accuracy - penalty (k - 1)")
-    for kk in np.unique(k):
-        ax.plot([kk - 0.3, kk + 0.3], [score[k == kk].max()] * 2, color="C1")
+    for i, kk in enumerate(np.unique(k)):
+        ax.plot([kk - 0.3, kk + 0.3], [score[k == kk].max()] * 2, color="C1",
+                label="best score at this k" if i == 0 else None)
     ax.set_xlabel("k (clusters)")
     ax.set_ylabel("accuracy / score")
     ax.set_title(f"{study.study_name}: best k = {study.best_trial.params.get('k', '-')}")
-    ax.legend(loc="lower right", fontsize=8)
+    # below the axes: inside, it hid whichever points fell in its corner
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.18), ncol=2, fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
