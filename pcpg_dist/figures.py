@@ -27,9 +27,9 @@ def _save(fig, path: Path) -> Path:
 
 
 def accuracy_vs_p(acc: pd.DataFrame, path: Path) -> Path:
-    """Fig. 4: accuracy vs p for PCPG, No Clustering and random, with one std."""
+    """Fig. 4: accuracy vs p for PCPG, No Clustering, the majority class and random, with one std."""
     fig, ax = plt.subplots(figsize=(4.5, 3.2))
-    for method, style in (("pcpg", "o-"), ("no_clustering", "s--"), ("random", ":")):
+    for method, style in (("pcpg", "o-"), ("no_clustering", "s--"), ("majority", "-."), ("random", ":")):
         d = acc[acc.method == method].sort_values("p")
         if len(d):
             ax.errorbar(d.p, d["mean"], yerr=d["std"], fmt=style, capsize=3, label=method)
@@ -112,7 +112,7 @@ def write_all(tables: dict[str, pd.DataFrame], out: Path,
         figs["rollout_length"] = rollout_length(tables["rollout_length"], out / "rollout_length.png", mode)
     if "subset_length" in tables:
         figs["subset_length"] = rollout_length(tables["subset_length"], out / "subset_length.png",
-                                               mode, "mean length of kept training trajectories")
+                                               mode, "kept trajectory length (steps)")
     if "corruption_accuracy" in tables:
         figs["corruption"] = corruption(tables["corruption_accuracy"], out / "corruption.png")
     if rollouts and draw is not None:
