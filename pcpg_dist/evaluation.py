@@ -192,14 +192,18 @@ def evaluate(
         metrics[name], metrics[f"{name}/std"] = mean, std
 
     # ---- Fig. 4: accuracy vs p, PCPG against No Clustering, random and the majority class
-    train_actions = dataset.subset(train_idx).actions
-    majority = int(np.bincount(train_actions[train_actions >= 0], minlength=dataset.n_actions).argmax())
+    # per trajectory: steps with an action, and how many of them are the training majority action
+    traj, acts = dataset.row_trajectory, dataset.actions
+    is_step = acts >= 0
+    in_train = np.isin(traj, train_idx) & is_step
+    majority = int(np.bincount(acts[in_train], minlength=dataset.n_actions).argmax())
+    n_steps = np.bincount(traj, weights=is_step, minlength=dataset.n_trajectories)
+    n_majority = np.bincount(traj, weights=acts == majority, minlength=dataset.n_trajectories)
 
     def majority_accuracy(idx: np.ndarray) -> float:
         """Accuracy of always predicting the training split's most frequent action (masks ignored)."""
-        acts = dataset.subset(idx).actions
-        acts = acts[acts >= 0]
-        return float(np.mean(acts == majority)) if len(acts) else float("nan")
+        steps = n_steps[idx].sum()
+        return float(n_majority[idx].sum() / steps) if steps else float("nan")
 
     rows = []
     for p in ps:
@@ -274,12 +278,14 @@ def evaluate(
     # Fig. 6 a domain without a simulator (Mario) can have; beside rollouts it shows what they copy.
     h_train = threshold(labels, train_idx, scores, ids, ps, k)
     nc_train = threshold_all(train_idx, scores, ids, ps)
-    lengths = dataset.lengths
-    subset_rows = [{"method": "pcpg", "k": c, "p": p, "mean": float(lengths[h_train[(c, p)]].mean()),
-                    "std": float(lengths[h_train[(c, p)]].std()), "n": len(h_train[(c, p)])}
+    def length_row(method: str, c: int, p: float, idx: np.ndarray) -> dict:
+        kept = dataset.lengths[idx]
+        return {"method": method, "k": c, "p": p, "mean": float(kept.mean()),
+                "std": float(kept.std()), "n": len(idx)}
+
+    subset_rows = [length_row("pcpg", c, p, h_train[(c, p)])
                    for c in range(k) for p in ps if len(h_train[(c, p)])]
-    subset_rows += [{"method": "nc", "k": -1, "p": p, "mean": float(lengths[nc_train[p]].mean()),
-                     "std": float(lengths[nc_train[p]].std()), "n": len(nc_train[p])} for p in ps]
+    subset_rows += [length_row("nc", -1, p, nc_train[p]) for p in ps]
     tables["subset_length"] = pd.DataFrame(subset_rows)
     for row in subset_rows:
         who = "nc" if row["method"] == "nc" else f"k{row['k']}"
