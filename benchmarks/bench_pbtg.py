@@ -10,7 +10,8 @@ import time
 from pathlib import Path
 
 from pcpg_dist.config import load_config
-from pcpg_dist.generate import generate, gridworld_layouts
+from pcpg_dist.domains.gridworld_domain import gridworld_layouts
+from pcpg_dist.generate import generate
 from pcpg_dist.pbtg import generate_pair
 from pcpg_dist.ray_utils import init_ray
 

@@ -19,44 +19,16 @@ import json
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
 import torch
-from pydantic import Field
 
+from pcpg_dist.config.stages import BCConfig
 from pcpg_dist.domains.base import Policy
 from pcpg_dist.errors import ConfigError, DataError
 from pcpg_dist.ranking import Cell, CellSpec, dedupe_rows
-from pcpg_dist.schema import StrictModel
 
 _NEG = -1e9  # added to invalid actions' logits: exp underflows to exactly 0, gradients stay finite
-
-
-class BCConfig(StrictModel):
-    """The behavioural-cloning policy and its training (Step C)."""
-
-    hidden_layers: int = Field(3, ge=0, le=8, description="Hidden layers of the MLP (paper: 3).")
-    hidden_size: int = Field(5, ge=1, le=1024, description="Units per hidden layer (paper: 5).")
-    activation: Literal["relu", "tanh"] = Field("tanh", description=(
-        "Hidden activation. tanh by default: with 5-unit layers relu units die and some seeds "
-        "lose a style (measured on GridWorld, docs/bc_and_evaluation.md)."))
-    epochs: int = Field(2000, ge=0, description="Full-batch Adam steps (paper: '2000 episodes').")
-    lr: float = Field(0.01, gt=0.0, description="Adam learning rate.")
-    betas: tuple[float, float] = Field((0.9, 0.999), description="Adam beta1, beta2.")
-    eps: float = Field(1e-8, gt=0.0, description="Adam epsilon.")
-    device: Literal["cpu", "cuda", "auto"] = Field("cpu", description=(
-        "Where to train: 'auto' uses a GPU when torch sees one; 'cuda' fails without one."))
-    dtype: Literal["float32", "float64"] = Field("float32", description="Training precision.")
-    engine: Literal["auto", "numba", "torch"] = Field("auto", description=(
-        "'numba': fused compiled CPU kernel (fastest on CPU, float32 only); 'torch': stacked "
-        "baddbmm/bmm passes (runs on a GPU too); 'auto': numba on CPU in float32, else torch."))
-    dedupe: bool = Field(True, description=(
-        "Train on distinct (state, valid, action) rows weighted by their counts: same loss and "
-        "gradient as the raw rows, far fewer rows where states repeat."))
-    bucket_overhead_rows: int = Field(20000, ge=0, description=(
-        "Padding (in cell-rows) worth one extra bucket; 0 = one bucket per distinct row count, "
-        "very large = pad everything to the largest cell."))
 
 
 @dataclass(frozen=True, eq=False)

@@ -72,7 +72,7 @@ def _cmd_cluster(args: argparse.Namespace) -> None:
     import json
 
     from pcpg_dist.config import load_config
-    from pcpg_dist.dataset import load_datasets
+    from pcpg_dist.dataset import confined, load_datasets
     from pcpg_dist.generate import generate_to
     from pcpg_dist.progress import console
     from pcpg_dist.ray_utils import init_ray, run_tasks
@@ -85,16 +85,19 @@ def _cmd_cluster(args: argparse.Namespace) -> None:
         datasets = load_datasets(Path(args.data))
     else:
         datasets = generate_to(cfg, out / "data", show_progress=not args.quiet)
-    envs = list(datasets)
-    results = run_tasks(cluster_task, [(datasets[e], cfg.clustering, cfg.seed, cfg.runner.cpus_per_task,
-                                        str(out / e)) for e in envs],
+    # the same units (split, per-level scaling, valid sets) as `pcpg run` clusters
+    units = {u.name: u for u in cfg.domain_object.units(cfg, datasets)}
+    envs = list(units)
+    folders = {e: confined(out, e, "unit name") for e in envs}
+    results = run_tasks(cluster_task, [(units[e], cfg.clustering, cfg.seed, cfg.runner.cpus_per_task,
+                                        str(folders[e])) for e in envs],
                         "Step A: clustering", num_cpus=cfg.runner.cpus_per_task, show_progress=not args.quiet)
     for env, res in zip(envs, results, strict=True):
-        (out / env / "labels.json").write_text(json.dumps(res["labels"]))
-        (out / env / "metrics.json").write_text(json.dumps(res["metrics"], indent=1))
+        (folders[env] / "labels.json").write_text(json.dumps(res["labels"]))
+        (folders[env] / "metrics.json").write_text(json.dumps(res["metrics"], indent=1))
         shown = ", ".join(f"{k.split('/')[1]} {v:.3f}" for k, v in res["metrics"].items()
                           if k.split("/")[1] in ("ari", "nmi", "accuracy", "silhouette", "fit_seconds"))
-        console.print(f"{env}: {shown}  model: {out / env / 'model'}")
+        console.print(f"{env}: {shown}  model: {folders[env] / 'model'}")
 
 
 def _cmd_classify(args: argparse.Namespace) -> None:
@@ -139,6 +142,14 @@ def _cmd_tune(args: argparse.Namespace) -> None:
         console.print(f"failed and re-queued stale trials {res.failed_stale} (their driver had stopped)")
     console.print(f"best config: {res.best_config}  (run it: pcpg run {res.best_config})")
     console.print(f"dashboard: uv run optuna-dashboard {res.storage} --host 127.0.0.1")
+
+
+def _cmd_export(args: argparse.Namespace) -> None:
+    """`pcpg export FORMAT`: each format's code lives in its own module."""
+    if args.what == "onnx":
+        from pcpg_dist.onnx_export import cli_export_onnx
+
+        cli_export_onnx(args)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -203,6 +214,17 @@ def build_parser() -> argparse.ArgumentParser:
     tracking(p)
     common(p)
     p.set_defaults(func=_cmd_tune)
+
+    p = sub.add_parser("export", help="export trained agents for use outside pcpg (ONNX)")
+    p.set_defaults(func=_cmd_export)
+    formats = p.add_subparsers(dest="what", required=True, metavar="FORMAT")
+    e = formats.add_parser("onnx", help="one ONNX model per environment + a JSON table of its cells "
+                                        "(docs/agents.md)")
+    e.add_argument("run", help="a run's output folder (runs/NAME), an MLflow run id, or an experiment name")
+    e.add_argument("--out", required=True, help="folder for agents_<env>.onnx and agents_<env>.json")
+    e.add_argument("--workdir", default=None, help="keep the agents downloaded from MLflow here "
+                   "(default: a temporary folder)")
+    e.add_argument("--tracking-uri", default=None, help="MLflow tracking URI (default: as for run)")
     return parser
 
 

@@ -20,11 +20,9 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
 import torch
-from pydantic import Field
 from scipy.optimize import linear_sum_assignment
 from sklearn.cluster import KMeans
 from sklearn.metrics import adjusted_rand_score, normalized_mutual_info_score, silhouette_score
@@ -39,8 +37,8 @@ from pcpg_dist.cluster_models import (
     make_batches,
     summary_features,
 )
+from pcpg_dist.config.stages import ClusterConfig
 from pcpg_dist.errors import DataError
-from pcpg_dist.schema import StrictModel
 
 __all__ = [
     "ClusterConfig",
@@ -52,69 +50,6 @@ __all__ = [
     "hungarian_mapping",
     "load_model",
 ]
-
-
-class ClusterConfig(StrictModel):
-    """Step A settings. Defaults meet the GridWorld targets (see docs/clustering.md)."""
-
-    method: Literal["lstm_dec", "lstm_kmeans", "summary_kmeans"] = Field(
-        "lstm_dec",
-        description="lstm_dec: autoencoder + DEC loss (the paper); lstm_kmeans: k-means on "
-        "pretrained latents; summary_kmeans: k-means on length, final and mean state.",
-    )
-    k: int = Field(4, ge=1, le=1000, description="Number of clusters (play-styles).")
-    hidden_size: int = Field(
-        32, ge=1, le=1024, description="LSTM hidden units of encoder and decoder."
-    )
-    latent_size: int = Field(8, ge=1, le=512, description="Size of the latent trajectory code z.")
-    pooling: Literal["last", "last_mean"] = Field(
-        "last",
-        description="Encoder summary: the last "
-        "hidden state, or the last beside the mean hidden state over all steps.",
-    )
-    pretrain_epochs: int = Field(
-        25, ge=0, le=10_000, description="Epochs on reconstruction loss alone."
-    )
-    dec_epochs: int = Field(
-        8,
-        ge=0,
-        le=10_000,
-        description="Epochs on reconstruction + clustering loss "
-        "(lstm_dec only); the target distribution is refreshed every epoch.",
-    )
-    cluster_weight: float = Field(
-        0.1,
-        ge=0.0,
-        le=1e4,
-        description="Weight of the DEC KL term against the reconstruction MSE (IDEC's gamma).",
-    )
-    alpha: float = Field(
-        1.0, gt=0.0, le=1e3, description="Degrees of freedom of the Student-t kernel."
-    )
-    batch_size: int = Field(
-        256,
-        ge=1,
-        le=1_000_000,
-        description="Trajectories per batch (batches are cut from trajectories sorted by length).",
-    )
-    lr: float = Field(3e-3, gt=0.0, le=1.0, description="Adam learning rate.")
-    dec_tol: float = Field(
-        0.001,
-        ge=0.0,
-        le=1.0,
-        description="Stop DEC early once fewer than this "
-        "fraction of labels change between epochs (0 = run all dec_epochs).",
-    )
-    kmeans_n_init: int = Field(
-        10, ge=1, le=1000, description="k-means restarts (best inertia kept)."
-    )
-    silhouette_sample: int = Field(
-        4000,
-        ge=2,
-        le=1_000_000,
-        description="At most this many points "
-        "(seeded sample) for the silhouette score, which is O(n^2).",
-    )
 
 
 @dataclass(frozen=True)

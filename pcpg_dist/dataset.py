@@ -5,7 +5,8 @@ config, seeds, versions, row counts and a SHA-256 per file. Columns:
 
 - ``trajectory`` (int64), ``t`` (int64), ``env`` (string), ``style`` (int64, -1 = unknown)
 - ``s0`` .. ``s{d-1}`` (float32 state features)
-- ``action`` (int64; -1 on a trajectory's final state), ``valid`` (int64 bitmask of valid actions)
+- ``action`` (int64; -1 on a trajectory's final state), ``valid`` (fixed-size list of ``n_actions``
+  booleans: which actions are valid in that state; any number of actions)
 - ``reward`` (float64: the reward received for the action taken in this row; 0 on the final row)
 - ``success`` (bool) and ``epsilon`` (float64, NaN = unknown): per-trajectory, repeated per row
 
@@ -18,6 +19,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
@@ -29,8 +31,9 @@ import pyarrow.parquet as pq
 
 from pcpg_dist.errors import DataError
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # 2: `valid` is a list of booleans (was an int64 bitmask, capped at 63 actions)
 MANIFEST = "manifest.json"
+MAX_ACTIONS = 1_000_000
 
 
 @dataclass(frozen=True, eq=False)
@@ -46,7 +49,7 @@ class Dataset:
     n_actions: int
     states: np.ndarray  # (rows, d) float32
     actions: np.ndarray  # (rows,) int64, -1 on final rows
-    valid: np.ndarray  # (rows,) int64 bitmask
+    valid: np.ndarray  # (rows, n_actions) bool
     rewards: np.ndarray  # (rows,) float64
     offsets: np.ndarray  # (n + 1,) int64
     trajectory_ids: np.ndarray  # (n,) int64
@@ -54,15 +57,20 @@ class Dataset:
     success: np.ndarray  # (n,) bool
     epsilon: np.ndarray  # (n,) float64, NaN = unknown
     feature_names: tuple[str, ...] = field(default=())
+    action_names: tuple[str, ...] = field(default=())
 
     def __post_init__(self) -> None:
         rows, n = len(self.actions), len(self.trajectory_ids)
         where = f"dataset {self.domain}-{self.env}"
         if self.states.ndim != 2 or len(self.states) != rows:
             raise DataError(f"{where}: states must have shape (rows={rows}, d), got {self.states.shape}")
-        for name in ("valid", "rewards"):
-            if len(getattr(self, name)) != rows:
-                raise DataError(f"{where}: {name} has {len(getattr(self, name))} rows, expected {rows}")
+        if len(self.rewards) != rows:
+            raise DataError(f"{where}: rewards has {len(self.rewards)} rows, expected {rows}")
+        if self.n_actions < 1:
+            raise DataError(f"{where}: n_actions must be >= 1, got {self.n_actions}")
+        if self.valid.dtype != bool or self.valid.shape != (rows, self.n_actions):
+            raise DataError(f"{where}: valid must be a bool mask of shape (rows={rows}, n_actions="
+                            f"{self.n_actions}), got {self.valid.dtype} {self.valid.shape}")
         for name in ("styles", "success", "epsilon"):
             if len(getattr(self, name)) != n:
                 raise DataError(f"{where}: {name} has {len(getattr(self, name))} entries, expected {n}")
@@ -76,13 +84,20 @@ class Dataset:
             row = int(np.nonzero(~np.isfinite(self.states).all(axis=1))[0][0])
             traj = int(self.trajectory_ids[np.searchsorted(self.offsets, row, side="right") - 1])
             raise DataError(f"{where}: trajectory {traj} has a NaN or infinite state feature (row {row})")
-        if n and (self.actions[self.offsets[1:] - 1] != -1).any():
+        final = np.zeros(rows, bool)
+        final[self.offsets[1:] - 1] = True
+        if n and (self.actions[final] != -1).any():
             raise DataError(f"{where}: the final row of every trajectory must have action -1")
-        steps = self.actions[self.actions >= 0]
-        if len(steps) and steps.max() >= self.n_actions:
-            raise DataError(f"{where}: action {int(steps.max())} outside 0..{self.n_actions - 1}")
+        bad = ~final & ((self.actions < 0) | (self.actions >= self.n_actions))
+        if bad.any():
+            row = int(np.argmax(bad))
+            traj = int(self.trajectory_ids[np.searchsorted(self.offsets, row, side="right") - 1])
+            raise DataError(f"{where}: trajectory {traj} (row {row}) takes action {int(self.actions[row])}, "
+                            f"outside 0..{self.n_actions - 1}")
         if self.feature_names and len(self.feature_names) != self.state_dim:
             raise DataError(f"{where}: {len(self.feature_names)} feature names for {self.state_dim} features")
+        if self.action_names and len(self.action_names) != self.n_actions:
+            raise DataError(f"{where}: {len(self.action_names)} action names for {self.n_actions} actions")
 
     # ----------------------------------------------------------------- shape
     @property
@@ -109,8 +124,8 @@ class Dataset:
 
     @property
     def valid_mask(self) -> np.ndarray:
-        """(rows, n_actions) bool: which actions are valid in each row's state."""
-        return (self.valid[:, None] >> np.arange(self.n_actions)) & 1 == 1
+        """(rows, n_actions) bool: which actions are valid in each row's state (= ``valid``)."""
+        return self.valid
 
     @property
     def step_rows(self) -> np.ndarray:
@@ -136,6 +151,7 @@ class Dataset:
             rewards=self.rewards[rows], offsets=np.r_[0, np.cumsum(lengths)].astype(np.int64),
             trajectory_ids=self.trajectory_ids[idx], styles=self.styles[idx],
             success=self.success[idx], epsilon=self.epsilon[idx], feature_names=self.feature_names,
+            action_names=self.action_names,
         )
 
     def with_styles(self, styles: np.ndarray) -> Dataset:
@@ -171,7 +187,7 @@ class Dataset:
             styles=np.concatenate([p.styles for p in parts]),
             success=np.concatenate([p.success for p in parts]),
             epsilon=np.concatenate([p.epsilon for p in parts]),
-            feature_names=first.feature_names,
+            feature_names=first.feature_names, action_names=first.action_names,
         )
 
     @staticmethod
@@ -179,16 +195,17 @@ class Dataset:
         domain: str, env: str, n_actions: int,
         trajectories: Sequence[dict[str, np.ndarray]],
         styles: Sequence[int], success: Sequence[bool], epsilon: Sequence[float] | None = None,
-        feature_names: tuple[str, ...] = (),
+        feature_names: tuple[str, ...] = (), action_names: tuple[str, ...] = (),
     ) -> Dataset:
         """Build from per-trajectory dicts with ``states`` (T+1, d), ``actions`` (T,),
-        ``valid`` (T+1,) and ``rewards`` (T,)."""
+        ``valid`` (T+1, n_actions) bool (or, for up to 63 actions, (T+1,) integer bitmasks) and
+        ``rewards`` (T,)."""
         states, actions, valid, rewards, lengths = [], [], [], [], []
         for tr in trajectories:
             s = np.asarray(tr["states"], np.float32)
             states.append(s)
             actions.append(np.r_[np.asarray(tr["actions"], np.int64), -1])
-            valid.append(np.asarray(tr["valid"], np.int64))
+            valid.append(_mask_rows(tr["valid"], len(s), n_actions))
             rewards.append(np.r_[np.asarray(tr["rewards"], np.float64), 0.0])
             lengths.append(len(s))
         n = len(trajectories)
@@ -197,13 +214,13 @@ class Dataset:
             domain=domain, env=env, n_actions=n_actions,
             states=np.concatenate(states) if states else np.zeros((0, d), np.float32),
             actions=np.concatenate(actions) if n else np.zeros(0, np.int64),
-            valid=np.concatenate(valid) if n else np.zeros(0, np.int64),
+            valid=np.concatenate(valid) if n else np.zeros((0, n_actions), bool),
             rewards=np.concatenate(rewards) if n else np.zeros(0),
             offsets=np.r_[0, np.cumsum(lengths)].astype(np.int64),
             trajectory_ids=np.arange(n, dtype=np.int64),
             styles=np.asarray(styles, np.int64), success=np.asarray(success, bool),
             epsilon=np.full(n, np.nan) if epsilon is None else np.asarray(epsilon, np.float64),
-            feature_names=feature_names,
+            feature_names=feature_names, action_names=action_names,
         )
 
     # ----------------------------------------------------------------- Arrow
@@ -218,13 +235,15 @@ class Dataset:
         for j in range(self.state_dim):
             cols[f"s{j}"] = pa.array(self.states[:, j], pa.float32())
         cols["action"] = pa.array(self.actions, pa.int64())
-        cols["valid"] = pa.array(self.valid, pa.int64())
+        cols["valid"] = pa.FixedSizeListArray.from_arrays(pa.array(self.valid.reshape(-1), pa.bool_()),
+                                                          self.n_actions)
         cols["reward"] = pa.array(self.rewards, pa.float64())
         cols["success"] = pa.array(self.success[per_row], pa.bool_())
         cols["epsilon"] = pa.array(self.epsilon[per_row], pa.float64())
         meta = {"pcpg": json.dumps({
             "schema_version": SCHEMA_VERSION, "domain": self.domain, "env": self.env,
-            "n_actions": self.n_actions, "feature_names": list(self.feature_names)})}
+            "n_actions": self.n_actions, "feature_names": list(self.feature_names),
+            "action_names": list(self.action_names)})}
         return pa.table(cols).replace_schema_metadata(meta)
 
     @staticmethod
@@ -237,11 +256,16 @@ class Dataset:
             domain, env, n_actions = meta["domain"], meta["env"], int(meta["n_actions"])
         except (ValueError, KeyError, TypeError) as e:
             raise DataError(f"{source}: unreadable 'pcpg' schema metadata ({e})") from None
+        if meta.get("schema_version") != SCHEMA_VERSION:
+            raise DataError(f"{source}: dataset schema {meta.get('schema_version')} (this pcpg reads "
+                            f"{SCHEMA_VERSION}); regenerate it with this version")
+        if not 1 <= n_actions <= MAX_ACTIONS:
+            raise DataError(f"{source}: n_actions {n_actions} outside 1..{MAX_ACTIONS}")
         names = table.column_names
         d = sum(1 for c in names if c.startswith("s") and c[1:].isdigit())
         expected = {"trajectory": pa.int64(), "t": pa.int64(), "env": pa.string(), "style": pa.int64(),
                     **{f"s{j}": pa.float32() for j in range(d)}, "action": pa.int64(),
-                    "valid": pa.int64(), "reward": pa.float64(), "success": pa.bool_(),
+                    "valid": pa.list_(pa.bool_(), n_actions), "reward": pa.float64(), "success": pa.bool_(),
                     "epsilon": pa.float64()}
         for col, typ in expected.items():
             if col not in names:
@@ -266,22 +290,77 @@ class Dataset:
         def col(name: str, dtype: type) -> np.ndarray:
             return table.column(name).to_numpy(zero_copy_only=False).astype(dtype)[order]
 
+        valid = bool_lists(table.column("valid"), n_actions, source)[order]
         states = (np.stack([col(f"s{j}", np.float32) for j in range(d)], axis=1)
                   if d else np.zeros((len(traj), 0), np.float32))
         try:
             return Dataset(
                 domain=domain, env=env, n_actions=n_actions, states=states,
-                actions=col("action", np.int64), valid=col("valid", np.int64),
+                actions=col("action", np.int64), valid=valid,
                 rewards=col("reward", np.float64), offsets=offsets, trajectory_ids=traj[starts],
                 styles=col("style", np.int64)[starts], success=col("success", bool)[starts],
                 epsilon=col("epsilon", np.float64)[starts],
                 feature_names=tuple(meta.get("feature_names") or ()),
+                action_names=tuple(meta.get("action_names") or ()),
             )
         except DataError as e:
             raise DataError(f"{source}: {e}") from None
 
 
+def _mask_rows(valid: np.ndarray, rows: int, n_actions: int) -> np.ndarray:
+    """(rows, n_actions) bool from a bool matrix, or from one integer bitmask per row (<= 63 actions)."""
+    v = np.asarray(valid)
+    if v.ndim == 1 and np.issubdtype(v.dtype, np.integer):
+        if n_actions > 63:
+            raise DataError(f"integer valid bitmasks hold at most 63 actions, not {n_actions}: pass a "
+                            f"(rows, n_actions) bool mask")
+        v = (v[:, None].astype(np.int64) >> np.arange(n_actions)) & 1
+    if v.shape != (rows, n_actions):
+        raise DataError(f"valid must have shape ({rows}, {n_actions}), got {v.shape}")
+    return v.astype(bool)
+
+
+def bool_lists(column: pa.ChunkedArray | pa.Array, n_actions: int, source: str) -> np.ndarray:
+    """A Parquet column of per-row boolean lists as a (rows, n_actions) bool matrix.
+
+    Every list must have exactly ``n_actions`` entries and no nulls; the error names the row.
+    """
+    arr = column.combine_chunks() if isinstance(column, pa.ChunkedArray) else column
+    rows = len(arr)
+    if arr.null_count:
+        row = int(np.nonzero(arr.is_null().to_numpy(zero_copy_only=False))[0][0])
+        raise DataError(f"{source}: column 'valid' is null in row {row}")
+    if pa.types.is_fixed_size_list(arr.type):
+        sizes = np.full(rows, arr.type.list_size)
+    elif pa.types.is_list(arr.type) or pa.types.is_large_list(arr.type):
+        sizes = np.diff(arr.offsets.to_numpy())
+    else:
+        raise DataError(f"{source}: column 'valid' has type {arr.type}; expected a list of booleans per row")
+    if not pa.types.is_boolean(arr.type.value_type):
+        raise DataError(f"{source}: column 'valid' holds {arr.type.value_type}; expected booleans")
+    if rows and (sizes != n_actions).any():
+        row = int(np.nonzero(sizes != n_actions)[0][0])
+        raise DataError(f"{source}: column 'valid', row {row}: {int(sizes[row])} entries, expected "
+                        f"{n_actions} (one per action)")
+    values = arr.flatten()
+    if values.null_count:
+        raise DataError(f"{source}: column 'valid' has null entries inside its lists")
+    return values.to_numpy(zero_copy_only=False).astype(bool).reshape(rows, n_actions)
+
+
 # --------------------------------------------------------------------- files
+SAFE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$")
+
+
+def confined(base: Path, name: str, what: str = "name") -> Path:
+    """``base / name`` for a name that came from data (an env, a manifest entry): one plain file or
+    folder name, never a path that could leave ``base``; a DataError otherwise."""
+    if not isinstance(name, str) or not SAFE_NAME.match(name) or ".." in name or len(name) > 200:
+        raise DataError(f"{what} {str(name)[:80]!r} is not a plain name (letters, digits, '_', '.', '+', "
+                        f"'-'; no '/', no '..'): refusing to use it as a path under {base}")
+    return Path(base) / name
+
+
 def file_name(domain: str, env: str) -> str:
     return f"{domain}-{env}.parquet"
 
@@ -347,7 +426,7 @@ def write_datasets(directory: Path, datasets: Sequence[Dataset], manifest: dict)
     directory = Path(directory)
     files = {}
     for ds in datasets:
-        name = file_name(ds.domain, ds.env)
+        name = confined(directory, file_name(ds.domain, ds.env), "dataset file name").name
         files[name] = {"sha256": write_parquet(ds, directory / name), "rows": ds.n_rows,
                        "trajectories": ds.n_trajectories, "domain": ds.domain, "env": ds.env}
     full = {"schema_version": SCHEMA_VERSION, **manifest, "files": files}
@@ -372,8 +451,12 @@ def load_datasets(directory: Path) -> dict[str, Dataset]:
     directory = Path(directory)
     manifest = read_manifest(directory)
     out = {}
+    if not isinstance(manifest["files"], dict):
+        raise DataError(f"{directory / MANIFEST}: 'files' must map file names to their hashes")
     for name, info in manifest["files"].items():
-        ds = read_parquet(directory / name, expected_sha256=info.get("sha256"))
+        if not isinstance(info, dict):
+            raise DataError(f"{directory / MANIFEST}: entry {str(name)[:80]!r} must be a mapping")
+        ds = read_parquet(confined(directory, name, "manifest file"), expected_sha256=info.get("sha256"))
         if ds.n_rows != info.get("rows"):
             raise DataError(f"{directory / name}: {ds.n_rows} rows, manifest says {info.get('rows')}")
         out[ds.env] = ds

@@ -21,17 +21,16 @@ from __future__ import annotations
 
 import json
 import zlib
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from pydantic import Field
 
 from pcpg_dist.bc import TrainedCells
+from pcpg_dist.config.stages import EvalConfig
 from pcpg_dist.dataset import Dataset
-from pcpg_dist.domains.base import Policy, random_policy
+from pcpg_dist.domains.base import DomainHooks, Policy, random_policy  # noqa: F401 - DomainHooks re-exported
 from pcpg_dist.errors import DataError
 from pcpg_dist.ranking import (
     RankConfig,
@@ -43,41 +42,6 @@ from pcpg_dist.ranking import (
     threshold,
     threshold_all,
 )
-from pcpg_dist.schema import StrictModel
-
-
-class EvalConfig(StrictModel):
-    """What the evaluation computes and how agents act in rollouts."""
-
-    rollouts_per_policy: int = Field(100, ge=1, description="Rollout episodes per trained policy.")
-    greedy: bool = Field(True, description=(
-        "Rollout actions: True = argmax over valid actions, False = sampled from the softmax."))
-    max_steps: int = Field(100, ge=1, description="Step limit of a rollout episode.")
-    corruption_levels: tuple[float, ...] = Field((0.0, 0.2, 0.4, 0.6, 0.8, 1.0), description=(
-        "Fractions c of cluster labels replaced by wrong ones in the corruption study."))
-    corruption_ps: tuple[float, ...] = Field((1.0,), min_length=1, description=(
-        "p values of the corruption study's cells (default: all data, to isolate the labels)."))
-    reward_p: float = Field(1.0, gt=0.0, le=1.0, description=(
-        "p of the models whose rollouts give the headline reward distance (Table 3) and Fig. 8; "
-        "the table lists every p. 1.0 = pi_k trained on its whole cluster (a small p keeps the "
-        "shortest trajectories, which can be ones that skipped their style's bonus)."))
-    rollout_seed: int = Field(0, ge=0, description="Base seed of the rollout generators.")
-    figures: bool = Field(True, description="Write PNG figures beside the tables.")
-
-
-@dataclass(frozen=True)
-class DomainHooks:
-    """What a simulating domain lends the evaluation (all optional).
-
-    ``rollout(policy, n_episodes, rng) -> Dataset``; ``returns(dataset, style) -> (n,)``
-    undiscounted return per trajectory under R_style; ``optimal_return(style) -> float``;
-    ``draw(ax, dataset_of_one_trajectory)`` draws a trajectory (Fig. 8).
-    """
-
-    rollout: Callable[[Policy, int, np.random.Generator], Dataset] | None = None
-    returns: Callable[[Dataset, int], np.ndarray] | None = None
-    optimal_return: Callable[[int], float] | None = None
-    draw: Callable[..., None] | None = None
 
 
 @dataclass(frozen=True)

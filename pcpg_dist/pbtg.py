@@ -14,41 +14,13 @@ call (:func:`generate_pair`), which the runner fans out as one Ray task. Seeds d
 from __future__ import annotations
 
 import zlib
-from typing import Annotated
 
 import numba
 import numpy as np
-from pydantic import Field, model_validator
 
+from pcpg_dist.config.stages import PBTGConfig
 from pcpg_dist.dataset import Dataset
 from pcpg_dist.domains.gridworld import FEATURES, N_ACTIONS, GridTables, Layout
-from pcpg_dist.schema import StrictModel
-
-
-class PBTGConfig(StrictModel):
-    """Q-learning and trajectory sampling for GridWorld."""
-
-    episodes: Annotated[int, Field(ge=1, description="Q-learning episodes per (E, R) (paper: 20000)")] = 20_000
-    gamma: Annotated[float, Field(gt=0, le=1, description="discount factor of Q-learning")] = 0.99
-    learning_rate: Annotated[float, Field(gt=0, le=1, description="Q-learning step size")] = 0.5
-    epsilon_start: Annotated[float, Field(ge=0, le=1, description="exploration rate at the first episode")] = 1.0
-    epsilon_end: Annotated[float, Field(ge=0, le=1, description="exploration rate at the last episode (linear decay)")] = 0.05
-    trajectories_per_style: Annotated[int, Field(ge=1, description="trajectories generated per (E, R) (paper: 8000)")] = 8000
-    dataset_per_style: Annotated[int, Field(ge=1, description="trajectories per style sampled into each environment's dataset D (paper: 1000)")] = 1000
-    noise_min: Annotated[float, Field(ge=0, le=1, description="lower end of the per-trajectory noise range")] = 0.0
-    noise_max: Annotated[float, Field(ge=0, le=1, description="upper end of the per-trajectory noise range")] = 0.3
-    max_steps: Annotated[int, Field(ge=1, description="episode cap; reaching it counts as failure")] = 100
-    initial_q: Annotated[float, Field(description="initial Q-value of every action; optimistic (>= the best return) "
-                                                  "makes Q-learning try every route before settling")] = 200.0
-
-    @model_validator(mode="after")
-    def _ranges(self) -> PBTGConfig:
-        if self.noise_min > self.noise_max:
-            raise ValueError(f"noise_min ({self.noise_min}) must be <= noise_max ({self.noise_max})")
-        if self.dataset_per_style > self.trajectories_per_style:
-            raise ValueError(f"dataset_per_style ({self.dataset_per_style}) must be <= "
-                             f"trajectories_per_style ({self.trajectories_per_style})")
-        return self
 
 
 def pair_seed(base_seed: int, env: str, reward_index: int) -> np.random.SeedSequence:
@@ -148,7 +120,7 @@ def sample_trajectories(layout: Layout, q: np.ndarray, reward_index: int, n: int
     offsets = np.r_[0, np.cumsum(lengths)].astype(np.int64)
     return Dataset(
         domain="gridworld", env=layout.name, n_actions=N_ACTIONS, states=t.features[states],
-        actions=actions, valid=t.valid_bits[states], rewards=rewards, offsets=offsets,
+        actions=actions, valid=t.valid[states], rewards=rewards, offsets=offsets,
         trajectory_ids=np.arange(n, dtype=np.int64), styles=np.full(n, reward_index, np.int64),
         success=t.goal[states[offsets[1:] - 1]], epsilon=noise, feature_names=FEATURES,
     )

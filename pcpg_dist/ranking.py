@@ -12,52 +12,15 @@ trajectories it never saw, and the test subsets are thresholded exactly like the
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
-from pydantic import Field, field_validator
 
+from pcpg_dist.config.stages import RankConfig
 from pcpg_dist.dataset import Dataset
+from pcpg_dist.domains.base import ScoreFn
 from pcpg_dist.errors import DataError
-from pcpg_dist.schema import StrictModel
-
-#: A domain's own skill score: one float per trajectory, higher = more skilled.
-ScoreFn = Callable[[Dataset], np.ndarray]
-
-DEFAULT_PS = (1.0, 0.75, 0.5, 0.25, 0.1)
-
-
-class RankConfig(StrictModel):
-    """How trajectories are scored, split and thresholded (Step B)."""
-
-    beta: float = Field(0.1, gt=0.0, le=1.0, description=(
-        "Penalty factor of Performance(X) for trajectories that do not end in a goal state "
-        "(paper: 0.1)."))
-    ps: tuple[float, ...] = Field(DEFAULT_PS, min_length=1, description=(
-        "Fractions p of each cluster kept after ranking (top p by Performance); each in (0, 1]."))
-    test_fraction: float = Field(0.2, ge=0.0, lt=1.0, description=(
-        "Fraction of trajectories held out for testing, split before thresholding."))
-    split_seed: int = Field(0, ge=0, description=(
-        "Seed of the train/test split; one split per environment, shared by all seeds' models so "
-        "that PCPG and No Clustering are compared on the same unseen trajectories."))
-    corruption_seed: int = Field(0, ge=0, description=(
-        "Base seed of the label-corruption draws (combined with each model seed and level c)."))
-    corruption_mode: Literal["wrong", "random"] = Field("random", description=(
-        "How a corrupted label is drawn: 'wrong' = uniformly among the k-1 other labels (c = 1: "
-        "every label wrong); 'random' = uniformly among all k labels (c = 1: a random "
-        "clustering, the No Clustering situation with 1/k of the data)."))
-
-    @field_validator("ps")
-    @classmethod
-    def _ps_in_range(cls, ps: tuple[float, ...]) -> tuple[float, ...]:
-        for p in ps:
-            if not 0.0 < p <= 1.0:
-                raise ValueError(f"every p must lie in (0, 1], got {p}")
-        if len(set(ps)) != len(ps):
-            raise ValueError(f"ps has repeated values: {ps}")
-        return ps
 
 
 def performance(dataset: Dataset, beta: float = 0.1) -> np.ndarray:

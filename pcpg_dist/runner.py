@@ -21,11 +21,12 @@ import numpy as np
 
 from pcpg_dist.cache import Cache, content_key
 from pcpg_dist.config import ExperimentConfig
-from pcpg_dist.dataset import Dataset, atomic_write_bytes, load_datasets, sha256_file
+from pcpg_dist.dataset import Dataset, atomic_write_bytes, load_datasets
+from pcpg_dist.domains.base import Unit
 from pcpg_dist.parallel import set_threads
 from pcpg_dist.ray_utils import run_tasks
 
-CODE_VERSION = "1"  # bump when a stage's numbers change for the same config
+CODE_VERSION = "2"  # bump when a stage's numbers or files change for the same config (2: bool valid masks)
 
 
 @dataclass
@@ -57,15 +58,8 @@ def _collect_agents(target: Path, models: dict[str, list[Path]]) -> Path:
 
 # --------------------------------------------------------------------------- data
 def data_key(cfg: ExperimentConfig) -> str:
-    """Content key of the data: the domain's own config slice (and layout texts), the base seed."""
-    if cfg.domain == "gridworld":
-        layouts = [cfg.gridworld.layout_path(e).read_text() for e in cfg.gridworld.environments]
-        return content_key(CODE_VERSION, cfg.domain, cfg.seed, cfg.pbtg, cfg.gridworld.environments, layouts)
-    if cfg.domain == "minidungeons":
-        return content_key(CODE_VERSION, cfg.domain, cfg.seed, cfg.minidungeons)
-    log = cfg.mario.path
-    return content_key(CODE_VERSION, cfg.domain, cfg.mario,
-                       sha256_file(log) if log is not None and log.is_file() else "shipped")
+    """Content key of the data: what the domain says identifies it (settings, file contents, seed)."""
+    return content_key(CODE_VERSION, *cfg.domain_object.data_key(cfg))
 
 
 def load_or_generate(cfg: ExperimentConfig, cache: Cache, show_progress: bool) -> tuple[dict[str, Dataset], str]:
@@ -80,22 +74,22 @@ def load_or_generate(cfg: ExperimentConfig, cache: Cache, show_progress: bool) -
     return load_datasets(path), key
 
 
+def load_units(cfg: ExperimentConfig, cache: Cache, show_progress: bool) -> tuple[list[Unit], str]:
+    """The config's evaluation units (data generated or loaded once, then cached) and the data key."""
+    files, key = load_or_generate(cfg, cache, show_progress)
+    return cfg.domain_object.units(cfg, files), key
+
+
 # --------------------------------------------------------------------------- Ray tasks
-def cluster_task(dataset: Dataset, cfg, seed: int, threads: int, out_dir: str) -> dict:
-    """One environment's clustering (a Ray task): labels, metrics and the saved model."""
-    from pcpg_dist.clustering import cluster, clustering_metrics
+def cluster_task(unit: Unit, cfg, seed: int, threads: int, out_dir: str) -> dict:
+    """One unit's clustering (a Ray task): labels, metrics and the saved model."""
+    from pcpg_dist.pipeline import cluster_unit
 
     set_threads(threads)
-    result = cluster(dataset, cfg, seed)
-    metrics = {f"clustering/{k}": float(v) for k, v in result.metrics.items()
-               if isinstance(v, int | float)}
-    if (dataset.styles >= 0).all():
-        sup = clustering_metrics(dataset.styles, result.labels)
-        metrics.update({f"clustering/{k}": float(v) for k, v in sup.items() if isinstance(v, int | float)})
-    metrics["clustering/fit_seconds"] = result.fit_seconds
+    result = cluster_unit(unit, cfg, seed)
     if result.model is not None:
         result.model.save(Path(out_dir) / "model")
-    return {"labels": result.labels.astype(int).tolist(), "metrics": metrics}
+    return {"labels": result.labels.tolist(), "metrics": result.metrics}
 
 
 def train_task(cells: list, cfg, threads: int, out_path: str) -> str:
@@ -106,19 +100,15 @@ def train_task(cells: list, cfg, threads: int, out_path: str) -> str:
     return str(train_cells(cells, cfg).save(out_path))
 
 
-def evaluate_task(dataset: Dataset, labels: np.ndarray, test_idx: np.ndarray, model_paths: list[str],
-                  cfg: ExperimentConfig, env: str, out_dir: str, threads: int) -> dict:
-    """Evaluate one environment (a Ray task); its tables and ``metrics.json`` go to ``out_dir``."""
+def evaluate_task(unit: Unit, labels: np.ndarray, model_paths: list[str], cfg: ExperimentConfig,
+                  out_dir: str, threads: int) -> dict:
+    """Evaluate one unit (a Ray task); its tables and ``metrics.json`` go to ``out_dir``."""
     from pcpg_dist.bc import TrainedCells
-    from pcpg_dist.evaluation import evaluate
-    from pcpg_dist.generate import hooks
+    from pcpg_dist.pipeline import evaluate_unit
 
     set_threads(threads)
     trained = TrainedCells.concat([TrainedCells.load(p) for p in model_paths])
-    result = evaluate(dataset, labels, test_idx, trained, cfg.ranking, cfg.evaluation,
-                      out_dir=out_dir, hooks=hooks(cfg, env), k=cfg.clustering.k)
-    metrics = {k: float(v) for k, v in result.metrics.items() if np.isfinite(v)}
-    metrics.update(domain_extras(cfg, dataset, labels, test_idx, trained, Path(out_dir)))
+    metrics = evaluate_unit(unit, labels, trained, cfg, out_dir)
     atomic_write_bytes(Path(out_dir) / "metrics.json", json.dumps(metrics, indent=1, sort_keys=True).encode())
     return metrics
 
@@ -134,55 +124,12 @@ def log_task(tracking: dict, env: str, out_dir: str, metrics: dict[str, float], 
     return log_environment(tracking, env, out_dir, metrics, model_paths)
 
 
-def domain_extras(cfg: ExperimentConfig, dataset: Dataset, labels: np.ndarray, test_idx: np.ndarray,
-                  trained, out: Path) -> dict[str, float]:
-    """Domain-specific tables: MiniDungeons outcomes of agents vs proxies; Mario cluster profiles."""
-    metrics: dict[str, float] = {}
-    if cfg.domain == "minidungeons":
-        import pandas as pd
-
-        from pcpg_dist.domains.minidungeons import PROXY_NAMES, outcome_stats
-        from pcpg_dist.evaluation import style_of_clusters
-        from pcpg_dist.generate import minidungeons_rollout
-
-        style = style_of_clusters(dataset, labels, cfg.clustering.k)
-        seed, p = min(cfg.seeds), max(cfg.ranking.ps)
-        rows = []
-        proxies = outcome_stats(dataset.subset(test_idx)).assign(style=dataset.styles[test_idx])
-        for k in range(cfg.clustering.k):
-            key = f"k{k}-p{p:g}-s{seed}"
-            if key not in trained.keys:
-                continue
-            rng = np.random.default_rng([cfg.evaluation.rollout_seed, k])
-            roll = minidungeons_rollout(cfg, trained.policy(key, greedy=cfg.evaluation.greedy),
-                                        cfg.evaluation.rollouts_per_policy, rng)
-            agent = outcome_stats(roll).mean(numeric_only=True)
-            own = proxies[proxies["style"] == style[k]].mean(numeric_only=True)
-            for stat in agent.index.drop(["trajectory", "style"], errors="ignore"):
-                rows.append({"cluster": k, "proxy": PROXY_NAMES[style[k]], "stat": stat,
-                             "agent": float(agent[stat]), "proxy_value": float(own.get(stat, np.nan))})
-                metrics[f"outcome/{stat}/k{k}"] = float(agent[stat])
-        table = pd.DataFrame(rows)
-        table.to_csv(out / "outcomes.csv", index=False)
-        table.to_json(out / "outcomes.json", orient="records", indent=1)
-    if cfg.domain == "mario":
-        from pcpg_dist.domains.mario import cluster_profile, plot_profile
-
-        profile = cluster_profile(dataset, labels)
-        profile.to_csv(out / "cluster_profile.csv")
-        profile.to_json(out / "cluster_profile.json", orient="index", indent=1)
-        plot_profile(profile, out / "cluster_profile.png")
-        for k, row in profile.iterrows():  # so the MLflow UI can chart and compare styles
-            metrics.update({f"profile/{col}/k{k}": float(v) for col, v in row.items()})
-    return metrics
-
-
 # --------------------------------------------------------------------------- the run
 def run_experiment(cfg: ExperimentConfig, workdir: Path = Path("runs"), tracking_uri: str | None = None,
                    track: bool = True, show_progress: bool = True, command: str = "") -> RunResult:
     """Run (or resume) a whole experiment; Ray must be initialised by the caller."""
     from pcpg_dist.bc import TrainedCells  # noqa: F401 - import torch once in the driver
-    from pcpg_dist.ranking import plan_cells
+    from pcpg_dist.pipeline import plan_unit
 
     out = Path(workdir).resolve() / cfg.name
     cache = Cache(out / "cache")
@@ -196,20 +143,16 @@ def run_experiment(cfg: ExperimentConfig, workdir: Path = Path("runs"), tracking
         tracker = Tracker.start(cfg, tracking_uri, out)
 
     try:
-        from pcpg_dist.generate import units as make_units
-
         t0 = time.perf_counter()
-        files, dkey = load_or_generate(cfg, cache, show_progress)
-        the_units = make_units(cfg, files)
-        datasets = {u.name: u.dataset for u in the_units}
-        test_of = {u.name: u.test_idx for u in the_units}
-        clustered = {u.name: (u.clustered, u.cluster_input_note) for u in the_units}
+        the_units, dkey = load_units(cfg, cache, show_progress)
+        by_name = {u.name: u for u in the_units}
         times["generate"] = time.perf_counter() - t0
 
         # ---- Step A: one clustering per environment
         t0 = time.perf_counter()
-        envs = list(datasets)
-        ckeys = {e: content_key(CODE_VERSION, dkey, e, cfg.clustering, cfg.seed, clustered[e][1]) for e in envs}
+        envs = list(by_name)
+        ckeys = {e: content_key(CODE_VERSION, dkey, e, cfg.clustering, cfg.seed, by_name[e].cluster_input_note)
+                 for e in envs}
         todo = [e for e in envs if cache.done("cluster", ckeys[e]) is None]
         for e in todo:
             cache.start("cluster", ckeys[e])
@@ -220,7 +163,7 @@ def run_experiment(cfg: ExperimentConfig, workdir: Path = Path("runs"), tracking
             atomic_write_bytes(path / "result.json", json.dumps(res).encode())
             cache.finish("cluster", ckeys[e], {"env": e})
 
-        run_tasks(cluster_task, [(clustered[e][0], cfg.clustering, cfg.seed, threads,
+        run_tasks(cluster_task, [(by_name[e], cfg.clustering, cfg.seed, threads,
                                   str(cache.path("cluster", ckeys[e]))) for e in todo],
                   "Step A: clustering", num_cpus=threads, on_result=save_cluster,
                   show_progress=show_progress and bool(todo))
@@ -231,16 +174,9 @@ def run_experiment(cfg: ExperimentConfig, workdir: Path = Path("runs"), tracking
         # ---- Steps B + C: plan every cell, train in groups
         t0 = time.perf_counter()
         groups: list[tuple[str, str, list]] = []  # (env, key, cells)
-        splits = {}
+        labels_of = {e: np.asarray(clusters[e]["labels"], np.int64) for e in envs}
         for e in envs:
-            ds = datasets[e]
-            labels = np.asarray(clusters[e]["labels"], np.int64)
-            test_idx = test_of[e]
-            train_idx = np.setdiff1d(np.arange(ds.n_trajectories), test_idx)
-            splits[e] = (labels, test_idx)
-            corrupt = cfg.evaluation.corruption_levels if (ds.styles >= 0).all() else ()
-            cells = plan_cells(ds, labels, train_idx, cfg.ranking, cfg.seeds, k=cfg.clustering.k,
-                               corruption_levels=corrupt, corruption_ps=cfg.evaluation.corruption_ps)
+            cells = plan_unit(by_name[e], labels_of[e], cfg)
             size = cfg.runner.group_size
             for g in range(0, len(cells), size):
                 chunk = cells[g: g + size]
@@ -268,7 +204,7 @@ def run_experiment(cfg: ExperimentConfig, workdir: Path = Path("runs"), tracking
         todo = [e for e in envs if cache.done("evaluate", ekeys[e]) is None]
         for e in todo:
             cache.start("evaluate", ekeys[e])
-        calls = [(datasets[e], *splits[e], models[e], cfg, e, str(cache.path("evaluate", ekeys[e])), threads)
+        calls = [(by_name[e], labels_of[e], models[e], cfg, str(cache.path("evaluate", ekeys[e])), threads)
                  for e in todo]
 
         def save_eval(i: int, metrics: dict) -> None:

@@ -33,79 +33,15 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from pydantic import Field, field_validator, model_validator
 
+from pcpg_dist.config.stages import PARAMS, TARGETS, TuneConfig  # noqa: F401 - re-exported
 from pcpg_dist.errors import ConfigError, DataError, ServiceError
-from pcpg_dist.schema import StrictModel
 
 if TYPE_CHECKING:
     from pcpg_dist.config import ExperimentConfig
-    from pcpg_dist.generate import Unit
+    from pcpg_dist.domains.base import Unit
 
 DEFAULT_STORAGE = "optuna_journal.log"  # in the working directory
-PARAMS = ("k", "lstm_hidden", "latent", "bc_layers", "bc_width")
-#: trial parameter -> (config section, field) it sets in the tuned config
-TARGETS = {"k": ("clustering", "k"), "lstm_hidden": ("clustering", "hidden_size"),
-           "latent": ("clustering", "latent_size"), "bc_layers": ("bc", "hidden_layers"),
-           "bc_width": ("bc", "hidden_size")}
-
-
-class TuneConfig(StrictModel):
-    """The search space, the objective and the study of `pcpg tune` (section ``tuning``)."""
-
-    study_name: str | None = Field(None, description="Optuna study name (default: '<config name>-tune'); "
-                                   "the same name in the same storage resumes the study.")
-    n_trials: int = Field(24, ge=1, description="Finished trials (complete, pruned or failed) the study "
-                          "should hold; a rerun with a larger number continues it.")
-    parallel_trials: int = Field(2, ge=1, description="Trials in flight at once (Ray tasks).")
-    environments: list[str] | None = Field(None, description="Environments a trial trains on (default: "
-                                           "the first one of the config); the score is their mean.")
-    k_range: tuple[int, int] = Field((2, 8), description="Smallest and largest cluster count tried.")
-    lstm_hidden_sizes: tuple[int, ...] = Field((16, 32, 64), min_length=1, description=(
-        "LSTM hidden sizes tried (clustering.hidden_size); one value = fixed, not searched."))
-    latent_sizes: tuple[int, ...] = Field((4, 8, 16), min_length=1, description=(
-        "Latent sizes tried (clustering.latent_size); one value = fixed."))
-    bc_layers_range: tuple[int, int] = Field((1, 3), description="Fewest and most BC hidden layers tried.")
-    bc_widths: tuple[int, ...] = Field((5, 16, 32, 64), min_length=1, description=(
-        "BC hidden-layer widths tried (bc.hidden_size); one value = fixed."))
-    ps: tuple[float, ...] | None = Field(None, description="p values scored (default: ranking.ps).")
-    seeds: list[int] | None = Field(None, description="BC seeds per trial (default: the first of seeds).")
-    penalty: float = Field(0.01, ge=0.0, description=(
-        "lambda: accuracy one more cluster must gain to be worth it; score = accuracy - lambda (k - 1)."))
-    min_cluster_fraction: float = Field(0.02, ge=0.0, lt=1.0, description=(
-        "A trial whose smallest cluster holds less than this fraction of the training trajectories "
-        "is pruned."))
-    sampler_seed: int = Field(0, ge=0, description="Seed of the TPE sampler.")
-    n_startup_trials: int = Field(8, ge=0, description="Random trials before TPE models the results.")
-    enqueue: list[dict[str, int]] = Field([], description=(
-        "Parameter sets tried first, e.g. [{k: 4}] (missing parameters are sampled)."))
-    heartbeat_interval: int = Field(30, ge=1, description="RDB storage: seconds between heartbeats.")
-    grace_period: int = Field(120, ge=1, description=(
-        "RDB storage: a RUNNING trial without a heartbeat for this long is failed and retried."))
-    max_retry: int = Field(2, ge=0, description="How often a trial whose driver or worker died is retried.")
-
-    @field_validator("k_range", "bc_layers_range")
-    @classmethod
-    def _range(cls, v: tuple[int, int]) -> tuple[int, int]:
-        if v[0] > v[1] or v[0] < 0:
-            raise ValueError(f"a range must be [low, high] with 0 <= low <= high, got {list(v)}")
-        return v
-
-    @model_validator(mode="after")
-    def _checks(self) -> TuneConfig:
-        if self.k_range[0] < 1:
-            raise ValueError("k_range must start at 1 or more")
-        for values, name in ((self.lstm_hidden_sizes, "lstm_hidden_sizes"), (self.latent_sizes, "latent_sizes"),
-                             (self.bc_widths, "bc_widths")):
-            if min(values) < 1 or len(set(values)) != len(values):
-                raise ValueError(f"{name} must be distinct positive sizes, got {list(values)}")
-        for entry in self.enqueue:
-            unknown = set(entry) - set(PARAMS)
-            if unknown:
-                raise ValueError(f"enqueue: unknown parameter(s) {sorted(unknown)}; known: {list(PARAMS)}")
-        return self
-
-
 # ----------------------------------------------------------------------------- search space
 def suggest(trial: Any, tune: TuneConfig) -> dict[str, int]:
     """Draw one parameter set; a dimension with one value is fixed and not shown to the sampler."""
@@ -152,40 +88,41 @@ def trial_environments(cfg: ExperimentConfig, tune: TuneConfig, available: list[
 
 def score_trial(datasets: dict[str, Unit], cfg: ExperimentConfig, tune: TuneConfig,
                 params: dict[str, int]) -> dict[str, Any]:
-    """Cluster -> plan cells -> train -> held-out accuracy for each environment; no true labels.
+    """Cluster -> plan cells -> train -> held-out accuracy for each unit; no true labels.
 
-    Returns ``{"value": score or None, "pruned": reason or None, "metrics": {...}}``. True styles,
-    where the data has them, only go into the metrics (``*/ari``), never into the score.
+    The same per-unit pipeline as `pcpg run` (:mod:`pcpg_dist.pipeline`): the same preprocessed
+    input to Step A, the same held-out trajectories, the domain's own skill score. Returns
+    ``{"value": score or None, "pruned": reason or None, "metrics": {...}}``. True styles, where
+    the data has them, only go into the metrics (``*/ari``), never into the score.
     """
     from pcpg_dist.bc import train_cells
-    from pcpg_dist.clustering import cluster, clustering_metrics
-    from pcpg_dist.evaluation import EvalConfig, evaluate
-    from pcpg_dist.ranking import fmt, plan_cells
+    from pcpg_dist.pipeline import cluster_unit, evaluate_unit, plan_unit
+    from pcpg_dist.ranking import fmt
 
     trial_cfg = apply_params(cfg, params)
     k = trial_cfg.clustering.k
     rank = trial_cfg.ranking.model_copy(update={"ps": tuple(tune.ps or trial_cfg.ranking.ps)})
     seeds = tune.seeds or trial_cfg.seeds[:1]
-    eval_cfg = EvalConfig(figures=False, corruption_levels=())
+    eval_cfg = trial_cfg.evaluation.model_copy(update={"figures": False, "corruption_levels": ()})
     metrics: dict[str, float] = {}
     pcpg, gain = [], []
     for env, unit in datasets.items():
-        ds = unit.dataset
-        result = cluster(unit.clustered, trial_cfg.clustering, trial_cfg.seed)
-        labels = result.labels
-        if (ds.styles >= 0).all():  # reported only, never scored
-            metrics[f"{env}/ari"] = clustering_metrics(ds.styles, labels)["ari"]
-        test_idx = unit.test_idx  # the same held-out trajectories as `pcpg run`
-        train_idx = np.setdiff1d(np.arange(ds.n_trajectories), test_idx)
+        clustering = cluster_unit(unit, trial_cfg.clustering, trial_cfg.seed)
+        labels = clustering.labels
+        if "clustering/ari" in clustering.metrics:  # reported only, never scored
+            metrics[f"{env}/ari"] = clustering.metrics["clustering/ari"]
+        train_idx = unit.train_idx
         sizes = np.bincount(labels[train_idx], minlength=k)
         metrics[f"{env}/size_min_frac"] = float(sizes.min() / len(train_idx))
-        metrics[f"{env}/silhouette"] = float(result.metrics.get("silhouette", float("nan")))
+        metrics[f"{env}/silhouette"] = clustering.metrics.get("clustering/silhouette", float("nan"))
         if sizes.min() == 0 or sizes.min() / len(train_idx) < tune.min_cluster_fraction:
             return {"value": None, "metrics": metrics,
                     "pruned": f"{env}: smallest cluster holds {int(sizes.min())} of {len(train_idx)} training "
                               f"trajectories (< min_cluster_fraction {tune.min_cluster_fraction})"}
-        cells = plan_cells(ds, labels, train_idx, rank, seeds, k=k)
-        ev = evaluate(ds, labels, test_idx, train_cells(cells, trial_cfg.bc), rank, eval_cfg, k=k).metrics
+        cells = plan_unit(unit, labels, trial_cfg, rank_cfg=rank, seeds=seeds, corruption=False)
+        trained = train_cells(cells, trial_cfg.bc)
+        ev = evaluate_unit(unit, labels, trained, trial_cfg, rank_cfg=rank, eval_cfg=eval_cfg,
+                           rollouts=False, extras=False)
         acc = float(np.mean([ev[f"pcpg/accuracy/p{fmt(p)}"] for p in rank.ps]))
         base = float(np.mean([ev[f"baseline/accuracy/p{fmt(p)}"] for p in rank.ps]))
         metrics.update({f"{env}/pcpg_accuracy": acc, f"{env}/no_clustering_accuracy": base})
@@ -345,9 +282,8 @@ def run_study(cfg: ExperimentConfig, storage_url: str | None = None, workdir: Pa
     from optuna.trial import TrialState
 
     from pcpg_dist.cache import Cache
-    from pcpg_dist.generate import units
     from pcpg_dist.progress import progress_bar
-    from pcpg_dist.runner import load_or_generate
+    from pcpg_dist.runner import load_units
 
     tune = cfg.tuning
     if n_trials is not None:
@@ -372,8 +308,8 @@ def run_study(cfg: ExperimentConfig, storage_url: str | None = None, workdir: Pa
         if tuple(sorted(params.items())) not in queued:
             study.enqueue_trial(params)
 
-    files, _ = load_or_generate(cfg, Cache(Path(workdir).resolve() / cfg.name / "cache"), show_progress)
-    datasets = {u.name: u for u in units(cfg, files)}
+    the_units, _ = load_units(cfg, Cache(Path(workdir).resolve() / cfg.name / "cache"), show_progress)
+    datasets = {u.name: u for u in the_units}
     envs = trial_environments(cfg, tune, list(datasets))
     data_ref = ray.put({e: datasets[e] for e in envs})
     threads = cfg.runner.cpus_per_task

@@ -43,7 +43,7 @@ def test_data_is_bit_identical_with_one_or_two_workers(ray_session, tmp_path):
     cfg = load_config(tiny_config(tmp_path))
     two = generate(cfg, show_progress=False)  # 1-CPU tasks: two run at once
     layouts = [(e, r) for e in ("E1", "E3") for r in range(4)]
-    from pcpg_dist.generate import gridworld_layouts
+    from pcpg_dist.domains.gridworld_domain import gridworld_layouts
     lay = {lt.name: lt for lt in gridworld_layouts(cfg)}
     # 2-CPU tasks on a 2-CPU Ray: one worker at a time, in another order.
     one = run_tasks(generate_pair, [(lay[e], r, cfg.pbtg, cfg.seed) for e, r in reversed(layouts)],

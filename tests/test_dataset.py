@@ -90,7 +90,7 @@ def test_bad_files_name_the_problem(tmp_path, mutate, needle):
 def test_zero_length_trajectory_rejected():
     with pytest.raises(DataError, match="trajectory 1 has zero length"):
         Dataset(domain="toy", env="E", n_actions=2, states=np.zeros((2, 1), np.float32),
-                actions=np.array([-1, -1]), valid=np.zeros(2, np.int64), rewards=np.zeros(2),
+                actions=np.array([-1, -1]), valid=np.zeros((2, 2), bool), rewards=np.zeros(2),
                 offsets=np.array([0, 1, 1, 2]), trajectory_ids=np.arange(3), styles=np.zeros(3, np.int64),
                 success=np.zeros(3, bool), epsilon=np.zeros(3))
 

@@ -70,7 +70,6 @@ def test_every_state_masks_walls_and_edges(layouts):
                 nx, ny = x + dx, y + dy
                 inside = 0 <= nx < 10 and 0 <= ny < 10
                 assert t.valid[s, a] == (inside and layout.grid[ny][nx] != "#")
-            assert t.valid_bits[s] == sum(1 << a for a in range(4) if t.valid[s, a])
 
 
 def test_bonus_reward_only_on_first_visit(layouts):

@@ -1,21 +1,167 @@
-"""What every domain provides, and the policy signature used for rollouts.
+"""The domain seam: everything a stage needs from a game, behind one base class.
 
-A domain module says: its state width, number of actions, how to generate or load trajectories
-(as a :class:`~pcpg_dist.dataset.Dataset`), and, where it can simulate, how to roll a policy out.
+A domain says how to load or generate its trajectories (as :class:`~pcpg_dist.dataset.Dataset`
+files, one per environment), how those become *units* of evaluation (a dataset, its held-out
+trajectories and what Step A clusters), the skill score Step B ranks by, what it can add to the
+evaluation (rollouts, reward distances, drawings, domain tables) and, where it can simulate, how a
+policy is rolled out. State names, action names and valid-action masks travel on the Dataset
+(``feature_names``, ``action_names``, a boolean ``valid`` mask of any width).
+
+Nothing outside :mod:`pcpg_dist.domains` names a domain: the runner, tuning, `pcpg cluster` and
+sweeps ask the registered object (:mod:`pcpg_dist.domains.registry`). Module imports must stay
+light (numpy, pydantic): import heavy things inside the methods, so loading a config stays cheap.
+See docs/writing-a-domain.md for a worked example.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from pydantic import BaseModel
+
+    from pcpg_dist.config import ExperimentConfig
+    from pcpg_dist.dataset import Dataset
 
 #: A batched policy: ``(states (B, d) float32, valid (B, n_actions) bool, rng) -> actions (B,) int``.
 #: It must only return valid actions. Rollouts of B episodes call it once per step for the live ones.
 Policy = Callable[[np.ndarray, np.ndarray, np.random.Generator], np.ndarray]
+
+#: A domain's own skill score: one float per trajectory, higher = more skilled.
+ScoreFn = Callable[["Dataset"], np.ndarray]
 
 
 def random_policy(states: np.ndarray, valid: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """Uniform choice among the valid actions of each state."""
     u = rng.random(valid.shape) * valid
     return np.argmax(u, axis=1)
+
+
+@dataclass(frozen=True)
+class DomainHooks:
+    """What a simulating domain lends the evaluation (all optional).
+
+    ``rollout(policy, n_episodes, rng) -> Dataset``; ``returns(dataset, style) -> (n,)``
+    undiscounted return per trajectory under R_style; ``optimal_return(style) -> float``;
+    ``draw(ax, dataset_of_one_trajectory)`` draws a trajectory (Fig. 8).
+    """
+
+    rollout: Callable[[Policy, int, np.random.Generator], Dataset] | None = None
+    returns: Callable[[Dataset, int], np.ndarray] | None = None
+    optimal_return: Callable[[int], float] | None = None
+    draw: Callable[..., None] | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class Unit:
+    """One evaluation unit: a dataset, its held-out trajectories, and the name results go under."""
+
+    name: str
+    dataset: Dataset
+    test_idx: np.ndarray
+    #: what Step A clusters, when it differs from ``dataset`` (same trajectories, same order)
+    cluster_input: Dataset | None = None
+    #: names the preprocessing of ``cluster_input`` in content keys ("raw" = none)
+    cluster_input_note: str = "raw"
+
+    @property
+    def clustered(self) -> Dataset:
+        return self.cluster_input if self.cluster_input is not None else self.dataset
+
+    @property
+    def train_idx(self) -> np.ndarray:
+        return np.setdiff1d(np.arange(self.dataset.n_trajectories), self.test_idx)
+
+
+def standardised(ds: Dataset) -> Dataset:
+    """The dataset with every state feature standardised over its own rows (constant ones kept at 0)."""
+    mean, std = ds.states.mean(axis=0), ds.states.std(axis=0)
+    std = np.where(std > 1e-6, std, 1.0)
+    return replace(ds, states=((ds.states - mean) / std).astype(np.float32))
+
+
+class Domain:
+    """Base class of every domain; override what your game has, keep the defaults for the rest.
+
+    Required: :attr:`name` and :meth:`generate`. A domain with settings names them with
+    :attr:`settings_model` (a pydantic model, written in YAML under a section named after the
+    domain); the built-ins keep theirs in typed sections of the experiment config
+    (:attr:`settings_key`).
+    """
+
+    name: ClassVar[str] = ""
+    #: the ExperimentConfig section holding this domain's settings (built-ins only)
+    settings_key: ClassVar[str | None] = None
+    #: a plugin's settings model; its YAML section is the domain's name
+    settings_model: ClassVar[type[BaseModel] | None] = None
+
+    # ------------------------------------------------------------------ config
+    def settings(self, cfg: ExperimentConfig) -> Any:
+        """This domain's settings in ``cfg`` (None when it has none)."""
+        if self.settings_key is not None:
+            return getattr(cfg, self.settings_key)
+        if self.settings_model is not None:
+            from pydantic import ValidationError
+
+            from pcpg_dist.errors import ConfigError
+
+            try:
+                return self.settings_model.model_validate(cfg.plugin)
+            except ValidationError as e:
+                err = e.errors(include_url=False)[0]
+                key = ".".join(str(p) for p in (self.name, *err["loc"]))
+                raise ConfigError(f"key '{key}': {err['msg'].removeprefix('Value error, ')}") from None
+        return None
+
+    def check_config(self, cfg: ExperimentConfig) -> None:
+        """Cheap checks when a config is loaded (files exist, ...); raise PcpgError or ValueError.
+
+        The default validates the settings and calls their ``check()`` if they have one.
+        """
+        settings = self.settings(cfg)
+        if hasattr(settings, "check"):
+            settings.check()
+
+    # ------------------------------------------------------------------ data
+    def data_key(self, cfg: ExperimentConfig) -> list[Any]:
+        """JSON-able parts that identify the data (cache key): settings and the base seed by default.
+        Include the *content* of any file the data is read from (a hash), not only its path."""
+        settings = self.settings(cfg)
+        return [self.name, cfg.seed, settings.model_dump(mode="json") if settings is not None else None]
+
+    def generate(self, cfg: ExperimentConfig, show_progress: bool = True) -> dict[str, Dataset]:
+        """Every dataset of the config, keyed by environment name (Ray is initialised; a domain
+        may fan out with :func:`pcpg_dist.ray_utils.run_tasks`)."""
+        raise NotImplementedError(f"domain {self.name!r} does not generate or load data")
+
+    def manifest(self, cfg: ExperimentConfig, datasets: dict[str, Dataset]) -> dict[str, Any]:
+        """Extra provenance for the data's manifest.json (seeds, source files, ...)."""
+        return {"seed_entropy": {"base": cfg.seed}}
+
+    def units(self, cfg: ExperimentConfig, datasets: dict[str, Dataset]) -> list[Unit]:
+        """Evaluation units; default: one per dataset with a seeded trajectory split
+        (``ranking.test_fraction``, ``ranking.split_seed``)."""
+        from pcpg_dist.ranking import split_trajectories
+
+        return [Unit(env, ds, split_trajectories(ds.n_trajectories, cfg.ranking.test_fraction,
+                                                 cfg.ranking.split_seed)[1])
+                for env, ds in datasets.items()]
+
+    # ------------------------------------------------------------------ stages
+    def score(self, cfg: ExperimentConfig) -> ScoreFn | None:
+        """Step B's skill score; None = the paper's Performance (Eq. 3: goal reached, shorter first)."""
+        return None
+
+    def hooks(self, cfg: ExperimentConfig, unit: str) -> DomainHooks | None:
+        """Rollouts, returns, optimal returns and drawings for one unit, where the domain simulates."""
+        return None
+
+    def extras(self, cfg: ExperimentConfig, unit: Unit, labels: np.ndarray, trained: Any,
+               out: Path) -> dict[str, float]:
+        """Domain-specific tables written to ``out`` and their metrics (outcomes, profiles, ...)."""
+        return {}

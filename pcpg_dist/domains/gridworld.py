@@ -75,7 +75,6 @@ class GridTables:
     terminal: np.ndarray  # (S,) bool: G or trap
     goal: np.ndarray  # (S,) bool: G
     features: np.ndarray  # (S, 4) float32: (x, y, b1, b2)
-    valid_bits: np.ndarray  # (S,) int64 bitmask of valid actions
     start: int
 
     @staticmethod
@@ -111,7 +110,6 @@ class GridTables:
         return GridTables(
             next_state=nxt, valid=valid, reward=reward, terminal=terminal, goal=here == "G",
             features=np.stack([x, y, b1, b2], axis=1).astype(np.float32),
-            valid_bits=(valid * (1 << np.arange(N_ACTIONS))).sum(axis=1).astype(np.int64),
             start=int((sy * w + sx) * 4),
         )
 
@@ -331,7 +329,7 @@ def rollout(layout: Layout, policy: Policy, n_episodes: int, rng: np.random.Gene
     st, ac = np.stack(states, 1), np.stack(actions, 1) if actions else np.zeros((n_episodes, 0), np.int64)
     for i in range(n_episodes):
         seq, acts = st[i, : lengths[i]], ac[i, : lengths[i] - 1]
-        trajs.append({"states": t.features[seq], "actions": acts, "valid": t.valid_bits[seq],
+        trajs.append({"states": t.features[seq], "actions": acts, "valid": t.valid[seq],
                       "rewards": t.reward[reward_index, seq[:-1], acts]})
     success = [bool(t.goal[st[i, lengths[i] - 1]]) for i in range(n_episodes)]
     return Dataset.from_trajectories("gridworld", layout.name, N_ACTIONS, trajs,

@@ -22,25 +22,22 @@ There is no simulator: this domain loads data only, so it has no rollout.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
 import pandas as pd
-from pydantic import Field
 
+from pcpg_dist.config.domains import EventEncoding, Goal, MarioLoadConfig
 from pcpg_dist.dataset import Dataset
 from pcpg_dist.errors import DataError
-from pcpg_dist.schema import StrictModel
 
 log = logging.getLogger(__name__)
 
 DOMAIN = "mario"
 ENV = "smb"  # the log carries no level ids, so every episode belongs to one environment
 N_ACTIONS = 39  # CorpusIndex runs 0..38 (README of the data; all 39 occur in the shipped log)
-ALL_VALID = (1 << N_ACTIONS) - 1
 COUNTERS = ("jumps", "kills", "run_starts", "coins", "deaths")
 FEATURES = (*COUNTERS, "event")
 INCREMENTS = tuple(f"d_{c}" for c in COUNTERS)
@@ -57,29 +54,7 @@ SHIPPED_PATH = ("data", "mario", "mario_stli_all_levels.log")
 SHIPPED_SHA256 = "ff427eb617213f81c138d67c707a6ec953fa79154d3566c940ffbe1ae08e876b"
 SHIPPED_EPISODES = 225
 
-Goal = Literal["no_death", "any", "won_level"]
-EventEncoding = Literal["onehot", "id"]
 EVENT_ONEHOT = tuple(f"event_{i}" for i in range(N_ACTIONS))
-
-
-class MarioLoadConfig(StrictModel):
-    """How to read a Mario play log into a Dataset (the options of :func:`load_play_log`)."""
-
-    path: Path | None = Field(None, description="S-TLI play log to read; None = the log shipped "
-                              "with the package (225 human episodes).")
-    strict: bool = Field(True, description="Fail with DataError on the first malformed step or "
-                         "episode; when false, skip it and report what was skipped.")
-    goal: Goal = Field("no_death", description="Which episodes reached the goal (Performance, "
-                       "Eq. 3): 'no_death' = ends with the death counter at 0; 'any' = every "
-                       "episode; 'won_level' = the final event is 17 (inferred level-won event).")
-    event: EventEncoding = Field("onehot", description="How the current event id enters the "
-                                 "state: 'onehot' = 39 indicator features event_0..event_38; 'id' "
-                                 "= the id as one number, as in the log (an arbitrary scale: a BC "
-                                 "model then scores below the majority-class baseline).")
-    counters: bool = Field(True, description="Include the five cumulative counters (jumps .. "
-                           "deaths since the episode began).")
-    increments: bool = Field(False, description="Append the five per-step counter increments "
-                             "(d_jumps .. d_deaths).")
 
 
 @dataclass(frozen=True)
@@ -151,7 +126,7 @@ def _episode_arrays(steps: np.ndarray, event: EventEncoding, counters: bool,
         # on a kill, so their first step already counts 1): the first increment is steps[0].
         parts.append(np.diff(steps[:, :DEATHS + 1], axis=0, prepend=0))
     states = np.concatenate(parts, axis=1).astype(np.float32)
-    return {"states": states, "actions": steps[1:, -1], "valid": np.full(len(steps), ALL_VALID),
+    return {"states": states, "actions": steps[1:, -1], "valid": np.ones((len(steps), N_ACTIONS), bool),
             "rewards": np.zeros(len(steps) - 1)}
 
 
@@ -264,8 +239,8 @@ def shipped_log_path() -> Path:
 
 
 # ------------------------------------------------------------------ valid actions
-def valid_mask_from(train: Dataset) -> int:
-    """Bitmask of the event ids that occur as a BC target (next event) in ``train``.
+def valid_mask_from(train: Dataset) -> np.ndarray:
+    """(n_actions,) bool: the event ids that occur as a BC target (next event) in ``train``.
 
     Predicting an event never seen in training can only be a guess, so callers restrict the
     valid set to these (and the random baseline becomes 1 / number of seen events).
@@ -274,21 +249,18 @@ def valid_mask_from(train: Dataset) -> int:
     if not len(seen):
         raise DataError(f"dataset {train.domain}-{train.env}: no step with an action, "
                         "cannot derive a valid-event mask")
-    return int(np.bitwise_or.reduce(np.left_shift(np.int64(1), seen.astype(np.int64))))
+    mask = np.zeros(train.n_actions, bool)
+    mask[seen] = True
+    return mask
 
 
-def with_valid(dataset: Dataset, mask: int) -> Dataset:
-    """A copy of ``dataset`` whose every row has the valid-action bitmask ``mask``."""
-    mask = int(mask)
-    if not 0 < mask < (1 << dataset.n_actions):
-        raise DataError(f"valid mask {mask:#x} must be non-empty and fit {dataset.n_actions} actions")
-    return Dataset(
-        domain=dataset.domain, env=dataset.env, n_actions=dataset.n_actions,
-        states=dataset.states, actions=dataset.actions,
-        valid=np.full(dataset.n_rows, mask, dtype=np.int64), rewards=dataset.rewards,
-        offsets=dataset.offsets, trajectory_ids=dataset.trajectory_ids, styles=dataset.styles,
-        success=dataset.success, epsilon=dataset.epsilon, feature_names=dataset.feature_names,
-    )
+def with_valid(dataset: Dataset, mask: np.ndarray) -> Dataset:
+    """A copy of ``dataset`` whose every row has the valid-action mask ``mask`` ((n_actions,) bool)."""
+    mask = np.asarray(mask, bool)
+    if mask.shape != (dataset.n_actions,) or not mask.any():
+        raise DataError(f"valid mask must be a non-empty ({dataset.n_actions},) bool vector, got "
+                        f"shape {mask.shape} with {int(mask.sum())} valid")
+    return replace(dataset, valid=np.broadcast_to(mask, (dataset.n_rows, dataset.n_actions)).copy())
 
 
 # ------------------------------------------------------------------ splits

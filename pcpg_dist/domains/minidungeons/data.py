@@ -33,7 +33,7 @@ def _level(level: str | Level) -> Level:
 
 
 def _record(game: Game) -> tuple[np.ndarray, int]:
-    return game.features(), game.valid_bits()
+    return game.features(), game.valid_mask()
 
 
 def play(level: Level, proxy: int, epsilon: float, rng: np.random.Generator,
@@ -53,7 +53,7 @@ def play(level: Level, proxy: int, epsilon: float, rng: np.random.Generator,
         states.append(s)
         valid.append(v)
     return {"states": np.stack(states), "actions": np.array(actions, np.int64),
-            "valid": np.array(valid, np.int64), "rewards": np.array(rewards, np.float64)}, game
+            "valid": np.array(valid, bool), "rewards": np.array(rewards, np.float64)}, game
 
 
 def generate_trajectories(level_name: str, proxy: int, n_runs: int, seed: int,
@@ -134,7 +134,7 @@ def rollout(level: str | Level, policy: Policy, n_episodes: int, rng: np.random.
             recs[i]["states"].append(s)
             recs[i]["valid"].append(v)
     trajs = [{"states": np.stack(r["states"]), "actions": np.array(r["actions"], np.int64),
-              "valid": np.array(r["valid"], np.int64), "rewards": np.array(r["rewards"], np.float64)}
+              "valid": np.array(r["valid"], bool), "rewards": np.array(r["rewards"], np.float64)}
              for r in recs]
     return Dataset.from_trajectories(DOMAIN, level.name, N_ACTIONS, trajs, styles=[-1] * n_episodes,
                                      success=[g.success for g in games], feature_names=FEATURES)

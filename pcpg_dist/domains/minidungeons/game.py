@@ -110,9 +110,6 @@ class Game:
     def valid_mask(self) -> np.ndarray:
         return np.array([self.neighbour(self.pos, a) is not None for a in range(N_ACTIONS)])
 
-    def valid_bits(self) -> int:
-        return sum(1 << a for a in range(N_ACTIONS) if self.neighbour(self.pos, a) is not None)
-
     def remaining(self, tile: int) -> int:
         return int((self.grid == tile).sum())
 

@@ -19,16 +19,13 @@ from pathlib import Path
 
 import numpy as np
 
+from pcpg_dist.config.domains import LEVELS_TEST, LEVELS_TRAIN
 from pcpg_dist.errors import LayoutError
 
 # Tile codes of :attr:`Level.grid` (the start is stored as floor; its position is kept apart).
 FLOOR, WALL, TREASURE, POTION, MONSTER, EXIT = 0, 1, 2, 3, 4, 5
 CHAR_TILE = {".": FLOOR, "#": WALL, "T": TREASURE, "P": POTION, "M": MONSTER, "E": EXIT, "S": FLOOR}
 
-#: The paper's training and test levels (13 in all; the other holmgard levels are not shipped).
-LEVELS_TRAIN: tuple[str, ...] = ("test", "hard", "random_1", "random_2", "gene_1", "gene_2", "strand_1")
-LEVELS_TEST: tuple[str, ...] = ("holmgard_1", "holmgard_2", "holmgard_4", "holmgard_6", "holmgard_9",
-                                "holmgard_10")
 
 REWARD_KEYS = ("TURN", "EXIT", "KILL", "TREASURE", "POTION", "DEAD")
 #: Used when a props file has no REWARDS block (the values of gym-md's ``test`` level).

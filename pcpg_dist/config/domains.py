@@ -1,0 +1,166 @@
+"""Config models of the built-in domains: pydantic only (no stage, no torch, no data read).
+
+A domain's section is checked further by its ``check()`` only when ``domain:`` selects it, so the
+defaults of the other sections (say a GridWorld layout folder in a Mario config) never fail a load.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import Field, ValidationInfo, field_validator, model_validator
+
+from pcpg_dist.schema import StrictModel
+
+NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]*$"
+
+#: The paper's MiniDungeons training and test levels (13 in all; shipped in pcpg_dist/data).
+LEVELS_TRAIN: tuple[str, ...] = ("test", "hard", "random_1", "random_2", "gene_1", "gene_2", "strand_1")
+LEVELS_TEST: tuple[str, ...] = ("holmgard_1", "holmgard_2", "holmgard_4", "holmgard_6", "holmgard_9",
+                                "holmgard_10")
+
+Goal = Literal["no_death", "any", "won_level"]
+EventEncoding = Literal["onehot", "id"]
+
+
+def safe_name(value: str, what: str) -> str:
+    """Names become folder and run names: no path separators, no '..', nothing absolute."""
+    if not re.match(NAME_PATTERN, value) or ".." in value:
+        raise ValueError(f"{what} {value!r} must be letters, digits, '_', '.', '-' (no '/', no '..')")
+    return value
+
+
+def relative_to_config(v: Path, info: ValidationInfo) -> Path:
+    """Relative paths in a config file are relative to the file's folder."""
+    base = (info.context or {}).get("base_dir")
+    return (Path(base) / v).resolve() if base is not None and not v.is_absolute() else v
+
+
+class GridWorldConfig(StrictModel):
+    """Which GridWorld layouts to use."""
+
+    layout_dir: Annotated[Path, Field(description="folder of layout files NAME.txt; relative paths are "
+                                                  "relative to the config file")] = Path("gridworlds")
+    environments: Annotated[list[str], Field(min_length=1, description="layout names (files "
+                                             "layout_dir/NAME.txt)")] = ["E1", "E2", "E3", "E4", "E5"]
+
+    @field_validator("layout_dir")
+    @classmethod
+    def _resolve(cls, v: Path, info: ValidationInfo) -> Path:
+        return relative_to_config(v, info)
+
+    @field_validator("environments")
+    @classmethod
+    def _names(cls, v: list[str]) -> list[str]:
+        for name in v:
+            safe_name(name, "environment name")
+        if len(set(v)) != len(v):
+            raise ValueError("environment names must be unique")
+        return v
+
+    def layout_path(self, env: str) -> Path:
+        return self.layout_dir / f"{env}.txt"
+
+    def check(self) -> None:
+        for env in self.environments:
+            if not self.layout_path(env).is_file():
+                raise ValueError(f"layout file {self.layout_path(env)} for environment {env!r} not found "
+                                 f"(key gridworld.environments)")
+
+
+class MiniDungeonsConfig(StrictModel):
+    """Which MiniDungeons levels train and test the agents, and how the proxies play."""
+
+    train_levels: Annotated[list[str], Field(min_length=1, description="levels whose trajectories train "
+                                             "the agents (paper: test, hard, random_1, random_2, gene_1, "
+                                             "gene_2, strand_1)")] = list(LEVELS_TRAIN)
+    test_levels: Annotated[list[str], Field(min_length=1, description="held-out levels for accuracy and "
+                                            "rollouts (paper: holmgard_1, 2, 4, 6, 9, 10)")] = list(LEVELS_TEST)
+    runs_per_level: Annotated[int, Field(ge=1, description="episodes per (level, proxy) (paper: 10)")] = 10
+    noise_min: Annotated[float, Field(ge=0, le=1, description="lower end of a run's proxy noise")] = 0.0
+    noise_max: Annotated[float, Field(ge=0, le=1, description="upper end of a run's proxy noise")] = 0.2
+    max_steps: Annotated[int, Field(ge=1, description="turn cap of an episode (a cap is a failure)")] = 200
+
+    @model_validator(mode="after")
+    def _levels(self) -> MiniDungeonsConfig:
+        known = {*LEVELS_TRAIN, *LEVELS_TEST}
+        for key in ("train_levels", "test_levels"):
+            for lv in getattr(self, key):
+                if lv not in known:
+                    raise ValueError(f"unknown level {lv!r} in {key}; available: {', '.join(sorted(known))}")
+        overlap = set(self.train_levels) & set(self.test_levels)
+        if overlap:
+            raise ValueError(f"levels {sorted(overlap)} are both train and test levels")
+        if self.noise_min > self.noise_max:
+            raise ValueError("noise_min must be <= noise_max")
+        return self
+
+
+class MarioLoadConfig(StrictModel):
+    """How to read a Mario play log into a Dataset (the options of :func:`load_play_log`)."""
+
+    path: Path | None = Field(None, description="S-TLI play log to read; None = the log shipped "
+                              "with the package (225 human episodes).")
+    strict: bool = Field(True, description="Fail with DataError on the first malformed step or "
+                         "episode; when false, skip it and report what was skipped.")
+    goal: Goal = Field("no_death", description="Which episodes reached the goal (Performance, "
+                       "Eq. 3): 'no_death' = ends with the death counter at 0; 'any' = every "
+                       "episode; 'won_level' = the final event is 17 (inferred level-won event).")
+    event: EventEncoding = Field("onehot", description="How the current event id enters the "
+                                 "state: 'onehot' = 39 indicator features event_0..event_38; 'id' "
+                                 "= the id as one number, as in the log (an arbitrary scale: a BC "
+                                 "model then scores below the majority-class baseline).")
+    counters: bool = Field(True, description="Include the five cumulative counters (jumps .. "
+                           "deaths since the episode began).")
+    increments: bool = Field(False, description="Append the five per-step counter increments "
+                             "(d_jumps .. d_deaths).")
+
+    @field_validator("path")
+    @classmethod
+    def _resolve(cls, v: Path | None, info: ValidationInfo) -> Path | None:
+        return None if v is None else relative_to_config(v, info)
+
+
+class TrajectoriesConfig(StrictModel):
+    """A user's own play logs (domain ``trajectories``): see docs/bring-your-own-data.md."""
+
+    path: str | None = Field(None, description="a Parquet file, a folder of Parquet files (read in name "
+                             "order), or minari:DATASET_ID (a local Minari dataset); relative paths are "
+                             "relative to the config file")
+    score: str = Field("return", description="Step B's skill per trajectory: 'return' (sum of reward), "
+                       "'length' (longer is better), '-length' (shorter is better) or the name of a "
+                       "per-trajectory numeric column of the table (higher is better)")
+    gymnasium_env: str | None = Field(None, description="optional Gymnasium id (e.g. FrozenLake-v1) to "
+                                      "roll every trained agent out in; its observation must flatten "
+                                      "to the table's state width and its action space be Discrete(n)")
+    gymnasium_kwargs: dict[str, str | int | float | bool | None] = Field(
+        {}, description="keyword arguments of gymnasium.make (e.g. {is_slippery: false})")
+    n_actions: int | None = Field(None, ge=1, le=1_000_000, description="number of actions; default: the "
+                                  "length of the valid lists, else the largest action + 1")
+
+    @field_validator("path")
+    @classmethod
+    def _resolve(cls, v: str | None, info: ValidationInfo) -> str | None:
+        if v is None or v.startswith("minari:"):
+            return v
+        return str(relative_to_config(Path(v), info))
+
+    @field_validator("score")
+    @classmethod
+    def _score(cls, v: str) -> str:
+        if not v.strip():
+            raise ValueError("score must be return, length, -length or a column name")
+        return v
+
+    def check(self) -> None:
+        if self.path is None:
+            raise ValueError("domain 'trajectories' needs trajectories.path (a Parquet file, a folder of "
+                             "Parquet files or minari:DATASET_ID)")
+        if self.path.startswith("minari:"):
+            if not self.path.removeprefix("minari:").strip():
+                raise ValueError("trajectories.path 'minari:' needs a dataset id after the colon")
+            return
+        if not Path(self.path).exists():
+            raise ValueError(f"trajectories.path {self.path} not found")

@@ -1,0 +1,251 @@
+"""Config models of the stages (Step A clustering, Step B ranking, Step C BC, evaluation, PBTG,
+tuning, fan-out): pydantic only, so reading a YAML imports no stage and no torch.
+
+Each stage module imports its model from here (``from pcpg_dist.config.stages import BCConfig``)
+and re-exports it; never the reverse.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import Field, field_validator, model_validator
+
+from pcpg_dist.schema import StrictModel
+
+DEFAULT_PS = (1.0, 0.75, 0.5, 0.25, 0.1)
+
+
+class RankConfig(StrictModel):
+    """How trajectories are scored, split and thresholded (Step B)."""
+
+    beta: float = Field(0.1, gt=0.0, le=1.0, description=(
+        "Penalty factor of Performance(X) for trajectories that do not end in a goal state "
+        "(paper: 0.1)."))
+    ps: tuple[float, ...] = Field(DEFAULT_PS, min_length=1, description=(
+        "Fractions p of each cluster kept after ranking (top p by Performance); each in (0, 1]."))
+    test_fraction: float = Field(0.2, ge=0.0, lt=1.0, description=(
+        "Fraction of trajectories held out for testing, split before thresholding."))
+    split_seed: int = Field(0, ge=0, description=(
+        "Seed of the train/test split; one split per environment, shared by all seeds' models so "
+        "that PCPG and No Clustering are compared on the same unseen trajectories."))
+    corruption_seed: int = Field(0, ge=0, description=(
+        "Base seed of the label-corruption draws (combined with each model seed and level c)."))
+    corruption_mode: Literal["wrong", "random"] = Field("random", description=(
+        "How a corrupted label is drawn: 'wrong' = uniformly among the k-1 other labels (c = 1: "
+        "every label wrong); 'random' = uniformly among all k labels (c = 1: a random "
+        "clustering, the No Clustering situation with 1/k of the data)."))
+
+    @field_validator("ps")
+    @classmethod
+    def _ps_in_range(cls, ps: tuple[float, ...]) -> tuple[float, ...]:
+        for p in ps:
+            if not 0.0 < p <= 1.0:
+                raise ValueError(f"every p must lie in (0, 1], got {p}")
+        if len(set(ps)) != len(ps):
+            raise ValueError(f"ps has repeated values: {ps}")
+        return ps
+
+
+class ClusterConfig(StrictModel):
+    """Step A settings. Defaults meet the GridWorld targets (see docs/clustering.md)."""
+
+    method: Literal["lstm_dec", "lstm_kmeans", "summary_kmeans"] = Field(
+        "lstm_dec",
+        description="lstm_dec: autoencoder + DEC loss (the paper); lstm_kmeans: k-means on "
+        "pretrained latents; summary_kmeans: k-means on length, final and mean state.",
+    )
+    k: int = Field(4, ge=1, le=1000, description="Number of clusters (play-styles).")
+    hidden_size: int = Field(
+        32, ge=1, le=1024, description="LSTM hidden units of encoder and decoder."
+    )
+    latent_size: int = Field(8, ge=1, le=512, description="Size of the latent trajectory code z.")
+    pooling: Literal["last", "last_mean"] = Field(
+        "last",
+        description="Encoder summary: the last "
+        "hidden state, or the last beside the mean hidden state over all steps.",
+    )
+    pretrain_epochs: int = Field(
+        25, ge=0, le=10_000, description="Epochs on reconstruction loss alone."
+    )
+    dec_epochs: int = Field(
+        8,
+        ge=0,
+        le=10_000,
+        description="Epochs on reconstruction + clustering loss "
+        "(lstm_dec only); the target distribution is refreshed every epoch.",
+    )
+    cluster_weight: float = Field(
+        0.1,
+        ge=0.0,
+        le=1e4,
+        description="Weight of the DEC KL term against the reconstruction MSE (IDEC's gamma).",
+    )
+    alpha: float = Field(
+        1.0, gt=0.0, le=1e3, description="Degrees of freedom of the Student-t kernel."
+    )
+    batch_size: int = Field(
+        256,
+        ge=1,
+        le=1_000_000,
+        description="Trajectories per batch (batches are cut from trajectories sorted by length).",
+    )
+    lr: float = Field(3e-3, gt=0.0, le=1.0, description="Adam learning rate.")
+    dec_tol: float = Field(
+        0.001,
+        ge=0.0,
+        le=1.0,
+        description="Stop DEC early once fewer than this "
+        "fraction of labels change between epochs (0 = run all dec_epochs).",
+    )
+    kmeans_n_init: int = Field(
+        10, ge=1, le=1000, description="k-means restarts (best inertia kept)."
+    )
+    silhouette_sample: int = Field(
+        4000,
+        ge=2,
+        le=1_000_000,
+        description="At most this many points "
+        "(seeded sample) for the silhouette score, which is O(n^2).",
+    )
+
+
+class BCConfig(StrictModel):
+    """The behavioural-cloning policy and its training (Step C)."""
+
+    hidden_layers: int = Field(3, ge=0, le=8, description="Hidden layers of the MLP (paper: 3).")
+    hidden_size: int = Field(5, ge=1, le=1024, description="Units per hidden layer (paper: 5).")
+    activation: Literal["relu", "tanh"] = Field("tanh", description=(
+        "Hidden activation. tanh by default: with 5-unit layers relu units die and some seeds "
+        "lose a style (measured on GridWorld, docs/bc_and_evaluation.md)."))
+    epochs: int = Field(2000, ge=0, description="Full-batch Adam steps (paper: '2000 episodes').")
+    lr: float = Field(0.01, gt=0.0, description="Adam learning rate.")
+    betas: tuple[float, float] = Field((0.9, 0.999), description="Adam beta1, beta2.")
+    eps: float = Field(1e-8, gt=0.0, description="Adam epsilon.")
+    device: Literal["cpu", "cuda", "auto"] = Field("cpu", description=(
+        "Where to train: 'auto' uses a GPU when torch sees one; 'cuda' fails without one."))
+    dtype: Literal["float32", "float64"] = Field("float32", description="Training precision.")
+    engine: Literal["auto", "numba", "torch"] = Field("auto", description=(
+        "'numba': fused compiled CPU kernel (fastest on CPU, float32 only); 'torch': stacked "
+        "baddbmm/bmm passes (runs on a GPU too); 'auto': numba on CPU in float32, else torch."))
+    dedupe: bool = Field(True, description=(
+        "Train on distinct (state, valid, action) rows weighted by their counts: same loss and "
+        "gradient as the raw rows, far fewer rows where states repeat."))
+    bucket_overhead_rows: int = Field(20000, ge=0, description=(
+        "Padding (in cell-rows) worth one extra bucket; 0 = one bucket per distinct row count, "
+        "very large = pad everything to the largest cell."))
+
+
+class EvalConfig(StrictModel):
+    """What the evaluation computes and how agents act in rollouts."""
+
+    rollouts_per_policy: int = Field(100, ge=1, description="Rollout episodes per trained policy.")
+    greedy: bool = Field(True, description=(
+        "Rollout actions: True = argmax over valid actions, False = sampled from the softmax."))
+    max_steps: int = Field(100, ge=1, description="Step limit of a rollout episode.")
+    corruption_levels: tuple[float, ...] = Field((0.0, 0.2, 0.4, 0.6, 0.8, 1.0), description=(
+        "Fractions c of cluster labels replaced by wrong ones in the corruption study."))
+    corruption_ps: tuple[float, ...] = Field((1.0,), min_length=1, description=(
+        "p values of the corruption study's cells (default: all data, to isolate the labels)."))
+    reward_p: float = Field(1.0, gt=0.0, le=1.0, description=(
+        "p of the models whose rollouts give the headline reward distance (Table 3) and Fig. 8; "
+        "the table lists every p. 1.0 = pi_k trained on its whole cluster (a small p keeps the "
+        "shortest trajectories, which can be ones that skipped their style's bonus)."))
+    rollout_seed: int = Field(0, ge=0, description="Base seed of the rollout generators.")
+    figures: bool = Field(True, description="Write PNG figures beside the tables.")
+
+
+class PBTGConfig(StrictModel):
+    """Q-learning and trajectory sampling for GridWorld."""
+
+    episodes: Annotated[int, Field(ge=1, description="Q-learning episodes per (E, R) (paper: 20000)")] = 20_000
+    gamma: Annotated[float, Field(gt=0, le=1, description="discount factor of Q-learning")] = 0.99
+    learning_rate: Annotated[float, Field(gt=0, le=1, description="Q-learning step size")] = 0.5
+    epsilon_start: Annotated[float, Field(ge=0, le=1, description="exploration rate at the first episode")] = 1.0
+    epsilon_end: Annotated[float, Field(ge=0, le=1, description="exploration rate at the last episode (linear decay)")] = 0.05
+    trajectories_per_style: Annotated[int, Field(ge=1, description="trajectories generated per (E, R) (paper: 8000)")] = 8000
+    dataset_per_style: Annotated[int, Field(ge=1, description="trajectories per style sampled into each environment's dataset D (paper: 1000)")] = 1000
+    noise_min: Annotated[float, Field(ge=0, le=1, description="lower end of the per-trajectory noise range")] = 0.0
+    noise_max: Annotated[float, Field(ge=0, le=1, description="upper end of the per-trajectory noise range")] = 0.3
+    max_steps: Annotated[int, Field(ge=1, description="episode cap; reaching it counts as failure")] = 100
+    initial_q: Annotated[float, Field(description="initial Q-value of every action; optimistic (>= the best return) "
+                                                  "makes Q-learning try every route before settling")] = 200.0
+
+    @model_validator(mode="after")
+    def _ranges(self) -> PBTGConfig:
+        if self.noise_min > self.noise_max:
+            raise ValueError(f"noise_min ({self.noise_min}) must be <= noise_max ({self.noise_max})")
+        if self.dataset_per_style > self.trajectories_per_style:
+            raise ValueError(f"dataset_per_style ({self.dataset_per_style}) must be <= "
+                             f"trajectories_per_style ({self.trajectories_per_style})")
+        return self
+
+
+PARAMS = ("k", "lstm_hidden", "latent", "bc_layers", "bc_width")
+#: trial parameter -> (config section, field) it sets in the tuned config
+TARGETS = {"k": ("clustering", "k"), "lstm_hidden": ("clustering", "hidden_size"),
+           "latent": ("clustering", "latent_size"), "bc_layers": ("bc", "hidden_layers"),
+           "bc_width": ("bc", "hidden_size")}
+
+
+class TuneConfig(StrictModel):
+    """The search space, the objective and the study of `pcpg tune` (section ``tuning``)."""
+
+    study_name: str | None = Field(None, description="Optuna study name (default: '<config name>-tune'); "
+                                   "the same name in the same storage resumes the study.")
+    n_trials: int = Field(24, ge=1, description="Finished trials (complete, pruned or failed) the study "
+                          "should hold; a rerun with a larger number continues it.")
+    parallel_trials: int = Field(2, ge=1, description="Trials in flight at once (Ray tasks).")
+    environments: list[str] | None = Field(None, description="Environments a trial trains on (default: "
+                                           "the first one of the config); the score is their mean.")
+    k_range: tuple[int, int] = Field((2, 8), description="Smallest and largest cluster count tried.")
+    lstm_hidden_sizes: tuple[int, ...] = Field((16, 32, 64), min_length=1, description=(
+        "LSTM hidden sizes tried (clustering.hidden_size); one value = fixed, not searched."))
+    latent_sizes: tuple[int, ...] = Field((4, 8, 16), min_length=1, description=(
+        "Latent sizes tried (clustering.latent_size); one value = fixed."))
+    bc_layers_range: tuple[int, int] = Field((1, 3), description="Fewest and most BC hidden layers tried.")
+    bc_widths: tuple[int, ...] = Field((5, 16, 32, 64), min_length=1, description=(
+        "BC hidden-layer widths tried (bc.hidden_size); one value = fixed."))
+    ps: tuple[float, ...] | None = Field(None, description="p values scored (default: ranking.ps).")
+    seeds: list[int] | None = Field(None, description="BC seeds per trial (default: the first of seeds).")
+    penalty: float = Field(0.01, ge=0.0, description=(
+        "lambda: accuracy one more cluster must gain to be worth it; score = accuracy - lambda (k - 1)."))
+    min_cluster_fraction: float = Field(0.02, ge=0.0, lt=1.0, description=(
+        "A trial whose smallest cluster holds less than this fraction of the training trajectories "
+        "is pruned."))
+    sampler_seed: int = Field(0, ge=0, description="Seed of the TPE sampler.")
+    n_startup_trials: int = Field(8, ge=0, description="Random trials before TPE models the results.")
+    enqueue: list[dict[str, int]] = Field([], description=(
+        "Parameter sets tried first, e.g. [{k: 4}] (missing parameters are sampled)."))
+    heartbeat_interval: int = Field(30, ge=1, description="RDB storage: seconds between heartbeats.")
+    grace_period: int = Field(120, ge=1, description=(
+        "RDB storage: a RUNNING trial without a heartbeat for this long is failed and retried."))
+    max_retry: int = Field(2, ge=0, description="How often a trial whose driver or worker died is retried.")
+
+    @field_validator("k_range", "bc_layers_range")
+    @classmethod
+    def _range(cls, v: tuple[int, int]) -> tuple[int, int]:
+        if v[0] > v[1] or v[0] < 0:
+            raise ValueError(f"a range must be [low, high] with 0 <= low <= high, got {list(v)}")
+        return v
+
+    @model_validator(mode="after")
+    def _checks(self) -> TuneConfig:
+        if self.k_range[0] < 1:
+            raise ValueError("k_range must start at 1 or more")
+        for values, name in ((self.lstm_hidden_sizes, "lstm_hidden_sizes"), (self.latent_sizes, "latent_sizes"),
+                             (self.bc_widths, "bc_widths")):
+            if min(values) < 1 or len(set(values)) != len(values):
+                raise ValueError(f"{name} must be distinct positive sizes, got {list(values)}")
+        for entry in self.enqueue:
+            unknown = set(entry) - set(PARAMS)
+            if unknown:
+                raise ValueError(f"enqueue: unknown parameter(s) {sorted(unknown)}; known: {list(PARAMS)}")
+        return self
+
+
+class RunnerConfig(StrictModel):
+    """How work is fanned out on Ray."""
+
+    group_size: Annotated[int, Field(ge=1, description="BC cells trained together in one Ray task")] = 125
+    cpus_per_task: Annotated[int, Field(ge=1, description="CPUs (and torch threads) per Ray task")] = 1

@@ -1,0 +1,90 @@
+"""One unit through the stages: cluster (Step A) -> plan cells (Step B) -> train (Step C) -> evaluate.
+
+Pure functions of a :class:`~pcpg_dist.domains.base.Unit` and the experiment config: no Ray, no
+cache, no MLflow. `pcpg run` calls them from Ray tasks with a content-keyed cache around each, and
+`pcpg tune`, `pcpg cluster` and a notebook call the same functions, so every entry point clusters
+the same preprocessed input, ranks by the domain's skill score and evaluates the same way.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pcpg_dist.domains.base import Unit
+
+
+@dataclass
+class UnitClustering:
+    """Step A's result for one unit: a label per trajectory, its metrics, the fitted model."""
+
+    labels: np.ndarray
+    metrics: dict[str, float]
+    model: Any = None
+
+
+@dataclass
+class UnitResult:
+    """A unit run in-process end to end (:func:`run_unit`)."""
+
+    clustering: UnitClustering
+    metrics: dict[str, float]
+    tables: dict[str, Any] = field(default_factory=dict)
+
+
+def has_styles(unit: Unit) -> bool:
+    """Whether every trajectory carries a ground-truth style (used only to score, never to fit)."""
+    return bool(len(unit.dataset.styles)) and bool((unit.dataset.styles >= 0).all())
+
+
+def cluster_unit(unit: Unit, cluster_cfg, seed: int) -> UnitClustering:
+    """Step A on what the domain says to cluster; scored against true styles when they exist."""
+    from pcpg_dist.clustering import cluster, clustering_metrics
+
+    result = cluster(unit.clustered, cluster_cfg, seed)
+    metrics = {f"clustering/{k}": float(v) for k, v in result.metrics.items() if isinstance(v, int | float)}
+    if has_styles(unit):
+        sup = clustering_metrics(unit.dataset.styles, result.labels)
+        metrics.update({f"clustering/{k}": float(v) for k, v in sup.items() if isinstance(v, int | float)})
+    metrics["clustering/fit_seconds"] = result.fit_seconds
+    return UnitClustering(np.asarray(result.labels, np.int64), metrics, result.model)
+
+
+def plan_unit(unit: Unit, labels: np.ndarray, cfg, *, rank_cfg=None, seeds=None, corruption: bool = True):
+    """Step B: every training cell of the unit (PCPG, No Clustering, corrupted labels), ranked by
+    the domain's skill score. Corruption cells need true styles to mean anything."""
+    from pcpg_dist.ranking import plan_cells
+
+    rank_cfg = rank_cfg or cfg.ranking
+    corrupt = cfg.evaluation.corruption_levels if corruption and has_styles(unit) else ()
+    return plan_cells(unit.dataset, labels, unit.train_idx, rank_cfg, cfg.seeds if seeds is None else seeds,
+                      k=cfg.clustering.k, score=cfg.domain_object.score(cfg), corruption_levels=corrupt,
+                      corruption_ps=cfg.evaluation.corruption_ps)
+
+
+def evaluate_unit(unit: Unit, labels: np.ndarray, trained, cfg, out_dir: str | Path | None = None, *,
+                  rank_cfg=None, eval_cfg=None, rollouts: bool = True, extras: bool = True) -> dict[str, float]:
+    """Accuracy tables, cross accuracy, rollouts and the domain's extras; finite metrics only."""
+    from pcpg_dist.evaluation import evaluate
+
+    domain = cfg.domain_object
+    result = evaluate(unit.dataset, labels, unit.test_idx, trained, rank_cfg or cfg.ranking,
+                      eval_cfg or cfg.evaluation, out_dir=out_dir, hooks=domain.hooks(cfg, unit.name) if rollouts else None,
+                      score=domain.score(cfg), k=cfg.clustering.k)
+    metrics = {k: float(v) for k, v in result.metrics.items() if np.isfinite(v)}
+    if extras and out_dir is not None:
+        metrics.update(domain.extras(cfg, unit, labels, trained, Path(out_dir)))
+    return metrics
+
+
+def run_unit(unit: Unit, cfg, out_dir: str | Path | None = None) -> UnitResult:
+    """The whole chain in this process (a notebook, a test, one tuning trial)."""
+    from pcpg_dist.bc import train_cells
+
+    clustering = cluster_unit(unit, cfg.clustering, cfg.seed)
+    trained = train_cells(plan_unit(unit, clustering.labels, cfg), cfg.bc)
+    metrics = evaluate_unit(unit, clustering.labels, trained, cfg, out_dir)
+    return UnitResult(clustering, {**clustering.metrics, **metrics})
