@@ -1,0 +1,201 @@
+"""Rolling trained agents out in a Gymnasium environment, for logs that came from one.
+
+The ``trajectories`` domain reads a user's own logs; when ``trajectories.gymnasium_env`` names the
+Gymnasium environment they were recorded in, every trained agent is rolled out there. The logs'
+states must be ``gymnasium.spaces.flatten(observation_space, obs)`` (a ``Discrete`` observation is
+a one-hot vector) and their actions ``0..n-1`` of a ``Discrete(n, start=s)`` action space (action
+``a`` is sent to the environment as ``s + a``). :func:`check_compatible` checks both widths.
+
+Valid actions: ``info["action_mask"]`` where the environment gives one (toy-text Taxi does), else
+every action. Randomness: one seed per episode is drawn from the caller's generator before any
+episode starts, and seeds both ``env.reset`` and ``env.action_space``; the policy draws from the
+same generator afterwards, so one generator state gives one Dataset.
+
+Gymnasium is imported inside the functions: this module is imported when a config is loaded.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any, Literal
+
+import numpy as np
+
+from pcpg_dist.errors import ConfigError
+
+if TYPE_CHECKING:
+    import gymnasium
+
+    from pcpg_dist.dataset import Dataset
+    from pcpg_dist.domains.base import Policy
+
+ENV_KEY = "trajectories.gymnasium_env"
+KWARGS_KEY = "trajectories.gymnasium_kwargs"
+
+#: How an episode's ``success`` is decided.
+#: ``"terminated"``: the environment ended it itself (``terminated and not truncated``), not a
+#: time limit nor ``max_steps``; right where termination means the goal (Taxi, MountainCar,
+#: CliffWalking), wrong where it can mean failure (a FrozenLake hole, a fallen CartPole).
+#: ``"terminated_positive_reward"``: terminated as above with a final reward > 0 (FrozenLake's goal
+#: pays 1 and its holes 0; LunarLander lands at +100 and crashes at -100).
+SuccessRule = Literal["terminated", "terminated_positive_reward"]
+
+
+def env_name(env_id: str) -> str:
+    """``env_id`` as a plain file-name part (``ALE/Pong-v5`` -> ``ALE_Pong-v5``), for Dataset.env."""
+    name = re.sub(r"[^A-Za-z0-9_.+-]", "_", env_id).replace("..", "_")
+    return name if name[:1].isalnum() else f"env{name}"
+
+
+def _one_line(e: BaseException) -> str:
+    text = " ".join(str(e).split())
+    return f"{type(e).__name__}: {text}" if text else type(e).__name__
+
+
+def make_env(env_id: str, kwargs: Mapping[str, Any]) -> gymnasium.Env:
+    """``gymnasium.make(env_id, **kwargs)`` with a Discrete action space; ConfigError otherwise."""
+    import gymnasium
+    from gymnasium import spaces
+
+    try:
+        env = gymnasium.make(env_id, **dict(kwargs))
+    except (gymnasium.error.UnregisteredEnv, gymnasium.error.DeprecatedEnv) as e:
+        # an unknown or retired id: Gymnasium's own message names the close match ("Did you
+        # mean: `FrozenLake`?") or the successor ("Please use `Taxi-v4` instead")
+        raise ConfigError(f"key '{ENV_KEY}': {' '.join(str(e).split())}") from None
+    except Exception as e:  # whatever the env's constructor rejects is user input
+        # ids like "module:Env-v0" import a module first; a missing one is the env key's fault
+        missing = isinstance(e, ImportError | gymnasium.error.DependencyNotInstalled)
+        key = KWARGS_KEY if kwargs and not missing else ENV_KEY
+        raise ConfigError(f"key '{key}': gymnasium.make({env_id!r}, **{dict(kwargs)!r}) failed: "
+                          f"{_one_line(e)}") from None
+    if not isinstance(env.action_space, spaces.Discrete):
+        space = env.action_space
+        env.close()
+        raise ConfigError(f"key '{ENV_KEY}': {env_id} has action space {space}; only Discrete action "
+                          f"spaces can be rolled out (logged actions are integers 0..n-1)")
+    return env
+
+
+def check_compatible(env: gymnasium.Env, state_dim: int, n_actions: int) -> None:
+    """The environment's flattened observation width and number of actions equal the logs'."""
+    from gymnasium import spaces
+
+    env_id = env.spec.id if env.spec is not None else type(env.unwrapped).__name__
+    if not isinstance(env.action_space, spaces.Discrete):
+        raise ConfigError(f"key '{ENV_KEY}': {env_id} has action space {env.action_space}; only "
+                          f"Discrete action spaces can be rolled out")
+    try:
+        width = spaces.flatdim(env.observation_space)
+    except (ValueError, NotImplementedError) as e:
+        raise ConfigError(f"key '{ENV_KEY}': {env_id}'s observation space {env.observation_space} "
+                          f"has no fixed flat width ({_one_line(e)})") from None
+    n = int(env.action_space.n)
+    if width != state_dim:
+        raise ConfigError(
+            f"key '{ENV_KEY}': {env_id} observations flatten to {width} features "
+            f"({env.observation_space}) but the logs have {state_dim} state columns (s0..s{state_dim - 1}); "
+            f"write each state as gymnasium.spaces.flatten(observation_space, obs) or name the env "
+            f"(and {KWARGS_KEY}) the logs were recorded in")
+    if n != n_actions:
+        raise ConfigError(
+            f"key '{ENV_KEY}': {env_id} has {n} actions ({env.action_space}) but the logs have "
+            f"{n_actions} (the width of 'valid'); log actions as 0..{n - 1} or name the env "
+            f"(and {KWARGS_KEY}) the logs were recorded in")
+
+
+def _mask(env_id: str, info: Mapping[str, Any], n_actions: int) -> np.ndarray:
+    if "action_mask" not in info:
+        return np.ones(n_actions, bool)
+    mask = np.asarray(info["action_mask"]).astype(bool)
+    if mask.shape != (n_actions,):
+        raise ConfigError(f"key '{ENV_KEY}': {env_id} gives info['action_mask'] of shape "
+                          f"{mask.shape}, expected ({n_actions},) for its {n_actions} actions")
+    return mask
+
+
+def rollout(
+    env_id: str, kwargs: Mapping[str, Any], policy: Policy, n_episodes: int,
+    rng: np.random.Generator, max_steps: int, action_names: tuple[str, ...] = (),
+    feature_names: tuple[str, ...] = (), success_rule: SuccessRule = "terminated",
+) -> Dataset:
+    """``n_episodes`` episodes of ``policy`` in ``gymnasium.make(env_id, **kwargs)``, stepped together.
+
+    Each episode has its own environment; the policy is called once per step on the live ones.
+    An episode ends when the environment terminates or truncates it, or after ``max_steps``
+    actions. Rewards are the environment's, one per action; ``success`` follows ``success_rule``
+    (see :data:`SuccessRule`). A policy that returns an action outside the valid mask raises
+    ValueError naming the episode and step.
+    """
+    from gymnasium import spaces
+
+    from pcpg_dist.dataset import Dataset
+
+    if n_episodes < 1:
+        raise ValueError(f"n_episodes must be >= 1, got {n_episodes}")
+    if max_steps < 1:
+        raise ValueError(f"max_steps must be >= 1, got {max_steps}")
+    if success_rule not in ("terminated", "terminated_positive_reward"):
+        raise ValueError(f"success_rule must be 'terminated' or 'terminated_positive_reward', got {success_rule!r}")
+    seeds = [int(s) for s in rng.integers(2**31, size=n_episodes)]
+    envs: list[gymnasium.Env] = []
+    try:
+        envs.extend(make_env(env_id, kwargs) for _ in range(n_episodes))
+        obs_space, act_space = envs[0].observation_space, envs[0].action_space
+        n, start = int(act_space.n), int(act_space.start)
+        states: list[list[np.ndarray]] = [[] for _ in envs]
+        valid: list[list[np.ndarray]] = [[] for _ in envs]
+        actions: list[list[int]] = [[] for _ in envs]
+        rewards: list[list[float]] = [[] for _ in envs]
+        success = np.zeros(n_episodes, bool)
+        for i, env in enumerate(envs):
+            env.action_space.seed(seeds[i])
+            obs, info = env.reset(seed=seeds[i])
+            states[i].append(np.asarray(spaces.flatten(obs_space, obs), np.float32))
+            valid[i].append(_mask(env_id, info, n))
+        alive = np.ones(n_episodes, bool)
+        for t in range(max_steps):
+            live = np.nonzero(alive)[0]
+            if not len(live):
+                break
+            masks = np.stack([valid[i][-1] for i in live])
+            if not masks.any(axis=1).all():
+                i = int(live[np.argmin(masks.any(axis=1))])
+                raise ConfigError(f"key '{ENV_KEY}': {env_id}'s action mask allows no action in episode "
+                                  f"{i} at step {t}, yet the episode has not ended")
+            acts = np.asarray(policy(np.stack([states[i][-1] for i in live]), masks, rng))
+            if acts.shape != (len(live),) or not np.issubdtype(acts.dtype, np.integer):
+                raise ValueError(f"{env_id} rollout, step {t}: the policy returned {acts.dtype} actions of "
+                                 f"shape {acts.shape} for {len(live)} states, expected integers of shape ({len(live)},)")
+            in_range = (acts >= 0) & (acts < n)
+            ok = in_range & masks[np.arange(len(live)), np.where(in_range, acts, 0).astype(np.int64)]
+            if not ok.all():
+                j = int(np.argmin(ok))
+                a = acts[j]
+                what = (f"action {a} ({action_names[int(a)]})" if in_range[j] and action_names
+                        else f"action {a}")
+                raise ValueError(f"{env_id} rollout, episode {int(live[j])}, step {t}: the policy chose "
+                                 f"{what}, which is not valid there (valid: "
+                                 f"{np.nonzero(masks[j])[0].tolist()} of 0..{n - 1})")
+            for j, i in enumerate(live):
+                a = int(acts[j])
+                obs, reward, terminated, truncated, info = envs[i].step(start + a)
+                states[i].append(np.asarray(spaces.flatten(obs_space, obs), np.float32))
+                valid[i].append(_mask(env_id, info, n))
+                actions[i].append(a)
+                rewards[i].append(float(reward))
+                if terminated or truncated:
+                    alive[i] = False
+                    success[i] = bool(terminated and not truncated) and (
+                        success_rule == "terminated" or float(reward) > 0)
+    finally:
+        for env in envs:
+            env.close()
+    trajs = [{"states": np.stack(states[i]), "actions": np.asarray(actions[i], np.int64),
+              "valid": np.stack(valid[i]), "rewards": np.asarray(rewards[i], np.float64)}
+             for i in range(n_episodes)]
+    return Dataset.from_trajectories("trajectories", env_name(env_id), n, trajs,
+                                     styles=[-1] * n_episodes, success=success,
+                                     feature_names=tuple(feature_names),
+                                     action_names=tuple(action_names))
