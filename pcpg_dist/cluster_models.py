@@ -73,6 +73,40 @@ def summary_features(states: np.ndarray, offsets: np.ndarray) -> np.ndarray:
     return np.column_stack([lengths.astype(np.float64), final, sums / lengths[:, None]])
 
 
+MAX_VOCAB = 20_000  # visits_kmeans: most frequent distinct states kept as features
+
+
+def state_vocabulary(states: np.ndarray) -> np.ndarray:
+    """The distinct state rows, most frequent first (at most MAX_VOCAB): visits_kmeans' features."""
+    rows = np.ascontiguousarray(states, np.float32)
+    uniq, counts = np.unique(rows, axis=0, return_counts=True)
+    keep = np.argsort(-counts, kind="stable")[:MAX_VOCAB]
+    return uniq[keep]
+
+
+def visit_features(states: np.ndarray, offsets: np.ndarray, vocab: np.ndarray):
+    """(n, V) sparse, rows L2-normalised: which vocabulary states each trajectory visits.
+
+    Binary (visited or not) so a loop walked twice is the same route; normalised so a long
+    trajectory and a short one of the same route stay close (cosine geometry for k-means).
+    """
+    from scipy import sparse
+    from sklearn.preprocessing import normalize
+
+    rows = np.ascontiguousarray(states, np.float32)
+    both = np.concatenate([vocab.astype(np.float32), rows])
+    _, inv = np.unique(both.view(np.uint8).reshape(len(both), -1), axis=0, return_inverse=True)
+    inv = inv.reshape(-1)
+    col_of = np.full(inv.max() + 1, -1, np.int64)
+    col_of[inv[: len(vocab)]] = np.arange(len(vocab))
+    cols = col_of[inv[len(vocab):]]
+    traj = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets))
+    ok = cols >= 0
+    m = sparse.csr_matrix((np.ones(int(ok.sum())), (traj[ok], cols[ok])), shape=(len(offsets) - 1, len(vocab)))
+    m.data[:] = 1.0
+    return normalize(m)
+
+
 def fit_normaliser(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Column mean and std; constant columns get std 1 so they stay finite (and stay zero)."""
     mean = x.mean(axis=0)
@@ -192,6 +226,7 @@ class ClusterModel:
         centroids: np.ndarray,
         autoencoder: SequenceAutoencoder | None,
         feature_names: tuple[str, ...] = (),
+        vocabulary: np.ndarray | None = None,
     ) -> None:
         self.method = method
         self.config = dict(config)
@@ -201,6 +236,7 @@ class ClusterModel:
         self.centroids = np.asarray(centroids, np.float32)
         self.autoencoder = autoencoder
         self.feature_names = tuple(feature_names)
+        self.vocabulary = None if vocabulary is None else np.asarray(vocabulary, np.float32)
 
     @property
     def k(self) -> int:
@@ -214,6 +250,8 @@ class ClusterModel:
                 f"{self.method} model was fitted on {self.state_dim} state features, "
                 f"dataset {dataset.domain}-{dataset.env} has {states.shape[1]}"
             )
+        if self.vocabulary is not None:
+            return visit_features(states, offsets, self.vocabulary)
         if self.autoencoder is None:
             return ((summary_features(states, offsets) - self.mean) / self.std).astype(np.float32)
         norm = (states - self.mean) / self.std
@@ -223,6 +261,10 @@ class ClusterModel:
 
     def assign(self, feats: np.ndarray) -> np.ndarray:
         """Nearest centroid (= argmax of DEC's Student-t assignment); ties go to the lower index."""
+        if not isinstance(feats, np.ndarray):  # sparse visit features: |x|^2 - 2 x.c + |c|^2
+            c = self.centroids.astype(np.float64)
+            d2 = -2 * np.asarray(feats @ c.T) + (c ** 2).sum(axis=1)[None]
+            return np.argmin(d2, axis=1).astype(np.int64)
         d2 = (
             (feats[:, None, :].astype(np.float64) - self.centroids[None].astype(np.float64)) ** 2
         ).sum(-1)
@@ -242,6 +284,8 @@ class ClusterModel:
             "std": torch.from_numpy(self.std),
             "centroids": torch.from_numpy(self.centroids),
         }
+        if self.vocabulary is not None:
+            tensors["vocabulary"] = torch.from_numpy(self.vocabulary)
         if self.autoencoder is not None:
             tensors.update(
                 {f"ae.{k}": v.detach().clone() for k, v in self.autoencoder.state_dict().items()}
@@ -294,8 +338,13 @@ def load_model(directory: str | Path) -> ClusterModel:
             ae.load_state_dict({k[3:]: v for k, v in tensors.items() if k.startswith("ae.")})
         except (KeyError, RuntimeError) as e:
             raise DataError(f"{w_path}: weights do not fit a {method} model ({e})") from None
-    elif method != "summary_kmeans":
+    elif method not in ("summary_kmeans", "visits_kmeans"):
         raise DataError(f"{cfg_path}: unknown clustering method '{method}'")
+    vocab = tensors.get("vocabulary")
+    if method == "visits_kmeans" and (vocab is None or vocab.ndim != 2 or vocab.shape[1] != state_dim
+                                      or centroids.shape[1] != vocab.shape[0]):
+        raise DataError(f"{w_path}: weights do not fit a visits_kmeans model")
     return ClusterModel(
-        method, config, state_dim, mean, std, centroids, ae, tuple(meta.get("feature_names") or ())
+        method, config, state_dim, mean, std, centroids, ae, tuple(meta.get("feature_names") or ()),
+        vocab.numpy() if vocab is not None else None,
     )

@@ -35,7 +35,9 @@ from pcpg_dist.cluster_models import (
     fit_normaliser,
     load_model,
     make_batches,
+    state_vocabulary,
     summary_features,
+    visit_features,
 )
 from pcpg_dist.config.stages import ClusterConfig
 from pcpg_dist.errors import DataError
@@ -178,7 +180,14 @@ def cluster(dataset, cfg: ClusterConfig, seed: int) -> Clustering:
         )
     metrics: dict[str, float] = {}
     config = cfg.model_dump()
-    if cfg.method == "summary_kmeans":
+    if cfg.method == "visits_kmeans":
+        vocab = state_vocabulary(states)
+        latents = visit_features(states, offsets, vocab)
+        km = KMeans(n_clusters=cfg.k, n_init=cfg.kmeans_n_init, random_state=seed).fit(latents)
+        d = states.shape[1]
+        model = ClusterModel(cfg.method, config, d, np.zeros(d), np.ones(d), km.cluster_centers_, None,
+                             tuple(dataset.feature_names), vocab)
+    elif cfg.method == "summary_kmeans":
         feats = summary_features(states, offsets)
         mean, std = fit_normaliser(feats)
         norm = ((feats - mean) / std).astype(np.float32)

@@ -9,6 +9,8 @@ config, seeds, versions, row counts and a SHA-256 per file. Columns:
   booleans: which actions are valid in that state; any number of actions)
 - ``reward`` (float64: the reward received for the action taken in this row; 0 on the final row)
 - ``success`` (bool) and ``epsilon`` (float64, NaN = unknown): per-trajectory, repeated per row
+- ``skill`` (float64, optional): a per-trajectory skill score recorded with the data (a user's own
+  column, ranked by Step B when the config says so), repeated per row
 
 Plain pandas, polars or DuckDB read it. In memory a :class:`Dataset` keeps the rows in trajectory
 order with CSR-style ``offsets``, so a trajectory is a slice and subsets are cheap.
@@ -58,6 +60,7 @@ class Dataset:
     epsilon: np.ndarray  # (n,) float64, NaN = unknown
     feature_names: tuple[str, ...] = field(default=())
     action_names: tuple[str, ...] = field(default=())
+    skill: np.ndarray | None = None  # (n,) float64: a recorded per-trajectory skill score, if any
 
     def __post_init__(self) -> None:
         rows, n = len(self.actions), len(self.trajectory_ids)
@@ -71,8 +74,8 @@ class Dataset:
         if self.valid.dtype != bool or self.valid.shape != (rows, self.n_actions):
             raise DataError(f"{where}: valid must be a bool mask of shape (rows={rows}, n_actions="
                             f"{self.n_actions}), got {self.valid.dtype} {self.valid.shape}")
-        for name in ("styles", "success", "epsilon"):
-            if len(getattr(self, name)) != n:
+        for name in ("styles", "success", "epsilon", "skill"):
+            if getattr(self, name) is not None and len(getattr(self, name)) != n:
                 raise DataError(f"{where}: {name} has {len(getattr(self, name))} entries, expected {n}")
         if len(self.offsets) != n + 1 or self.offsets[0] != 0 or self.offsets[-1] != rows:
             raise DataError(f"{where}: offsets must run from 0 to {rows} with {n + 1} entries")
@@ -118,6 +121,11 @@ class Dataset:
         return np.diff(self.offsets)
 
     @property
+    def returns(self) -> np.ndarray:
+        """Undiscounted return (sum of rewards) of each trajectory."""
+        return np.add.reduceat(self.rewards, self.offsets[:-1]) if self.n_rows else np.zeros(0)
+
+    @property
     def row_trajectory(self) -> np.ndarray:
         """Index (0..n-1) of the trajectory each row belongs to."""
         return np.repeat(np.arange(self.n_trajectories), self.lengths)
@@ -151,7 +159,7 @@ class Dataset:
             rewards=self.rewards[rows], offsets=np.r_[0, np.cumsum(lengths)].astype(np.int64),
             trajectory_ids=self.trajectory_ids[idx], styles=self.styles[idx],
             success=self.success[idx], epsilon=self.epsilon[idx], feature_names=self.feature_names,
-            action_names=self.action_names,
+            action_names=self.action_names, skill=None if self.skill is None else self.skill[idx],
         )
 
     def with_styles(self, styles: np.ndarray) -> Dataset:
@@ -188,6 +196,8 @@ class Dataset:
             success=np.concatenate([p.success for p in parts]),
             epsilon=np.concatenate([p.epsilon for p in parts]),
             feature_names=first.feature_names, action_names=first.action_names,
+            skill=(np.concatenate([p.skill for p in parts]) if all(p.skill is not None for p in parts)
+                   else None),
         )
 
     @staticmethod
@@ -240,6 +250,8 @@ class Dataset:
         cols["reward"] = pa.array(self.rewards, pa.float64())
         cols["success"] = pa.array(self.success[per_row], pa.bool_())
         cols["epsilon"] = pa.array(self.epsilon[per_row], pa.float64())
+        if self.skill is not None:
+            cols["skill"] = pa.array(self.skill[per_row], pa.float64())
         meta = {"pcpg": json.dumps({
             "schema_version": SCHEMA_VERSION, "domain": self.domain, "env": self.env,
             "n_actions": self.n_actions, "feature_names": list(self.feature_names),
@@ -300,6 +312,7 @@ class Dataset:
                 rewards=col("reward", np.float64), offsets=offsets, trajectory_ids=traj[starts],
                 styles=col("style", np.int64)[starts], success=col("success", bool)[starts],
                 epsilon=col("epsilon", np.float64)[starts],
+                skill=col("skill", np.float64)[starts] if "skill" in names else None,
                 feature_names=tuple(meta.get("feature_names") or ()),
                 action_names=tuple(meta.get("action_names") or ()),
             )

@@ -298,6 +298,8 @@ def _rollouts(dataset, labels, k, seeds, ps, cells, trained, cfg, hooks, tables,
                            _rollout_rng(cfg.rollout_seed, trained.specs[i].key))
         row = {"method": kind, "k": c, "p": p, "seed": seed, "actions": mode,
                "length": float((ds.lengths - 1).mean()), "success": float(ds.success.mean())}
+        if hooks.returns is None:  # no per-style rewards: the environment's own return is the score
+            row["return"] = float(ds.returns.mean())
         if hooks.returns is not None and kind == "pcpg":
             row["return_own_style"] = float(hooks.returns(ds, styles[c]).mean())
         rows.append(row)
@@ -307,9 +309,13 @@ def _rollouts(dataset, labels, k, seeds, ps, cells, trained, cfg, hooks, tables,
     tables["rollouts"] = runs
     length = runs.groupby(["method", "k", "p"])["length"].agg(["mean", "std"]).reset_index()
     tables["rollout_length"] = length
+    if "return" in runs:
+        tables["rollout_return"] = runs.groupby(["method", "k", "p"])["return"].agg(["mean", "std"]).reset_index()
     for (method, c, p), grp in runs.groupby(["method", "k", "p"]):
         who = f"k{c}" if method == "pcpg" else "nc"
         put(f"rollout/length/{who}/p{fmt(p)}", list(grp["length"]))
+        if "return" in grp:
+            put(f"rollout/return/{who}/p{fmt(p)}", list(grp["return"]))
     if hooks.returns is None or hooks.optimal_return is None:
         return
     rnd = hooks.rollout(random_policy, cfg.rollouts_per_policy, _rollout_rng(cfg.rollout_seed, "random"))

@@ -26,12 +26,18 @@ def generate_to(cfg: ExperimentConfig, out_dir: Path, show_progress: bool = True
     """Generate and write ``out_dir/<domain>-<env>.parquet`` + ``manifest.json``."""
     t0 = time.perf_counter()
     datasets = generate(cfg, show_progress)
-    write_datasets(out_dir, list(datasets.values()), {
+    write_to(cfg, datasets, out_dir, time.perf_counter() - t0)
+    return datasets
+
+
+def write_to(cfg: ExperimentConfig, datasets: dict[str, Dataset], out_dir: Path,
+             seconds: float | None = None) -> Path:
+    """Write the datasets and their manifest (config, seeds, provenance) to ``out_dir``."""
+    return write_datasets(out_dir, list(datasets.values()), {
         "config": cfg.model_dump(mode="json"), "config_hash": cfg.hash(), "base_seed": cfg.seed,
         **cfg.domain_object.manifest(cfg, datasets),
-        "generate_seconds": round(time.perf_counter() - t0, 3), **provenance(),
+        "generate_seconds": None if seconds is None else round(seconds, 3), **provenance(),
     })
-    return datasets
 
 
 def units(cfg: ExperimentConfig, datasets: dict[str, Dataset]) -> list[Unit]:

@@ -47,8 +47,14 @@ def cluster_unit(unit: Unit, cluster_cfg, seed: int) -> UnitClustering:
     result = cluster(unit.clustered, cluster_cfg, seed)
     metrics = {f"clustering/{k}": float(v) for k, v in result.metrics.items() if isinstance(v, int | float)}
     if has_styles(unit):
+        from pcpg_dist.ceiling import supervised_ceiling
+
         sup = clustering_metrics(unit.dataset.styles, result.labels)
         metrics.update({f"clustering/{k}": float(v) for k, v in sup.items() if isinstance(v, int | float)})
+        ceiling = supervised_ceiling(unit.dataset, seed=seed)
+        if np.isfinite(ceiling):  # what a classifier given the true styles reaches (docs/clustering.md)
+            metrics["clustering/ceiling"] = ceiling
+            metrics["clustering/gap_to_ceiling"] = ceiling - metrics["clustering/accuracy"]
     metrics["clustering/fit_seconds"] = result.fit_seconds
     return UnitClustering(np.asarray(result.labels, np.int64), metrics, result.model)
 

@@ -21,7 +21,7 @@ import numpy as np
 
 from pcpg_dist.cache import Cache, content_key
 from pcpg_dist.config import ExperimentConfig
-from pcpg_dist.dataset import Dataset, atomic_write_bytes, load_datasets
+from pcpg_dist.dataset import Dataset, atomic_write_bytes, confined, load_datasets
 from pcpg_dist.domains.base import Unit
 from pcpg_dist.parallel import set_threads
 from pcpg_dist.ray_utils import run_tasks
@@ -63,13 +63,15 @@ def data_key(cfg: ExperimentConfig) -> str:
 
 
 def load_or_generate(cfg: ExperimentConfig, cache: Cache, show_progress: bool) -> tuple[dict[str, Dataset], str]:
-    from pcpg_dist.generate import generate_to
+    from pcpg_dist.generate import write_to
 
     key = data_key(cfg)
     path = cache.path("data", key)
     if cache.done("data", key) is None:
+        # generated and validated in memory first: bad input leaves nothing behind
+        datasets = cfg.domain_object.generate(cfg, show_progress)
         cache.start("data", key)
-        generate_to(cfg, path, show_progress=show_progress)
+        write_to(cfg, datasets, path)
         cache.finish("data", key, {"stage": "data"})
     return load_datasets(path), key
 
@@ -136,6 +138,13 @@ def run_experiment(cfg: ExperimentConfig, workdir: Path = Path("runs"), tracking
     threads = cfg.runner.cpus_per_task
     times: dict[str, float] = {}
     computed: dict[str, int] = {"clustering": 0, "train_groups": 0, "evaluations": 0}
+    # Data first: a bad input file fails here, before any MLflow run or cache entry exists.
+    t0 = time.perf_counter()
+    the_units, dkey = load_units(cfg, cache, show_progress)
+    by_name = {u.name: u for u in the_units}
+    for name in by_name:
+        confined(out, name, "unit name")  # unit names become folder and run names
+    times["generate"] = time.perf_counter() - t0
     tracker = None
     if track:
         from pcpg_dist.tracking import Tracker
@@ -143,10 +152,6 @@ def run_experiment(cfg: ExperimentConfig, workdir: Path = Path("runs"), tracking
         tracker = Tracker.start(cfg, tracking_uri, out)
 
     try:
-        t0 = time.perf_counter()
-        the_units, dkey = load_units(cfg, cache, show_progress)
-        by_name = {u.name: u for u in the_units}
-        times["generate"] = time.perf_counter() - t0
 
         # ---- Step A: one clustering per environment
         t0 = time.perf_counter()

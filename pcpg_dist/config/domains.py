@@ -137,6 +137,10 @@ class TrajectoriesConfig(StrictModel):
                                       "to the table's state width and its action space be Discrete(n)")
     gymnasium_kwargs: dict[str, str | int | float | bool | None] = Field(
         {}, description="keyword arguments of gymnasium.make (e.g. {is_slippery: false})")
+    gymnasium_success: Literal["terminated", "terminated_positive_reward"] = Field(
+        "terminated", description="when a rollout episode counts as a success: 'terminated' (ended by "
+        "the env, not by a time limit) or 'terminated_positive_reward' (and its last reward > 0: "
+        "FrozenLake, where falling in a hole also terminates)")
     n_actions: int | None = Field(None, ge=1, le=1_000_000, description="number of actions; default: the "
                                   "length of the valid lists, else the largest action + 1")
 

@@ -50,10 +50,12 @@ class RankConfig(StrictModel):
 class ClusterConfig(StrictModel):
     """Step A settings. Defaults meet the GridWorld targets (see docs/clustering.md)."""
 
-    method: Literal["lstm_dec", "lstm_kmeans", "summary_kmeans"] = Field(
+    method: Literal["lstm_dec", "lstm_kmeans", "summary_kmeans", "visits_kmeans"] = Field(
         "lstm_dec",
         description="lstm_dec: autoencoder + DEC loss (the paper); lstm_kmeans: k-means on "
-        "pretrained latents; summary_kmeans: k-means on length, final and mean state.",
+        "pretrained latents; summary_kmeans: k-means on length, final and mean state; "
+        "visits_kmeans: k-means (cosine) on which distinct states a trajectory visits (for "
+        "discrete-state games; no network, seconds).",
     )
     k: int = Field(4, ge=1, le=1000, description="Number of clusters (play-styles).")
     hidden_size: int = Field(

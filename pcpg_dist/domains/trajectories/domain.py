@@ -1,0 +1,128 @@
+"""``domain: trajectories``: the whole PCPG pipeline on a user's own logs.
+
+Data: a Parquet step table, a folder of them, or ``minari:DATASET_ID`` (read by
+:mod:`.table` / :mod:`.minari_io`, validated before anything is written). Units: one per ``env``
+value, each with a seeded trajectory split. Step B ranks by ``trajectories.score``. With
+``trajectories.gymnasium_env`` every trained agent is also rolled out in that Gymnasium env, and
+the evaluation reports its return and length.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pcpg_dist.domains.base import Domain, DomainHooks, ScoreFn, Unit
+
+BUILTIN_SCORES = ("return", "length", "-length")
+
+
+def trajectory_returns(dataset) -> np.ndarray:
+    """Undiscounted return of every trajectory (the final rows carry reward 0)."""
+    return dataset.returns
+
+
+def minari_fingerprint(dataset_id: str) -> list[list]:
+    """Names, sizes and SHA-256 of a local Minari dataset's files (its content, for the cache key)."""
+    import minari
+
+    from pcpg_dist.dataset import sha256_file
+    from pcpg_dist.errors import DataError
+
+    try:
+        root = Path(minari.storage.get_dataset_path(dataset_id))
+    except Exception as e:  # noqa: BLE001 - minari raises several kinds for a bad id
+        raise DataError(f"minari:{dataset_id}: {str(e).splitlines()[0][:200]}") from None
+    files = sorted(p for p in root.rglob("*") if p.is_file())
+    return [[str(p.relative_to(root)), p.stat().st_size, sha256_file(p)] for p in files]
+
+
+class TrajectoriesDomain(Domain):
+    name = "trajectories"
+    settings_key = "trajectories"
+
+    @staticmethod
+    def _skill_column(settings) -> str | None:
+        return None if settings.score in BUILTIN_SCORES else settings.score
+
+    def data_key(self, cfg) -> list[Any]:
+        from pcpg_dist.dataset import sha256_file
+        from pcpg_dist.domains.trajectories.table import parquet_files
+
+        s = cfg.trajectories
+        if s.path.startswith("minari:"):
+            content = minari_fingerprint(s.path.removeprefix("minari:"))
+        else:
+            content = [[f.name, sha256_file(f)] for f in parquet_files(Path(s.path))]
+        return [self.name, s.model_dump(mode="json", exclude={"gymnasium_env", "gymnasium_kwargs",
+                                                               "gymnasium_success"}), content]
+
+    def generate(self, cfg, show_progress: bool = True):
+        from pcpg_dist.domains.trajectories.table import (
+            StepTable,
+            datasets_from_table,
+            read_step_table,
+            safe_env_name,
+        )
+
+        s = cfg.trajectories
+        n_actions = s.n_actions
+        if s.path.startswith("minari:"):
+            from pcpg_dist.domains.trajectories.minari_io import read_minari
+
+            dataset_id = s.path.removeprefix("minari:")
+            table, meta = read_minari(dataset_id)
+            step = StepTable(table, s.path, safe_env_name(dataset_id))
+            n_actions = n_actions or meta.get("n_actions")
+        else:
+            step = read_step_table(s.path)
+        return datasets_from_table(step, n_actions=n_actions, skill_column=self._skill_column(s))
+
+    def manifest(self, cfg, datasets) -> dict[str, Any]:
+        return {"seed_entropy": {"base": cfg.seed}, "source": cfg.trajectories.path}
+
+    def units(self, cfg, datasets) -> list[Unit]:
+        units = super().units(cfg, datasets)
+        s = cfg.trajectories
+        if s.gymnasium_env is not None:
+            from pcpg_dist.domains.trajectories.gym_rollout import check_compatible, make_env
+
+            env = make_env(s.gymnasium_env, dict(s.gymnasium_kwargs))
+            try:
+                for u in units:
+                    check_compatible(env, u.dataset.state_dim, u.dataset.n_actions)
+            finally:
+                env.close()
+        return units
+
+    def score(self, cfg) -> ScoreFn:
+        how = cfg.trajectories.score
+        if how == "return":
+            return trajectory_returns
+        if how == "length":
+            return lambda ds: ds.lengths.astype(np.float64)
+        if how == "-length":
+            return lambda ds: -ds.lengths.astype(np.float64)
+
+        def column(ds) -> np.ndarray:
+            if ds.skill is None:
+                from pcpg_dist.errors import DataError
+
+                raise DataError(f"dataset {ds.env}: no recorded skill column '{how}' (trajectories.score)")
+            return ds.skill
+
+        return column
+
+    def hooks(self, cfg, unit: str) -> DomainHooks | None:
+        s = cfg.trajectories
+        if s.gymnasium_env is None:
+            return None
+        from pcpg_dist.domains.trajectories.gym_rollout import rollout
+
+        def run(policy, n, rng):
+            return rollout(s.gymnasium_env, dict(s.gymnasium_kwargs), policy, n, rng,
+                           max_steps=cfg.evaluation.max_steps, success_rule=s.gymnasium_success)
+
+        return DomainHooks(rollout=run)

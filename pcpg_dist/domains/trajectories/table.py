@@ -1,0 +1,294 @@
+"""A user's step table (Parquet) -> validated Datasets, one per ``env`` value.
+
+The contract (docs/bring-your-own-data.md), one row per step:
+
+- required: ``trajectory`` (integer or string id), ``t`` (integer, strictly increasing within a
+  trajectory), ``action`` (integer 0..n-1; -1 only on a trajectory's last row, the state after its
+  last action) and the state as numeric columns ``s0 .. s{d-1}``;
+- optional: ``reward`` (float, received for the row's action), ``valid`` (a list of n booleans),
+  ``env`` (one evaluation unit per value), ``style`` (ground truth, evaluation only), ``success``
+  (bool), and any numeric per-trajectory column (constant within a trajectory) to rank by.
+
+A trajectory whose last row still has an action gets a closing row that repeats its last state
+with action -1 (pcpg's datasets end every trajectory on a state). Every problem is one
+:class:`~pcpg_dist.errors.DataError` naming the file, the column and the row (0-based, in file
+order); nothing is written before the whole table has passed.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
+
+from pcpg_dist.dataset import MAX_ACTIONS, Dataset, bool_lists
+from pcpg_dist.errors import DataError
+
+DOMAIN = "trajectories"
+REQUIRED = ("trajectory", "t", "action")
+RESERVED = {"trajectory", "t", "action", "reward", "valid", "env", "style", "success"}
+STATE = re.compile(r"^s(\d+)$")
+MAX_FILES = 10_000
+
+
+@dataclass(frozen=True)
+class StepTable:
+    """A step table as read from disk, with where it came from (for messages)."""
+
+    table: pa.Table
+    source: str
+    default_env: str
+
+
+def safe_env_name(text: str) -> str:
+    """An env value made safe as a folder and file name (it becomes one)."""
+    name = re.sub(r"[^A-Za-z0-9_.+-]", "_", str(text)).strip("._") or "env"
+    return name[:100]
+
+
+def parquet_files(path: Path) -> list[Path]:
+    """A Parquet file, or the ``*.parquet`` files of a folder in name order."""
+    if path.is_dir():
+        files = sorted(p for p in path.iterdir() if p.suffix == ".parquet" and p.is_file())
+        if not files:
+            raise DataError(f"{path}: no .parquet files in this folder")
+        if len(files) > MAX_FILES:
+            raise DataError(f"{path}: {len(files)} Parquet files (at most {MAX_FILES}); merge them")
+        return files
+    if not path.is_file():
+        raise DataError(f"{path}: no such file or folder (key trajectories.path)")
+    return [path]
+
+
+def read_step_table(path: str | Path) -> StepTable:
+    """Read a Parquet file or a folder of them (their schemas must agree)."""
+    path = Path(path)
+    files = parquet_files(path)
+    tables = []
+    for f in files:
+        try:
+            tables.append(pq.read_table(f))
+        except (pa.ArrowException, OSError) as e:
+            raise DataError(f"{f}: not a readable Parquet file ({str(e).splitlines()[0][:200]})") from None
+    try:
+        table = pa.concat_tables(tables, promote_options="permissive") if len(tables) > 1 else tables[0]
+    except pa.ArrowException as e:
+        raise DataError(f"{path}: the Parquet files' columns do not agree ({str(e).splitlines()[0][:200]})") from None
+    return StepTable(table, str(path), safe_env_name(path.stem if path.is_file() else path.name))
+
+
+def _fail(source: str, column: str, row: int, what: str) -> DataError:
+    return DataError(f"{source}: column '{column}', row {row}: {what}")
+
+
+def _integers(table: pa.Table, name: str, source: str) -> np.ndarray:
+    """An integer column as int64 (integral floats accepted); nulls, fractions and NaN rejected."""
+    col = table.column(name)
+    if col.null_count:
+        row = int(np.flatnonzero(col.is_null().to_numpy(zero_copy_only=False))[0])
+        raise _fail(source, name, row, "is empty (null); every row needs a value")
+    if pa.types.is_integer(col.type):
+        return col.to_numpy().astype(np.int64)
+    if pa.types.is_floating(col.type):
+        x = col.to_numpy()
+        bad = ~np.isfinite(x) | (x != np.round(x)) | (np.abs(x) > 2**53)
+        if bad.any():
+            row = int(np.flatnonzero(bad)[0])
+            raise _fail(source, name, row, f"{float(x[row])} is not an integer")
+        return x.astype(np.int64)
+    raise DataError(f"{source}: column '{name}' has type {col.type}; expected integers")
+
+
+def _floats(table: pa.Table, name: str, source: str) -> np.ndarray:
+    col = table.column(name)
+    if not (pa.types.is_integer(col.type) or pa.types.is_floating(col.type) or pa.types.is_boolean(col.type)):
+        raise DataError(f"{source}: column '{name}' has type {col.type}; expected numbers")
+    if col.null_count:
+        row = int(np.flatnonzero(col.is_null().to_numpy(zero_copy_only=False))[0])
+        raise _fail(source, name, row, "is empty (null)")
+    x = col.to_numpy(zero_copy_only=False).astype(np.float64)
+    if not np.isfinite(x).all():
+        row = int(np.flatnonzero(~np.isfinite(x))[0])
+        raise _fail(source, name, row, f"{x[row]} is not a finite number")
+    return x
+
+
+def _per_trajectory(values: np.ndarray, starts: np.ndarray, order: np.ndarray, name: str,
+                    source: str) -> np.ndarray:
+    """A column that must be constant within each trajectory, one value per trajectory."""
+    v = values[order]
+    first = np.repeat(v[starts], np.diff(np.r_[starts, len(v)]))
+    differs = v != first
+    if differs.any():
+        row = int(order[np.flatnonzero(differs)[0]])
+        raise _fail(source, name, row, "changes within a trajectory; it must be one value per trajectory")
+    return v[starts]
+
+
+def state_columns(names: list[str], source: str) -> list[str]:
+    idx = sorted(int(m.group(1)) for c in names if (m := STATE.match(c)))
+    if not idx:
+        raise DataError(f"{source}: no state columns; expected numeric columns s0, s1, ... s{{d-1}}")
+    if idx != list(range(len(idx))):
+        gap = next(i for i, j in enumerate(idx) if i != j)
+        raise DataError(f"{source}: state columns must be s0..s{{d-1}} without gaps; s{gap} is missing")
+    return [f"s{j}" for j in idx]
+
+
+def datasets_from_table(step: StepTable, n_actions: int | None = None,
+                        skill_column: str | None = None) -> dict[str, Dataset]:
+    """Validate a step table and cut it into one Dataset per ``env`` value (see the module doc)."""
+    table, source = step.table, step.source
+    names = table.column_names
+    for col in REQUIRED:
+        if col not in names:
+            raise DataError(f"{source}: missing column '{col}' (required: trajectory, t, action, s0..s{{d-1}})")
+    s_cols = state_columns(names, source)
+    if skill_column is not None and skill_column not in names:
+        extra = sorted(set(names) - RESERVED - set(s_cols))
+        raise DataError(f"{source}: trajectories.score names column '{skill_column}', which the table does "
+                        f"not have (its other columns: {', '.join(extra) or 'none'})")
+    rows = table.num_rows
+    if rows == 0:
+        raise DataError(f"{source}: the table has no rows")
+
+    # trajectory ids (int or string) -> codes; env values -> units
+    traj_col = table.column("trajectory")
+    if traj_col.null_count:
+        row = int(np.flatnonzero(traj_col.is_null().to_numpy(zero_copy_only=False))[0])
+        raise _fail(source, "trajectory", row, "is empty (null)")
+    if pa.types.is_integer(traj_col.type) or pa.types.is_floating(traj_col.type):
+        traj_raw = _integers(table, "trajectory", source)
+    else:
+        enc = pc.dictionary_encode(traj_col.cast(pa.string())).combine_chunks()
+        rank = np.argsort(np.argsort(np.asarray(enc.dictionary.to_pylist(), dtype=object)))
+        traj_raw = rank[enc.indices.to_numpy()].astype(np.int64)  # ids numbered in sorted order
+    if "env" in names:
+        env_col = table.column("env")
+        if env_col.null_count:
+            row = int(np.flatnonzero(env_col.is_null().to_numpy(zero_copy_only=False))[0])
+            raise _fail(source, "env", row, "is empty (null)")
+        enc = pc.dictionary_encode(env_col.cast(pa.string())).combine_chunks()
+        env_code = enc.indices.to_numpy().astype(np.int64)
+        env_names = [safe_env_name(v) for v in enc.dictionary.to_pylist()]
+        if len(set(env_names)) != len(env_names):
+            raise DataError(f"{source}: column 'env' has values that differ only in characters other than "
+                            f"letters, digits, '_', '.', '+', '-' ({env_names}); rename them")
+    else:
+        env_code, env_names = np.zeros(rows, np.int64), [step.default_env]
+
+    t = _integers(table, "t", source)
+    actions = _integers(table, "action", source)
+    # group rows by (env, trajectory), keeping file order inside a trajectory
+    order = np.lexsort((np.arange(rows), traj_raw, env_code))
+    key_env, key_traj = env_code[order], traj_raw[order]
+    new = np.r_[True, (np.diff(key_traj) != 0) | (np.diff(key_env) != 0)]
+    starts = np.flatnonzero(new)
+    ends = np.r_[starts[1:], rows]
+    t_sorted = t[order]
+    step_ok = np.r_[True, np.diff(t_sorted) > 0] | new
+    if not step_ok.all():
+        row = int(order[np.flatnonzero(~step_ok)[0]])
+        raise _fail(source, "t", row, f"t = {t[row]} does not increase within trajectory {traj_raw[row]} "
+                                      f"(each step's t must be larger than the previous step's)")
+
+    # actions: 0..n-1, -1 allowed only on a trajectory's last row
+    a_sorted = actions[order]
+    last = np.zeros(rows, bool)
+    last[ends - 1] = True
+    neg = (a_sorted < 0) & ~(last & (a_sorted == -1))
+    if neg.any():
+        row = int(order[np.flatnonzero(neg)[0]])
+        raise _fail(source, "action", row, f"action {actions[row]} is not allowed (0..n-1; -1 only on a "
+                                           f"trajectory's last row)")
+    valid = None
+    if "valid" in names:
+        vcol = table.column("valid")
+        vtype = vcol.type
+        if not (pa.types.is_list(vtype) or pa.types.is_large_list(vtype) or pa.types.is_fixed_size_list(vtype)):
+            raise DataError(f"{source}: column 'valid' has type {vtype}; expected a list of booleans per row")
+        first_len = (vtype.list_size if pa.types.is_fixed_size_list(vtype)
+                     else int(pc.list_value_length(vcol.combine_chunks()[0:1]).to_numpy(zero_copy_only=False)[0] or 0))
+        width = n_actions if n_actions is not None else first_len
+        if not 1 <= width <= MAX_ACTIONS:
+            raise _fail(source, "valid", 0, f"{width} entries; a valid list needs 1..{MAX_ACTIONS}")
+        valid = bool_lists(vcol, width, source)
+        n = width
+    else:
+        n = n_actions if n_actions is not None else int(actions.max()) + 1
+    if n < 1 or n > MAX_ACTIONS:
+        raise DataError(f"{source}: {n} actions; pcpg handles 1..{MAX_ACTIONS}")
+    too_big = a_sorted >= n
+    if too_big.any():
+        row = int(order[np.flatnonzero(too_big)[0]])
+        raise _fail(source, "action", row, f"action {actions[row]} is outside 0..{n - 1}"
+                    + (" (the length of the valid lists)" if valid is not None else " (trajectories.n_actions)"))
+    if valid is not None:
+        taken = a_sorted >= 0
+        ok = np.ones(rows, bool)
+        ok[taken] = valid[order[taken], a_sorted[taken]]
+        if not ok.all():
+            row = int(order[np.flatnonzero(~ok)[0]])
+            raise _fail(source, "action", row, f"action {actions[row]} is not in the row's valid mask")
+
+    # states, rewards, per-trajectory columns
+    states = np.empty((rows, len(s_cols)), np.float32)
+    for j, c in enumerate(s_cols):
+        x = _floats(table, c, source)
+        if np.abs(x).max() > 3e38:
+            row = int(np.argmax(np.abs(x) > 3e38))
+            raise _fail(source, c, row, f"{x[row]} does not fit a 32-bit float")
+        states[:, j] = x
+    rewards = _floats(table, "reward", source) if "reward" in names else np.zeros(rows)
+    styles = (_per_trajectory(_integers(table, "style", source), starts, order, "style", source)
+              if "style" in names else np.full(len(starts), -1, np.int64))
+    if (styles < -1).any():
+        bad = int(np.flatnonzero(styles < -1)[0])
+        raise _fail(source, "style", int(order[starts[bad]]), f"style {styles[bad]}; styles are 0, 1, 2, ...")
+    success = (_per_trajectory(_floats(table, "success", source) != 0, starts, order, "success", source)
+               if "success" in names else np.ones(len(starts), bool))
+    skill = (_per_trajectory(_floats(table, skill_column, source), starts, order, skill_column, source)
+             if skill_column is not None else None)
+
+    # closing rows: a trajectory whose last row has an action ends on a repeat of its last state
+    open_end = a_sorted[ends - 1] >= 0
+    lengths = (ends - starts) + open_end
+    out_rows = int(lengths.sum())
+    pos = np.r_[0, np.cumsum(lengths)[:-1]]
+    dst = np.repeat(pos - starts, ends - starts) + np.arange(rows)  # sorted row -> output row
+    closing = (pos + lengths - 1)[open_end]
+    src_last = order[(ends - 1)[open_end]]
+
+    def place(values: np.ndarray, fill_from_last: bool, fill=0) -> np.ndarray:
+        out = np.empty((out_rows, *values.shape[1:]), values.dtype)
+        out[dst] = values[order]
+        out[closing] = values[src_last] if fill_from_last else fill
+        return out
+
+    all_states = place(states, True)
+    all_actions = place(actions, False, -1)
+    all_rewards = place(rewards, False, 0.0)
+    all_rewards[pos + lengths - 1] = 0.0  # nothing is received after the last action
+    all_valid = (place(valid, True) if valid is not None
+                 else np.broadcast_to(np.ones(n, bool), (out_rows, n)))
+    offsets = np.r_[0, np.cumsum(lengths)].astype(np.int64)
+    traj_env = key_env[starts]
+    traj_ids = key_traj[starts]
+    out: dict[str, Dataset] = {}
+    for code, env in enumerate(env_names):
+        sel = np.flatnonzero(traj_env == code)
+        if not len(sel):
+            continue
+        lo, hi = offsets[sel[0]], offsets[sel[-1] + 1]
+        out[env] = Dataset(
+            domain=DOMAIN, env=env, n_actions=n, states=all_states[lo:hi], actions=all_actions[lo:hi],
+            valid=np.ascontiguousarray(all_valid[lo:hi]), rewards=all_rewards[lo:hi],
+            offsets=offsets[sel[0]: sel[-1] + 2] - lo, trajectory_ids=traj_ids[sel], styles=styles[sel],
+            success=success[sel], epsilon=np.full(len(sel), np.nan), feature_names=tuple(s_cols),
+            skill=None if skill is None else skill[sel])
+    return out

@@ -1,0 +1,236 @@
+"""The built-in `trajectories` domain: a user's own Parquet logs through the whole pipeline.
+
+Bad files fail with one line naming file, column and row (exit 2, nothing written); 1000 actions
+work; clear styles are clustered close to what a supervised classifier reaches and PCPG beats No
+Clustering; the trained agents are rolled out in the Gymnasium env the logs came from.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from pcpg_dist.cli import main
+from pcpg_dist.config import load_config
+from pcpg_dist.domains.trajectories.example_logs import frozenlake_logs
+from pcpg_dist.domains.trajectories.table import datasets_from_table, read_step_table
+from pcpg_dist.errors import DataError
+from pcpg_dist.pipeline import run_unit
+
+
+def write_config(tmp_path: Path, logs: str | Path, **over) -> Path:
+    raw = {"name": "own_logs", "domain": "trajectories", "seeds": [0],
+           "trajectories": {"path": str(logs), "score": "return"},
+           "clustering": {"k": 4, "method": "visits_kmeans"},
+           "ranking": {"ps": [1.0, 0.5]}, "bc": {"epochs": 300, "hidden_size": 16},
+           "evaluation": {"corruption_levels": [], "figures": False, "rollouts_per_policy": 20}}
+    for key, value in over.items():
+        section, _, name = key.partition("__")
+        if name:
+            raw.setdefault(section, {})[name] = value
+        else:
+            raw[section] = value
+    path = tmp_path / "cfg.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    return path
+
+
+def tiny_table(n_traj: int = 6, steps: int = 4, d: int = 2, n_actions: int = 3, seed: int = 0) -> pd.DataFrame:
+    rng = np.random.default_rng(seed)
+    rows = []
+    for i in range(n_traj):
+        for t in range(steps + 1):
+            rows.append({"trajectory": i, "t": t, **{f"s{j}": float(rng.normal()) for j in range(d)},
+                         "action": int(rng.integers(n_actions)) if t < steps else -1,
+                         "reward": float(rng.random()) if t < steps else 0.0})
+    return pd.DataFrame(rows)
+
+
+def load(df: pd.DataFrame, tmp_path: Path, name: str = "logs.parquet", **kw):
+    path = tmp_path / name
+    df.to_parquet(path, index=False)
+    return datasets_from_table(read_step_table(path), **kw)
+
+
+# ------------------------------------------------------------------ the contract
+def test_round_trip_of_a_small_table(tmp_path) -> None:
+    df = tiny_table()
+    (ds,) = load(df, tmp_path).values()
+    assert (ds.n_trajectories, ds.n_rows, ds.n_actions, ds.state_dim) == (6, 30, 3, 2)
+    assert ds.env == "logs" and ds.feature_names == ("s0", "s1")
+    np.testing.assert_allclose(ds.states[:, 0], df.s0.to_numpy(np.float32))
+    np.testing.assert_array_equal(ds.actions, df.action)
+    assert ds.valid.all() and (ds.styles == -1).all()
+    np.testing.assert_allclose(ds.returns, df.groupby("trajectory").reward.sum())
+
+
+def test_rows_may_come_in_any_order_and_ids_may_be_strings(tmp_path) -> None:
+    df = tiny_table()
+    shuffled = df.sample(frac=1.0, random_state=1).sort_values(["t"], kind="stable")
+    shuffled["trajectory"] = "run-" + shuffled["trajectory"].astype(str)
+    (a,) = load(df, tmp_path, "a.parquet").values()
+    (b,) = load(shuffled, tmp_path, "b.parquet").values()
+    np.testing.assert_array_equal(a.states, b.states)
+    np.testing.assert_array_equal(a.actions, b.actions)
+
+
+def test_an_open_last_step_gets_a_closing_row(tmp_path) -> None:
+    df = tiny_table(n_traj=2, steps=3)
+    df = df[df.action >= 0]  # logs that record an action on every row
+    (ds,) = load(df, tmp_path).values()
+    assert ds.lengths.tolist() == [4, 4]
+    last = ds.offsets[1:] - 1
+    assert (ds.actions[last] == -1).all()
+    np.testing.assert_array_equal(ds.states[last], ds.states[last - 1])  # the repeated final state
+
+
+def test_env_column_makes_units_and_a_folder_of_files_is_one_table(tmp_path) -> None:
+    a, b = tiny_table(seed=1), tiny_table(seed=2)
+    a["env"], b["env"] = "level one", "level/two"
+    b["trajectory"] += 100
+    folder = tmp_path / "logs"
+    folder.mkdir()
+    a.to_parquet(folder / "part-0.parquet", index=False)
+    b.to_parquet(folder / "part-1.parquet", index=False)
+    out = datasets_from_table(read_step_table(folder))
+    assert sorted(out) == ["level_one", "level_two"]  # names made safe for folders
+    assert all(ds.n_trajectories == 6 for ds in out.values())
+
+
+def test_a_thousand_actions_with_valid_lists(tmp_path) -> None:
+    rng = np.random.default_rng(0)
+    n_actions, rows = 1000, []
+    for i in range(40):
+        style = i % 2
+        for t in range(6):
+            valid = rng.random(n_actions) < 0.3
+            action = 100 * style + t if t < 5 else -1
+            if action >= 0:
+                valid[action] = True
+            rows.append({"trajectory": i, "t": t, "s0": float(t), "s1": float(style), "action": action,
+                         "valid": valid.tolist(), "style": style})
+    (ds,) = load(pd.DataFrame(rows), tmp_path).values()
+    assert ds.n_actions == 1000 and ds.valid.shape == (ds.n_rows, 1000)
+    cfg = load_config(write_config(tmp_path, tmp_path / "logs.parquet", clustering={"k": 2, "method": "summary_kmeans"},
+                                   bc={"epochs": 400, "hidden_size": 16, "lr": 0.05}))
+    (unit,) = cfg.domain_object.units(cfg, {"logs": ds})
+    m = run_unit(unit, cfg).metrics
+    assert m["clustering/accuracy"] == 1.0
+    # the action is a function of (t, style): far above the ~1/300 of guessing among valid actions
+    assert m["pcpg/accuracy/p1"] > 0.9 > 0.05 > m["random/accuracy"]
+
+
+BAD = {
+    "missing column": (lambda df: df.drop(columns="t"), "missing column 't'"),
+    "fractional action": (lambda df: df.assign(action=df.action.astype(float).where(df.index != 3, 1.5)),
+                          "column 'action', row 3: 1.5 is not an integer"),
+    "action out of range": (lambda df: df.assign(action=df.action.where(df.index != 2, 7)), None),
+    "negative mid action": (lambda df: df.assign(action=df.action.where(df.index != 1, -5)),
+                            "column 'action', row 1: action -5 is not allowed"),
+    "t not increasing": (lambda df: df.assign(t=df.t.where(df.index != 2, 0)),
+                         "column 't', row 2: t = 0 does not increase"),
+    "NaN state": (lambda df: df.assign(s1=df.s1.where(df.index != 4, np.nan)), "column 's1', row 4: is empty"),
+    "infinite state": (lambda df: df.assign(s1=df.s1.where(df.index != 4, np.inf)),
+                       "column 's1', row 4: inf is not a finite number"),
+    "style changes": (lambda df: df.assign(style=np.where(df.index == 2, 1, 0)),
+                      "column 'style', row 2: changes within a trajectory"),
+    "state gap": (lambda df: df.rename(columns={"s1": "s2"}), "s1 is missing"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD))
+def test_bad_files_fail_in_one_line_naming_file_column_and_row(case, tmp_path) -> None:
+    make, needle = BAD[case]
+    n_actions = 3 if case == "action out of range" else None
+    with pytest.raises(DataError) as e:
+        load(make(tiny_table()), tmp_path, "bad.parquet", n_actions=n_actions)
+    msg = str(e.value)
+    assert len(msg.splitlines()) == 1 and msg.startswith(str(tmp_path / "bad.parquet"))
+    assert (needle or "column 'action', row 2: action 7 is outside 0..2") in msg
+
+
+def test_cli_on_a_bad_file_exits_2_and_writes_nothing(tmp_path, capsys) -> None:
+    path = tmp_path / "bad.parquet"
+    BAD["negative mid action"][0](tiny_table()).to_parquet(path, index=False)
+    code = main(["run", str(write_config(tmp_path, path)), "--no-tracking", "--quiet",
+                 "--workdir", str(tmp_path / "runs")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "Traceback" not in err, err
+    assert f"{path}: column 'action', row 1: action -5 is not allowed" in err
+    assert not (tmp_path / "runs").exists()  # nothing written
+
+
+def test_action_outside_its_valid_mask(tmp_path) -> None:
+    df = tiny_table()
+    df["valid"] = [[True, True, True]] * len(df)
+    df.at[5, "valid"] = [a != df.action[5] for a in range(3)]
+    with pytest.raises(DataError, match=r"column 'action', row 5: action \d is not in the row's valid mask"):
+        load(df, tmp_path)
+    df.at[5, "valid"] = [True, True]
+    with pytest.raises(DataError, match=r"column 'valid', row 5: 2 entries, expected 3"):
+        load(df, tmp_path)
+
+
+def test_score_choices_and_an_unknown_column(tmp_path) -> None:
+    df = tiny_table()
+    df["skill"] = df.trajectory * 10.0
+    path = tmp_path / "logs.parquet"
+    df.to_parquet(path, index=False)
+    for how, expected in (("return", df.groupby("trajectory").reward.sum().to_numpy()),
+                          ("-length", -np.full(6, 5.0)), ("skill", np.arange(6) * 10.0)):
+        cfg = load_config(write_config(tmp_path, path, trajectories={"path": str(path), "score": how}))
+        (ds,) = cfg.domain_object.generate(cfg, show_progress=False).values()
+        np.testing.assert_allclose(cfg.domain_object.score(cfg)(ds), expected)
+    cfg = load_config(write_config(tmp_path, path, trajectories={"path": str(path), "score": "skil"}))
+    with pytest.raises(DataError, match="names column 'skil'.*skill"):
+        cfg.domain_object.generate(cfg, show_progress=False)
+
+
+# ------------------------------------------------------------------ the whole pipeline
+def test_logs_without_styles_still_run(tmp_path) -> None:
+    df = frozenlake_logs(per_style=25, seed=3).drop(columns="style")
+    path = tmp_path / "lake.parquet"
+    df.to_parquet(path, index=False)
+    cfg = load_config(write_config(tmp_path, path, bc={"epochs": 150, "hidden_size": 8}))
+    (unit,) = cfg.domain_object.units(cfg, cfg.domain_object.generate(cfg, show_progress=False))
+    m = run_unit(unit, cfg).metrics
+    assert "clustering/accuracy" not in m and "clustering/ceiling" not in m
+    assert m["pcpg/accuracy/p1"] > m["random/accuracy"] + 0.2
+
+
+@pytest.mark.slow
+def test_own_logs_end_to_end_with_gymnasium_rollouts(ray_session, tmp_path) -> None:
+    """Four clear styles on FrozenLake 8x8, never used to choose anything: clustering within 3
+    points of the supervised ceiling, PCPG above No Clustering at p = 1, agents rolled out in the
+    real Gymnasium env."""
+    from pcpg_dist.runner import run_experiment
+
+    path = tmp_path / "lake.parquet"
+    frozenlake_logs(per_style=150, seed=7).to_parquet(path, index=False)
+    cfg = load_config(write_config(
+        tmp_path, path, seeds=[0, 1],
+        trajectories={"path": str(path), "score": "return", "gymnasium_env": "FrozenLake-v1",
+                      "gymnasium_kwargs": {"map_name": "8x8", "is_slippery": False},
+                      "gymnasium_success": "terminated_positive_reward"},
+        evaluation={"corruption_levels": [0.0, 1.0], "figures": True, "rollouts_per_policy": 10,
+                    "max_steps": 100}))
+    result = run_experiment(cfg, workdir=tmp_path / "runs", track=False, show_progress=False)
+    m = result.metrics
+    assert m["clustering/accuracy"] >= m["clustering/ceiling"] - 0.03
+    assert m["pcpg/accuracy/p1"] > m["baseline/accuracy/p1"]
+    # styles share their first steps (all start in one corner): 3 of 4 rows is what this data gives
+    assert m["cross/diagonal_is_row_max"] >= 0.75
+    print({k: round(v, 3) for k, v in m.items() if k.split("/")[0] in ("clustering", "pcpg", "baseline", "cross")
+           or k.startswith("rollout/return")})
+    # the agents walk the real lake: most PCPG agents at p = 1 reach the goal
+    returns = [v for k, v in m.items() if k.startswith("rollout/return/k") and k.endswith("/p1")]
+    assert len(returns) == 4 and np.mean(returns) > 0.5
+    env_dir = result.out_dir / "summary" / "lake0"
+    for name in ("cross_accuracy.csv", "accuracy.csv", "rollout_return.csv", "corruption_accuracy.csv"):
+        assert (env_dir / name).is_file(), name
+    assert json.loads((result.out_dir / "summary" / "metrics.json").read_text())["clustering/accuracy"] > 0.9
