@@ -150,6 +150,10 @@ def _cmd_export(args: argparse.Namespace) -> None:
         from pcpg_dist.onnx_export import cli_export_onnx
 
         cli_export_onnx(args)
+    elif args.what == "minari":
+        from pcpg_dist.domains.trajectories.minari_io import cli_export_minari
+
+        cli_export_minari(args)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -225,6 +229,14 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--workdir", default=None, help="keep the agents downloaded from MLflow here "
                    "(default: a temporary folder)")
     e.add_argument("--tracking-uri", default=None, help="MLflow tracking URI (default: as for run)")
+    e = formats.add_parser("minari", help="a pcpg dataset (or a run's cached data) as Minari datasets, "
+                                          "one per environment")
+    e.add_argument("source", metavar="RUN_OR_DATA",
+                   help="a pcpg dataset folder (with manifest.json) or a run's output folder (runs/NAME)")
+    e.add_argument("--out", required=True, help="Minari datasets root to write into (use it as "
+                   "MINARI_DATASETS_PATH)")
+    e.add_argument("--dataset-id", default=None, help="Minari id namespace/name-vN (default: "
+                   "pcpg/<folder name>-v0); with several environments each gets namespace/name/<env>-vN")
     return parser
 
 
