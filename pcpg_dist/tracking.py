@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import tempfile
 import time
 import urllib.error
 import urllib.request
@@ -175,18 +176,40 @@ class Tracker:
         return any(a.path == "agents_logged" for a in _retry(client.list_artifacts, self.parent_id))
 
     def _log_agents(self, agents_dir: Path) -> None:
-        """The sweep's agents as one pyfunc model (driver only: log_model needs the fluent API)."""
+        """The sweep's agents as one pyfunc model (driver only: log_model needs the fluent API).
+
+        The model's artifacts are ``<env>.npz`` + ``<env>.json`` (the run's torch files
+        converted), so serving it needs numpy, pandas and mlflow only, pinned to the versions
+        installed here: MLflow resolves and infers nothing while logging. MLflow 3.17 would also
+        copy the uv.lock and pyproject.toml of the working directory into the model (torch and
+        all, for ``--env-manager uv``) when it finds them; ``MLFLOW_UV_AUTO_DETECT=false`` keeps
+        the model's environment to its own requirements.
+        """
         import mlflow
 
         import pcpg_dist.agent_model as agent_model
+        from pcpg_dist.onnx_export import load_agents_folder
 
-        mlflow.set_tracking_uri(self.uri)
-        with mlflow.start_run(run_id=self.parent_id):
-            mlflow.pyfunc.log_model(
-                name="agents", python_model=agent_model.__file__, artifacts={"agents": str(agents_dir)},
-                code_paths=[str(Path(pcpg_dist.__file__).parent)],
-                pip_requirements=["torch", "numpy", "pandas", "mlflow"])
-            mlflow.log_text("yes", "agents_logged")
+        with tempfile.TemporaryDirectory() as tmp:
+            folder = Path(tmp) / "agents"
+            for env, cells in load_agents_folder(agents_dir).items():
+                agent_model.write_env_agents(folder / env, env, cells)
+            written = agent_model.read_all(folder)
+            mlflow.set_tracking_uri(self.uri)
+            before = os.environ.get("MLFLOW_UV_AUTO_DETECT")
+            os.environ["MLFLOW_UV_AUTO_DETECT"] = "false"
+            try:
+                with mlflow.start_run(run_id=self.parent_id):
+                    mlflow.pyfunc.log_model(
+                        name="agents", python_model=agent_model.__file__, artifacts={"agents": str(folder)},
+                        signature=agent_model.signature(written),
+                        input_example=agent_model.input_example(written), conda_env=agent_model.conda_env())
+                    mlflow.log_text("yes", "agents_logged")
+            finally:
+                if before is None:
+                    os.environ.pop("MLFLOW_UV_AUTO_DETECT", None)
+                else:
+                    os.environ["MLFLOW_UV_AUTO_DETECT"] = before
 
     def fail(self) -> None:
         with contextlib.suppress(Exception):  # best effort while already failing
