@@ -86,7 +86,7 @@ def test_mlflow_runs_metrics_artifacts_and_agents(first_run):
     mlflow.set_tracking_uri(uri)
     agents = mlflow.pyfunc.load_model(f"runs:/{parent.info.run_id}/agents")
     df = pd.DataFrame({"style": [0, 1], "p": [1.0, 0.5], "s0": [1, 1], "s1": [1, 1], "s2": [0, 0],
-                       "s3": [0, 0], "valid": [0b0110, 0b0110]})
+                       "s3": [0, 0], "valid": [[False, True, True, False]] * 2})
     actions = agents.predict(df)
     assert set(actions) <= {1, 2}  # only valid actions (right, down) are ever chosen
 

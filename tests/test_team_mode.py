@@ -229,5 +229,5 @@ def test_agents_model_loads_from_the_server(services, team_run):
     finally:
         mlflow.set_tracking_uri(before)
     df = pd.DataFrame({"env": ["E1", "E1", "E3", "E3"], "style": [0, 1, 2, 3], "p": [1.0, 0.5, 1.0, 0.5], "s0": [1] * 4, "s1": [1] * 4,
-                       "s2": [0] * 4, "s3": [0] * 4, "valid": [0b0110] * 4})
+                       "s2": [0] * 4, "s3": [0] * 4, "valid": [[False, True, True, False]] * 4})
     assert set(agents.predict(df)) <= {1, 2}  # right or down: the only valid actions in that corner
