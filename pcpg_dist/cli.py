@@ -156,6 +156,15 @@ def _cmd_export(args: argparse.Namespace) -> None:
         cli_export_minari(args)
 
 
+def _cmd_domains(args: argparse.Namespace) -> None:
+    """The registered domains: built-ins and every `pcpg_dist.domains` entry point."""
+    from pcpg_dist.domains import registry
+
+    for name in registry.names():
+        kind = "built-in" if name in registry.BUILTIN else "plugin"
+        print(f"{name:<16} {kind:<9} {registry.target(name)}")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="pcpg", description="Play-style-centric agents from gameplay data (PCPG) at scale.")
@@ -218,6 +227,9 @@ def build_parser() -> argparse.ArgumentParser:
     tracking(p)
     common(p)
     p.set_defaults(func=_cmd_tune)
+
+    p = sub.add_parser("domains", help="list the registered domains (built-ins and installed plugins)")
+    p.set_defaults(func=_cmd_domains)
 
     p = sub.add_parser("export", help="export trained agents for use outside pcpg (ONNX)")
     p.set_defaults(func=_cmd_export)

@@ -74,3 +74,42 @@ def test_configs_are_frozen(tmp_path):
     cfg = load_config(write(tmp_path, BASE))
     with pytest.raises(ValueError):
         cfg.seed = 3  # type: ignore[misc]
+
+
+# ------------------------------------------------------------------ the domain seam
+def test_unknown_domain_is_one_line_listing_the_registered_names(tmp_path):
+    with pytest.raises(ConfigError) as e:
+        load_config(write(tmp_path, {**BASE, "domain": "grid_world"}))
+    msg = str(e.value)
+    assert len(msg.splitlines()) == 1 and "key 'domain'" in msg and "did you mean 'gridworld'" in msg
+    for name in ("gridworld", "minidungeons", "mario", "trajectories"):
+        assert name in msg
+
+
+def test_trajectories_domain_needs_an_existing_path(tmp_path):
+    with pytest.raises(ConfigError, match="needs trajectories.path"):
+        load_config(write(tmp_path, {"name": "t", "domain": "trajectories"}))
+    with pytest.raises(ConfigError, match="trajectories.path .*nope.parquet not found"):
+        load_config(write(tmp_path, {"name": "t", "domain": "trajectories", "trajectories": {"path": "nope.parquet"}}))
+    (tmp_path / "logs.parquet").write_bytes(b"")
+    cfg = load_config(write(tmp_path, {"name": "t", "domain": "trajectories", "trajectories": {"path": "logs.parquet"}}))
+    assert cfg.settings.path == str((tmp_path / "logs.parquet").resolve())  # relative to the config file
+
+
+def test_a_domains_settings_are_checked_only_when_it_is_chosen(tmp_path):
+    """A Mario config carries GridWorld's default layout folder, which need not exist."""
+    cfg = load_config(write(tmp_path, {"name": "m", "domain": "mario", "gridworld": {"environments": ["nope"]}}))
+    assert cfg.domain == "mario" and cfg.settings is cfg.mario
+
+
+def test_loading_a_config_imports_no_torch_and_no_stage():
+    import subprocess
+    import sys
+
+    code = ("import sys; from pcpg_dist.config import load_config; "
+            f"[load_config(p) for p in {[str(p) for p in sorted(EXPERIMENTS.glob('*.yaml'))]!r}]; "
+            "heavy = [m for m in ('torch', 'ray', 'mlflow', 'optuna', 'pcpg_dist.bc', 'pcpg_dist.clustering', "
+            "'pcpg_dist.tuning', 'pcpg_dist.runner', 'pcpg_dist.evaluation', 'pcpg_dist.ranking') if m in sys.modules]; "
+            "print(heavy)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]", out.stdout + out.stderr

@@ -97,14 +97,6 @@ class ExperimentConfig(StrictModel):
             raise ValueError("seeds must be distinct integers in 0..2^32-1")
         return v
 
-    @model_validator(mode="after")
-    def _domain_settings(self) -> ExperimentConfig:
-        try:
-            self.domain_object.check_config(self)
-        except PcpgError as e:
-            raise ValueError(str(e)) from None
-        return self
-
     @property
     def domain_object(self):
         """The registered :class:`~pcpg_dist.domains.base.Domain` this config names."""
@@ -159,11 +151,16 @@ def parse_config(data: Any, source: str = "<config>", base_dir: Path | None = No
     if not isinstance(data, dict):
         raise ConfigError(f"{source}: a config must be a YAML mapping of keys to values")
     try:
-        return ExperimentConfig.model_validate(data, context={"base_dir": base_dir})
+        cfg = ExperimentConfig.model_validate(data, context={"base_dir": base_dir})
     except ValidationError as e:
         errors = e.errors(include_url=False)
         more = f" (and {len(errors) - 1} more problem(s))" if len(errors) > 1 else ""
         raise ConfigError(f"{source}: {_describe(errors[0])}{more}") from None
+    try:  # the chosen domain's own settings and checks (files exist, a plugin's section, ...)
+        cfg.domain_object.check_config(cfg)
+    except (PcpgError, ValueError) as e:
+        raise ConfigError(f"{source}: {e}") from None
+    return cfg
 
 
 def load_config(path: str | Path) -> ExperimentConfig:

@@ -115,7 +115,12 @@ class Domain:
             except ValidationError as e:
                 err = e.errors(include_url=False)[0]
                 key = ".".join(str(p) for p in (self.name, *err["loc"]))
-                raise ConfigError(f"key '{key}': {err['msg'].removeprefix('Value error, ')}") from None
+                shown = "missing" if err["type"] == "missing" else repr(err.get("input"))[:200]
+                if err["type"] == "extra_forbidden":
+                    raise ConfigError(f"unknown key '{key}' — not a setting of this section (check the "
+                                      f"spelling)") from None
+                raise ConfigError(f"key '{key}': value {shown} is not allowed — "
+                                  f"{err['msg'].removeprefix('Value error, ')}") from None
         return None
 
     def check_config(self, cfg: ExperimentConfig) -> None:

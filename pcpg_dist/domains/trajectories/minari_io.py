@@ -41,7 +41,9 @@ MINARI_ID = re.compile(r"^(?:(?P<namespace>[-_\w][-_\w/]*[-_\w]+)/)?(?P<name>[-_
 
 def env_name(dataset_id: str) -> str:
     """The ``env`` value (a folder name) of a Minari dataset: its id with unsafe characters -> '_'."""
-    return re.sub(r"[^A-Za-z0-9_.+-]", "_", dataset_id).strip("._")[:100] or "env"
+    from pcpg_dist.domains.trajectories.table import safe_env_name
+
+    return safe_env_name(dataset_id)
 
 
 def _check_id(dataset_id: str, need_version: bool = False) -> None:
