@@ -193,6 +193,15 @@ def test_export_onnx_from_the_mlflow_run(logged, model, tmp_path, capsys):
     again = tmp_path / "again"
     assert main(["export", "onnx", "agents-test", "--out", str(again), "--tracking-uri", logged["uri"]]) == 0
     assert (again / "agents_E1.onnx").read_bytes() == (out / "agents_E1.onnx").read_bytes()
+    capsys.readouterr()
+    # a run without agents (a sweep logged with tracking off, or still running): one line, exit 2
+    from mlflow import MlflowClient
+
+    client = MlflowClient(logged["uri"])
+    bare = client.create_run(client.get_experiment_by_name("agents-test").experiment_id).info.run_id
+    assert main(["export", "onnx", bare, "--out", str(tmp_path / "none"), "--tracking-uri", logged["uri"]]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"pcpg: error: run {bare} at {logged['uri']} has no agents model"), err
 
 
 # ---------------------------------------------------------------------- REST
