@@ -20,6 +20,7 @@ import warnings
 import numpy as np
 from scipy import sparse
 
+from pcpg_dist.cluster_models import row_ids
 from pcpg_dist.dataset import Dataset
 
 MAX_VOCAB = 20_000  # most frequent visited states / state-actions kept as features
@@ -42,9 +43,7 @@ def ceiling_features(ds: Dataset) -> sparse.csr_matrix:
     """The documented feature matrix (see the module doc), one row per trajectory."""
     n = ds.n_trajectories
     traj = ds.row_trajectory
-    rows = np.ascontiguousarray(ds.states, np.float32).view(np.uint8).reshape(ds.n_rows, -1)
-    _, state_id = np.unique(rows, axis=0, return_inverse=True)
-    state_id = state_id.reshape(-1).astype(np.int64)
+    state_id, _ = row_ids(ds.states)
     sa_id = state_id * (ds.n_actions + 1) + (ds.actions + 1)
     step = ds.actions >= 0
     visits = _bag(state_id, traj, n)

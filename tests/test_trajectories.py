@@ -136,7 +136,7 @@ BAD = {
                          "column 't', row 2: t = 0 does not increase"),
     "NaN state": (lambda df: df.assign(s1=df.s1.where(df.index != 4, np.nan)), "column 's1', row 4: is empty"),
     "infinite state": (lambda df: df.assign(s1=df.s1.where(df.index != 4, np.inf)),
-                       "column 's1', row 4: inf is not a finite number"),
+                       "column 's1', row 4: inf is not a finite 32-bit float"),
     "style changes": (lambda df: df.assign(style=np.where(df.index == 2, 1, 0)),
                       "column 'style', row 2: changes within a trajectory"),
     "state gap": (lambda df: df.rename(columns={"s1": "s2"}), "s1 is missing"),

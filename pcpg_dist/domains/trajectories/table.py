@@ -118,6 +118,26 @@ def _floats(table: pa.Table, name: str, source: str) -> np.ndarray:
     return x
 
 
+def _state_matrix(table: pa.Table, s_cols: list[str], source: str) -> np.ndarray:
+    """The state columns as one float32 matrix; nulls, NaN, infinities and overflow rejected."""
+    states = np.empty((table.num_rows, len(s_cols)), np.float32)
+    for j, c in enumerate(s_cols):
+        col = table.column(c)
+        if not (pa.types.is_integer(col.type) or pa.types.is_floating(col.type) or pa.types.is_boolean(col.type)):
+            raise DataError(f"{source}: column '{c}' has type {col.type}; expected numbers")
+        if col.null_count:
+            row = int(np.flatnonzero(col.is_null().to_numpy(zero_copy_only=False))[0])
+            raise _fail(source, c, row, "is empty (null); every row needs a value")
+        with np.errstate(over="ignore", invalid="ignore"):
+            states[:, j] = col.to_numpy(zero_copy_only=False)  # float64 beyond float32 becomes inf
+    bad = ~np.isfinite(states)
+    if bad.any():
+        row, j = (int(v[0]) for v in np.nonzero(bad))
+        raw = table.column(s_cols[j])[row].as_py()
+        raise _fail(source, s_cols[j], row, f"{raw} is not a finite 32-bit float")
+    return states
+
+
 def _per_trajectory(values: np.ndarray, starts: np.ndarray, order: np.ndarray, name: str,
                     source: str) -> np.ndarray:
     """A column that must be constant within each trajectory, one value per trajectory."""
@@ -237,13 +257,7 @@ def datasets_from_table(step: StepTable, n_actions: int | None = None,
             raise _fail(source, "action", row, f"action {actions[row]} is not in the row's valid mask")
 
     # states, rewards, per-trajectory columns
-    states = np.empty((rows, len(s_cols)), np.float32)
-    for j, c in enumerate(s_cols):
-        x = _floats(table, c, source)
-        if np.abs(x).max() > 3e38:
-            row = int(np.argmax(np.abs(x) > 3e38))
-            raise _fail(source, c, row, f"{x[row]} does not fit a 32-bit float")
-        states[:, j] = x
+    states = _state_matrix(table, s_cols, source)
     rewards = _floats(table, "reward", source) if "reward" in names else np.zeros(rows)
     styles = (_per_trajectory(_integers(table, "style", source), starts, order, "style", source)
               if "style" in names else np.full(len(starts), -1, np.int64))
@@ -264,17 +278,20 @@ def datasets_from_table(step: StepTable, n_actions: int | None = None,
     closing = (pos + lengths - 1)[open_end]
     src_last = order[(ends - 1)[open_end]]
 
-    def place(values: np.ndarray, fill_from_last: bool, fill=0) -> np.ndarray:
-        out = np.empty((out_rows, *values.shape[1:]), values.dtype)
-        out[dst] = values[order]
-        out[closing] = values[src_last] if fill_from_last else fill
-        return out
+    src = np.empty(out_rows, np.int64)  # output row -> input row (closing rows repeat the last)
+    src[dst] = order
+    src[closing] = src_last
+    identity = out_rows == rows and bool((src == np.arange(rows)).all())  # sorted, closed logs
 
-    all_states = place(states, True)
-    all_actions = place(actions, False, -1)
-    all_rewards = place(rewards, False, 0.0)
+    def place(values: np.ndarray) -> np.ndarray:
+        return values if identity else values[src]
+
+    all_states = place(states)
+    all_actions = place(actions)
+    all_actions[closing] = -1
+    all_rewards = place(rewards)
     all_rewards[pos + lengths - 1] = 0.0  # nothing is received after the last action
-    all_valid = (place(valid, True) if valid is not None
+    all_valid = (place(valid) if valid is not None
                  else np.broadcast_to(np.ones(n, bool), (out_rows, n)))
     offsets = np.r_[0, np.cumsum(lengths)].astype(np.int64)
     traj_env = key_env[starts]
