@@ -17,12 +17,22 @@ import pandas as pd
 
 from pcpg_dist.dataset import atomic_write_bytes
 from pcpg_dist.errors import DataError, ServiceError
-from pcpg_dist.summary import PAPER
 
 KEY_METRICS = ("clustering/accuracy", "clustering/ari", "cross/diagonal_mean",
                "reward_distance/style0", "reward_distance/style1", "reward_distance/style2",
                "reward_distance/style3", "random/reward_distance/style0", "random/reward_distance/style1",
                "random/reward_distance/style2", "random/reward_distance/style3")
+
+
+def paper_numbers(domain: str | None) -> dict[str, str]:
+    """The paper's figures for a domain (none for a domain that is not installed here)."""
+    from pcpg_dist.domains import registry
+    from pcpg_dist.errors import PcpgError
+
+    try:
+        return dict(registry.get(str(domain)).paper_numbers)
+    except PcpgError:
+        return {}
 
 
 def _read_json(path: Path) -> dict:
@@ -78,7 +88,7 @@ def render(summary: Path, out_dir: Path) -> tuple[Path, Path]:
           "## Wall time per stage", "",
           _md_table(pd.DataFrame([{"stage": k, "seconds": round(v, 2)} for k, v in run["stage_seconds"].items()])),
           "", "## Results beside the paper", ""]
-    paper = PAPER.get(cfg["domain"], {})
+    paper = paper_numbers(cfg.get("domain"))
     ours = {
         "clustering accuracy": metrics.get("clustering/accuracy"),
         "cross-accuracy diagonal (Table 4)": metrics.get("cross/diagonal_mean"),

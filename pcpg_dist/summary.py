@@ -11,16 +11,6 @@ import pandas as pd
 
 from pcpg_dist.dataset import atomic_write_bytes
 
-#: What the paper reports (../shared/PAPER.md), shown beside our numbers in reports.
-PAPER = {
-    "gridworld": {
-        "clustering accuracy": "0.66",
-        "cross-accuracy diagonal (Table 4)": "0.57 / 0.64 / 0.63 / 0.69",
-        "reward distance, PCPG (Table 3)": "8.66 / 44.85 / 46.28 / 50.79",
-        "reward distance, random (Table 3)": "33.05 / 180.84 / 180.12 / 192.42",
-    },
-}
-
 
 def _mean(values: list[float]) -> float:
     vals = [v for v in values if v == v]

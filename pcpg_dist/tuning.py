@@ -427,15 +427,21 @@ def best_config_data(cfg: ExperimentConfig, params: dict[str, int], where: Path)
     """The config with the best parameters, as YAML data for a file in folder ``where``.
 
     Named ``<name>_tuned`` (its own MLflow experiment and output folder), without the ``tuning``
-    section, and with the layout folder relative to ``where`` so the file can move with its tree.
+    section, and with every file or folder the config names (layouts, logs) relative to ``where``,
+    so the file can move with its tree.
     """
     import os
 
+    def portable(value: Any) -> Any:
+        if isinstance(value, dict):
+            return {k: portable(v) for k, v in value.items()}
+        if isinstance(value, str) and Path(value).is_absolute() and Path(value).exists():
+            return os.path.relpath(value, where.resolve())
+        return value
+
     data = apply_params(cfg, params).model_dump(mode="json", exclude={"tuning"})
+    data = {k: portable(v) if isinstance(v, dict) else v for k, v in data.items()}
     data["name"] = f"{cfg.name}_tuned"
-    layout = Path(data["gridworld"]["layout_dir"])
-    if layout.is_absolute():
-        data["gridworld"]["layout_dir"] = os.path.relpath(layout, where.resolve())
     return data
 
 

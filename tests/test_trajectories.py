@@ -234,3 +234,23 @@ def test_own_logs_end_to_end_with_gymnasium_rollouts(ray_session, tmp_path) -> N
     for name in ("cross_accuracy.csv", "accuracy.csv", "rollout_return.csv", "corruption_accuracy.csv"):
         assert (env_dir / name).is_file(), name
     assert json.loads((result.out_dir / "summary" / "metrics.json").read_text())["clustering/accuracy"] > 0.9
+
+
+def test_a_local_minari_dataset_runs_like_a_parquet_log(tmp_path, monkeypatch) -> None:
+    """`path: minari:ID`: the same trajectories give the same datasets as the Parquet log."""
+    from pcpg_dist.domains.trajectories.minari_io import write_minari
+
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "minari"))
+    path = tmp_path / "lake.parquet"
+    frozenlake_logs(per_style=20, seed=5).drop(columns="env").to_parquet(path, index=False)
+    (from_parquet,) = datasets_from_table(read_step_table(path)).values()
+    write_minari({"lake": from_parquet}, tmp_path / "minari", "pcpg/lake-v0")
+    cfg = load_config(write_config(tmp_path, "minari:pcpg/lake-v0", bc={"epochs": 150, "hidden_size": 8}))
+    (ds,) = cfg.domain_object.generate(cfg, show_progress=False).values()
+    np.testing.assert_array_equal(ds.states, from_parquet.states)
+    np.testing.assert_array_equal(ds.actions, from_parquet.actions)
+    np.testing.assert_array_equal(ds.styles, from_parquet.styles)
+    np.testing.assert_allclose(ds.returns, from_parquet.returns)
+    (unit,) = cfg.domain_object.units(cfg, {ds.env: ds})
+    m = run_unit(unit, cfg).metrics
+    assert m["clustering/accuracy"] > 0.9 and m["pcpg/accuracy/p1"] > m["random/accuracy"] + 0.2

@@ -99,6 +99,8 @@ class Domain:
     settings_key: ClassVar[str | None] = None
     #: a plugin's settings model; its YAML section is the domain's name
     settings_model: ClassVar[type[BaseModel] | None] = None
+    #: what the PCPG paper reports for this domain (shown beside our numbers in reports)
+    paper_numbers: ClassVar[dict[str, str]] = {}
 
     # ------------------------------------------------------------------ config
     def settings(self, cfg: ExperimentConfig) -> Any:
