@@ -72,7 +72,7 @@ def resolve_agents(target: str, tracking_uri: str | None, workdir: Path) -> Path
     if path.exists():
         raise DataError(f"{path}: no trained agents here (expected {path}/agents/<env>/*.pt, "
                         f"written by pcpg run)")
-    from pcpg_dist.tracking import _client, check_reachable, default_tracking_uri
+    from pcpg_dist.tracking import check_reachable, default_tracking_uri, find_sweep_run
 
     uri = tracking_uri or default_tracking_uri()
     if uri.startswith("sqlite:///") and not Path(uri.removeprefix("sqlite:///")).is_file():
@@ -81,19 +81,7 @@ def resolve_agents(target: str, tracking_uri: str | None, workdir: Path) -> Path
     check_reachable(uri)
     from mlflow.exceptions import MlflowException
 
-    client = _client(uri)
-    try:
-        run = client.get_run(target)
-    except MlflowException:
-        exp = client.get_experiment_by_name(target)
-        if exp is None:
-            raise ServiceError(f"{target!r} is neither a run's output folder, an MLflow run id nor an "
-                               f"experiment name at {uri}") from None
-        runs = client.search_runs([exp.experiment_id], filter_string="tags.`pcpg.role` = 'parent'",
-                                  order_by=["attributes.start_time DESC"], max_results=1)
-        if not runs:
-            raise ServiceError(f"experiment {target!r} at {uri} has no pcpg sweep yet") from None
-        run = runs[0]
+    run = find_sweep_run(target, uri)
     run_id = run.data.tags.get("mlflow.parentRunId", run.info.run_id)  # an environment's child run
     import mlflow.artifacts
 

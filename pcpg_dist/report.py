@@ -16,7 +16,7 @@ from pathlib import Path
 import pandas as pd
 
 from pcpg_dist.dataset import atomic_write_bytes
-from pcpg_dist.errors import DataError, ServiceError
+from pcpg_dist.errors import DataError
 
 KEY_METRICS = ("clustering/accuracy", "clustering/ari", "cross/diagonal_mean",
                "reward_distance/style0", "reward_distance/style1", "reward_distance/style2",
@@ -178,26 +178,11 @@ def resolve_summary(target: str, tracking_uri: str | None, workdir: Path) -> tup
         return path, None
     if (path / "summary" / "run.json").is_file():
         return path / "summary", None
-    from mlflow.exceptions import MlflowException
-
-    from pcpg_dist.tracking import _client, check_reachable, default_tracking_uri
+    from pcpg_dist.tracking import check_reachable, default_tracking_uri, find_sweep_run
 
     uri = tracking_uri or default_tracking_uri()
     check_reachable(uri)
-    client = _client(uri)
-    run_id = None
-    try:
-        run_id = client.get_run(target).info.run_id
-    except MlflowException:
-        exp = client.get_experiment_by_name(target)
-        if exp is None:
-            raise ServiceError(f"{target!r} is neither a summary folder, an MLflow run id nor an "
-                               f"experiment name at {uri}") from None
-        runs = client.search_runs([exp.experiment_id], filter_string="tags.`pcpg.role` = 'parent'",
-                                  order_by=["attributes.start_time DESC"], max_results=1)
-        if not runs:
-            raise ServiceError(f"experiment {target!r} at {uri} has no pcpg sweep yet") from None
-        run_id = runs[0].info.run_id
+    run_id = find_sweep_run(target, uri).info.run_id
     local = Path(workdir) / ".report-cache" / run_id
     import mlflow.artifacts
 

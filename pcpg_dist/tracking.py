@@ -100,6 +100,25 @@ def _log_metrics(client, run_id: str, metrics: dict[str, float]) -> None:
         _retry(client.log_batch, run_id, metrics=items[i: i + 1000])
 
 
+def find_sweep_run(target: str, uri: str):
+    """An MLflow run id, or an experiment name (its newest pcpg sweep), as the MLflow run."""
+    from mlflow.exceptions import MlflowException
+
+    client = _client(uri)
+    try:
+        return client.get_run(target)
+    except MlflowException:
+        exp = client.get_experiment_by_name(target)
+        if exp is None:
+            raise ServiceError(f"{target!r} is neither a run's output folder, an MLflow run id nor an "
+                               f"experiment name at {uri}") from None
+        runs = _retry(client.search_runs, [exp.experiment_id], filter_string=f"tags.`{ROLE}` = 'parent'",
+                      order_by=["attributes.start_time DESC"], max_results=1)
+        if not runs:
+            raise ServiceError(f"experiment {target!r} at {uri} has no pcpg sweep yet") from None
+        return runs[0]
+
+
 def open_experiment(name: str, uri: str | None):
     """Check the server, then get or create the experiment; returns (uri, client, experiment id).
 

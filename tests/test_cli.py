@@ -75,3 +75,12 @@ def test_usage_errors_exit_2(argv):
     with pytest.raises(SystemExit) as e:
         main(argv)
     assert e.value.code == 2
+
+
+def test_domains_lists_the_builtins(capsys):
+    from pcpg_dist.cli import main
+
+    assert main(["domains"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert [ln.split()[0] for ln in lines[:4]] == ["gridworld", "minidungeons", "mario", "trajectories"]
+    assert all(ln.split()[1] == "built-in" for ln in lines[:4])
