@@ -136,10 +136,24 @@ class Domain:
 
     # ------------------------------------------------------------------ data
     def data_key(self, cfg: ExperimentConfig) -> list[Any]:
-        """JSON-able parts that identify the data (cache key): settings and the base seed by default.
-        Include the *content* of any file the data is read from (a hash), not only its path."""
+        """JSON-able parts that identify the data (cache key): settings, the base seed and, for a
+        plugin, its package version (an upgrade regenerates the data). Include the *content* of any
+        file the data is read from (a hash), not only its path."""
         settings = self.settings(cfg)
-        return [self.name, cfg.seed, settings.model_dump(mode="json") if settings is not None else None]
+        return [self.name, cfg.seed, settings.model_dump(mode="json") if settings is not None else None,
+                self.package_version()]
+
+    def package_version(self) -> str | None:
+        """Version of the installed distribution that ships this domain (None for pcpg's own)."""
+        from importlib.metadata import PackageNotFoundError, packages_distributions, version
+
+        top = type(self).__module__.split(".")[0]
+        if top == "pcpg_dist":
+            return None
+        try:
+            return ",".join(f"{d}=={version(d)}" for d in sorted(packages_distributions().get(top, [])))
+        except PackageNotFoundError:
+            return None
 
     def generate(self, cfg: ExperimentConfig, show_progress: bool = True) -> dict[str, Dataset]:
         """Every dataset of the config, keyed by environment name (Ray is initialised; a domain
