@@ -104,7 +104,7 @@ def print_summary(result, console) -> None:
                   f"{m.get('random/accuracy', float('nan')):.3f}")
     console.print(t)
     c = Table(title="Clustering")
-    cols = [k for k in ("ari", "nmi", "accuracy", "silhouette", "fit_seconds")
+    cols = [k for k in ("ari", "nmi", "accuracy", "ceiling", "gap_to_ceiling", "silhouette", "fit_seconds")
             if any(f"clustering/{k}" in v for v in result.clustering.values())]
     c.add_column("env")
     for k in cols:
