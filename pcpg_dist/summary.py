@@ -107,8 +107,9 @@ def print_summary(result, console) -> None:
     cols = [k for k in ("ari", "nmi", "accuracy", "ceiling", "gap_to_ceiling", "silhouette", "fit_seconds")
             if any(f"clustering/{k}" in v for v in result.clustering.values())]
     c.add_column("env")
+    shown = {"gap_to_ceiling": "gap", "silhouette": "silh.", "fit_seconds": "fit s"}
     for k in cols:
-        c.add_column(k, justify="right")
+        c.add_column(shown.get(k, k), justify="right")
     for env, cm in result.clustering.items():
         c.add_row(env, *[f"{cm.get(f'clustering/{k}', float('nan')):.3f}" for k in cols])
     console.print(c)
