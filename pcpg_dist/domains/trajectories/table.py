@@ -104,14 +104,19 @@ def _integers(table: pa.Table, name: str, source: str) -> np.ndarray:
     raise DataError(f"{source}: column '{name}' has type {col.type}; expected integers")
 
 
-def _floats(table: pa.Table, name: str, source: str) -> np.ndarray:
+def _numeric(table: pa.Table, name: str, source: str) -> pa.ChunkedArray:
+    """A column that must hold numbers (or booleans) in every row."""
     col = table.column(name)
     if not (pa.types.is_integer(col.type) or pa.types.is_floating(col.type) or pa.types.is_boolean(col.type)):
         raise DataError(f"{source}: column '{name}' has type {col.type}; expected numbers")
     if col.null_count:
         row = int(np.flatnonzero(col.is_null().to_numpy(zero_copy_only=False))[0])
-        raise _fail(source, name, row, "is empty (null)")
-    x = col.to_numpy(zero_copy_only=False).astype(np.float64)
+        raise _fail(source, name, row, "is empty (null); every row needs a value")
+    return col
+
+
+def _floats(table: pa.Table, name: str, source: str) -> np.ndarray:
+    x = _numeric(table, name, source).to_numpy(zero_copy_only=False).astype(np.float64)
     if not np.isfinite(x).all():
         row = int(np.flatnonzero(~np.isfinite(x))[0])
         raise _fail(source, name, row, f"{x[row]} is not a finite number")
@@ -122,12 +127,7 @@ def _state_matrix(table: pa.Table, s_cols: list[str], source: str) -> np.ndarray
     """The state columns as one float32 matrix; nulls, NaN, infinities and overflow rejected."""
     states = np.empty((table.num_rows, len(s_cols)), np.float32)
     for j, c in enumerate(s_cols):
-        col = table.column(c)
-        if not (pa.types.is_integer(col.type) or pa.types.is_floating(col.type) or pa.types.is_boolean(col.type)):
-            raise DataError(f"{source}: column '{c}' has type {col.type}; expected numbers")
-        if col.null_count:
-            row = int(np.flatnonzero(col.is_null().to_numpy(zero_copy_only=False))[0])
-            raise _fail(source, c, row, "is empty (null); every row needs a value")
+        col = _numeric(table, c, source)
         with np.errstate(over="ignore", invalid="ignore"):
             states[:, j] = col.to_numpy(zero_copy_only=False)  # float64 beyond float32 becomes inf
     bad = ~np.isfinite(states)
