@@ -40,8 +40,9 @@ def has_styles(unit: Unit) -> bool:
     return bool(len(unit.dataset.styles)) and bool((unit.dataset.styles >= 0).all())
 
 
-def cluster_unit(unit: Unit, cluster_cfg, seed: int) -> UnitClustering:
-    """Step A on what the domain says to cluster; scored against true styles when they exist."""
+def cluster_unit(unit: Unit, cluster_cfg, seed: int, ceiling: bool = True) -> UnitClustering:
+    """Step A on what the domain says to cluster; scored against true styles when they exist
+    (and, with ``ceiling``, against what a classifier given those styles reaches)."""
     from pcpg_dist.clustering import cluster, clustering_metrics
 
     result = cluster(unit.clustered, cluster_cfg, seed)
@@ -51,10 +52,10 @@ def cluster_unit(unit: Unit, cluster_cfg, seed: int) -> UnitClustering:
 
         sup = clustering_metrics(unit.dataset.styles, result.labels)
         metrics.update({f"clustering/{k}": float(v) for k, v in sup.items() if isinstance(v, int | float)})
-        ceiling = supervised_ceiling(unit.dataset, seed=seed)
-        if np.isfinite(ceiling):  # what a classifier given the true styles reaches (docs/clustering.md)
-            metrics["clustering/ceiling"] = ceiling
-            metrics["clustering/gap_to_ceiling"] = ceiling - metrics["clustering/accuracy"]
+        top = supervised_ceiling(unit.dataset, seed=seed) if ceiling else float("nan")
+        if np.isfinite(top):  # what a classifier given the true styles reaches (pcpg_dist/ceiling.py)
+            metrics["clustering/ceiling"] = top
+            metrics["clustering/gap_to_ceiling"] = top - metrics["clustering/accuracy"]
     metrics["clustering/fit_seconds"] = result.fit_seconds
     return UnitClustering(np.asarray(result.labels, np.int64), metrics, result.model)
 

@@ -19,19 +19,14 @@ from pcpg_dist.config import load_config
 from pcpg_dist.domains import mario
 from pcpg_dist.generate import generate, units
 from pcpg_dist.runner import run_experiment
+from tests.reference.configs import small_mario_log
 
 EPISODES, STEPS = 60, 150
 
 
 def small_log(path: Path) -> Path:
     """The shipped log's first EPISODES episodes, each cut to its first STEPS steps."""
-    lines = [ln for ln in mario.shipped_log_path().read_text().splitlines() if ln.strip()]
-    cut = []
-    for ln in lines[:EPISODES]:
-        steps = [s for s in ln.split("|") if s and not s.startswith("#")]
-        cut.append("|".join(steps[:STEPS]) + "|#0,0,0#")
-    path.write_text("\n".join(cut) + "\n")
-    return path
+    return small_mario_log(path, EPISODES, STEPS)
 
 
 @pytest.fixture(scope="module")

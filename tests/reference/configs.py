@@ -47,14 +47,14 @@ def mario_config(log: Path) -> dict:
     }
 
 
-def small_mario_log(path: Path) -> Path:
-    """The shipped log's first episodes, each cut short (the same cut as tests/test_mario_run.py)."""
+def small_mario_log(path: Path, episodes: int = MARIO_EPISODES, steps: int = MARIO_STEPS) -> Path:
+    """The shipped log's first ``episodes`` episodes, each cut to its first ``steps`` steps."""
     src = ROOT / "pcpg_dist" / "data" / "mario" / "mario_stli_all_levels.log"
     lines = [ln for ln in src.read_text().splitlines() if ln.strip()]
     cut = []
-    for ln in lines[:MARIO_EPISODES]:
-        steps = [s for s in ln.split("|") if s and not s.startswith("#")]
-        cut.append("|".join(steps[:MARIO_STEPS]) + "|#0,0,0#")
+    for ln in lines[:episodes]:
+        kept = [s for s in ln.split("|") if s and not s.startswith("#")]
+        cut.append("|".join(kept[:steps]) + "|#0,0,0#")
     path.write_text("\n".join(cut) + "\n")
     return path
 

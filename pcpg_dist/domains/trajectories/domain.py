@@ -19,11 +19,6 @@ from pcpg_dist.domains.base import Domain, DomainHooks, ScoreFn, Unit
 BUILTIN_SCORES = ("return", "length", "-length")
 
 
-def trajectory_returns(dataset) -> np.ndarray:
-    """Undiscounted return of every trajectory (the final rows carry reward 0)."""
-    return dataset.returns
-
-
 def minari_fingerprint(dataset_id: str) -> list[list]:
     """Names, sizes and SHA-256 of a local Minari dataset's files (its content, for the cache key)."""
     import minari
@@ -100,7 +95,7 @@ class TrajectoriesDomain(Domain):
     def score(self, cfg) -> ScoreFn:
         how = cfg.trajectories.score
         if how == "return":
-            return trajectory_returns
+            return lambda ds: ds.returns
         if how == "length":
             return lambda ds: ds.lengths.astype(np.float64)
         if how == "-length":
