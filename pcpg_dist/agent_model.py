@@ -17,10 +17,14 @@ one-line message that names the row, the column and what is allowed.
 
 from __future__ import annotations
 
+import contextlib
 import importlib.metadata
 import json
 import logging
+import os
 import sys
+import warnings
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -30,6 +34,10 @@ import numpy as np
 import pandas as pd
 from mlflow.exceptions import MlflowException
 from mlflow.protos.databricks_pb2 import INTERNAL_ERROR, INVALID_PARAMETER_VALUE
+
+# One tqdm bar per artifact download (dozens of lines outside a terminal) is noise when the model
+# loads in a process that imported this file: the serving process, or a user's after `load`.
+os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
 
 NC_STYLE = -1  # the `style` of the No-Clustering baseline (top p of every trajectory)
 _NO_SEED = -(2 ** 62)  # "no seed given": the lowest trained one
@@ -168,6 +176,45 @@ def read_all(folder: str | Path) -> dict[str, EnvAgents]:
 
 
 # ---------------------------------------------------------------------- logging helpers
+# INFO and warnings MLflow emits while logging or loading a model whose signature, input example
+# and requirements are all given: they say nothing a user could act on.
+_CHATTY = ("mlflow.pyfunc", "mlflow.models", "mlflow.models.model", "mlflow.models.signature",
+           "mlflow.models.utils", "mlflow.utils.environment", "mlflow.utils.requirements_utils",
+           "mlflow.types", "mlflow.tracking._model_registry", "mlflow.store.artifact")
+
+
+@contextlib.contextmanager
+def quiet_logging() -> Iterator[None]:
+    """Within the block: MLflow's model-logging loggers at ERROR, its Python warnings ignored, no
+    artifact progress bars. Levels and settings are restored afterwards."""
+    loggers = [logging.getLogger(n) for n in _CHATTY]
+    levels = [lg.level for lg in loggers]
+    bar = os.environ.get("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR")
+    os.environ["MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR"] = "false"
+    for lg in loggers:
+        lg.setLevel(logging.ERROR)
+    try:
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", module=r"mlflow(\.|$)")
+            yield
+    finally:
+        for lg, level in zip(loggers, levels, strict=True):
+            lg.setLevel(level)
+        if bar is None:
+            os.environ.pop("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", None)
+        else:
+            os.environ["MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR"] = bar
+
+
+def load(model_uri: str, tracking_uri: str | None = None):
+    """``mlflow.pyfunc.load_model`` without download bars or MLflow chatter, e.g.
+    ``load(f"runs:/{run_id}/agents", "sqlite:///mlflow.db")``."""
+    with quiet_logging():
+        if tracking_uri:
+            mlflow.set_tracking_uri(tracking_uri)
+        return mlflow.pyfunc.load_model(model_uri)
+
+
 def signature(agents: dict[str, EnvAgents]):
     """Column names and types. Every column is optional to MLflow so that a missing one reaches
     :meth:`PcpgAgents.predict` and gets its one-line error; ``style``, ``seed`` and ``valid`` are

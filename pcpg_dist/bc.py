@@ -25,7 +25,7 @@ import torch
 
 from pcpg_dist.config.stages import BCConfig
 from pcpg_dist.domains.base import Policy
-from pcpg_dist.errors import ConfigError, DataError
+from pcpg_dist.errors import ConfigError, DataError, TrainingError
 from pcpg_dist.ranking import Cell, CellSpec, dedupe_rows
 
 _NEG = -1e9  # added to invalid actions' logits: exp underflows to exactly 0, gradients stay finite
@@ -143,9 +143,10 @@ class TrainedCells:
         """``path.pt`` (a tensor state dict, loadable with ``weights_only=True``) + ``path.json``."""
         path = Path(path).with_suffix("")
         path.parent.mkdir(parents=True, exist_ok=True)
-        tensors = {**{n: torch.from_numpy(np.ascontiguousarray(v)) for n, v in self.params.items()},
-                   "mean": torch.from_numpy(self.mean), "std": torch.from_numpy(self.std),
-                   "final_loss": torch.from_numpy(self.final_loss)}
+        # copies: arrays a Ray task returned are read-only views of the object store
+        tensors = {**{n: torch.from_numpy(np.array(v, order="C")) for n, v in self.params.items()},
+                   "mean": torch.from_numpy(np.array(self.mean)), "std": torch.from_numpy(np.array(self.std)),
+                   "final_loss": torch.from_numpy(np.array(self.final_loss))}
         torch.save(tensors, path.with_suffix(".pt"))
         meta = {"format": 1, "sizes": list(self.sizes), "activation": self.activation,
                 "specs": [asdict(s) for s in self.specs]}
@@ -246,6 +247,7 @@ def train_cells(cells: Sequence[Cell], cfg: BCConfig) -> TrainedCells:
     losses = np.zeros(len(cells))
     if _engine(cfg, device) == "numba":
         trained, losses = _train_numba(cells, data, sizes, cfg)
+        check_finite(cells, trained, losses, cfg)
         return TrainedCells(tuple(c.spec for c in cells), sizes, cfg.activation, trained,
                             np.stack([c.mean for c in cells]), np.stack([c.std for c in cells]), losses)
     for group in buckets([len(x[2]) for x in data], cfg.bucket_overhead_rows):
@@ -254,8 +256,23 @@ def train_cells(cells: Sequence[Cell], cfg: BCConfig) -> TrainedCells:
         for name, value in trained.items():
             params[name][group] = value
         losses[group] = loss
+    check_finite(cells, params, losses, cfg)
     return TrainedCells(tuple(c.spec for c in cells), sizes, cfg.activation, params,
                         np.stack([c.mean for c in cells]), np.stack([c.std for c in cells]), losses)
+
+
+def check_finite(cells: Sequence[Cell], params: dict[str, np.ndarray], losses: np.ndarray, cfg: BCConfig) -> None:
+    """Diverged training (NaN or infinite weights or loss) stops the run: such a policy must never
+    be evaluated, cached or published as an agent."""
+    bad = ~np.isfinite(np.asarray(losses, np.float64))
+    for value in params.values():
+        bad |= ~np.isfinite(value.reshape(len(cells), -1)).all(axis=1)
+    if bad.any():
+        first = int(np.argmax(bad))
+        raise TrainingError(f"BC training diverged for {int(bad.sum())} of {len(cells)} cells (first: "
+                            f"{cells[first].key}): non-finite weights or loss with bc.lr={cfg.lr}, "
+                            f"bc.betas={list(cfg.betas)}, bc.eps={cfg.eps}, bc.dtype={cfg.dtype}; lower bc.lr "
+                            f"or check the data's state features for huge values")
 
 
 def _engine(cfg: BCConfig, device: torch.device) -> str:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -10,12 +11,12 @@ from pcpg_dist.errors import PcpgError
 
 
 def _cmd_generate(args: argparse.Namespace) -> None:
-    from pcpg_dist.config import load_config
+    from pcpg_dist.config.overrides import load_config_with
     from pcpg_dist.generate import generate_to
-    from pcpg_dist.progress import console
+    from pcpg_dist.progress import out as console  # results: stdout
     from pcpg_dist.ray_utils import init_ray
 
-    cfg = load_config(args.config)
+    cfg = load_config_with(args.config, args.overrides)
     init_ray(args.ray_address)
     datasets = generate_to(cfg, Path(args.out), show_progress=not args.quiet)
     for env, ds in datasets.items():
@@ -33,52 +34,97 @@ def _check_tracking(args: argparse.Namespace) -> None:
 
 
 def _cmd_run(args: argparse.Namespace) -> None:
-    from pcpg_dist.config import load_config
-    from pcpg_dist.progress import console
+    from pcpg_dist.config.overrides import load_config_with
+    from pcpg_dist.progress import out
     from pcpg_dist.ray_utils import init_ray
     from pcpg_dist.runner import run_experiment
     from pcpg_dist.summary import print_summary
 
-    cfg = load_config(args.config)
+    cfg = load_config_with(args.config, args.overrides)
     _check_tracking(args)
     init_ray(args.ray_address)
     result = run_experiment(cfg, workdir=Path(args.workdir), tracking_uri=args.tracking_uri,
                             track=not args.no_tracking, show_progress=not args.quiet,
                             command=" ".join(["pcpg", *sys.argv[1:]]))
-    print_summary(result, console)
+    print_summary(result, out)  # results on stdout; plain print below: commands stay one copyable line
     if result.parent_run_id:
-        from pcpg_dist.tracking import default_tracking_uri
+        from pcpg_dist.tracking import default_tracking_uri, ui_link
 
         uri = args.tracking_uri or default_tracking_uri()
-        view = (f"uv run mlflow ui --backend-store-uri {uri}" if uri.startswith("sqlite:") else f"open {uri}")
-        console.print(f"MLflow parent run: {result.parent_run_id}  (view: {view})")
-    console.print(f"outputs: {result.out_dir}/summary")
+        print(f"MLflow parent run: {result.parent_run_id}")
+        if not uri.startswith(("http://", "https://")):
+            print(f"start the UI: uv run mlflow ui --backend-store-uri {uri}")
+        print(f"runs table: {ui_link(uri, result.parent_run_id)}")
+    print(f"outputs: {result.out_dir}/summary")
     if getattr(result, "report", None):
-        console.print(f"report: {result.report}")
+        print(f"report: {result.report}")
+
+
+def _cmd_sweep(args: argparse.Namespace) -> None:
+    """A grid over config axes, every point together on Ray; shared stages run once."""
+    from pcpg_dist.ray_utils import init_ray
+    from pcpg_dist.sweep import run_sweep
+
+    axes = [a for a in args.axes if "," in a.partition("=")[2] or _is_range(a.partition("=")[2])]
+    fixed = [a for a in args.axes if a not in axes]
+    _check_tracking(args)
+    init_ray(args.ray_address)
+    res = run_sweep(args.config, axes, fixed, workdir=Path(args.workdir), tracking_uri=args.tracking_uri,
+                    track=not args.no_tracking, show_progress=not args.quiet,
+                    command=" ".join(["pcpg", *sys.argv[1:]]))
+    print(f"sweep: {len(res.rows)} points ({res.ran} run now, {len(res.rows) - res.ran} finished before) "
+          f"in {res.seconds:.1f} s")
+    print(f"table: {res.out_dir / 'summary.csv'}")
+    print(f"report: {res.out_dir / 'report.html'}  ({len(res.figures)} figures)")
+    if res.parent_run_id:
+        print(f"MLflow sweep run: {res.parent_run_id}")
+
+
+def _is_range(value: str) -> bool:
+    from pcpg_dist.config.overrides import parse_range
+
+    try:
+        return parse_range(value) is not None
+    except PcpgError:
+        return True
 
 
 def _cmd_report(args: argparse.Namespace) -> None:
-    from pcpg_dist.progress import console
+    from pcpg_dist.progress import out as console  # results: stdout
     from pcpg_dist.report import render, resolve_summary
 
     summary, run_id = resolve_summary(args.target, args.tracking_uri, Path(args.workdir))
     out = Path(args.out) if args.out else summary.parent / "report"
-    html_path, md_path = render(summary, out)
+    html_path, md_path = render(summary, out, reproduce_target=run_id)
     console.print(f"report: {html_path}\nmarkdown: {md_path}")
+    if args.pdf:
+        from pcpg_dist.report import export_pdf
+
+        console.print(f"pdf: {export_pdf(html_path)}")
+
+
+def _cmd_reproduce(args: argparse.Namespace) -> None:
+    """Rerun a logged sweep in a fresh folder; exit 1 when some metric differs."""
+    from pcpg_dist.reproduce import cli_reproduce
+
+    code = cli_reproduce(args)
+    if code:
+        raise SystemExit(code)
 
 
 def _cmd_cluster(args: argparse.Namespace) -> None:
     """Step A alone: one clustering per environment on Ray; saves models + labels."""
     import json
 
-    from pcpg_dist.config import load_config
+    from pcpg_dist.cache import write_files
+    from pcpg_dist.config.overrides import load_config_with
     from pcpg_dist.dataset import confined, load_datasets
     from pcpg_dist.generate import generate_to
-    from pcpg_dist.progress import console
+    from pcpg_dist.progress import out as console  # results: stdout
     from pcpg_dist.ray_utils import init_ray, run_tasks
     from pcpg_dist.runner import cluster_task
 
-    cfg = load_config(args.config)
+    cfg = load_config_with(args.config, args.overrides)
     init_ray(args.ray_address)
     out = Path(args.out)
     if args.data:
@@ -89,10 +135,11 @@ def _cmd_cluster(args: argparse.Namespace) -> None:
     units = {u.name: u for u in cfg.domain_object.units(cfg, datasets)}
     envs = list(units)
     folders = {e: confined(out, e, "unit name") for e in envs}
-    results = run_tasks(cluster_task, [(units[e], cfg.clustering, cfg.seed, cfg.runner.cpus_per_task,
-                                        str(folders[e])) for e in envs],
+    results = run_tasks(cluster_task, [(units[e], cfg.clustering, cfg.seed, cfg.runner.cpus_per_task)
+                                       for e in envs],
                         "Step A: clustering", num_cpus=cfg.runner.cpus_per_task, show_progress=not args.quiet)
     for env, res in zip(envs, results, strict=True):
+        write_files(folders[env] / "model", res["model"])
         (folders[env] / "labels.json").write_text(json.dumps(res["labels"]))
         (folders[env] / "metrics.json").write_text(json.dumps(res["metrics"], indent=1))
         shown = ", ".join(f"{k.split('/')[1]} {v:.3f}" for k, v in res["metrics"].items()
@@ -106,7 +153,7 @@ def _cmd_classify(args: argparse.Namespace) -> None:
 
     from pcpg_dist.clustering import clustering_metrics, load_model
     from pcpg_dist.dataset import atomic_write_bytes, load_dataset
-    from pcpg_dist.progress import console
+    from pcpg_dist.progress import out as console  # results: stdout
 
     model = load_model(Path(args.model))
     ds = load_dataset(Path(args.dataset))
@@ -124,12 +171,12 @@ def _cmd_classify(args: argparse.Namespace) -> None:
 
 def _cmd_tune(args: argparse.Namespace) -> None:
     """Optuna study over k and the network sizes; writes the best parameters as a config."""
-    from pcpg_dist.config import load_config
-    from pcpg_dist.progress import console
+    from pcpg_dist.config.overrides import load_config_with
+    from pcpg_dist.progress import out as console  # results: stdout
     from pcpg_dist.ray_utils import init_ray
     from pcpg_dist.tuning import run_study
 
-    cfg = load_config(args.config)
+    cfg = load_config_with(args.config, args.overrides)
     _check_tracking(args)
     init_ray(args.ray_address)
     res = run_study(cfg, storage_url=args.optuna_storage, workdir=Path(args.workdir),
@@ -168,12 +215,23 @@ def _cmd_domains(args: argparse.Namespace) -> None:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="pcpg", description="Play-style-centric agents from gameplay data (PCPG) at scale.")
+    from pcpg_dist import __version__
+
+    parser.add_argument("--version", action="version", version=f"pcpg {__version__}")
+    parser.add_argument("-q", "--quiet", dest="global_quiet", action="store_true",
+                        help="errors only: no progress bars, no warnings (results still on stdout)")
+    parser.add_argument("--verbose", action="store_true", help="also informational logs (pcpg, MLflow)")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     def common(p: argparse.ArgumentParser) -> None:
         p.add_argument("--ray-address", default=None,
                        help="join this Ray cluster (default: $RAY_ADDRESS, else Ray in-process)")
         p.add_argument("--quiet", action="store_true", help="no progress bars")
+
+    def overrides(p: argparse.ArgumentParser) -> None:
+        p.add_argument("overrides", nargs="*", metavar="KEY=VALUE",
+                       help="change a setting of the YAML before it is validated, e.g. bc.lr=0.003 "
+                            "clustering.k=5 (values read as YAML)")
 
     def tracking(p: argparse.ArgumentParser) -> None:
         p.add_argument("--tracking-uri", default=None,
@@ -182,19 +240,31 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("generate", help="generate the datasets of a config (PBTG on Ray)")
     p.add_argument("config", help="experiment YAML")
+    overrides(p)
     p.add_argument("--out", required=True, help="output folder (Parquet files + manifest.json)")
     common(p)
     p.set_defaults(func=_cmd_generate)
 
     p = sub.add_parser("run", help="run a whole experiment: generate, cluster, rank, train, evaluate, log")
     p.add_argument("config", help="experiment YAML")
+    overrides(p)
     p.add_argument("--workdir", default="runs", help="outputs and the resumable cache (default: runs/)")
     tracking(p)
     common(p)
     p.set_defaults(func=_cmd_run)
 
+    p = sub.add_parser("sweep", help="run a grid over config axes: KEY=v1,v2,... (or a start:stop:step range)")
+    p.add_argument("config", help="experiment YAML (its optional sweep: section adds grid/zip axes)")
+    p.add_argument("axes", nargs="*", metavar="KEY=VALUES",
+                   help="an axis (KEY=v1,v2,... or KEY=start:stop:step) or a fixed override (KEY=value)")
+    p.add_argument("--workdir", default="runs", help="outputs and the shared cache (default: runs/)")
+    tracking(p)
+    common(p)
+    p.set_defaults(func=_cmd_sweep)
+
     p = sub.add_parser("cluster", help="Step A only: cluster each environment's trajectories by play-style")
     p.add_argument("config", help="experiment YAML (its clustering section)")
+    overrides(p)
     p.add_argument("--out", required=True, help="output folder: <env>/model, labels.json, metrics.json")
     p.add_argument("--data", default=None, help="dataset folder from `pcpg generate` (default: generate)")
     common(p)
@@ -210,11 +280,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("target", help="MLflow run id, experiment name, or a run's output folder (runs/NAME)")
     p.add_argument("--out", default=None, help="folder for report.html/report.md (default: beside the summary)")
     p.add_argument("--workdir", default="runs", help="where downloaded artifacts are kept")
+    p.add_argument("--pdf", action="store_true", help="also print report.pdf with a headless Chromium")
     p.add_argument("--tracking-uri", default=None, help="MLflow tracking URI (default: as for run)")
     p.set_defaults(func=_cmd_report)
 
+    p = sub.add_parser("reproduce", help="rerun a logged sweep from its recorded config and seeds in a fresh "
+                                         "folder; compare every metric with the logged one (exit 1 if any differs)")
+    p.add_argument("run", metavar="RUN", help="a run's output folder (runs/NAME), an MLflow run id, or an "
+                                              "experiment name (as for report)")
+    p.add_argument("--workdir", default=None, help="fresh (new or empty) folder for the rerun "
+                   "(default: a new temporary folder, printed at the end)")
+    p.add_argument("--rtol", type=float, default=1e-6, help="relative tolerance (default: 1e-6)")
+    p.add_argument("--atol", type=float, default=1e-9, help="absolute tolerance (default: 1e-9)")
+    p.add_argument("--tracking-uri", default=None, help="MLflow tracking URI (default: as for run)")
+    common(p)
+    p.set_defaults(func=_cmd_reproduce)
+
     p = sub.add_parser("tune", help="tune k and the network sizes with Optuna (trials on Ray)")
     p.add_argument("config", help="experiment YAML (its tuning section: search space, objective)")
+    overrides(p)
     p.add_argument("--optuna-storage", default=None,
                    help="study storage: a journal file path (default: ./optuna_journal.log) or an RDB "
                         "URL for teams, e.g. postgresql://user@host:5432/db")
@@ -254,7 +338,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    # KEY=VALUE items after an option (`pcpg run c.yaml --quiet bc.lr=0.1`) belong to the command
+    target = "axes" if hasattr(args, "axes") else "overrides" if hasattr(args, "overrides") else None
+    if extra and (target is None or any(e.startswith("-") for e in extra)):
+        parser.error(f"unrecognized arguments: {' '.join(extra)}")
+    if extra:
+        setattr(args, target, [*getattr(args, target), *extra])
+    args.quiet = args.global_quiet or getattr(args, "quiet", False)  # `pcpg -q run` or `pcpg run --quiet`
+    from pcpg_dist.progress import setup_output
+
+    setup_output(quiet=args.quiet, verbose=args.verbose,
+                 private_ray=not (getattr(args, "ray_address", None) or os.environ.get("RAY_ADDRESS")))
     try:
         args.func(args)
     except PcpgError as e:

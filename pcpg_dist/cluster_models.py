@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from pydantic import ValidationError
 from torch import nn
 from torch.nn.utils.rnn import PackedSequence
 
@@ -35,6 +36,8 @@ from pcpg_dist.errors import DataError
 FORMAT_VERSION = 1
 CONFIG_FILE = "cluster_model.json"
 WEIGHTS_FILE = "cluster_model.pt"
+#: Methods on visitation bags (pcpg_dist/cluster_features.py): nearest cluster mean in bag space.
+BAG_METHODS = ("bag_kmeans", "bag_mop", "bag_auto")
 
 
 # --------------------------------------------------------------------- input checks and features
@@ -214,11 +217,20 @@ class SequenceAutoencoder(nn.Module):
 
 def encode_all(ae: SequenceAutoencoder, batches: list[PackedBatch], n: int) -> torch.Tensor:
     """Latents of every trajectory, in dataset order."""
-    z_all = torch.empty(n, ae.to_latent.out_features)
+    device = batches[0].packed.data.device if batches else torch.device("cpu")
+    z_all = torch.empty(n, ae.to_latent.out_features, device=device)
     with torch.no_grad():
         for b in batches:
             z_all[b.index] = ae.encode(b.packed, b)
     return z_all
+
+
+def batches_to(batches: list[PackedBatch], device: torch.device) -> list[PackedBatch]:
+    """The same batches on ``device`` (PackedSequence's batch_sizes stay on the CPU, as torch wants)."""
+    if device.type == "cpu":
+        return batches
+    return [PackedBatch(b.index.to(device), PackedSequence(b.packed.data.to(device), b.packed.batch_sizes),
+                        b.repeat.to(device), b.lengths.to(device)) for b in batches]
 
 
 # --------------------------------------------------------------------- the saved model
@@ -240,6 +252,7 @@ class ClusterModel:
         autoencoder: SequenceAutoencoder | None,
         feature_names: tuple[str, ...] = (),
         vocabulary: np.ndarray | None = None,
+        bag=None,
     ) -> None:
         self.method = method
         self.config = dict(config)
@@ -250,6 +263,7 @@ class ClusterModel:
         self.autoencoder = autoencoder
         self.feature_names = tuple(feature_names)
         self.vocabulary = None if vocabulary is None else np.asarray(vocabulary, np.float32)
+        self.bag = bag  # BagVocabulary of the bag_* methods (pcpg_dist/cluster_features.py)
 
     @property
     def k(self) -> int:
@@ -263,6 +277,13 @@ class ClusterModel:
                 f"{self.method} model was fitted on {self.state_dim} state features, "
                 f"dataset {dataset.domain}-{dataset.env} has {states.shape[1]}"
             )
+        if self.bag is not None:
+            from sklearn.preprocessing import normalize
+
+            from pcpg_dist.cluster_features import bag_matrix
+
+            actions = np.asarray(dataset.actions, np.int64)
+            return normalize(bag_matrix(states, offsets, actions, self.bag))
         if self.vocabulary is not None:
             return visit_features(states, offsets, self.vocabulary)
         if self.autoencoder is None:
@@ -299,6 +320,9 @@ class ClusterModel:
         }
         if self.vocabulary is not None:
             tensors["vocabulary"] = torch.from_numpy(self.vocabulary)
+        if self.bag is not None:
+            tensors["bag_states"] = torch.from_numpy(self.bag.states)
+            tensors["bag_sa_keys"] = torch.from_numpy(self.bag.sa_keys)
         if self.autoencoder is not None:
             tensors.update(
                 {f"ae.{k}": v.detach().clone() for k, v in self.autoencoder.state_dict().items()}
@@ -312,6 +336,8 @@ class ClusterModel:
             "k": self.k,
             "feature_names": list(self.feature_names),
         }
+        if self.bag is not None:
+            meta["bag_n_actions"] = self.bag.n_actions
         (directory / CONFIG_FILE).write_text(json.dumps(meta, indent=2, sort_keys=True))
         return directory
 
@@ -326,10 +352,28 @@ def load_model(directory: str | Path) -> ClusterModel:
                 f"{p}: cluster model file not found (is {directory} a saved cluster model?)"
             )
     try:
-        meta = json.loads(cfg_path.read_text())
+        if cfg_path.stat().st_size > 1 << 20:
+            raise ValueError("larger than 1 MB")
+        meta = json.loads(cfg_path.read_text(encoding="utf-8"))
         method, config, state_dim = meta["method"], meta["config"], int(meta["state_dim"])
-    except (ValueError, KeyError, TypeError) as e:
-        raise DataError(f"{cfg_path}: unreadable cluster model config ({e})") from None
+        if not isinstance(config, dict) or not isinstance(method, str):
+            raise TypeError("'method' must be a name and 'config' a mapping")
+        if not 1 <= state_dim <= 1_000_000:
+            raise ValueError(f"state_dim {state_dim} outside 1..1000000")
+        names = meta.get("feature_names") or []
+        if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+            raise TypeError("'feature_names' must be a list of names")
+        # the saved settings must be settings Step A accepts (bounded sizes, known method)
+        from pcpg_dist.config.stages import ClusterConfig
+
+        known = {k: v for k, v in config.items() if k in ClusterConfig.model_fields}
+        try:
+            ClusterConfig.model_validate(known)
+        except ValidationError as e:
+            first = e.errors(include_url=False)[0]
+            raise ValueError(f"config.{'.'.join(map(str, first['loc']))}: {first['msg']}") from None
+    except (ValueError, KeyError, TypeError, OverflowError, RecursionError, UnicodeDecodeError) as e:
+        raise DataError(f"{cfg_path}: unreadable cluster model config ({' '.join(str(e).split())[:200]})") from None
     if meta.get("format_version") != FORMAT_VERSION:
         raise DataError(
             f"{cfg_path}: format_version {meta.get('format_version')}, expected {FORMAT_VERSION}"
@@ -351,13 +395,24 @@ def load_model(directory: str | Path) -> ClusterModel:
             ae.load_state_dict({k[3:]: v for k, v in tensors.items() if k.startswith("ae.")})
         except (KeyError, RuntimeError) as e:
             raise DataError(f"{w_path}: weights do not fit a {method} model ({e})") from None
-    elif method not in ("summary_kmeans", "visits_kmeans"):
+    elif method not in ("summary_kmeans", "visits_kmeans", *BAG_METHODS):
         raise DataError(f"{cfg_path}: unknown clustering method '{method}'")
+    bag = None
+    if method in BAG_METHODS:
+        from pcpg_dist.cluster_features import BagVocabulary
+
+        bs, keys = tensors.get("bag_states"), tensors.get("bag_sa_keys")
+        if (bs is None or keys is None or bs.ndim != 2 or bs.shape[1] != state_dim
+                or not isinstance(meta.get("bag_n_actions"), int)):
+            raise DataError(f"{w_path}: weights do not fit a {method} model")
+        bag = BagVocabulary(bs.numpy(), keys.numpy().astype(np.int64), int(meta["bag_n_actions"]))
+        if centroids.shape[1] != bag.width:
+            raise DataError(f"{w_path}: weights do not fit a {method} model")
     vocab = tensors.get("vocabulary")
     if method == "visits_kmeans" and (vocab is None or vocab.ndim != 2 or vocab.shape[1] != state_dim
                                       or centroids.shape[1] != vocab.shape[0]):
         raise DataError(f"{w_path}: weights do not fit a visits_kmeans model")
     return ClusterModel(
         method, config, state_dim, mean, std, centroids, ae, tuple(meta.get("feature_names") or ()),
-        vocab.numpy() if vocab is not None else None,
+        vocab.numpy() if vocab is not None else None, bag,
     )

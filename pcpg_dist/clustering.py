@@ -11,6 +11,11 @@ Methods (one interface, so the LSTM model's value is measured, not assumed):
   at k-means of the pretrained latents; Xie et al. 2016, with the reconstruction term of IDEC).
 - ``lstm_kmeans`` — k-means on the pretrained latents only (what DEC adds over this is measured).
 - ``summary_kmeans`` — k-means on [length, final state, mean state] per trajectory.
+- ``visits_kmeans`` — k-means (cosine) on which distinct states a trajectory visits.
+- ``bag_kmeans`` — weighted k-means (cosine) on distinct visitation rows: visited states,
+  state-actions and the final state (pcpg_dist/cluster_features.py), duplicates as weights.
+- ``bag_mop`` — a mixture of k policies pi_c(a | s) fitted by EM from bag_kmeans' labels.
+- ``bag_auto`` — both, and the one with the higher silhouette (no labels) is kept.
 
 Determinism: all randomness comes from ``seed`` (a local ``torch.Generator`` and k-means'
 ``random_state``); with the same data, seed and torch thread count the labels are identical.
@@ -23,13 +28,17 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from scipy import sparse
 from scipy.optimize import linear_sum_assignment
+from scipy.special import logsumexp
 from sklearn.cluster import KMeans
 from sklearn.metrics import adjusted_rand_score, normalized_mutual_info_score, silhouette_score
 
 from pcpg_dist.cluster_models import (
+    BAG_METHODS,
     ClusterModel,
     SequenceAutoencoder,
+    batches_to,
     checked_sequences,
     encode_all,
     fit_normaliser,
@@ -102,15 +111,19 @@ def _fit_lstm(
     Returns the autoencoder, normaliser (mean, std) and centroids.
     """
     n = len(offsets) - 1
+    device = torch.device(cfg.device)
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise DataError("clustering.device is 'cuda' but torch sees no CUDA device; use 'cpu'")
     mean, std = fit_normaliser(states)
-    batches = make_batches((states - mean) / std, offsets, cfg.batch_size)
+    batches = batches_to(make_batches((states - mean) / std, offsets, cfg.batch_size), device)
     gen = torch.Generator().manual_seed(seed)
     ae = SequenceAutoencoder(states.shape[1], cfg.hidden_size, cfg.latent_size, cfg.pooling)
-    ae.reset_parameters(gen)
+    ae.reset_parameters(gen)  # drawn on the CPU from the local generator, then moved
+    ae.to(device)
     opt = torch.optim.Adam(ae.parameters(), lr=cfg.lr)
     mse = torch.nn.functional.mse_loss
 
-    recon = float("nan")
+    recon, epochs_run = float("nan"), 0
     for _ in range(cfg.pretrain_epochs):
         total, rows = 0.0, 0
         for bi in torch.randperm(len(batches), generator=gen).tolist():
@@ -121,19 +134,23 @@ def _fit_lstm(
             opt.step()
             total += loss.item() * len(b.packed.data)
             rows += len(b.packed.data)
-        recon = total / rows
+        last, recon = recon, total / rows
+        epochs_run += 1
+        if cfg.pretrain_tol > 0 and last == last and last - recon < cfg.pretrain_tol * last:
+            break  # converged: another epoch would not change the latent space much
     metrics["pretrain_recon_mse"] = recon
+    metrics["pretrain_epochs_run"] = float(epochs_run)
 
     ae.eval()
     z = encode_all(ae, batches, n)
-    centroids = _kmeans(z.numpy(), cfg.k, seed, cfg.kmeans_n_init)
+    centroids = _kmeans(z.cpu().numpy(), cfg.k, seed, cfg.kmeans_n_init)
     if cfg.method != "lstm_dec" or cfg.dec_epochs == 0:
-        return ae, mean, std, centroids
+        return ae.cpu(), mean, std, centroids
 
     ae.train()
-    mu = torch.nn.Parameter(torch.from_numpy(centroids.copy()))
+    mu = torch.nn.Parameter(torch.from_numpy(centroids.copy()).to(device))
     opt = torch.optim.Adam([*ae.parameters(), mu], lr=cfg.lr)
-    labels = torch.empty(0, dtype=torch.long)
+    labels = torch.empty(0, dtype=torch.long, device=device)
     epochs_run = 0
     for epoch in range(cfg.dec_epochs):
         # One pass gives both the new target and the stopping test (as in DEC): the labels of the
@@ -161,7 +178,127 @@ def _fit_lstm(
         epochs_run += 1
         metrics["dec_recon_mse"], metrics["dec_kl"] = total_r / n, total_c / n
     metrics["dec_epochs_run"] = float(epochs_run)
-    return ae, mean, std, mu.detach().numpy().copy()
+    return ae.cpu(), mean, std, mu.detach().cpu().numpy().copy()
+
+
+# --------------------------------------------------------------------- bag clusterers
+def _mostly_distinct_states(states: np.ndarray) -> bool:
+    """Whether more than half the state rows are distinct (continuous states: bags are useless)."""
+    from pcpg_dist.cluster_models import row_ids
+
+    _, first = row_ids(states)
+    return len(first) > 0.5 * len(states)
+
+
+def _mixture_of_policies(x: sparse.csr_matrix, w: np.ndarray, vocab, init: np.ndarray, k: int,
+                         max_iter: int = 100, smoothing: float = 0.5, tol: float = 1e-7) -> np.ndarray:
+    """EM for k policies pi_c(a | s) over the state-action columns of distinct bag rows ``x``
+    (weights ``w``), started from hard labels ``init``; returns the final hard labels.
+
+    A trajectory's log-likelihood under policy c is sum over its (s, a) of log pi_c(a | s): the
+    generative story of PBTG-like data (each style = one noisy policy).
+    """
+    v = len(vocab.states)
+    sa = x[:, v: v + len(vocab.sa_keys)].tocsr()
+    sa.data = (sa.data > 0).astype(np.float64)  # counts of the binary pairs, not the cosine scale
+    state_of = vocab.sa_keys // vocab.n_actions
+    _, state_of = np.unique(state_of, return_inverse=True)
+    resp = np.eye(k)[init]
+    prev = -np.inf
+    for _ in range(max_iter):
+        wr = resp * w[:, None]
+        cnt = np.asarray(sa.T @ wr) + smoothing  # (P, k)
+        tot = np.zeros((state_of.max(initial=-1) + 1, k))
+        np.add.at(tot, state_of, cnt)
+        logpi = np.log(cnt) - np.log(tot[state_of])
+        prior = wr.sum(0) + 1e-9
+        loglik = np.asarray(sa @ logpi) + np.log(prior / prior.sum())
+        norm = logsumexp(loglik, axis=1)
+        resp = np.exp(loglik - norm[:, None])
+        total = float((w * norm).sum())
+        if total - prev <= tol * abs(total):
+            break
+        prev = total
+    return resp.argmax(1)
+
+
+def _weighted_means(x, w: np.ndarray, labels: np.ndarray, k: int) -> np.ndarray:
+    """(k, width) weighted mean row of each cluster (zeros for an empty cluster)."""
+    onehot = sparse.csr_matrix((w, (labels, np.arange(len(labels)))), shape=(k, len(labels)))
+    sums = np.asarray((onehot @ x).todense())
+    return sums / np.maximum(np.asarray(onehot.sum(axis=1)), 1e-12)
+
+
+def _sample_distances(x: sparse.csr_matrix, sample: int, seed: int,
+                      row_of: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(indices, euclidean distances) of the rows sklearn's ``silhouette_score(sample_size=sample,
+    random_state=seed)`` would draw: the same silhouette, from one Gram product over the sample's
+    *distinct* rows (``row_of[i]`` = a representative row of row i, from :func:`dedup_rows`)
+    instead of a sparse-to-dense product per call (86 % of bag_auto's time before)."""
+    n = x.shape[0]
+    idx = np.random.RandomState(seed).permutation(n)[: min(sample, n)]
+    reps = idx if row_of is None else row_of[idx]
+    uniq, back = np.unique(reps, return_inverse=True)
+    xs = x[uniq]
+    gram = np.asarray((xs @ xs.T).todense(), np.float64)
+    sq = np.diag(gram).copy()
+    du = np.sqrt(np.maximum(sq[:, None] + sq[None, :] - 2.0 * gram, 0.0))
+    np.fill_diagonal(du, 0.0)
+    return idx, du[np.ix_(back, back)]
+
+
+def _silhouette_precomputed(dist: np.ndarray, labels: np.ndarray) -> float | None:
+    """Silhouette from a distance matrix; None when the sample holds fewer than 2 clusters."""
+    used = len(np.unique(labels))
+    if not 2 <= used < len(labels):
+        return None
+    return float(silhouette_score(dist, labels, metric="precomputed"))
+
+
+def _fit_bag(dataset, states: np.ndarray, offsets: np.ndarray, cfg: ClusterConfig, seed: int,
+             metrics: dict[str, float]):
+    """bag_kmeans / bag_mop / bag_auto on distinct visitation rows; returns (labels, x, model)."""
+    from sklearn.preprocessing import normalize
+
+    from pcpg_dist.cluster_features import bag_matrix, dedup_rows, fit_vocabulary
+
+    actions = np.asarray(dataset.actions, np.int64)
+    vocab = fit_vocabulary(states, actions, int(dataset.n_actions))
+    x = normalize(bag_matrix(states, offsets, actions, vocab))
+    first, w, inv = dedup_rows(x)
+    xu = x[first]
+    metrics["distinct_trajectories"] = float(len(first))
+    k = min(cfg.k, len(first))
+    km = KMeans(n_clusters=k, n_init=cfg.kmeans_n_init, random_state=seed).fit(xu, sample_weight=w)
+    candidates = {"bag_kmeans": km.labels_}
+    if cfg.method in ("bag_mop", "bag_auto") and len(vocab.sa_keys):
+        candidates["bag_mop"] = _mixture_of_policies(xu, w, vocab, km.labels_, k)
+    if cfg.method == "bag_auto":
+        # Label-free choice: the candidate whose clusters are tightest and best apart (silhouette,
+        # cosine geometry of the bag rows, on a seeded sample of all trajectories).
+        # One distance matrix of the sample serves every candidate and the reported silhouette.
+        idx, dist = _sample_distances(x, cfg.silhouette_sample, seed, first[inv])
+        scores = {}
+        for name, lab in candidates.items():
+            s = _silhouette_precomputed(dist, lab[inv][idx])
+            if s is not None:
+                scores[name] = metrics[f"candidate_silhouette/{name}"] = s
+        chosen = max(scores, key=scores.get) if scores else "bag_kmeans"
+        if chosen in scores:
+            metrics["silhouette"] = scores[chosen]
+        metrics["auto_chose_mop"] = float(chosen == "bag_mop")
+        labels_u = candidates[chosen]
+    else:
+        labels_u = candidates[cfg.method if cfg.method in candidates else "bag_kmeans"]
+        idx, dist = _sample_distances(x, cfg.silhouette_sample, seed, first[inv])
+        s = _silhouette_precomputed(dist, labels_u[inv][idx])
+        if s is not None:
+            metrics["silhouette"] = s
+    centroids = _weighted_means(xu, w, labels_u, cfg.k)
+    d = states.shape[1]
+    model = ClusterModel(cfg.method, cfg.model_dump(), d, np.zeros(d), np.ones(d), centroids, None,
+                         tuple(dataset.feature_names), None, vocab)
+    return labels_u[inv].astype(np.int64), x, model
 
 
 def cluster(dataset, cfg: ClusterConfig, seed: int) -> Clustering:
@@ -179,8 +316,16 @@ def cluster(dataset, cfg: ClusterConfig, seed: int) -> Clustering:
             f"fewer than k={cfg.k} clusters"
         )
     metrics: dict[str, float] = {}
+    if cfg.method == "bag_auto" and _mostly_distinct_states(states):
+        # Continuous states (Mario): every state is new, a visitation bag says nothing; the
+        # sequence model is the one that can still see a style there.
+        cfg = cfg.model_copy(update={"method": "lstm_dec"})
+        metrics["auto_fell_back_to_lstm"] = 1.0
     config = cfg.model_dump()
-    if cfg.method == "visits_kmeans":
+    labels = None
+    if cfg.method in BAG_METHODS:
+        labels, latents, model = _fit_bag(dataset, states, offsets, cfg, seed, metrics)
+    elif cfg.method == "visits_kmeans":
         vocab = state_vocabulary(states)
         latents = visit_features(states, offsets, vocab)
         km = KMeans(n_clusters=cfg.k, n_init=cfg.kmeans_n_init, random_state=seed).fit(latents)
@@ -220,7 +365,13 @@ def cluster(dataset, cfg: ClusterConfig, seed: int) -> Clustering:
             tuple(dataset.feature_names),
         )
         latents = model.features(dataset)
-    labels = model.assign(latents)
+    if labels is None:
+        labels = model.assign(latents)
+    if sparse.issparse(latents) and "silhouette" not in metrics:
+        idx, dist = _sample_distances(latents, cfg.silhouette_sample, seed)
+        s = _silhouette_precomputed(dist, labels[idx])
+        if s is not None:
+            metrics["silhouette"] = s
     metrics.update(_label_free_metrics(latents, labels, cfg.k, cfg.silhouette_sample, seed))
     return Clustering(
         labels=labels,
@@ -250,7 +401,7 @@ def _label_free_metrics(
         "size_min_frac": float(sizes.min() / len(labels)),
         "size_max_frac": float(sizes.max() / len(labels)),
     }
-    if 2 <= out["n_clusters_used"] < len(labels):
+    if 2 <= out["n_clusters_used"] < len(labels) and not sparse.issparse(latents):
         out["silhouette"] = float(
             silhouette_score(
                 latents, labels, sample_size=min(sample, len(labels)), random_state=seed

@@ -36,6 +36,12 @@ from pcpg_dist.errors import DataError
 SCHEMA_VERSION = 2  # 2: `valid` is a list of booleans (was an int64 bitmask, capped at 63 actions)
 MANIFEST = "manifest.json"
 MAX_ACTIONS = 1_000_000
+MAX_STYLES = 100_000  # style ids index count tables (np.bincount): a style of 10**12 would be terabytes
+MAX_MANIFEST_BYTES = 64 << 20  # a manifest lists files and a config: kilobytes
+# mkstemp creates 0600 files; written files get what open() would give them under the user's umask.
+_UMASK = os.umask(0o022)
+os.umask(_UMASK)
+FILE_MODE = 0o666 & ~_UMASK
 
 
 @dataclass(frozen=True, eq=False)
@@ -77,6 +83,10 @@ class Dataset:
         for name in ("styles", "success", "epsilon", "skill"):
             if getattr(self, name) is not None and len(getattr(self, name)) != n:
                 raise DataError(f"{where}: {name} has {len(getattr(self, name))} entries, expected {n}")
+        if n and (self.styles.min() < -1 or self.styles.max() >= MAX_STYLES):
+            bad = int(np.argmax((self.styles < -1) | (self.styles >= MAX_STYLES)))
+            raise DataError(f"{where}: trajectory {int(self.trajectory_ids[bad])} has style {int(self.styles[bad])}; "
+                            f"styles are 0, 1, 2, ... (below {MAX_STYLES}) or -1 (unknown)")
         if len(self.offsets) != n + 1 or self.offsets[0] != 0 or self.offsets[-1] != rows:
             raise DataError(f"{where}: offsets must run from 0 to {rows} with {n + 1} entries")
         lengths = np.diff(self.offsets)
@@ -266,8 +276,14 @@ class Dataset:
         try:
             meta = json.loads(meta_raw)
             domain, env, n_actions = meta["domain"], meta["env"], int(meta["n_actions"])
-        except (ValueError, KeyError, TypeError) as e:
-            raise DataError(f"{source}: unreadable 'pcpg' schema metadata ({e})") from None
+            feature_names = tuple(str(x) for x in meta.get("feature_names") or ())
+            action_names = tuple(str(x) for x in meta.get("action_names") or ())
+        except (ValueError, KeyError, TypeError, OverflowError, RecursionError) as e:
+            raise DataError(f"{source}: unreadable 'pcpg' schema metadata ({str(e)[:200]})") from None
+        for key, value in (("domain", domain), ("env", env)):  # both become file and folder names
+            if not isinstance(value, str) or not SAFE_NAME.match(value) or ".." in value or len(value) > 200:
+                raise DataError(f"{source}: 'pcpg' metadata {key} {str(value)[:80]!r} is not a plain name "
+                                f"(letters, digits, '_', '.', '+', '-'; no '/', no '..')")
         if meta.get("schema_version") != SCHEMA_VERSION:
             raise DataError(f"{source}: dataset schema {meta.get('schema_version')} (this pcpg reads "
                             f"{SCHEMA_VERSION}); regenerate it with this version")
@@ -313,8 +329,7 @@ class Dataset:
                 styles=col("style", np.int64)[starts], success=col("success", bool)[starts],
                 epsilon=col("epsilon", np.float64)[starts],
                 skill=col("skill", np.float64)[starts] if "skill" in names else None,
-                feature_names=tuple(meta.get("feature_names") or ()),
-                action_names=tuple(meta.get("action_names") or ()),
+                feature_names=feature_names, action_names=action_names,
             )
         except DataError as e:
             raise DataError(f"{source}: {e}") from None
@@ -391,6 +406,7 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.fchmod(fd, FILE_MODE)
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
@@ -407,6 +423,7 @@ def write_parquet(dataset: Dataset, path: Path) -> str:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.fchmod(fd, FILE_MODE)
     os.close(fd)
     try:
         pq.write_table(dataset.to_table(), tmp, compression="zstd")
@@ -418,12 +435,36 @@ def write_parquet(dataset: Dataset, path: Path) -> str:
     return digest
 
 
+DECODE_COPIES = 4  # Arrow table, NumPy columns, sorted copies, the Dataset: peak while loading
+
+
+def check_parquet_memory(files: Sequence[Path], source: str) -> None:
+    """Refuse Parquet input whose decoded size, read from the file footers before any data, would
+    not fit in half this machine's memory (a 'small' file can hold a huge, well-compressed table)."""
+    from pcpg_dist.config.stages import gib, machine_memory
+
+    need, rows = 0, 0
+    for f in files:
+        try:
+            meta = pq.read_metadata(f)
+        except (pa.ArrowException, OSError) as e:
+            raise DataError(f"{f}: not a readable Parquet file ({str(e).splitlines()[0][:200]})") from None
+        raw = sum(meta.row_group(i).total_byte_size for i in range(meta.num_row_groups))
+        need += max(raw, meta.num_rows * max(meta.num_columns, 1) * 8) * DECODE_COPIES
+        rows += meta.num_rows
+    if need > machine_memory() // 2:
+        raise DataError(f"{source}: {rows} rows need about {gib(need)} of memory to load, more than half of "
+                        f"this machine's {gib(machine_memory())}; split the data into smaller files or "
+                        f"environments, or use a machine with more memory")
+
+
 def read_parquet(path: Path, expected_sha256: str | None = None) -> Dataset:
     path = Path(path)
     if not path.is_file():
-        raise DataError(f"{path}: dataset file not found")
+        raise DataError(f"{path}: dataset file " + ("is not a regular file" if path.exists() else "not found"))
     if expected_sha256 is not None and sha256_file(path) != expected_sha256:
         raise DataError(f"{path}: content hash does not match {MANIFEST} (file changed or corrupted)")
+    check_parquet_memory([path], str(path))
     try:
         table = pq.read_table(path)
     except (pa.ArrowException, OSError) as e:
@@ -451,11 +492,16 @@ def read_manifest(directory: Path) -> dict:
     path = Path(directory) / MANIFEST
     if not path.is_file():
         raise DataError(f"{path}: manifest not found (is {directory} a pcpg dataset directory?)")
+    if path.stat().st_size > MAX_MANIFEST_BYTES:
+        raise DataError(f"{path}: {path.stat().st_size} bytes; a manifest holds at most {MAX_MANIFEST_BYTES}")
     try:
-        manifest = json.loads(path.read_text())
+        manifest = json.loads(path.read_bytes().decode("utf-8"))
         manifest["files"]  # noqa: B018 - presence check
-    except (ValueError, KeyError, TypeError) as e:
-        raise DataError(f"{path}: unreadable manifest ({e})") from None
+    except (ValueError, KeyError, TypeError, IndexError, RecursionError) as e:
+        raise DataError(f"{path}: unreadable manifest ({type(e).__name__}: {str(e)[:200]})") from None
+    if not isinstance(manifest, dict) or not isinstance(manifest["files"], dict):
+        raise DataError(f"{path}: 'files' must map file names to their hashes (a JSON object), got "
+                        f"{type(manifest['files']).__name__}")
     return manifest
 
 
@@ -464,14 +510,17 @@ def load_datasets(directory: Path) -> dict[str, Dataset]:
     directory = Path(directory)
     manifest = read_manifest(directory)
     out = {}
-    if not isinstance(manifest["files"], dict):
-        raise DataError(f"{directory / MANIFEST}: 'files' must map file names to their hashes")
     for name, info in manifest["files"].items():
         if not isinstance(info, dict):
             raise DataError(f"{directory / MANIFEST}: entry {str(name)[:80]!r} must be a mapping")
-        ds = read_parquet(confined(directory, name, "manifest file"), expected_sha256=info.get("sha256"))
+        path = confined(directory, name, "manifest file")
+        if path.is_symlink() and not path.resolve().is_relative_to(directory.resolve()):
+            raise DataError(f"{path}: a link to {path.resolve()}, outside {directory}; refusing to read it")
+        ds = read_parquet(path, expected_sha256=info.get("sha256"))
         if ds.n_rows != info.get("rows"):
-            raise DataError(f"{directory / name}: {ds.n_rows} rows, manifest says {info.get('rows')}")
+            raise DataError(f"{directory / name}: {ds.n_rows} rows, manifest says {str(info.get('rows'))[:40]}")
+        if ds.env in out:
+            raise DataError(f"{directory / name}: environment {ds.env!r} appears in two files of the manifest")
         out[ds.env] = ds
     return out
 
@@ -483,5 +532,5 @@ def load_dataset(path: Path) -> Dataset:
     expected = None
     if manifest_path.is_file():
         info = read_manifest(path.parent)["files"].get(path.name)
-        expected = info.get("sha256") if info else None
+        expected = info.get("sha256") if isinstance(info, dict) else None
     return read_parquet(path, expected_sha256=expected)

@@ -23,5 +23,10 @@ class LayoutError(PcpgError):
     """A level or layout file is malformed: the message names the file and the line."""
 
 
+class TrainingError(PcpgError):
+    """Training diverged (non-finite weights or loss): the message names the cell and the
+    hyper-parameters to change; nothing trained by that run is published."""
+
+
 class ServiceError(PcpgError):
     """A tracking server, Ray cluster or study storage cannot be reached or used."""

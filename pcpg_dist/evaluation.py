@@ -115,13 +115,14 @@ def _mean_std(values: list[float]) -> tuple[float, float]:
 
 
 def style_of_clusters(dataset: Dataset, labels: np.ndarray, k: int) -> list[int]:
-    """Majority true style of every cluster (identity where the styles are unknown)."""
+    """Majority true style of every cluster (identity where the styles are unknown; -1 for a
+    cluster with no trajectory, possible when k exceeds the number of styles)."""
     if (dataset.styles < 0).any():
         return list(range(k))
     out = []
     for c in range(k):
         member = dataset.styles[labels == c]
-        out.append(int(np.bincount(member).argmax()) if len(member) else c)
+        out.append(int(np.bincount(member).argmax()) if len(member) else -1)
     return out
 
 
@@ -175,8 +176,10 @@ def evaluate(
         pc, nc, nc_own = [], [], []
         nc_test = threshold_all(test_idx, scores, ids, [p])[p]
         for seed in seeds:
-            pcpg = [(cells[("pcpg", c, p, seed, 0.0)], h_test[(c, p)]) for c in range(k)
-                    if ("pcpg", c, p, seed, 0.0) in cells]
+            # a cluster without an agent (no training trajectory) is scored with No Clustering's
+            pcpg = [(cells.get(("pcpg", c, p, seed, 0.0), cells.get(("nc", -1, p, seed, 0.0))), h_test[(c, p)])
+                    for c in range(k)]
+            pcpg = [(cell, idx) for cell, idx in pcpg if cell is not None]
             if pcpg:
                 pc.append(scorer.pooled(pcpg))
             if ("nc", -1, p, seed, 0.0) in cells:
@@ -322,6 +325,8 @@ def _rollouts(dataset, labels, k, seeds, ps, cells, trained, cfg, hooks, tables,
     dist_rows = []
     for c in range(k):
         style = styles[c]
+        if style < 0:  # an empty cluster: no agent, no style
+            continue
         best = float(hooks.optimal_return(style))
         rnd_dist = abs(float(hooks.returns(rnd, style).mean()) - best)
         metrics[f"random/reward_distance/style{style}"] = rnd_dist
@@ -346,7 +351,9 @@ def _corruption(dataset, labels, k, seeds, cells, scorer, train_idx, test_idx, s
     ps = sorted({p for kind, _, p, _, _ in cells if kind == "corrupt"})
     h_true = threshold(labels, test_idx, scores, ids, ps, k)
     acc_rows, reward_rows = [], []
-    all_returns = ([hooks.returns(dataset, r) for r in range(k)]
+    # one return per true style's reward (k clusters may be more or fewer than the styles)
+    n_rewards = int(dataset.styles.max()) + 1 if len(dataset.styles) and dataset.styles.max() >= 0 else k
+    all_returns = ([hooks.returns(dataset, r) for r in range(n_rewards)]
                    if hooks.returns is not None else None)
     for level in levels:
         acc, acc_true = [], []
@@ -365,7 +372,7 @@ def _corruption(dataset, labels, k, seeds, cells, scorer, train_idx, test_idx, s
                         members = h_train[(c, p)]
                         reward_rows.append({"c": level, "seed": seed, "k": c, "p": p, **{
                             f"R{r + 1}": float(all_returns[r][members].mean()) if len(members)
-                            else float("nan") for r in range(k)}})
+                            else float("nan") for r in range(n_rewards)}})
         put(f"corruption/accuracy/c{fmt(level)}", acc)
         put(f"corruption/accuracy_true_subsets/c{fmt(level)}", acc_true)
         acc_rows.append({"c": level, "mean": _mean_std(acc)[0], "std": _mean_std(acc)[1],
@@ -380,7 +387,7 @@ def _corruption(dataset, labels, k, seeds, cells, scorer, train_idx, test_idx, s
         baseline_mean=_mean_std(nc)[0] if nc else np.nan)
     if reward_rows:
         raw = pd.DataFrame(reward_rows)
-        cols = [f"R{r + 1}" for r in range(k)]
+        cols = [f"R{r + 1}" for r in range(n_rewards)]
         mean = raw.groupby(["c", "k"])[cols].mean()
         std = raw.groupby(["c", "k"])[cols].std(ddof=0).add_suffix("_std")
         tables["corruption_reward"] = mean.join(std).reset_index()

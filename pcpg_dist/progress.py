@@ -1,7 +1,15 @@
-"""Progress bars (rich) that degrade to nothing when output is not a terminal or is disabled."""
+"""Terminal output: results on stdout, progress and logs on stderr, library noise silenced.
+
+``out`` prints results (tables, paths, commands) on stdout with soft wrapping, so a long command
+stays one line that can be copied; ``console`` and the progress bars (rich) write to stderr and
+degrade to a final line when stderr is not a terminal. :func:`setup_output` is called once by the
+CLI with its ``-q/--quiet`` and ``--verbose`` flags.
+"""
 
 from __future__ import annotations
 
+import logging
+import os
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
@@ -9,15 +17,60 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 console = Console(stderr=True)
+out = Console(soft_wrap=True)
+
+# Ray logs this at every private start although the default it announces is the secure one.
+_RAY_TOKEN_NOTICE = "Token authentication is enabled for this Ray cluster"
+_RAY_AUTH_LOGGER = "ray._private.authentication.authentication_token_setup"
+
+
+class _DropMessage(logging.Filter):
+    def __init__(self, start: str) -> None:
+        super().__init__()
+        self.start = start
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not str(record.msg).startswith(self.start)
+
+
+def setup_output(quiet: bool = False, verbose: bool = False, private_ray: bool = True) -> None:
+    """Log levels for pcpg and its libraries, before any of them is imported.
+
+    Default: pcpg's warnings (one line each, ``pcpg: ...``) and errors; library INFO chatter
+    (MLflow's schema migration, alembic) hidden. ``quiet``: errors only. ``verbose``: INFO from
+    pcpg and MLflow. A private Ray keeps token authentication, named explicitly so Ray does not
+    announce its default; a joined cluster keeps whatever it uses.
+    """
+    level = logging.ERROR if quiet else logging.INFO if verbose else logging.WARNING
+    handler = logging.StreamHandler()  # stderr
+    handler.setFormatter(logging.Formatter("pcpg: %(message)s"))
+    pcpg = logging.getLogger("pcpg_dist")
+    pcpg.handlers[:] = [handler]
+    pcpg.setLevel(level)
+    pcpg.propagate = False
+    library = logging.getLevelName(max(level, logging.WARNING) if not verbose else logging.INFO)
+    os.environ.setdefault("MLFLOW_LOGGING_LEVEL", library)  # read when mlflow configures its loggers
+    for name in ("mlflow", "alembic"):
+        logging.getLogger(name).setLevel(os.environ["MLFLOW_LOGGING_LEVEL"] if name == "mlflow" else library)
+    if private_ray:
+        os.environ.setdefault("RAY_AUTH_MODE", "token")
+    auth = logging.getLogger(_RAY_AUTH_LOGGER)
+    if not any(isinstance(f, _DropMessage) for f in auth.filters):
+        auth.addFilter(_DropMessage(_RAY_TOKEN_NOTICE))
 
 
 @contextmanager
-def progress_bar(description: str, total: int, enabled: bool = True) -> Iterator[Callable[[], None]]:
-    """Yield an ``advance()`` callable; shows a bar on a terminal, a final line otherwise."""
+def progress_bar(description: str, total: int, enabled: bool = True) -> Iterator[Callable[..., None]]:
+    """Yield ``advance(n=1, description=None)`` (a new description says e.g. what tasks wait for);
+    shows a bar on a terminal, a final line otherwise."""
     if not enabled:
-        yield lambda: None
+        yield lambda n=1, description=None: None
         return
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                   TimeElapsedColumn(), console=console, transient=False) as progress:
         task = progress.add_task(description, total=total)
-        yield lambda: progress.advance(task)
+
+        def advance(n: float = 1, description: str | None = None) -> None:
+            progress.update(task, advance=n, **({"description": description} if description else {}))
+
+        yield advance

@@ -44,11 +44,31 @@ def versions() -> dict[str, str]:
     return out
 
 
-def machine() -> dict[str, str]:
+def _cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
+def _memory() -> str:
     import os
 
-    return {"platform": platform.platform(), "processor": platform.machine(),
-            "cpus": str(os.cpu_count()), "node": platform.node()}
+    try:
+        return f"{os.sysconf('SC_PAGE_SIZE') * os.sysconf('SC_PHYS_PAGES') / 2**30:.1f} GiB"
+    except (ValueError, OSError, AttributeError):
+        return "unknown"
+
+
+def machine() -> dict[str, str]:
+    """The machine a run ran on, as the report's table shows it (strings, readable units)."""
+    import os
+
+    return {"platform": platform.platform(), "architecture": platform.machine(), "cpu": _cpu_model(),
+            "cpus": str(os.cpu_count()), "memory": _memory(), "node": platform.node()}
 
 
 def provenance() -> dict:

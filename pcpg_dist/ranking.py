@@ -294,9 +294,12 @@ def plan_cells(
 
     cells = []
     subsets = threshold(labels, train_idx, scores, ids, cfg.ps, k)
+    # A cluster with no training trajectory (k above the number of styles, a tiny split) gets no
+    # agent; the evaluation scores its test trajectories with No Clustering's agent of that p.
     for seed in seeds:
         for (c, p), idx in subsets.items():
-            cells.append(make(CellSpec(f"{prefix}k{c}-p{fmt(p)}-s{seed}", "pcpg", c, p, seed), idx))
+            if idx.size:
+                cells.append(make(CellSpec(f"{prefix}k{c}-p{fmt(p)}-s{seed}", "pcpg", c, p, seed), idx))
         if baseline:
             for p, idx in threshold_all(train_idx, scores, ids, cfg.ps).items():
                 cells.append(make(CellSpec(f"{prefix}nc-p{fmt(p)}-s{seed}", "nc", -1, p, seed), idx))
@@ -305,5 +308,6 @@ def plan_cells(
                                  cfg.corruption_mode)
             for (c, p), idx in threshold(bad, train_idx, scores, ids, corruption_ps, k).items():
                 key = f"{prefix}corrupt{fmt(level)}-k{c}-p{fmt(p)}-s{seed}"
-                cells.append(make(CellSpec(key, "corrupt", c, p, seed, float(level)), idx))
+                if idx.size:
+                    cells.append(make(CellSpec(key, "corrupt", c, p, seed, float(level)), idx))
     return cells

@@ -1,79 +1,201 @@
-"""Starting or joining Ray, and running a batch of remote tasks with a progress bar.
+"""Starting or joining Ray, checking what a cluster can run, and running remote tasks.
 
-Embedded default: Ray in-process on this machine's CPUs. With ``--ray-address`` or
-``RAY_ADDRESS`` the same code joins an existing cluster (``ray start --head``).
+Embedded default: a private Ray on this machine's CPUs that listens on 127.0.0.1 only, even when
+another cluster (``ray start``) runs on the machine. With ``--ray-address`` or ``RAY_ADDRESS`` the
+same code joins that cluster and ships the project's own code to its workers (``py_modules``), so
+nodes need only the locked dependencies and no shared disk: tasks take their inputs as arguments
+and return their results as values; only the driver writes files.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
-from collections.abc import Callable, Sequence
+import time
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
 from typing import Any
 
-from pcpg_dist.errors import PcpgError, ServiceError
+from pcpg_dist.errors import ConfigError, PcpgError, ServiceError
 from pcpg_dist.parallel import available_cpus
+
+# Ray's `uv run` hook would start every worker through `uv run` in the driver's project folder: it
+# breaks outside that folder and costs ~20 s locally. The package ships itself instead (below).
+os.environ.setdefault("RAY_ENABLE_UV_RUN_RUNTIME_ENV", "0")
+# A raylet waits this long for its node's agents; Ray's default fails nodes on a busy laptop.
+os.environ.setdefault("RAY_raylet_start_wait_time_s", "120")
+
+THREAD_ENV = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "TOKENIZERS_PARALLELISM": "false"}
+
+
+def _disable_uv_hook() -> None:
+    """The flag is read from ray_constants at init time; set it there too if ray was imported."""
+    from ray._private import ray_constants
+
+    ray_constants.RAY_ENABLE_UV_RUN_RUNTIME_ENV = os.environ["RAY_ENABLE_UV_RUN_RUNTIME_ENV"] not in (
+        "0", "false", "False")
+
+
+@contextlib.contextmanager
+def _loopback_only() -> Iterator[None]:
+    """Keep ``_node_ip_address="127.0.0.1"`` as given: Ray 2.60's ``ray.init`` swaps a loopback
+    address for the machine's network address, and its servers then listen on every interface.
+    With the node address left on loopback, GCS, raylet and workers listen on 127.0.0.1 only
+    (tests/test_cluster.py checks the sockets)."""
+    from ray._private import services
+
+    original = getattr(services, "resolve_ip_for_localhost", None)
+    if original is not None:
+        services.resolve_ip_for_localhost = lambda host: host
+    try:
+        yield
+    finally:
+        if original is not None:
+            services.resolve_ip_for_localhost = original
+
+
+def package_runtime_env() -> dict[str, Any]:
+    """What a cluster's workers need from the driver: this package's code (not its caches)."""
+    import pcpg_dist
+
+    return {"py_modules": [str(Path(pcpg_dist.__file__).parent)], "env_vars": dict(THREAD_ENV),
+            "excludes": ["__pycache__", "*.pyc"]}
 
 
 def init_ray(address: str | None = None, num_cpus: int | None = None) -> None:
-    """Join ``address`` (or ``RAY_ADDRESS``) if given, else start Ray in-process; idempotent."""
+    """Join ``address`` (or ``RAY_ADDRESS``) if given, else start a private local Ray; idempotent."""
     import ray
 
     if ray.is_initialized():
         return
     address = address or os.environ.get("RAY_ADDRESS") or None
-    runtime_env = {"env_vars": {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
-                                "TOKENIZERS_PARALLELISM": "false"}}
-    if not address:
-        # Ray's `uv run` hook would start every local worker through `uv run` and ship the working
-        # directory (~20 s here); in-process workers already share this interpreter. The flag is
-        # read from ray_constants at init time, so set it there too if ray was imported already.
-        os.environ.setdefault("RAY_ENABLE_UV_RUN_RUNTIME_ENV", "0")
-        from ray._private import ray_constants
-
-        ray_constants.RAY_ENABLE_UV_RUN_RUNTIME_ENV = os.environ["RAY_ENABLE_UV_RUN_RUNTIME_ENV"] not in ("0", "false", "False")
+    _disable_uv_hook()
     try:
         if address:
-            ray.init(address=address, log_to_driver=False, runtime_env=runtime_env)
-        else:
-            ray.init(num_cpus=num_cpus or available_cpus(), include_dashboard=False,
-                     object_store_memory=300_000_000, log_to_driver=False, runtime_env=runtime_env,
+            ray.init(address=address, log_to_driver=False, runtime_env=package_runtime_env(),
                      logging_level=logging.WARNING)
+        else:
+            # address="local": never join a `ray start` cluster by accident (it would refuse
+            # num_cpus); 127.0.0.1: a private instance is not reachable from the network.
+            os.environ.pop("RAY_ADDRESS", None)
+            for attempt in range(3):
+                try:
+                    with _loopback_only():
+                        ray.init(address="local", num_cpus=num_cpus or available_cpus(), include_dashboard=False,
+                                 object_store_memory=300_000_000, log_to_driver=False,
+                                 runtime_env={"env_vars": dict(THREAD_ENV)}, logging_level=logging.WARNING,
+                                 _node_ip_address="127.0.0.1")
+                    break
+                except Exception as e:  # noqa: BLE001 - Ray raises a bare Exception for this
+                    # Ray gives a new node a fixed 30 s to register; a busy laptop can miss it.
+                    if "timed out during startup" not in str(e) or attempt == 2:
+                        raise
+                    ray.shutdown()
     except (ConnectionError, RuntimeError, ValueError) as e:
-        raise ServiceError(f"cannot start or join Ray at {address or 'local'}: {e}") from None
+        raise ServiceError(f"cannot start or join Ray at {address or 'local'}: {str(e)[:300]}") from None
+    except Exception as e:
+        if "timed out during startup" in str(e):
+            raise ServiceError("Ray did not start within its 30 s limit three times (is the machine "
+                               "overloaded?); retry when it is less busy") from None
+        raise
 
 
+# --------------------------------------------------------------------------- what the cluster has
+def node_capacities() -> list[dict[str, float]]:
+    """CPUs and task memory (bytes) of every live node."""
+    import ray
+
+    return [{"CPU": float(n["Resources"].get("CPU", 0)), "memory": float(n["Resources"].get("memory", 0))}
+            for n in ray.nodes() if n.get("Alive")]
+
+
+def check_resources(num_cpus: int, memory_bytes: float = 0.0, key: str = "runner.cpus_per_task") -> None:
+    """Fail in one line before anything starts when no node can ever run a task of this size."""
+    nodes = node_capacities()
+    most_cpus = max((n["CPU"] for n in nodes), default=0.0)
+    if num_cpus > most_cpus:
+        raise ConfigError(f"{key}: {num_cpus} CPUs per task, but the largest Ray node has "
+                          f"{most_cpus:g}; set {key} to at most {int(most_cpus) or 1}"
+                          + ("" if most_cpus else " and start a node with CPUs"))
+    most_mem = max((n["memory"] for n in nodes), default=0.0)
+    if memory_bytes and most_mem and memory_bytes > most_mem:
+        raise ConfigError(f"one task needs about {memory_bytes / 2**30:.1f} GiB (estimated from the "
+                          f"config), but the largest Ray node offers {most_mem / 2**30:.1f} GiB; use "
+                          f"less data per environment or a node with more memory")
+
+
+def _waiting_for(num_cpus: int, in_flight: int) -> str:
+    """What queued tasks wait for, when more are submitted than the cluster can run now."""
+    import ray
+
+    try:
+        free = ray.available_resources().get("CPU", 0.0)
+        total = ray.cluster_resources().get("CPU", 0.0)
+    except Exception:  # noqa: BLE001 - a status line must never break the run
+        return ""
+    queued = in_flight - int(total // max(num_cpus, 1))
+    if free >= num_cpus or queued <= 0:
+        return ""
+    return f"{queued} queued, each waiting for {num_cpus} CPU; {free:g} of {total:g} free"
+
+
+# --------------------------------------------------------------------------- running tasks
 def run_tasks(fn: Callable[..., Any], calls: Sequence[tuple], description: str,
               num_cpus: int = 1, max_retries: int = 3, on_result: Callable[[int, Any], None] | None = None,
-              show_progress: bool = True) -> list[Any]:
+              show_progress: bool = True, max_in_flight: int | None = None) -> list[Any]:
     """Run ``fn(*args)`` for every ``args`` in ``calls`` as Ray tasks; results in call order.
 
     ``max_retries`` re-runs a task whose worker process died (results are deterministic in the
     arguments, so a retry gives the same numbers). ``on_result(i, result)`` fires as each finishes,
-    so callers can persist finished work before the rest is done.
+    so callers can persist finished work before the rest is done; with ``on_result`` the result is
+    not kept (``None`` in its place), so the driver never holds every result at once.
+    ``max_in_flight`` bounds how many tasks are submitted at a time (a memory limit).
     """
     import ray
 
     from pcpg_dist.progress import progress_bar
 
+    if not calls:
+        return []
+    check_resources(num_cpus)
     remote = ray.remote(num_cpus=num_cpus, max_retries=max_retries)(fn)
-    refs = [remote.remote(*args) for args in calls]
-    index = {ref: i for i, ref in enumerate(refs)}
-    results: list[Any] = [None] * len(refs)
-    pending = list(refs)
-    with progress_bar(description, total=len(refs), enabled=show_progress) as advance:
-        while pending:
-            done, pending = ray.wait(pending, num_returns=1)
+    limit = max(1, max_in_flight or len(calls))
+    results: list[Any] = [None] * len(calls)
+    index: dict[Any, int] = {}
+    submitted = 0
+
+    def submit() -> None:
+        nonlocal submitted
+        while submitted < len(calls) and len(index) < limit:
+            index[remote.remote(*calls[submitted])] = submitted
+            submitted += 1
+
+    with progress_bar(description, total=len(calls), enabled=show_progress) as advance:
+        submit()
+        idle_since = time.monotonic()
+        while index:
+            done, _ = ray.wait(list(index), num_returns=1, timeout=2.0)
+            if not done:
+                if time.monotonic() - idle_since > 5 and show_progress:
+                    waiting = _waiting_for(num_cpus, len(index))
+                    advance(0, description=f"{description} ({waiting})" if waiting else description)
+                continue
+            idle_since = time.monotonic()
             for ref in done:
-                i = index[ref]
+                i = index.pop(ref)
                 try:
-                    results[i] = ray.get(ref)
+                    value = ray.get(ref)
                 except ray.exceptions.RayTaskError as e:
                     # A user mistake inside a task surfaces as the project's own one-line error.
                     if isinstance(e.cause, PcpgError):
                         raise e.cause from None
                     raise
                 if on_result is not None:
-                    on_result(i, results[i])
-                advance()
+                    on_result(i, value)
+                else:
+                    results[i] = value
+                del value
+                advance(1, description=description)
+            submit()
     return results

@@ -1,174 +1,279 @@
-"""`pcpg report`: a self-contained HTML page (and Markdown beside it) for one sweep.
+"""`pcpg report`: one self-contained HTML page (and a Markdown twin) for one sweep.
 
-It reads a run's ``summary`` folder (locally, or downloaded from MLflow by run id or experiment
-name) and shows: the config, seeds, git commit, uv.lock hash, package versions, machine, wall
-time per stage, every table and figure, the project's numbers beside the paper's, and the exact
-command to rerun.
+The page is rendered from data, never from text that data could turn into markup: the tables
+(CSV) and figures (PNG) found *inside* the run's ``summary`` folder, ``metrics.json`` and
+``run.json``, passed to Jinja templates (``pcpg_dist/templates``) with autoescaping. No path is
+ever taken from a file's content: a figure is a regular PNG file below the summary folder (no
+symlink, no ``..``), so a crafted ``run.json`` cannot pull another file into the report.
+
+What the page shows, in reading order: a banner when the config is not the paper's protocol, the
+headline (PCPG vs No Clustering, clustering accuracy and its gap to the supervised ceiling), the
+paper's numbers beside ours for every table and figure the paper has, then each figure next to
+its table, which stages were served from the cache, the command that reproduces the run, and the
+config and environment folded away. :func:`build` makes the page model (plain dataclasses, every
+value already formatted); the templates only lay it out.
 """
 
 from __future__ import annotations
 
-import base64
-import html
 import json
+import shlex
+from dataclasses import dataclass
 from pathlib import Path
 
-import pandas as pd
-
 from pcpg_dist.dataset import atomic_write_bytes
-from pcpg_dist.errors import DataError
+from pcpg_dist.paper_comparison import (  # noqa: F401 - paper_numbers/PROTOCOL re-exported
+    PAPER_DOMAINS,
+    PROTOCOL,
+    headline,
+    paper_numbers,
+    paper_rows,
+    plain,
+    protocol_differences,
+)
+from pcpg_dist.report_data import (
+    PaperRow,
+    Section,
+    accuracy_pivot,
+    figure_of,
+    files_in,
+    fmt,
+    inside,
+    read_csv,
+    read_json,
+    table_of,
+)
 
-KEY_METRICS = ("clustering/accuracy", "clustering/ari", "cross/diagonal_mean",
-               "reward_distance/style0", "reward_distance/style1", "reward_distance/style2",
-               "reward_distance/style3", "random/reward_distance/style0", "random/reward_distance/style1",
-               "random/reward_distance/style2", "random/reward_distance/style3")
-
-
-def paper_numbers(domain: str | None) -> dict[str, str]:
-    """The paper's figures for a domain (none for a domain that is not installed here)."""
-    from pcpg_dist.domains import registry
-    from pcpg_dist.errors import PcpgError
-
-    try:
-        return dict(registry.get(str(domain)).paper_numbers)
-    except PcpgError:
-        return {}
-
-
-def _read_json(path: Path) -> dict:
-    try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError) as e:
-        raise DataError(f"{path}: unreadable ({e})") from None
-
-
-def _tables(folder: Path) -> list[tuple[str, pd.DataFrame]]:
-    out = []
-    for csv in sorted(folder.glob("*.csv")):
-        try:
-            out.append((csv.stem, pd.read_csv(csv)))
-        except pd.errors.EmptyDataError:
-            continue  # an empty table (e.g. no rollouts for this setting) has nothing to show
-        except (OSError, ValueError, pd.errors.ParserError) as e:
-            raise DataError(f"{csv}: unreadable table ({e})") from None
-    return out
-
-
-def _fmt(v) -> str:
-    if isinstance(v, float):
-        return f"{v:.4g}"
-    return str(v)
+# ----------------------------------------------------------------------------- sections
+#: per-environment sections: (key, title, paper reference, figure, tables)
+ENV_SECTIONS = (
+    ("accuracy", "Accuracy vs p", "Fig. 4", "accuracy_vs_p.png", ("accuracy",)),
+    ("cross", "Accuracy of π_k on H_k' (mean over p)", "Table 4", "cross_accuracy.png", ("cross_accuracy",)),
+    ("correlation", "Model vs subset correlation", "Fig. 7", "correlation.png", ("correlation",)),
+    ("reward", "Reward distance to the optimum", "Table 3", None, ("reward_distance",)),
+    ("rollout_length", "Rollout length vs p", "Figs. 5 and 6", "rollout_length.png", ("rollout_length",)),
+    ("subset_length", "Kept-trajectory length vs p (from the data)", "Figs. 5 and 6", "subset_length.png",
+     ("subset_length",)),
+    ("rollouts", "One rollout per style", "Fig. 8", "rollouts.png", ()),
+    ("corruption", "Accuracy vs label corruption", "Fig. 9", "corruption.png", ("corruption_accuracy",)),
+    ("corruption_reward", "Subset rewards under label corruption", "Table 5", None, ("corruption_reward",)),
+)
 
 
-def _md_table(df: pd.DataFrame, max_rows: int = 60) -> str:
-    df = df.head(max_rows)
-    head = "| " + " | ".join(map(str, df.columns)) + " |"
-    sep = "|" + "---|" * len(df.columns)
-    rows = ["| " + " | ".join(_fmt(v) for v in r) + " |" for r in df.itertuples(index=False)]
-    return "\n".join([head, sep, *rows])
+def _env_sections(summary: Path, env: str, rows_by_ref: dict[str, PaperRow]) -> tuple[list[Section], list[Section]]:
+    folder = summary / env
+    csvs = {p.stem: p for p in files_in(folder, summary, ".csv")}
+    pngs = {p.name: p for p in files_in(folder, summary, ".png")}
+    used_csv, used_png, sections = set(), set(), []
+    for key, title, ref, png, tables in ENV_SECTIONS:
+        sec = Section(f"{env}-{key}", title, ref)
+        if png and png in pngs:
+            sec.figure = figure_of(pngs[png], summary, f"{env}: {title}")
+            used_png.add(png)
+        for name in tables:
+            if name not in csvs:
+                continue
+            used_csv.update({name, f"{name}_std"})
+            df = read_csv(csvs[name])
+            if df is None or not len(df):
+                continue
+            if name == "accuracy" and {"method", "p", "mean"} <= set(df.columns):
+                df = accuracy_pivot(df)
+            std = read_csv(csvs[f"{name}_std"]) if f"{name}_std" in csvs else None
+            sec.tables.append(table_of(df, name, f"{env}/{name}.csv", std))
+        if sec.figure is None and not sec.tables:
+            continue
+        paper = rows_by_ref.get(ref)
+        if paper is not None:
+            sec.paper_says, sec.ours = paper.paper, paper.ours
+        sections.append(sec)
+    more = []  # what the domain adds beyond the paper's items, and the raw per-seed tables
+    for name, path in pngs.items():
+        if name not in used_png:
+            more.append(Section(f"{env}-{path.stem}-figure", path.stem.replace("_", " "),
+                                figure=figure_of(path, summary, f"{env}: {path.stem}")))
+    for name, path in csvs.items():
+        if name not in used_csv:
+            df = read_csv(path)
+            if df is not None and len(df):
+                more.append(Section(f"{env}-{name}", name.replace("_", " "),
+                                    tables=[table_of(df, name, f"{env}/{name}.csv")]))
+    return sections, more
 
 
-def render(summary: Path, out_dir: Path) -> tuple[Path, Path]:
-    """Write ``report.html`` and ``report.md`` (+ figures) into ``out_dir`` from a summary folder."""
+def _ref_key(item: str) -> str:
+    return item.split(":")[0].strip()
+
+
+def _stage_rows(run: dict, n_envs: int) -> tuple[list[list[str]], list[str]]:
+    """(stage, seconds, work done, source) rows and the stages served wholly from the cache."""
+    computed = run.get("computed") if isinstance(run.get("computed"), dict) else {}
+    seconds = run.get("stage_seconds") if isinstance(run.get("stage_seconds"), dict) else {}
+    work = {"generate": ("data", "data sets generated"),
+            "cluster": ("clustering", f"of {n_envs} clusterings computed"),
+            "train": ("train_groups", "groups of cells trained"),
+            "evaluate": ("evaluations", f"of {n_envs} evaluations computed")}
+    listed = run.get("cached_stages")
+    if isinstance(listed, list):  # the runner's own record (it keeps a cached stage's first timing)
+        cached = [str(s) for s in listed]
+    else:
+        cached = [s for s, (key, _) in work.items() if key in computed and not int(computed[key])]
+    rows = []
+    for stage, secs in seconds.items():
+        key, what = work.get(stage, ("", ""))
+        done = f"{int(computed[key])} {what}" if key in computed else "—"
+        if stage in cached:
+            source = "cache (seconds of the run that computed it)" if isinstance(listed, list) else "cache"
+        else:
+            source = "computed"
+        rows.append([stage, fmt(float(secs), 2) if isinstance(secs, int | float) else str(secs), done, source])
+    return rows, cached
+
+
+@dataclass
+class Report:
+    """Everything the templates show, already formatted."""
+
+    title: str
+    name: str
+    domain: str
+    run: dict
+    cfg: dict
+    in_paper: bool
+    differences: list[tuple[str, str, str]]
+    headline: dict
+    paper: list[PaperRow]
+    summary_sections: list[Section]
+    envs: list[tuple[str, list[Section], list[Section]]]
+    stages: list[list[str]]
+    cached: list[str]
+    reproduce: str
+    provenance: list[tuple[str, str]]
+    versions: list[tuple[str, str]]
+    machine: list[tuple[str, str]]
+    config_json: str
+
+
+def build(summary: Path, reproduce_target: str | None = None) -> Report:
+    """The page model of a summary folder (reads only files inside it)."""
+    summary = Path(summary)
+    run = read_json(summary / "run.json")
+    metrics = read_json(summary / "metrics.json")
+    cfg = run.get("config") if isinstance(run.get("config"), dict) else {}
+    name, domain = str(cfg.get("name", summary.parent.name)), str(cfg.get("domain", "gridworld"))
+    envs = [d.name for d in sorted(summary.iterdir()) if d.is_dir() and not d.is_symlink()]
+    paper = paper_rows(domain, metrics, summary, envs)
+    by_ref = {_ref_key(r.item): r for r in paper}
+    by_ref["Table 3"] = PaperRow("Table 3", "", *(f"{a}; random {b}" for a, b in zip(
+        (paper[2].paper, paper[2].ours), (paper[3].paper, paper[3].ours), strict=True)))
+    top: list[Section] = []
+    fig4 = Section("fig4", "Accuracy vs p across environments", "Fig. 4", by_ref["Fig. 4"].paper,
+                   by_ref["Fig. 4"].ours, figure_of(summary / "accuracy_vs_p.png", summary, "accuracy vs p"))
+    clus = Section("clustering", "Clustering (Step A)", "", by_ref["Clustering accuracy"].paper,
+                   by_ref["Clustering accuracy"].ours)
+    for sec, stem in ((fig4, "accuracy_vs_p"), (clus, "clustering")):
+        path = summary / f"{stem}.csv"
+        if inside(path, summary) and (df := read_csv(path)) is not None and len(df):
+            sec.tables.append(table_of(df, stem, f"{stem}.csv"))
+        top.append(sec)
+    env_parts = [(env, *_env_sections(summary, env, by_ref)) for env in envs]
+    anchors = {sec.anchor for sec in top} | {sec.anchor for _, secs, more in env_parts for sec in secs + more}
+    for row in paper:
+        if row.anchor not in anchors:
+            row.anchor = ""  # nothing to link to (e.g. no rollouts in this domain)
+    stages, cached = _stage_rows(run, len(envs))
+    prov = run.get("provenance") if isinstance(run.get("provenance"), dict) else {}
+    target = reproduce_target or str(summary.resolve().parent)
+    facts = [("command", str(run.get("command", "—"))), ("git commit", str(prov.get("git_commit", "—"))),
+             ("uv.lock sha256", str(prov.get("uv_lock", "—"))), ("config hash", str(run.get("config_hash", "—"))),
+             ("base seed", str(cfg.get("seed", "—"))), ("repetition seeds", plain(cfg.get("seeds"))),
+             ("MLflow parent run", str(run.get("parent_run_id") or "not tracked"))]
+
+    def pairs(d) -> list[tuple[str, str]]:
+        return [(str(k), str(v)) for k, v in d.items()] if isinstance(d, dict) else [("value", str(d))]
+
+    return Report(
+        title=f"pcpg-dist report: {name}", name=name, domain=domain, run=run, cfg=cfg,
+        in_paper=domain in PAPER_DOMAINS, differences=protocol_differences(cfg), headline=headline(metrics),
+        paper=paper, summary_sections=top, envs=env_parts, stages=stages, cached=cached,
+        reproduce=f"pcpg reproduce {shlex.quote(target)}", provenance=facts,
+        versions=pairs(prov.get("versions", {})), machine=pairs(prov.get("machine", {})),
+        config_json=json.dumps(cfg, indent=1))
+
+
+# ----------------------------------------------------------------------------- rendering
+def _md_escape(value) -> str:
+    """Text for a Markdown table cell or line: markup characters escaped, no line breaks."""
+    text = str(value).replace("\r", " ").replace("\n", " ")
+    for ch in "\\`*_[]<>|#!":
+        text = text.replace(ch, "\\" + ch)
+    return text
+
+
+def _environment():
+    from jinja2 import Environment, PackageLoader, StrictUndefined, select_autoescape
+
+    env = Environment(loader=PackageLoader("pcpg_dist", "templates"), undefined=StrictUndefined,
+                      autoescape=select_autoescape(["html.j2"]), trim_blocks=True, lstrip_blocks=True)
+    env.filters["md"] = _md_escape
+    return env
+
+
+def render(summary: Path, out_dir: Path, reproduce_target: str | None = None) -> tuple[Path, Path]:
+    """Write ``report.html`` (self-contained) and ``report.md`` (+ ``figures/``) into ``out_dir``."""
     summary, out_dir = Path(summary), Path(out_dir)
-    run = _read_json(summary / "run.json")
-    metrics = _read_json(summary / "metrics.json")
-    cfg = run["config"]
-    envs = [d for d in sorted(summary.iterdir()) if d.is_dir()]
+    report = build(summary, reproduce_target)
+    env = _environment()
     out_dir.mkdir(parents=True, exist_ok=True)
-    md = [f"# pcpg-dist report: {cfg['name']}", "",
-          f"Rerun: `{run['command']}`", "",
-          "## Provenance", "",
-          f"- git commit: `{run['provenance']['git_commit']}`",
-          f"- uv.lock sha256: `{run['provenance']['uv_lock']}`",
-          f"- config hash: `{run['config_hash']}`; base seed {cfg['seed']}; repetition seeds {cfg['seeds']}",
-          f"- machine: {run['provenance']['machine']}",
-          "- versions: " + ", ".join(f"{k} {v}" for k, v in run['provenance']['versions'].items()),
-          f"- MLflow parent run: `{run.get('parent_run_id')}`", "",
-          "## Wall time per stage", "",
-          _md_table(pd.DataFrame([{"stage": k, "seconds": round(v, 2)} for k, v in run["stage_seconds"].items()])),
-          "", "## Results beside the paper", ""]
-    paper = paper_numbers(cfg.get("domain"))
-    ours = {
-        "clustering accuracy": metrics.get("clustering/accuracy"),
-        "cross-accuracy diagonal (Table 4)": metrics.get("cross/diagonal_mean"),
-        "reward distance, PCPG (Table 3)": " / ".join(
-            f"{metrics[f'reward_distance/style{s}']:.2f}" for s in range(4) if f"reward_distance/style{s}" in metrics),
-        "reward distance, random (Table 3)": " / ".join(
-            f"{metrics[f'random/reward_distance/style{s}']:.2f}" for s in range(4)
-            if f"random/reward_distance/style{s}" in metrics),
-    }
-    rows = [{"measure": k, "paper": paper.get(k, "—"), "pcpg-dist": _fmt(v) if v not in (None, "") else "—"}
-            for k, v in ours.items()]
-    md += [_md_table(pd.DataFrame(rows)), ""]
-    figures: list[tuple[str, Path]] = [("Accuracy vs p (Fig. 4)", summary / "accuracy_vs_p.png")]
-    md += ["## Summary tables", ""]
-    for name, df in _tables(summary):
-        md += [f"### {name}", "", _md_table(df), ""]
-    for env in envs:
-        md += [f"## Environment {env.name}", ""]
-        for name, df in _tables(env):
-            md += [f"### {env.name}: {name}", "", _md_table(df), ""]
-        figures += [(f"{env.name}: {p.stem}", p) for p in sorted(env.glob("*.png"))]
-    md += ["## Figures", ""]
+    html_path = out_dir / "report.html"
+    atomic_write_bytes(html_path, env.get_template("report.html.j2").render(r=report).encode())
     fig_dir = out_dir / "figures"
     fig_dir.mkdir(exist_ok=True)
-    for title, path in figures:
-        if path.is_file():
-            target = fig_dir / f"{path.parent.name}_{path.name}" if path.parent != summary else fig_dir / path.name
-            target.write_bytes(path.read_bytes())
-            md += [f"### {title}", "", f"![{title}](figures/{target.name})", ""]
-    md += ["## Config", "", "```json", json.dumps(cfg, indent=1), "```", ""]
-    md_text = "\n".join(md)
+    for sections in [report.summary_sections] + [s + m for _, s, m in report.envs]:
+        for sec in sections:
+            if sec.figure is not None:  # only files the page model took from inside the summary
+                (fig_dir / sec.figure.file.replace("/", "_")).write_bytes((summary / sec.figure.file).read_bytes())
     md_path = out_dir / "report.md"
-    atomic_write_bytes(md_path, md_text.encode())
-    html_path = out_dir / "report.html"
-    atomic_write_bytes(html_path, _to_html(md_text, out_dir).encode())
+    atomic_write_bytes(md_path, env.get_template("report.md.j2").render(r=report).encode())
     return html_path, md_path
 
 
-def _to_html(md_text: str, base: Path) -> str:
-    """A small Markdown-to-HTML pass for what :func:`render` writes; images are inlined (base64)."""
-    out, in_code, table = [], False, []
+def chromium() -> str | None:
+    """The Chromium executable (the distribution's package), or None."""
+    import shutil
 
-    def flush_table() -> None:
-        if table:
-            rows = [r.strip("|").split("|") for r in table if not set(r) <= set("|-")]
-            head, *body = rows
-            out.append("<table><tr>" + "".join(f"<th>{html.escape(c.strip())}</th>" for c in head) + "</tr>"
-                       + "".join("<tr>" + "".join(f"<td>{html.escape(c.strip())}</td>" for c in r) + "</tr>"
-                                 for r in body) + "</table>")
-            table.clear()
+    for name in ("chromium", "chromium-browser", "google-chrome"):
+        found = shutil.which(name)
+        if found:
+            return found
+    return None
 
-    for line in md_text.splitlines():
-        if line.startswith("```"):
-            flush_table()
-            out.append("</pre>" if in_code else "<pre>")
-            in_code = not in_code
-            continue
-        if in_code:
-            out.append(html.escape(line))
-            continue
-        if line.startswith("|"):
-            table.append(line)
-            continue
-        flush_table()
-        if line.startswith("#"):
-            level = len(line) - len(line.lstrip("#"))
-            out.append(f"<h{level}>{html.escape(line[level:].strip())}</h{level}>")
-        elif line.startswith("!["):
-            alt, src = line[2:].split("](", 1)
-            data = base64.b64encode((base / src.rstrip(")")).read_bytes()).decode()
-            out.append(f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{data}" style="max-width:100%">')
-        elif line.startswith("- "):
-            out.append(f"<li>{html.escape(line[2:])}</li>")
-        elif line.strip():
-            out.append(f"<p>{html.escape(line)}</p>")
-    flush_table()
-    style = ("body{font-family:sans-serif;max-width:1100px;margin:auto;padding:1em}"
-             "table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #ccc;padding:2px 6px;"
-             "font-size:12px}pre{background:#f6f6f6;padding:0.5em;font-size:11px}")
-    return f"<!doctype html><html><head><meta charset='utf-8'><title>pcpg-dist report</title><style>{style}</style></head><body>" + "\n".join(out) + "</body></html>"
+
+def export_pdf(html_path: Path, pdf_path: Path | None = None, timeout: float = 120.0) -> Path:
+    """Print the report to PDF with a headless Chromium; folded sections stay folded."""
+    import os
+    import subprocess
+
+    from pcpg_dist.errors import ServiceError
+
+    html_path = Path(html_path).resolve()
+    pdf_path = Path(pdf_path or html_path.with_suffix(".pdf")).resolve()
+    exe = chromium()
+    if exe is None:
+        raise ServiceError("--pdf needs Chromium (apt-get install -y chromium); or open report.html in a "
+                           "browser and print it")
+    cmd = [exe, "--headless", "--disable-gpu", "--no-pdf-header-footer", f"--print-to-pdf={pdf_path}",
+           html_path.as_uri()]
+    if hasattr(os, "geteuid") and os.geteuid() == 0:
+        cmd.insert(1, "--no-sandbox")  # Chromium refuses to run as root with its sandbox
+    try:
+        done = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+    except (OSError, subprocess.TimeoutExpired) as e:
+        raise ServiceError(f"--pdf: Chromium failed ({e})") from None
+    if not pdf_path.is_file() or pdf_path.read_bytes()[:5] != b"%PDF-":
+        tail = (done.stderr.strip().splitlines() or ["no output"])[-1][:300]
+        raise ServiceError(f"--pdf: Chromium wrote no PDF (exit {done.returncode}: {tail})")
+    return pdf_path
 
 
 def resolve_summary(target: str, tracking_uri: str | None, workdir: Path) -> tuple[Path, str | None]:

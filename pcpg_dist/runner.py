@@ -1,32 +1,46 @@
-"""`pcpg run`: generate → cluster → rank/threshold → train → evaluate → log, fanned out on Ray.
+"""`pcpg run` and `pcpg sweep`: generate → cluster → rank/threshold → train → evaluate → log on Ray.
 
 Every unit of work has a content key (its config slice + its inputs' keys) and a cache folder
 (:mod:`pcpg_dist.cache`); a finished unit is never recomputed, so rerunning the same command after
 Ctrl-C or a killed process continues where it stopped and ends with the same numbers.
 
-Units: the data (one Ray task per (environment, style)), one clustering per environment, BC
-training in groups of ``runner.group_size`` cells (never one task per tiny model), one evaluation
-per environment. MLflow comes last: one logging task per environment (its child run, from the
-worker) once every local result is written, so a tracking server that goes down costs no work.
+Units: the data (the domain may fan it out on Ray), one clustering per environment, BC training in
+groups of ``runner.group_size`` cells (never one task per tiny model), one evaluation per
+environment. Several configs (the points of a sweep) run together stage by stage: their tasks
+interleave on the cluster and a unit that two points share by key (same data, same clustering,
+same trained cells) runs once.
+
+No shared disk is assumed: tasks take their inputs as arguments and return their results as
+values (arrays, metrics, files as bytes); the driver is the only process that writes the cache,
+the outputs and the tracking store. MLflow comes last, from the driver, once every local result is
+written, so a tracking server that goes down costs no work.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
+import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from pcpg_dist.cache import Cache, content_key
+from pcpg_dist.cache import Cache, content_key, files_of
 from pcpg_dist.config import ExperimentConfig
 from pcpg_dist.dataset import Dataset, atomic_write_bytes, confined, load_datasets
 from pcpg_dist.domains.base import Unit
+from pcpg_dist.errors import PcpgError
 from pcpg_dist.parallel import set_threads
 from pcpg_dist.ray_utils import run_tasks
 
 CODE_VERSION = "2"  # bump when a stage's numbers or files change for the same config (2: bool valid masks)
+STAGES = ("generate", "cluster", "train", "evaluate")
+# fields of a config that cannot change its evaluation units (dataset, split, what Step A sees)
+NOT_IN_UNITS = {"name", "clustering", "bc", "evaluation", "runner", "tuning", "seeds", "sweep"}
 
 
 @dataclass
@@ -40,20 +54,25 @@ class RunResult:
     parent_run_id: str | None = None
     computed: dict[str, int] = field(default_factory=dict)
     report: Path | None = None
+    cached_stages: list[str] = field(default_factory=list)
 
 
-def _collect_agents(target: Path, models: dict[str, list[Path]]) -> Path:
-    """``target/<env>/<group>.pt|.json``: every trained cell of the sweep, for the pyfunc model."""
-    import shutil
+@dataclass
+class Point:
+    """One config to run: where its outputs go and (in a sweep) what it overrides."""
 
-    if target.exists():
-        shutil.rmtree(target)
-    for env, paths in models.items():
-        (target / env).mkdir(parents=True)
-        for i, p in enumerate(paths):
-            for suffix in (".pt", ".json"):
-                shutil.copyfile(p.with_suffix(suffix), target / env / f"group{i:03d}{suffix}")
-    return target
+    cfg: ExperimentConfig
+    out: Path
+    params: dict[str, str] = field(default_factory=dict)
+    command: str = ""
+    # filled while running
+    units: dict[str, Unit] = field(default_factory=dict)
+    refs: dict[str, Any] = field(default_factory=dict)
+    dkey: str = ""
+    ckeys: dict[str, str] = field(default_factory=dict)
+    groups: list[tuple[str, str, list]] = field(default_factory=list)  # (env, train key, cells)
+    ekeys: dict[str, str] = field(default_factory=dict)
+    tracker: Any = None
 
 
 # --------------------------------------------------------------------------- data
@@ -83,174 +102,304 @@ def load_units(cfg: ExperimentConfig, cache: Cache, show_progress: bool) -> tupl
 
 
 # --------------------------------------------------------------------------- Ray tasks
-def cluster_task(unit: Unit, cfg, seed: int, threads: int, out_dir: str) -> dict:
-    """One unit's clustering (a Ray task): labels, metrics and the saved model."""
+def cluster_task(unit: Unit, cluster_cfg, seed: int, threads: int) -> dict:
+    """One unit's clustering (a Ray task): labels, metrics and the fitted model's files as bytes."""
     from pcpg_dist.pipeline import cluster_unit
 
     set_threads(threads)
-    result = cluster_unit(unit, cfg, seed)
+    result = cluster_unit(unit, cluster_cfg, seed)
+    model: dict[str, bytes] = {}
     if result.model is not None:
-        result.model.save(Path(out_dir) / "model")
-    return {"labels": result.labels.tolist(), "metrics": result.metrics}
+        with tempfile.TemporaryDirectory() as tmp:
+            result.model.save(Path(tmp))
+            model = files_of(tmp)
+    return {"labels": result.labels.tolist(), "metrics": result.metrics, "model": model}
 
 
-def train_task(cells: list, cfg, threads: int, out_path: str) -> str:
-    """Train one group of cells in one vectorised pass (a Ray task); saves and returns the path."""
+def train_task(cells: list, bc_cfg, threads: int):
+    """Train one group of cells in one vectorised pass (a Ray task); returns the trained arrays."""
     from pcpg_dist.bc import train_cells
 
     set_threads(threads)
-    return str(train_cells(cells, cfg).save(out_path))
+    return train_cells(cells, bc_cfg)
 
 
-def evaluate_task(unit: Unit, labels: np.ndarray, model_paths: list[str], cfg: ExperimentConfig,
-                  out_dir: str, threads: int) -> dict:
-    """Evaluate one unit (a Ray task); its tables and ``metrics.json`` go to ``out_dir``."""
-    from pcpg_dist.bc import TrainedCells
+def evaluate_task(unit: Unit, labels: np.ndarray, trained, cfg: ExperimentConfig, threads: int) -> dict:
+    """Evaluate one unit (a Ray task): its metrics and its tables and figures as bytes."""
     from pcpg_dist.pipeline import evaluate_unit
 
     set_threads(threads)
-    trained = TrainedCells.concat([TrainedCells.load(p) for p in model_paths])
-    metrics = evaluate_unit(unit, labels, trained, cfg, out_dir)
-    atomic_write_bytes(Path(out_dir) / "metrics.json", json.dumps(metrics, indent=1, sort_keys=True).encode())
-    return metrics
+    with tempfile.TemporaryDirectory() as tmp:
+        metrics = evaluate_unit(unit, labels, trained, cfg, tmp)
+        files = files_of(tmp)
+    files["metrics.json"] = json.dumps(metrics, indent=1, sort_keys=True).encode()
+    return {"metrics": metrics, "files": files}
 
 
-def log_task(tracking: dict, env: str, out_dir: str, metrics: dict[str, float], model_paths: list[str]) -> str:
-    """Log one finished evaluation as the environment's MLflow child run (a Ray task, on the worker).
+# --------------------------------------------------------------------------- helpers
+def _in_flight(num_cpus: int, arg_bytes: float) -> int:
+    """How many tasks to submit at once: enough to keep every CPU busy, few enough that their
+    queued arguments fit in half the object store."""
+    import ray
 
-    Separate from :func:`evaluate_task` so that an unreachable tracking server never costs the
-    evaluation: its unit is done and kept, and a rerun only logs it.
-    """
-    from pcpg_dist.tracking import log_environment
+    res = ray.cluster_resources()
+    slots = max(1, int(res.get("CPU", 1) // max(num_cpus, 1)))
+    store = res.get("object_store_memory", 2e8)
+    return max(slots, min(4 * slots, int(0.5 * store / max(arg_bytes, 1.0))))
 
-    return log_environment(tracking, env, out_dir, metrics, model_paths)
+
+def _nbytes(x: Any, depth: int = 0) -> int:
+    """Rough size of a task argument: its NumPy arrays (a few levels into lists and objects)."""
+    if isinstance(x, np.ndarray):
+        return x.nbytes
+    if depth > 4:
+        return 64
+    if isinstance(x, list | tuple):
+        return sum(_nbytes(v, depth + 1) for v in x)
+    if isinstance(x, dict):
+        return sum(_nbytes(v, depth + 1) for v in x.values())
+    if hasattr(x, "__dict__"):
+        return sum(_nbytes(v, depth + 1) for v in vars(x).values())
+    return 64
+
+
+def _collect_agents(target: Path, models: dict[str, list[Path]]) -> Path:
+    """``target/<env>/<group>.pt|.json``: every trained cell of the run, for the pyfunc model."""
+    import shutil
+
+    if target.exists():
+        shutil.rmtree(target)
+    for env, paths in models.items():
+        (target / env).mkdir(parents=True)
+        for i, p in enumerate(paths):
+            for suffix in (".pt", ".json"):
+                shutil.copyfile(p.with_suffix(suffix), target / env / f"group{i:03d}{suffix}")
+    return target
+
+
+def _run_stage(description: str, fn: Callable, jobs: dict[str, tuple], num_cpus: int,
+               save: Callable[[str, Any], None], show_progress: bool) -> int:
+    """Run one task per key of ``jobs`` (keys shared by several points run once); ``save`` each."""
+    keys = list(jobs)
+    calls = [jobs[k] for k in keys]
+    limit = _in_flight(num_cpus, max((_nbytes(c) for c in calls), default=0)) if calls else 1
+    run_tasks(fn, calls, description, num_cpus=num_cpus, on_result=lambda i, res: save(keys[i], res),
+              show_progress=show_progress and bool(calls), max_in_flight=limit)
+    return len(calls)
 
 
 # --------------------------------------------------------------------------- the run
 def run_experiment(cfg: ExperimentConfig, workdir: Path = Path("runs"), tracking_uri: str | None = None,
                    track: bool = True, show_progress: bool = True, command: str = "") -> RunResult:
     """Run (or resume) a whole experiment; Ray must be initialised by the caller."""
-    from pcpg_dist.bc import TrainedCells  # noqa: F401 - import torch once in the driver
-    from pcpg_dist.pipeline import plan_unit
-
     out = Path(workdir).resolve() / cfg.name
-    cache = Cache(out / "cache")
-    threads = cfg.runner.cpus_per_task
+    return run_points([Point(cfg, out, command=command)], out / "cache", tracking_uri=tracking_uri,
+                      track=track, show_progress=show_progress)[0]
+
+
+def run_points(points: list[Point], cache_root: Path, tracking_uri: str | None = None, track: bool = True,
+               show_progress: bool = True, sweep_parent_id: str | None = None) -> list[RunResult]:
+    """Run (or resume) several configs together, stage by stage, sharing units by content key.
+
+    One process at a time works on a cache: a second `pcpg run` of the same folder waits for the
+    first, then finds everything done.
+    """
+    from filelock import FileLock, Timeout
+
+    cache_root = Path(cache_root)
+    # folders this call creates: removed again if the input turns out bad (nothing half-written)
+    created = [d for d in (cache_root.parent, *cache_root.parent.parents) if not d.exists()]
+    cache_root.parent.mkdir(parents=True, exist_ok=True)
+    lock = FileLock(str(cache_root) + ".lock")
+    try:
+        lock.acquire(timeout=0.5)
+    except Timeout:
+        from pcpg_dist.progress import console
+
+        console.print(f"waiting for another pcpg process working on {cache_root.parent} ...")
+        lock.acquire()
+    try:
+        return _run_points(points, Cache(cache_root), tracking_uri, track, show_progress, sweep_parent_id)
+    except PcpgError:
+        if created and not cache_root.exists():  # failed before anything was cached
+            Path(lock.lock_file).unlink(missing_ok=True)
+            for d in created:
+                with contextlib.suppress(OSError):
+                    d.rmdir()
+        raise
+    finally:
+        lock.release()
+
+
+def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, track: bool,
+                show_progress: bool, sweep_parent_id: str | None) -> list[RunResult]:
+    import ray
+
+    from pcpg_dist.bc import TrainedCells
+    from pcpg_dist.pipeline import plan_unit
+    from pcpg_dist.ray_utils import check_resources
+
     times: dict[str, float] = {}
-    computed: dict[str, int] = {"clustering": 0, "train_groups": 0, "evaluations": 0}
-    # Data first: a bad input file fails here, before any MLflow run or cache entry exists.
+    computed = {"data": 0, "clustering": 0, "train_groups": 0, "evaluations": 0}
+    for p in points:
+        check_resources(p.cfg.runner.cpus_per_task)
+
+    # ---- data: each distinct dataset loaded or generated once, each distinct unit put in Ray once.
+    # A bad input file fails here, before any MLflow run or cache entry exists.
     t0 = time.perf_counter()
-    the_units, dkey = load_units(cfg, cache, show_progress)
-    by_name = {u.name: u for u in the_units}
-    for name in by_name:
-        confined(out, name, "unit name")  # unit names become folder and run names
+    datas: dict[str, dict[str, Dataset]] = {}
+    unit_sets: dict[str, tuple[dict[str, Unit], dict[str, Any]]] = {}
+    for p in points:
+        p.dkey = data_key(p.cfg)
+        if p.dkey not in datas:
+            computed["data"] += cache.done("data", p.dkey) is None
+            datas[p.dkey] = load_or_generate(p.cfg, cache, show_progress)[0]
+        ukey = content_key(p.dkey, p.cfg.model_dump(mode="json", exclude=NOT_IN_UNITS))
+        if ukey not in unit_sets:
+            units = {u.name: u for u in p.cfg.domain_object.units(p.cfg, datas[p.dkey])}
+            for name in units:
+                confined(p.out, name, "unit name")  # unit names become folder and run names
+            unit_sets[ukey] = units, {n: ray.put(u) for n, u in units.items()}
+        p.units, p.refs = unit_sets[ukey]
     times["generate"] = time.perf_counter() - t0
-    tracker = None
+    # one task holds a unit, its copies in the stage's arrays, and a torch runtime (~600 MB)
+    largest = max((_nbytes(u.dataset) for p in points for u in p.units.values()), default=0)
+    check_resources(max(p.cfg.runner.cpus_per_task for p in points), 6e8 + 8.0 * largest)
+
     if track:
         from pcpg_dist.tracking import Tracker
 
-        tracker = Tracker.start(cfg, tracking_uri, out)
-
+        for p in points:
+            extra = {"parent_run_id": sweep_parent_id, "params": p.params} if sweep_parent_id else {}
+            p.tracker = Tracker.start(p.cfg, tracking_uri, p.out, **extra)
     try:
+        threads = max(p.cfg.runner.cpus_per_task for p in points)
 
-        # ---- Step A: one clustering per environment
+        # ---- Step A: one clustering per (data, environment, clustering settings)
         t0 = time.perf_counter()
-        envs = list(by_name)
-        ckeys = {e: content_key(CODE_VERSION, dkey, e, cfg.clustering, cfg.seed, by_name[e].cluster_input_note)
-                 for e in envs}
-        todo = [e for e in envs if cache.done("cluster", ckeys[e]) is None]
-        for e in todo:
-            cache.start("cluster", ckeys[e])
+        jobs: dict[str, tuple] = {}
+        for p in points:
+            for e, u in p.units.items():
+                p.ckeys[e] = k = content_key(CODE_VERSION, p.dkey, e, p.cfg.clustering, p.cfg.seed,
+                                             u.cluster_input_note)
+                if k not in jobs and cache.done("cluster", k) is None:
+                    jobs[k] = (p.refs[e], p.cfg.clustering, p.cfg.seed, p.cfg.runner.cpus_per_task)
 
-        def save_cluster(i: int, res: dict) -> None:
-            e = todo[i]
-            path = cache.path("cluster", ckeys[e])
-            atomic_write_bytes(path / "result.json", json.dumps(res).encode())
-            cache.finish("cluster", ckeys[e], {"env": e})
+        def save_cluster(key: str, res: dict) -> None:
+            files = {"result.json": json.dumps({"labels": res["labels"], "metrics": res["metrics"]}).encode(),
+                     **{f"model/{n}": b for n, b in res["model"].items()}}
+            cache.store("cluster", key, files, {"stage": "cluster"})
 
-        run_tasks(cluster_task, [(by_name[e], cfg.clustering, cfg.seed, threads,
-                                  str(cache.path("cluster", ckeys[e]))) for e in todo],
-                  "Step A: clustering", num_cpus=threads, on_result=save_cluster,
-                  show_progress=show_progress and bool(todo))
-        computed["clustering"] = len(todo)
-        clusters = {e: json.loads((cache.path("cluster", ckeys[e]) / "result.json").read_text()) for e in envs}
+        computed["clustering"] = _run_stage("Step A: clustering", cluster_task, jobs, threads, save_cluster,
+                                            show_progress)
+        clusters = {k: cache.read_json("cluster", k, "result.json") for p in points for k in p.ckeys.values()}
         times["cluster"] = time.perf_counter() - t0
 
         # ---- Steps B + C: plan every cell, train in groups
         t0 = time.perf_counter()
-        groups: list[tuple[str, str, list]] = []  # (env, key, cells)
-        labels_of = {e: np.asarray(clusters[e]["labels"], np.int64) for e in envs}
-        for e in envs:
-            cells = plan_unit(by_name[e], labels_of[e], cfg)
-            size = cfg.runner.group_size
-            for g in range(0, len(cells), size):
-                chunk = cells[g: g + size]
-                key = content_key(CODE_VERSION, ckeys[e], cfg.ranking, cfg.bc, cfg.evaluation.corruption_levels,
-                                  cfg.evaluation.corruption_ps, [c.key for c in chunk])
-                groups.append((e, key, chunk))
-        pending = [(e, k, c) for e, k, c in groups if cache.done("train", k) is None]
-        for _, k, _ in pending:
-            cache.start("train", k)
+        jobs = {}
+        for p in points:
+            cfg = p.cfg
+            for e, u in p.units.items():
+                cells = plan_unit(u, np.asarray(clusters[p.ckeys[e]]["labels"], np.int64), cfg)
+                for g in range(0, len(cells), cfg.runner.group_size):
+                    chunk = cells[g: g + cfg.runner.group_size]
+                    key = content_key(CODE_VERSION, p.ckeys[e], cfg.ranking, cfg.bc,
+                                      cfg.evaluation.corruption_levels, cfg.evaluation.corruption_ps,
+                                      [c.key for c in chunk])
+                    p.groups.append((e, key, chunk))
+                    if key not in jobs and cache.done("train", key) is None:
+                        jobs[key] = (chunk, cfg.bc, cfg.runner.cpus_per_task)
 
-        def save_group(i: int, path: str) -> None:
-            cache.finish("train", pending[i][1], {"env": pending[i][0], "cells": len(pending[i][2])})
+        def save_group(key: str, trained) -> None:
+            folder = cache.start("train", key)
+            trained.save(folder / "cells")
+            cache.finish("train", key, {"stage": "train", "cells": len(trained.specs)})
 
-        run_tasks(train_task, [(c, cfg.bc, threads, str(cache.path("train", k) / "cells")) for _, k, c in pending],
-                  "Step C: BC groups", num_cpus=threads, on_result=save_group,
-                  show_progress=show_progress and bool(pending))
-        computed["train_groups"] = len(pending)
+        computed["train_groups"] = _run_stage("Step C: BC groups", train_task, jobs, threads, save_group,
+                                              show_progress)
         times["train"] = time.perf_counter() - t0
 
         # ---- Evaluation per environment (MLflow child runs are logged after the summary)
         t0 = time.perf_counter()
-        ekeys = {e: content_key(CODE_VERSION, [k for ge, k, _ in groups if ge == e], cfg.evaluation,
-                                cfg.ranking) for e in envs}
-        models = {e: [str(cache.path("train", k) / "cells.pt") for ge, k, _ in groups if ge == e] for e in envs}
-        todo = [e for e in envs if cache.done("evaluate", ekeys[e]) is None]
-        for e in todo:
-            cache.start("evaluate", ekeys[e])
-        calls = [(by_name[e], labels_of[e], models[e], cfg, str(cache.path("evaluate", ekeys[e])), threads)
-                 for e in todo]
+        jobs = {}
+        for p in points:
+            for e in p.units:
+                tkeys = [k for ge, k, _ in p.groups if ge == e]
+                p.ekeys[e] = k = content_key(CODE_VERSION, tkeys, p.cfg.evaluation, p.cfg.ranking)
+                if k not in jobs and cache.done("evaluate", k) is None:
+                    trained = TrainedCells.concat([TrainedCells.load(cache.path("train", t) / "cells")
+                                                   for t in tkeys])
+                    labels = np.asarray(clusters[p.ckeys[e]]["labels"], np.int64)
+                    jobs[k] = (p.refs[e], labels, trained, p.cfg, p.cfg.runner.cpus_per_task)
 
-        def save_eval(i: int, metrics: dict) -> None:
-            cache.finish("evaluate", ekeys[todo[i]], {"env": todo[i]})
+        def save_eval(key: str, res: dict) -> None:
+            cache.store("evaluate", key, res["files"], {"stage": "evaluate"})
 
-        run_tasks(evaluate_task, calls, "Evaluation", num_cpus=threads, on_result=save_eval,
-                  show_progress=show_progress and bool(todo))
-        computed["evaluations"] = len(todo)
-        per_env = {e: json.loads((cache.path("evaluate", ekeys[e]) / "metrics.json").read_text()) for e in envs}
+        computed["evaluations"] = _run_stage("Evaluation", evaluate_task, jobs, threads, save_eval, show_progress)
         times["evaluate"] = time.perf_counter() - t0
 
-        # ---- Across environments: summary tables, figures, parent-run logging, report
-        t0 = time.perf_counter()
-        from pcpg_dist.summary import write_summary
-
-        metrics = write_summary(cfg, out, {e: cache.path("evaluate", ekeys[e]) for e in envs}, per_env,
-                                {e: clusters[e]["metrics"] for e in envs})
-        agents = _collect_agents(out / "agents", {e: [cache.path("train", k) / "cells" for ge, k, _ in groups
-                                                      if ge == e] for e in envs})
-        times["summary"] = time.perf_counter() - t0
-        result = RunResult(out_dir=out, metrics=metrics, clustering={e: clusters[e]["metrics"] for e in envs},
-                           stage_seconds=times, computed=computed,
-                           parent_run_id=tracker.parent_id if tracker else None)
-        from pcpg_dist.provenance import provenance
-        from pcpg_dist.report import render
-
-        run_info = {"config": cfg.model_dump(mode="json"), "config_hash": cfg.hash(), "command": command
-                    or f"pcpg run <config of {cfg.name}>", "provenance": provenance(), "stage_seconds": times,
-                    "parent_run_id": result.parent_run_id, "computed": computed}
-        atomic_write_bytes(out / "summary" / "run.json", json.dumps(run_info, indent=1, default=str).encode())
-        result.report = render(out / "summary", out / "report")[0]
-        if tracker is not None:
-            # Last, so that every local result above is kept when the server is down; a rerun
-            # logs only the environments without a FINISHED child run, recomputing nothing.
-            unlogged = [e for e in envs if not tracker.env_logged(e, ekeys[e])]
-            run_tasks(log_task, [(tracker.child_info(e, ekeys[e], clusters[e]["metrics"]), e,
-                                  str(cache.path("evaluate", ekeys[e])), per_env[e], models[e]) for e in unlogged],
-                      "MLflow child runs", num_cpus=1, show_progress=show_progress and bool(unlogged))
-            tracker.finish(result, agents_dir=agents, report_dir=out / "report")
-        return result
+        results = []
+        for p in points:
+            results.append(_finish_point(p, cache, clusters, dict(times), computed, show_progress))
+        return results
     except BaseException:
-        if tracker is not None:
-            tracker.fail()
+        for p in points:
+            if p.tracker is not None:
+                p.tracker.fail()
         raise
+
+
+def _finish_point(p: Point, cache: Cache, clusters: dict, times: dict[str, float], computed: dict[str, int],
+                  show_progress: bool) -> RunResult:
+    """Across one point's environments: summary tables, figures, report, then its MLflow runs."""
+    from pcpg_dist.provenance import provenance
+    from pcpg_dist.report import render
+    from pcpg_dist.summary import write_summary
+
+    t0 = time.perf_counter()
+    cfg, out, envs = p.cfg, p.out, list(p.units)
+    per_env = {e: cache.read_json("evaluate", p.ekeys[e], "metrics.json") for e in envs}
+    cluster_metrics = {e: clusters[p.ckeys[e]]["metrics"] for e in envs}
+    eval_dirs = {e: cache.path("evaluate", p.ekeys[e]) for e in envs}
+    metrics = write_summary(cfg, out, eval_dirs, per_env, cluster_metrics)
+    models = {e: [cache.path("train", k) / "cells" for ge, k, _ in p.groups if ge == e] for e in envs}
+    agents = _collect_agents(out / "agents", models)
+    times["summary"] = time.perf_counter() - t0
+
+    # A stage served wholly from the cache keeps the timing of the run that computed it.
+    stage_done = {"generate": computed["data"], "cluster": computed["clustering"],
+                  "train": computed["train_groups"], "evaluate": computed["evaluations"]}
+    cached = [s for s in STAGES if not stage_done[s]]
+    try:
+        before = json.loads((out / "summary" / "run.json").read_text()).get("stage_seconds", {})
+    except (OSError, ValueError, AttributeError):
+        before = {}
+    for s in cached:
+        if isinstance(before.get(s), int | float):
+            times[s] = before[s]
+    result = RunResult(out_dir=out, metrics=metrics, clustering=cluster_metrics, stage_seconds=times,
+                       computed=computed, cached_stages=cached,
+                       parent_run_id=p.tracker.parent_id if p.tracker else None)
+    run_info = {"config": cfg.model_dump(mode="json"), "config_hash": cfg.hash(),
+                "command": p.command or f"pcpg run <config of {cfg.name}>", "overrides": p.params,
+                "provenance": provenance(), "stage_seconds": times, "cached_stages": cached,
+                "parent_run_id": result.parent_run_id, "computed": computed, "code_version": CODE_VERSION}
+    atomic_write_bytes(out / "summary" / "run.json", json.dumps(run_info, indent=1, default=str).encode())
+    result.report = render(out / "summary", out / "report")[0]
+    if p.tracker is not None:
+        # Last, so that every local result above is kept when the server is down; a rerun
+        # logs only the environments without a FINISHED child run, recomputing nothing.
+        from pcpg_dist.progress import progress_bar
+        from pcpg_dist.tracking import log_environment
+
+        t0 = time.perf_counter()
+        unlogged = [e for e in envs if not p.tracker.env_logged(e, p.ekeys[e])]
+        with progress_bar("MLflow child runs", total=len(unlogged), enabled=show_progress and bool(unlogged)) as advance:
+            for e in unlogged:
+                log_environment(p.tracker.child_info(e, p.ekeys[e], cluster_metrics[e]), e, str(eval_dirs[e]),
+                                per_env[e], [str(m.with_suffix(".pt")) for m in models[e]])
+                advance()
+        p.tracker.finish(result, agents_dir=agents, report_dir=out / "report")
+        result.stage_seconds["tracking"] = time.perf_counter() - t0
+    return result

@@ -6,6 +6,8 @@ from pydantic import BaseModel, ConfigDict
 
 
 class StrictModel(BaseModel):
-    """A frozen pydantic model that rejects unknown keys and wrong types at load time."""
+    """A frozen pydantic model that rejects unknown keys, wrong types and, in every float field,
+    NaN and infinities (no setting of pcpg means anything at NaN or infinity) at load time."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, strict=False, validate_default=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=False, validate_default=True,
+                              allow_inf_nan=False)

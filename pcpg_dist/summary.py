@@ -45,9 +45,15 @@ def write_summary(cfg, out: Path, eval_dirs: dict[str, Path], per_env: dict[str,
                   clusters: dict[str, dict[str, float]]) -> dict[str, float]:
     """Write ``out/summary`` (metrics, tables, figures, per-environment folders); return metrics."""
     summary = Path(out) / "summary"
-    if summary.exists():
-        shutil.rmtree(summary)
-    summary.mkdir(parents=True)
+    if summary.exists():  # a rerun replaces every table; run.json (the runner's record) stays
+        for child in summary.iterdir():
+            if child.name == "run.json":
+                continue
+            if child.is_dir() and not child.is_symlink():
+                shutil.rmtree(child)
+            else:
+                child.unlink()
+    summary.mkdir(parents=True, exist_ok=True)
     metrics = summary_metrics(per_env, clusters)
     atomic_write_bytes(summary / "metrics.json", json.dumps(metrics, indent=1, sort_keys=True).encode())
     acc = accuracy_table(per_env, cfg.ranking.ps)
@@ -58,30 +64,43 @@ def write_summary(cfg, out: Path, eval_dirs: dict[str, Path], per_env: dict[str,
     clus.to_json(summary / "clustering.json", orient="records", indent=1)
     for env, d in eval_dirs.items():
         shutil.copytree(d, summary / env, ignore=shutil.ignore_patterns("done.json"))
-    _figure(acc, summary / "accuracy_vs_p.png")
+    accuracy_figure(acc, summary / "accuracy_vs_p.png")
     return metrics
 
 
-def _figure(acc: pd.DataFrame, path: Path) -> None:
+def long_accuracy(acc: pd.DataFrame) -> pd.DataFrame:
+    """The wide summary table as (env, method, p, mean, std) rows, as one environment's table is."""
+    parts = []
+    for method, mean, std in (("pcpg", "pcpg", "pcpg_std"), ("no_clustering", "no_clustering", "no_clustering_std"),
+                              ("majority", "majority", None), ("random", "random", None)):
+        part = acc[["env", "p"]].assign(method=method, mean=acc[mean],
+                                        std=acc[std] if std else 0.0)
+        parts.append(part)
+    return pd.concat(parts, ignore_index=True)
+
+
+def accuracy_figure(acc: pd.DataFrame, path: Path) -> None:
+    """Fig. 4 across environments: one panel per environment, the project's shared figure style."""
     from matplotlib.figure import Figure
 
+    from pcpg_dist.figures import accuracy_axes, method_legend, style
+
+    long = long_accuracy(acc)
     envs = list(dict.fromkeys(acc["env"]))
-    fig = Figure(figsize=(3.2 * len(envs), 3))
-    axes = fig.subplots(1, len(envs), squeeze=False)[0]
-    for ax, env in zip(axes, envs, strict=True):
-        d = acc[acc["env"] == env].sort_values("p")
-        ax.errorbar(d["p"], d["pcpg"], yerr=d["pcpg_std"], marker="o", label="PCPG", capsize=3)
-        ax.errorbar(d["p"], d["no_clustering"], yerr=d["no_clustering_std"], marker="s",
-                    label="No Clustering", capsize=3)
-        ax.plot(d["p"], d["random"], "k:", label="random")
-        ax.plot(d["p"], d["majority"], color="grey", ls="--", label="majority class")
-        ax.set_title(env)
-        ax.set_xlabel("p")
-        ax.set_ylim(0, 1)
-    axes[0].set_ylabel("test accuracy")
-    axes[0].legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    cols = min(len(envs), 3)
+    rows = -(-len(envs) // cols)
+    with style():
+        fig = Figure(figsize=(3.6 * cols, 3.0 * rows + 0.5))
+        axes = fig.subplots(rows, cols, squeeze=False).ravel()
+        for ax, env in zip(axes, envs, strict=False):
+            accuracy_axes(ax, long[long["env"] == env])
+            ax.set_title(env)
+        for ax in axes[len(envs):]:
+            ax.set_visible(False)
+        handles, labels = method_legend(axes[0])
+        fig.legend(handles, labels, loc="lower center", ncol=len(labels), bbox_to_anchor=(0.5, 0))
+        fig.tight_layout(rect=(0, 0.08 if rows == 1 else 0.04, 1, 1))
+        fig.savefig(path)
 
 
 def print_summary(result, console) -> None:

@@ -1,23 +1,42 @@
-"""MLflow tracking: one experiment per config name, one parent run per sweep, child runs per environment.
+"""MLflow tracking: one experiment per config name, one parent run per config, a child per environment.
 
-Embedded default: ``sqlite:///<cwd>/mlflow.db`` with artifacts in ``<cwd>/mlruns``, created by the
-driver before any worker logs. For a team: ``MLFLOW_TRACKING_URI=http://host:5000`` (an
-``mlflow server`` on PostgreSQL with proxied artifacts, see tracking/README.md).
+Embedded default: ``sqlite:///<cwd>/mlflow.db`` with artifacts in ``<cwd>/mlruns``. For a team:
+``MLFLOW_TRACKING_URI=http://host:5000`` (an ``mlflow server`` on PostgreSQL with proxied
+artifacts, see tracking/README.md). Everything here runs in the driver (threads allowed).
 
-Workers log with :class:`mlflow.MlflowClient` and the parent's run id, never the fluent API (Ray
-reuses worker processes). Runs carry ``pcpg.unit_key`` tags, so a rerun finds what is already
-logged: a sweep resumes its own parent run and never duplicates a finished child; a child left
-half-written by a killed process is deleted and logged again.
+Laid out for review (docs/team-mode.md): the experiment carries ``mlflow.experimentKind`` so the
+UI opens on its runs table; the parent run holds at most :data:`MAX_PARENT_METRICS` headline
+metrics, curves over p and over the corruption level (one value per step), the summary figures
+and a description; children hold each environment's detail. Std over seeds goes in a
+``metrics.csv`` table, never as ``/std`` chart sections.
+
+Identities and concurrency: a parent is found by its config's content hash (and its sweep run),
+a child by (parent, environment, unit key), a sweep by its key. Every find-or-create runs under a
+file lock keyed by that identity, beside a SQLite store or in the user's cache folder for a
+server; a run created on another machine in the same instant is merged after the fact (the
+earliest wins). Logging is idempotent: a parent's metrics go in one batch together with a digest
+tag, so a rerun served from cache logs nothing again and leaves the original end time alone.
 """
 
 from __future__ import annotations
 
 import contextlib
+import csv
+import hashlib
+import io
+import json
+import logging
+import math
 import os
+import re
+import shutil
+import sqlite3
 import tempfile
 import time
 import urllib.error
 import urllib.request
+import warnings
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,18 +44,170 @@ import pcpg_dist
 from pcpg_dist.errors import ServiceError
 from pcpg_dist.provenance import git_commit, uv_lock_hash
 
-# Progress bars of artifact transfers would interleave with ours in the terminal.
+# Progress bars of artifact transfers would interleave with ours in the terminal, and the fluent
+# run that logs the agents model would print its URL on stdout, among the results.
 os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
+os.environ.setdefault("MLFLOW_SUPPRESS_PRINTING_URL_TO_STDOUT", "true")
+
+log = logging.getLogger(__name__)
 
 ROLE, UNIT, CONFIG_HASH = "pcpg.role", "pcpg.unit_key", "pcpg.config_hash"
-PARAM_BATCH = 100  # MLflow's limit of params per log_batch call
+SWEEP_KEY, LOGGED, ARTIFACTS, AGENTS = "pcpg.sweep_key", "pcpg.logged", "pcpg.artifacts_logged", "pcpg.agents_logged"
+NOTE, PARENT, RUN_NAME = "mlflow.note.content", "mlflow.parentRunId", "mlflow.runName"
+# The MLflow 3 UI opens an experiment without this tag on its GenAI overview; the classic-ML
+# value (mlflow/server/js: ExperimentKind.CUSTOM_MODEL_DEVELOPMENT) opens it on the runs table.
+EXPERIMENT_KIND = ("mlflow.experimentKind", "custom_model_development")
+MAX_PARENT_METRICS = 30
+PARAM_BATCH, METRIC_BATCH = 100, 1000  # MLflow's limits per log_batch call
+BOOKKEEPING = ("done.json", "*.lock", "*.tmp", ".*")  # cache bookkeeping, never an artifact
+LOCK_TIMEOUT = 600.0  # s; a store lock is held for a find-or-create or one child's logging
 
 
+# --------------------------------------------------------------------------- store and locks
 def default_tracking_uri() -> str:
     env = os.environ.get("MLFLOW_TRACKING_URI")
     if env:
         return env
     return f"sqlite:///{Path.cwd().resolve() / 'mlflow.db'}"
+
+
+def _sqlite_path(uri: str) -> Path | None:
+    """The database file of a ``sqlite:///`` URI (None for servers and in-memory stores)."""
+    if not uri.startswith("sqlite:///") or uri in ("sqlite:///", "sqlite:///:memory:"):
+        return None
+    return Path(uri.removeprefix("sqlite:///").split("?")[0])
+
+
+def _lock_dir(uri: str) -> Path:
+    db = _sqlite_path(uri)
+    if db is not None:
+        folder = db.parent / f".{db.name}.locks"
+    else:  # a server: locks serialise this machine's processes; other machines merge afterwards
+        cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+        folder = cache / "pcpg" / "mlflow-locks" / hashlib.sha256(uri.encode()).hexdigest()[:16]
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder
+
+
+@contextlib.contextmanager
+def store_lock(uri: str, key: str, timeout: float = LOCK_TIMEOUT) -> Iterator[None]:
+    """An inter-process lock on one identity in one store (a fresh lock object per use, so two
+    threads of one process exclude each other too; never nest two uses of the same key)."""
+    from filelock import FileLock, Timeout
+
+    path = _lock_dir(uri) / f"{hashlib.sha256(key.encode()).hexdigest()[:24]}.lock"
+    try:
+        with FileLock(str(path), timeout=timeout):
+            yield
+    except Timeout:
+        raise ServiceError(f"waited {timeout:.0f} s for the MLflow store lock {path} ({key}); another pcpg "
+                           f"process holds it: let it finish or end it") from None
+
+
+_prepared: set[str] = set()
+
+
+@contextlib.contextmanager
+def _quiet_migration() -> Iterator[None]:
+    """MLflow and alembic log each schema step at INFO: nothing a user acts on."""
+    loggers = [logging.getLogger(n) for n in ("mlflow.store.db.utils", "alembic", "alembic.runtime.migration")]
+    levels = [lg.level for lg in loggers]
+    for lg in loggers:
+        lg.setLevel(logging.WARNING)
+    try:
+        with warnings.catch_warnings():  # alembic's notes on SQLite table rebuilds
+            warnings.filterwarnings("ignore", module=r"alembic(\.|$)")
+            yield
+    finally:
+        for lg, level in zip(loggers, levels, strict=True):
+            lg.setLevel(level)
+
+
+def _open_sqlite_store(uri: str) -> None:
+    from mlflow.store.tracking.sqlalchemy_store import SqlAlchemyStore
+
+    with _quiet_migration():
+        SqlAlchemyStore(uri, _artifact_root(uri))
+
+
+def _forget_engine(uri: str) -> None:
+    """Close MLflow's cached engine of ``uri``: its pooled connections hold the old file open."""
+    from mlflow.store.tracking.sqlalchemy_store import SqlAlchemyStore
+
+    engine = SqlAlchemyStore._engine_map.pop(uri, None)
+    if engine is not None:
+        engine.dispose()
+
+
+def _count_runs(db: Path) -> int:
+    """Runs in a SQLite store, read without MLflow (0 when the table is missing or unreadable)."""
+    try:
+        con = sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=30)
+        try:
+            return int(con.execute("SELECT count(*) FROM runs").fetchone()[0])
+        finally:
+            con.close()
+    except sqlite3.Error:
+        return 0
+
+
+def prepare_store(uri: str) -> None:
+    """Create or migrate a SQLite store once, under a lock, before anything logs to it.
+
+    Two processes starting on a fresh folder would otherwise both run MLflow's schema migration
+    and one fails. A store left half-created by a killed migration is repaired: when it holds no
+    run it is moved aside (``mlflow.db.incomplete-<time>``) and created afresh; when it holds runs
+    the migration is finished (a copy is kept first), and if that fails the error is one line.
+    """
+    db = _sqlite_path(uri)
+    if db is None or uri in _prepared:
+        return
+    db.parent.mkdir(parents=True, exist_ok=True)
+    with store_lock(uri, "store"):
+        try:
+            _open_sqlite_store(uri)
+        except Exception as first:  # noqa: BLE001 - MLflow, SQLAlchemy and alembic errors alike
+            _repair_sqlite_store(uri, db, first)
+    _prepared.add(uri)
+
+
+def _repair_sqlite_store(uri: str, db: Path, error: Exception) -> None:
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    reason = (str(error).strip().splitlines() or [type(error).__name__])[0][:200]
+    runs = _count_runs(db)
+    _forget_engine(uri)
+    if runs == 0:
+        aside = db.with_name(f"{db.name}.incomplete-{stamp}")
+        os.replace(db, aside)
+        for extra in ("-journal", "-wal", "-shm"):
+            with contextlib.suppress(FileNotFoundError):
+                os.replace(f"{db}{extra}", f"{aside}{extra}")
+        log.warning("the MLflow store %s was left half-created by an interrupted run (%s); it held no runs, "
+                    "so it was moved to %s and created afresh", db, reason, aside.name)
+        _open_sqlite_store(uri)
+        return
+    backup = db.with_name(f"{db.name}.backup-{stamp}")
+    shutil.copy2(db, backup)
+    try:
+        from mlflow.store.db.utils import _upgrade_db, create_sqlalchemy_engine_with_retry
+
+        with _quiet_migration():
+            engine = create_sqlalchemy_engine_with_retry(uri)
+            _upgrade_db(engine)
+            engine.dispose()
+        _open_sqlite_store(uri)
+        log.warning("the MLflow store %s had an unfinished schema migration (%s); finished it (copy kept "
+                    "at %s)", db, reason, backup.name)
+    except Exception as e:  # noqa: BLE001 - whatever the migration raised, one line
+        again = (str(e).strip().splitlines() or [type(e).__name__])[0][:200]
+        raise ServiceError(f"the MLflow store {db} ({runs} runs) is damaged and could not be migrated ({again}); "
+                           f"a copy is at {backup}: move {db.name} away to start a fresh store") from None
+
+
+def _artifact_root(uri: str) -> str | None:
+    """On SQLite the artifacts go to ``mlruns/`` beside the database, as an absolute URI."""
+    db = _sqlite_path(uri)
+    return (db.parent / "mlruns").resolve().as_uri() if db is not None else None
 
 
 def check_reachable(uri: str, timeout: float = 8.0) -> None:
@@ -83,25 +254,200 @@ def _retry(fn, *args, attempts: int = 5, **kwargs):
     return None
 
 
-def _log_params(client, run_id: str, params: dict[str, str]) -> None:
+# --------------------------------------------------------------------------- logging helpers
+def _log_params(client, run_id: str, params: dict[str, str], have: dict[str, str] | None = None) -> None:
+    """Params not yet on the run (MLflow refuses to change a logged param's value)."""
     from mlflow.entities import Param
 
-    items = [Param(k, str(v)[:6000]) for k, v in sorted(params.items())]
+    items = [Param(k, str(v)[:6000]) for k, v in sorted(params.items()) if k not in (have or {})]
     for i in range(0, len(items), PARAM_BATCH):
         _retry(client.log_batch, run_id, params=items[i: i + PARAM_BATCH])
 
 
-def _log_metrics(client, run_id: str, metrics: dict[str, float]) -> None:
-    from mlflow.entities import Metric
+def _log_once(client, run_id: str, points: list[tuple[str, float, int]], tags: dict[str, str]) -> None:
+    """Metrics and tags in as few batches as MLflow allows, the tags (the digest) in the last one."""
+    from mlflow.entities import Metric, RunTag
 
     now = int(time.time() * 1000)
-    items = [Metric(k, float(v), now, 0) for k, v in sorted(metrics.items())]
-    for i in range(0, len(items), 1000):
-        _retry(client.log_batch, run_id, metrics=items[i: i + 1000])
+    items = [Metric(k, float(v), now, int(step)) for k, v, step in points]
+    chunks = [items[i: i + METRIC_BATCH] for i in range(0, len(items), METRIC_BATCH)] or [[]]
+    for i, chunk in enumerate(chunks):
+        last = i == len(chunks) - 1
+        _retry(client.log_batch, run_id, metrics=chunk,
+               tags=[RunTag(k, v[:5000]) for k, v in tags.items()] if last else [])
 
 
+def _log_metrics(client, run_id: str, metrics: dict[str, float]) -> None:
+    """Finite scalar metrics at step 0 (`pcpg tune`'s trial and study runs)."""
+    _log_once(client, run_id, [(k, v, 0) for k, v in metrics.items() if _finite(v)], {})
+
+
+def _digest(*parts) -> str:
+    return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def _finite(v) -> bool:
+    return isinstance(v, int | float) and math.isfinite(v)
+
+
+def _copy_without_bookkeeping(src: Path, dst: Path) -> Path:
+    shutil.copytree(src, dst, ignore=shutil.ignore_patterns(*BOOKKEEPING))
+    return dst
+
+
+def _log_folder(client, run_id: str, folder: Path, artifact_path: str) -> None:
+    with tempfile.TemporaryDirectory() as tmp:
+        clean = _copy_without_bookkeeping(folder, Path(tmp) / "x")
+        _retry(client.log_artifacts, run_id, str(clean), artifact_path)
+
+
+def _std_table(metrics: dict[str, float]) -> str:
+    """``metric,value,std`` rows: the std over seeds that the charts leave out."""
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["metric", "value", "std"])
+    for k in sorted(metrics):
+        if not k.endswith("/std") and _finite(metrics[k]):
+            std = metrics.get(f"{k}/std")
+            w.writerow([k, repr(float(metrics[k])), repr(float(std)) if _finite(std) else ""])
+    return buf.getvalue()
+
+
+# --------------------------------------------------------------------------- what is logged
+_AXIS = re.compile(r"^(?P<rest>.+)/(?P<axis>[pc])(?P<x>\d+(?:\.\d+)?(?:e-?\d+)?)$")
+
+
+def _steps(values: list[float]) -> tuple[dict[float, int], int]:
+    """Integer MLflow steps for axis values in [0, 1]: 100 × x unless that merges two values."""
+    for scale in (100, 1000, 10000, 100000):
+        steps = {x: round(x * scale) for x in values}
+        if len(set(steps.values())) == len(steps):
+            return steps, scale
+    return {x: i for i, x in enumerate(sorted(values))}, 0
+
+
+def curves(metrics: dict[str, float]) -> tuple[dict[str, dict[float, float]], dict[str, float]]:
+    """Split ``.../p<x>`` and ``.../c<x>`` metrics into curves ``{key: {x: value}}`` and scalars."""
+    found: dict[str, dict[float, float]] = {}
+    scalars: dict[str, float] = {}
+    for k, v in metrics.items():
+        if k.endswith("/std") or not _finite(v):
+            continue
+        m = _AXIS.match(k)
+        if m:
+            found.setdefault(f"{m['rest']}/by_{m['axis']}", {})[float(m["x"])] = float(v)
+        else:
+            scalars[k] = float(v)
+    return found, scalars
+
+
+def _curve_points(named: dict[str, dict[float, float]]) -> tuple[list[tuple[str, float, int]], dict[str, int]]:
+    points, scales = [], {}
+    for key, curve in sorted(named.items()):
+        steps, scale = _steps(list(curve))
+        scales[key] = scale
+        points += [(key, curve[x], steps[x]) for x in sorted(curve)]
+    return points, scales
+
+
+# The parent's scalars, most important first (the budget keeps the head of this list).
+_HEADLINE = ("clustering/accuracy", "clustering/ceiling", "clustering/gap_to_ceiling", "clustering/ari",
+             "clustering/nmi", "random/accuracy", "majority/accuracy", "pcpg/wins_over_baseline",
+             "cross/diagonal_mean", "correlation/diagonal_mean", "corruption/baseline/accuracy")
+# Curves over an axis: (source prefix, axis) -> chart key; the MLflow UI draws value against step.
+PARENT_CURVES = {("pcpg/accuracy", "p"): "accuracy_vs_p/pcpg",
+                 ("baseline/accuracy", "p"): "accuracy_vs_p/no_clustering",
+                 ("majority/accuracy", "p"): "accuracy_vs_p/majority_class",
+                 ("corruption/accuracy", "c"): "accuracy_vs_corruption/pcpg",
+                 ("corruption/accuracy_true_subsets", "c"): "accuracy_vs_corruption/pcpg_true_subsets"}
+
+
+def parent_metrics(result) -> tuple[list[tuple[str, float, int]], dict[str, int]]:
+    """The parent's (key, value, step) points: at most :data:`MAX_PARENT_METRICS` keys.
+
+    Means over environments only (children hold each environment): PCPG and No Clustering at
+    the largest p, clustering quality, baselines, stage timings, then the other p values while
+    the budget lasts; curves over p and over the corruption level as stepped metrics.
+    """
+    envs = tuple(f"{e}/" for e in getattr(result, "clustering", {}) or {})
+    top = {k: v for k, v in result.metrics.items() if not k.startswith(envs)}
+    by_axis, scalars = curves(top)
+    named = {PARENT_CURVES[(k.rsplit("/by_", 1)[0], k[-1])]: c for k, c in by_axis.items()
+             if (k.rsplit("/by_", 1)[0], k[-1]) in PARENT_CURVES and len(c) > 1}
+    points, scales = _curve_points(named)
+    ps = sorted(by_axis.get("pcpg/accuracy/by_p", {}), reverse=True)
+    per_p = [f"{m}/accuracy/p{p:g}" for p in ps for m in ("pcpg", "baseline")]
+    timing = [f"time/{k}_seconds" for k in getattr(result, "stage_seconds", {})]
+    values = {**top, **{f"time/{k}_seconds": v for k, v in getattr(result, "stage_seconds", {}).items()}}
+    order = [*per_p[:2], *_HEADLINE, *timing, *sorted(k for k in scalars if k.startswith("reward_distance/")),
+             *per_p[2:]]
+    budget = MAX_PARENT_METRICS - len(named)
+    chosen = [k for k in dict.fromkeys(order) if k in values and _finite(values[k])][:budget]
+    return [(k, float(values[k]), 0) for k in chosen] + points, scales
+
+
+def child_metrics(metrics: dict[str, float]) -> tuple[list[tuple[str, float, int]], dict[str, int]]:
+    """An environment's detail: scalars as they are, per-p and per-level values as curves, no std."""
+    by_axis, scalars = curves(metrics)
+    ps = sorted(by_axis.get("pcpg/accuracy/by_p", {}), reverse=True)
+    if ps:  # the headline p as scalars too, for the runs table and compare views
+        scalars.update({f"{m}/accuracy/p{ps[0]:g}": metrics[f"{m}/accuracy/p{ps[0]:g}"]
+                        for m in ("pcpg", "baseline") if _finite(metrics.get(f"{m}/accuracy/p{ps[0]:g}"))})
+    points, scales = _curve_points(by_axis)
+    return [(k, v, 0) for k, v in sorted(scalars.items())] + points, scales
+
+
+def _fmt(v) -> str:
+    return f"{v:.3f}" if _finite(v) else "n/a"
+
+
+def describe_run(cfg, result, scales: dict[str, int], command: str) -> str:
+    """The parent's description (Markdown, shown on the run page): what ran, from where, the result."""
+    m = result.metrics
+    by_axis, _ = curves({k: v for k, v in m.items() if "/" in k})
+    ps = sorted(by_axis.get("pcpg/accuracy/by_p", {}), reverse=True)
+    envs = list(getattr(result, "clustering", {}) or [])
+    lines = [f"**{command or 'pcpg run'}** — experiment `{cfg.name}`, domain {getattr(cfg, 'domain', '?')}, "
+             f"environments {', '.join(envs) or 'n/a'}, seeds {', '.join(map(str, getattr(cfg, 'seeds', []) or []))}, "
+             f"config hash `{cfg.hash()}`.", ""]
+    if ps:
+        p = ps[0]
+        lines.append(f"Headline (mean over environments, p = {p:g}): PCPG accuracy "
+                     f"{_fmt(m.get(f'pcpg/accuracy/p{p:g}'))} vs No Clustering {_fmt(m.get(f'baseline/accuracy/p{p:g}'))}"
+                     f" (random {_fmt(m.get('random/accuracy'))}).")
+    if _finite(m.get("clustering/accuracy")):
+        lines.append(f"Clustering accuracy {_fmt(m['clustering/accuracy'])}"
+                     + (f", gap to the supervised ceiling {_fmt(m['clustering/gap_to_ceiling'])}"
+                        if _finite(m.get("clustering/gap_to_ceiling")) else "") + ".")
+    elif _finite(m.get("clustering/silhouette")):
+        lines.append(f"Clustering silhouette {_fmt(m['clustering/silhouette'])} (no true styles to compare).")
+    charts = [f"`{k}`: step = {s} × {'p' if k.startswith('accuracy_vs_p') else 'c'}"
+              for k, s in sorted(scales.items()) if s]
+    if charts:
+        lines += ["", "Curves: " + "; ".join(charts) + "."]
+    cached = getattr(result, "cached_stages", None)
+    if cached:
+        lines.append(f"Stages served from cache: {', '.join(cached)}.")
+    lines += ["", "Children: one run per environment (its tables, figures, models and curves). Std over "
+              "seeds: `metrics.csv` artifacts. Tables and figures: `summary/`; the report: `report/report.html`."]
+    return "\n".join(lines)
+
+
+def ui_link(uri: str, run_id: str, ui: str = "http://127.0.0.1:5000") -> str:
+    """The experiment's runs table in the MLflow UI (``ui``: where ``mlflow ui`` serves a local store).
+
+    MLflow 3.17's UI picks GenAI or classic pages from its own workflow switch (saved in the
+    browser, GenAI by default), not from the experiment's kind tag: the link names the classic
+    workflow, so the first visit already opens on the runs table and the browser keeps it.
+    """
+    exp_id = _retry(_client(uri).get_run, run_id).info.experiment_id
+    base = uri.rstrip("/") if uri.startswith(("http://", "https://")) else ui
+    return f"{base}/#/experiments/{exp_id}/runs?workflowType=machine_learning"
+
+
+# --------------------------------------------------------------------------- experiments and runs
 def find_sweep_run(target: str, uri: str):
-    """An MLflow run id, or an experiment name (its newest pcpg sweep), as the MLflow run."""
+    """An MLflow run id, or an experiment name (its newest pcpg parent run), as the MLflow run."""
     from mlflow.exceptions import MlflowException
 
     client = _client(uri)
@@ -120,55 +466,119 @@ def find_sweep_run(target: str, uri: str):
 
 
 def open_experiment(name: str, uri: str | None):
-    """Check the server, then get or create the experiment; returns (uri, client, experiment id).
+    """Check the server, prepare the store, get or create the experiment (tagged for the classic
+    runs table); returns (uri, client, experiment id)."""
+    from mlflow.exceptions import MlflowException
 
-    On SQLite the artifacts go to ``mlruns/`` beside the database, as an absolute URI, so Ray
-    workers log to the same place whatever their working directory.
-    """
     uri = uri or default_tracking_uri()
     check_reachable(uri)
+    prepare_store(uri)
     client = _client(uri)
     exp = _retry(client.get_experiment_by_name, name)
-    if exp is not None:
-        return uri, client, exp.experiment_id
-    location = None
-    if uri.startswith("sqlite:"):
-        location = (Path(uri.removeprefix("sqlite:///")).parent / "mlruns").resolve().as_uri()
-    return uri, client, _retry(client.create_experiment, name, artifact_location=location)
+    if exp is None:
+        with store_lock(uri, f"experiment:{name}"):
+            exp = _retry(client.get_experiment_by_name, name)
+            if exp is None:
+                try:
+                    _retry(client.create_experiment, name, artifact_location=_artifact_root(uri),
+                           tags=dict([EXPERIMENT_KIND]))
+                except MlflowException as e:  # created on another machine in the meantime
+                    if getattr(e, "error_code", "") != "RESOURCE_ALREADY_EXISTS":
+                        raise
+                exp = _retry(client.get_experiment_by_name, name)
+    if exp.tags.get(EXPERIMENT_KIND[0]) is None:
+        _retry(client.set_experiment_tag, exp.experiment_id, *EXPERIMENT_KIND)
+    return uri, client, exp.experiment_id
+
+
+def _runs_with(client, exp_id: str, tags: dict[str, str], parent: str | None = ...) -> list:
+    """Live runs carrying ``tags`` (and, unless ``...``, exactly this parent run), oldest first."""
+    flt = " and ".join(f"tags.`{k}` = '{v}'" for k, v in tags.items())
+    runs = _retry(client.search_runs, [exp_id], filter_string=flt, max_results=1000)
+    if parent is not ...:
+        runs = [r for r in runs if r.data.tags.get(PARENT) == parent]
+    return sorted(runs, key=lambda r: (r.info.start_time or 0, r.info.run_id))
+
+
+def _find_or_create(client, uri: str, exp_id: str, key: dict[str, str], parent: str | None,
+                    tags: dict[str, str], params: dict[str, str]):
+    """The run with identity ``key`` under ``parent``: found, or created under the identity's lock.
+
+    After creating, a search merges a twin made on another machine in the same instant: the
+    earliest run wins and this process deletes its own (still empty) one.
+    """
+    lock = "run:" + json.dumps([exp_id, parent, key], sort_keys=True)
+    with store_lock(uri, lock):
+        found = _runs_with(client, exp_id, key, parent)
+        if found:
+            run = found[0]
+            if run.info.status != "FINISHED":
+                _retry(client.update_run, run.info.run_id, status="RUNNING")
+                _log_params(client, run.info.run_id, params, have=run.data.params)
+            return run.info.run_id, run.info.status == "FINISHED"
+        all_tags = {**tags, **key, **({PARENT: parent} if parent else {})}
+        mine = _retry(client.create_run, exp_id, tags=all_tags).info.run_id
+        found = _runs_with(client, exp_id, key, parent)
+        if found and found[0].info.run_id != mine:
+            _retry(client.delete_run, mine)
+            return found[0].info.run_id, found[0].info.status == "FINISHED"
+        _log_params(client, mine, params)
+        return mine, False
+
+
+def _provenance_tags(out_dir: Path | None = None) -> dict[str, str]:
+    tags = {"pcpg.git_commit": git_commit(), "pcpg.version": pcpg_dist.__version__, "pcpg.uv_lock": uv_lock_hash()}
+    if out_dir is not None:
+        tags["pcpg.output_dir"] = str(out_dir)
+    return tags
+
+
+def _command(out_dir: Path) -> str:
+    try:
+        return str(json.loads((Path(out_dir) / "summary" / "run.json").read_text()).get("command") or "")
+    except (OSError, ValueError, AttributeError):
+        return ""
 
 
 @dataclass
 class Tracker:
-    """The driver's handle on a sweep's MLflow experiment and parent run."""
+    """The driver's handle on a config's MLflow experiment and parent run."""
 
     uri: str
     experiment_id: str
     parent_id: str
     config_hash: str
+    cfg: object = None
 
     @staticmethod
-    def start(cfg, uri: str | None, out_dir: Path) -> Tracker:
-        uri, client, exp_id = open_experiment(cfg.name, uri)
-        chash = cfg.hash()
-        found = _retry(client.search_runs, [exp_id],
-                       filter_string=f"tags.`{ROLE}` = 'parent' and tags.`{CONFIG_HASH}` = '{chash}'",
-                       order_by=["attributes.start_time DESC"], max_results=1)
-        if found:
-            parent = found[0].info.run_id
-            if found[0].info.status != "FINISHED":
-                _retry(client.update_run, parent, status="RUNNING")
+    def start(cfg, uri: str | None, out_dir: Path, *, parent_run_id: str | None = None,
+              params: dict[str, str] | None = None) -> Tracker:
+        """Find or create the config's parent run (keyed by its content hash).
+
+        With ``parent_run_id`` (a sweep) the run is a nested child of that run, in its experiment,
+        and ``params`` (the point's overrides, dotted keys) are logged as its params.
+        """
+        if parent_run_id:
+            uri = uri or default_tracking_uri()
+            check_reachable(uri)
+            prepare_store(uri)
+            client = _client(uri)
+            exp_id = _retry(client.get_run, parent_run_id).info.experiment_id
         else:
-            tags = {ROLE: "parent", CONFIG_HASH: chash, "mlflow.runName": f"{cfg.name}-{chash[:8]}",
-                    "pcpg.git_commit": git_commit(), "pcpg.version": pcpg_dist.__version__,
-                    "pcpg.uv_lock": uv_lock_hash(), "pcpg.output_dir": str(out_dir)}
-            parent = _retry(client.create_run, exp_id, tags=tags).info.run_id
-            _log_params(client, parent, cfg.flat())
-        return Tracker(uri, exp_id, parent, chash)
+            uri, client, exp_id = open_experiment(cfg.name, uri)
+        chash = cfg.hash()
+        shown = " ".join(f"{k}={v}" for k, v in (params or {}).items())
+        tags = {RUN_NAME: f"{cfg.name}-{chash[:8]}" + (f" [{shown}]" if shown else ""), **_provenance_tags(out_dir),
+                NOTE: f"`{cfg.name}`: running (config hash `{chash}`)."}
+        if params:
+            tags["pcpg.overrides"] = shown
+        all_params = {**cfg.flat(), **{k: str(v) for k, v in (params or {}).items()}}
+        parent, _ = _find_or_create(client, uri, exp_id, {ROLE: "parent", CONFIG_HASH: chash}, parent_run_id,
+                                    tags, all_params)
+        return Tracker(uri, exp_id, parent, chash, cfg)
 
     def _children(self, env: str) -> list:
-        client = _client(self.uri)
-        return _retry(client.search_runs, [self.experiment_id],
-                      filter_string=f"tags.`mlflow.parentRunId` = '{self.parent_id}' and tags.`pcpg.env` = '{env}'")
+        return _runs_with(_client(self.uri), self.experiment_id, {"pcpg.env": env}, self.parent_id)
 
     def env_logged(self, env: str, unit_key: str) -> bool:
         return any(r.info.status == "FINISHED" and r.data.tags.get(UNIT) == unit_key for r in self._children(env))
@@ -178,31 +588,42 @@ class Tracker:
                 "unit_key": unit_key, "config_hash": self.config_hash, "cluster_metrics": cluster_metrics}
 
     def finish(self, result, agents_dir: Path | None = None, report_dir: Path | None = None) -> None:
+        """Log the headline once: a rerun from cache finds the digest and logs nothing again."""
         client = _client(self.uri)
-        metrics = {k: v for k, v in result.metrics.items() if v == v}  # drop NaN
-        metrics.update({f"time/{k}_seconds": v for k, v in result.stage_seconds.items()})
-        _log_metrics(client, self.parent_id, metrics)
-        summary = Path(result.out_dir) / "summary"
-        if summary.is_dir():
-            _retry(client.log_artifacts, self.parent_id, str(summary), "summary")
-        if report_dir is not None and report_dir.is_dir():
-            _retry(client.log_artifacts, self.parent_id, str(report_dir), "report")
-        if agents_dir is not None and not self._has_agents(client):
+        run = _retry(client.get_run, self.parent_id)
+        tags = run.data.tags
+        points, scales = parent_metrics(result)
+        # the results, not the timings: a rerun's summary stage takes its own time, and must not
+        # make the run log everything again
+        digest = _digest([pt for pt in points if not pt[0].startswith("time/")])
+        if tags.get(LOGGED) != digest:
+            note = describe_run(self.cfg, result, scales, _command(result.out_dir)) if self.cfg is not None else ""
+            _log_once(client, self.parent_id, points, {LOGGED: digest, **({NOTE: note} if note else {}),
+                                                        "pcpg.curve_steps": json.dumps(scales)})
+        summary, report = Path(result.out_dir) / "summary", report_dir
+        if tags.get(ARTIFACTS) != digest:
+            if summary.is_dir():
+                _log_folder(client, self.parent_id, summary, "summary")
+                _retry(client.log_text, self.parent_id, _std_table(result.metrics), "summary/metrics.csv")
+            if report is not None and report.is_dir():
+                _log_folder(client, self.parent_id, report, "report")
+            _retry(client.set_tag, self.parent_id, ARTIFACTS, digest)
+        if agents_dir is not None and not tags.get(AGENTS):
             self._log_agents(agents_dir)
-        _retry(client.set_terminated, self.parent_id, "FINISHED")
-
-    def _has_agents(self, client) -> bool:
-        return any(a.path == "agents_logged" for a in _retry(client.list_artifacts, self.parent_id))
+            _retry(client.set_tag, self.parent_id, AGENTS, "yes")
+        if run.info.status != "FINISHED":
+            _retry(client.set_terminated, self.parent_id, "FINISHED")
 
     def _log_agents(self, agents_dir: Path) -> None:
-        """The sweep's agents as one pyfunc model (driver only: log_model needs the fluent API).
+        """The run's agents as one pyfunc model (see :mod:`pcpg_dist.agent_model`).
 
         The model's artifacts are ``<env>.npz`` + ``<env>.json`` (the run's torch files
         converted), so serving it needs numpy, pandas and mlflow only, pinned to the versions
         installed here: MLflow resolves and infers nothing while logging. MLflow 3.17 would also
         copy the uv.lock and pyproject.toml of the working directory into the model (torch and
         all, for ``--env-manager uv``) when it finds them; ``MLFLOW_UV_AUTO_DETECT=false`` keeps
-        the model's environment to its own requirements.
+        the model's environment to its own requirements. The fluent run is this parent, resumed
+        ended by the fluent API (the first time only: ``finish`` skips it once logged).
         """
         import mlflow
 
@@ -218,12 +639,11 @@ class Tracker:
             before = os.environ.get("MLFLOW_UV_AUTO_DETECT")
             os.environ["MLFLOW_UV_AUTO_DETECT"] = "false"
             try:
-                with mlflow.start_run(run_id=self.parent_id):
+                with agent_model.quiet_logging(), mlflow.start_run(run_id=self.parent_id):
                     mlflow.pyfunc.log_model(
                         name="agents", python_model=agent_model.__file__, artifacts={"agents": str(folder)},
                         signature=agent_model.signature(written),
                         input_example=agent_model.input_example(written), conda_env=agent_model.conda_env())
-                    mlflow.log_text("yes", "agents_logged")
             finally:
                 if before is None:
                     os.environ.pop("MLFLOW_UV_AUTO_DETECT", None)
@@ -237,22 +657,84 @@ class Tracker:
 
 def log_environment(info: dict, env: str, out_dir: str, metrics: dict[str, float],
                     model_paths: list[str]) -> str:
-    """Worker side: one child run for an environment's results, tables, figures and models."""
-    client = _client(info["uri"])
-    stale = _retry(client.search_runs, [info["experiment_id"]],
-                   filter_string=f"tags.`mlflow.parentRunId` = '{info['parent_id']}' and tags.`pcpg.env` = '{env}'")
-    for run in stale:  # a half-written child of a killed run, or one from other settings
-        _retry(client.delete_run, run.info.run_id)
-    tags = {"mlflow.parentRunId": info["parent_id"], "mlflow.runName": env, "pcpg.env": env,
-            UNIT: info["unit_key"], ROLE: "environment", CONFIG_HASH: info["config_hash"]}
-    run_id = _retry(client.create_run, info["experiment_id"], tags=tags).info.run_id
-    _log_params(client, run_id, {"env": env})
-    _log_metrics(client, run_id, {**info["cluster_metrics"], **metrics})
-    _retry(client.log_artifacts, run_id, out_dir, "evaluation")
-    for path in model_paths:
-        p = Path(path)
-        for f in (p, p.with_suffix(".json")):
-            if f.is_file():
-                _retry(client.log_artifact, run_id, str(f), f"models/{p.parent.name}")
-    _retry(client.set_terminated, run_id, "FINISHED")
-    return run_id
+    """One environment's child run: metrics (curves over p and c), tables, figures, models.
+
+    Runs in the driver (any thread). Under the (parent, environment) lock: a FINISHED child with
+    the same unit key is kept and nothing is logged; any other child of that environment (a
+    half-written one of a killed run, or one from other settings) is deleted first.
+    """
+    uri, parent = info["uri"], info["parent_id"]
+    client = _client(uri)
+    with store_lock(uri, f"child:{parent}:{env}"):
+        runs = _runs_with(client, info["experiment_id"], {"pcpg.env": env}, parent)
+        for run in runs:
+            if run.info.status == "FINISHED" and run.data.tags.get(UNIT) == info["unit_key"]:
+                return run.info.run_id
+        for run in runs:
+            _retry(client.delete_run, run.info.run_id)
+        merged = {**info["cluster_metrics"], **metrics}
+        points, scales = child_metrics(merged)
+        tags = {PARENT: parent, RUN_NAME: env, "pcpg.env": env, UNIT: info["unit_key"], ROLE: "environment",
+                CONFIG_HASH: info["config_hash"],
+                NOTE: f"Environment `{env}`: its evaluation tables and figures (`evaluation/`), trained "
+                      f"cells (`models/`), curves over p and c (steps: {json.dumps(scales)}), std over seeds "
+                      f"in `evaluation/metrics.csv`."}
+        run_id = _retry(client.create_run, info["experiment_id"], tags=tags).info.run_id
+        _log_params(client, run_id, {"env": env})
+        _log_once(client, run_id, points, {LOGGED: _digest(points)})
+        _log_folder(client, run_id, Path(out_dir), "evaluation")
+        _retry(client.log_text, run_id, _std_table(merged), "evaluation/metrics.csv")
+        for path in model_paths:
+            p = Path(path)
+            for f in (p, p.with_suffix(".json")):
+                if f.is_file():
+                    _retry(client.log_artifact, run_id, str(f), f"models/{p.parent.name}")
+        _retry(client.set_terminated, run_id, "FINISHED")
+        return run_id
+
+
+# --------------------------------------------------------------------------- sweeps
+@dataclass
+class SweepTracker:
+    """A sweep's MLflow run: the parent of one run per point (:meth:`Tracker.start` with its id)."""
+
+    uri: str
+    experiment_id: str
+    parent_id: str
+    sweep_key: str
+
+    @staticmethod
+    def start(name: str, sweep_key: str, axes: dict[str, list], description: str,
+              uri: str | None = None) -> SweepTracker:
+        """Find (by ``sweep_key``) or create the sweep run in experiment ``name``; idempotent."""
+        uri, client, exp_id = open_experiment(name, uri)
+        params = {f"sweep.{axis}": ",".join(map(str, values)) for axis, values in axes.items()}
+        params["sweep.axes"] = ",".join(axes)
+        params["sweep.points"] = str(math.prod(len(v) for v in axes.values()) if axes else 0)
+        tags = {RUN_NAME: f"{name}-sweep-{sweep_key[:8]}", NOTE: description, **_provenance_tags()}
+        run_id, _ = _find_or_create(client, uri, exp_id, {ROLE: "sweep", SWEEP_KEY: sweep_key}, None, tags, params)
+        return SweepTracker(uri, exp_id, run_id, sweep_key)
+
+    def finish(self, metrics: dict[str, float] | None, artifacts: list[Path]) -> None:
+        """Log the sweep's metrics and artifacts once; a rerun with the same results logs nothing."""
+        client = _client(self.uri)
+        run = _retry(client.get_run, self.parent_id)
+        points = [(k, float(v), 0) for k, v in sorted((metrics or {}).items()) if _finite(v)]
+        files = sorted((Path(a).name, hashlib.sha256(Path(a).read_bytes()).hexdigest() if Path(a).is_file() else "")
+                       for a in artifacts)
+        digest = _digest(points, files)
+        if run.data.tags.get(LOGGED) != digest:  # metrics and their digest in one batch
+            _log_once(client, self.parent_id, points, {LOGGED: digest})
+        if run.data.tags.get(ARTIFACTS) != digest:  # files are overwritten, never appended: safe to redo
+            for a in map(Path, artifacts):
+                if a.is_dir():
+                    _log_folder(client, self.parent_id, a, a.name)
+                elif a.is_file():
+                    _retry(client.log_artifact, self.parent_id, str(a))
+            _retry(client.set_tag, self.parent_id, ARTIFACTS, digest)
+        if run.info.status != "FINISHED":
+            _retry(client.set_terminated, self.parent_id, "FINISHED")
+
+    def fail(self) -> None:
+        with contextlib.suppress(Exception):  # best effort while already failing
+            _retry(_client(self.uri).set_terminated, self.parent_id, "KILLED", attempts=2)

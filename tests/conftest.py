@@ -26,8 +26,11 @@ def ray_session():
 
     set_threads(1)
     if not ray.is_initialized():
-        ray.init(num_cpus=2, include_dashboard=False, object_store_memory=200_000_000,
-                 log_to_driver=False)
+        # the product's own start: a private instance on 127.0.0.1 (never a `ray start` cluster
+        # left on the machine), retried if a busy machine makes the node miss Ray's 30 s window
+        from pcpg_dist.ray_utils import init_ray
+
+        init_ray(num_cpus=2)
     yield ray
     ray.shutdown()
 

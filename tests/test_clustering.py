@@ -196,3 +196,54 @@ def test_hungarian_accuracy_with_extra_clusters_and_errors():
     np.testing.assert_array_equal(cluster_sizes(np.array([0, 2, 2]), 4), [1, 0, 2, 0])
     with pytest.raises(DataError, match="differ in length"):
         clustering_metrics(true, pred[:3])
+
+
+# ------------------------------------------------------------------------- bag clusterers
+@pytest.fixture(scope="module")
+def grid_data():
+    """One random style-distinct GridWorld layout, 60 PBTG trajectories per style (seconds)."""
+    from pcpg_dist.config.stages import PBTGConfig
+    from pcpg_dist.domains.gridworld import random_layouts
+    from pcpg_dist.pbtg import assemble_dataset, generate_pair
+
+    layout = random_layouts(1, seed=12)[0]
+    cfg = PBTGConfig(trajectories_per_style=200, dataset_per_style=60)
+    return assemble_dataset([generate_pair(layout, r, cfg, 0) for r in range(4)])
+
+
+@pytest.mark.parametrize("method", ["bag_kmeans", "bag_mop", "bag_auto"])
+def test_bag_clusterers_separate_gridworld_styles(grid_data, method):
+    res = cluster(grid_data, ClusterConfig(method=method), seed=0)
+    m = clustering_metrics(grid_data.styles, res.labels)
+    assert m["accuracy"] >= 0.9, m  # the supervised ceiling on this data is 0.975
+    assert res.metrics["distinct_trajectories"] < grid_data.n_trajectories  # duplicates collapsed
+    if method == "bag_kmeans":  # nearest cluster mean = the k-means labels
+        np.testing.assert_array_equal(res.model.predict(grid_data), res.labels)
+
+
+def test_bag_auto_picks_by_silhouette_without_labels(grid_data):
+    shuffled = grid_data.with_styles(np.random.default_rng(1).permutation(grid_data.styles))
+    a = cluster(grid_data, ClusterConfig(method="bag_auto"), seed=0)
+    b = cluster(shuffled, ClusterConfig(method="bag_auto"), seed=0)
+    np.testing.assert_array_equal(a.labels, b.labels)  # same seed, same labels; styles unread
+    scores = {k.split("/")[1]: v for k, v in a.metrics.items() if k.startswith("candidate_silhouette/")}
+    assert set(scores) == {"bag_kmeans", "bag_mop"}
+    chosen = "bag_mop" if a.metrics["auto_chose_mop"] else "bag_kmeans"
+    assert scores[chosen] == max(scores.values())
+    alone = cluster(grid_data, ClusterConfig(method=chosen), seed=0)
+    np.testing.assert_array_equal(alone.labels, a.labels)
+
+
+def test_bag_model_saves_and_predicts_unseen_trajectories(tmp_path, grid_data):
+    res = cluster(grid_data, ClusterConfig(method="bag_kmeans"), seed=0)
+    res.model.save(tmp_path / "m")
+    loaded = load_model(tmp_path / "m")
+    np.testing.assert_array_equal(loaded.predict(grid_data), res.labels)
+    half = grid_data.subset(np.arange(0, grid_data.n_trajectories, 2))
+    np.testing.assert_array_equal(loaded.predict(half), res.labels[::2])
+
+
+def test_bag_auto_falls_back_to_the_lstm_on_continuous_states(walks):
+    res = cluster(walks, ClusterConfig(method="bag_auto", **FAST), seed=0)
+    assert res.metrics["auto_fell_back_to_lstm"] == 1.0 and res.model.autoencoder is not None
+    assert clustering_metrics(walks.styles, res.labels)["accuracy"] >= 0.95

@@ -28,7 +28,9 @@ BASE = {"name": "t", "gridworld": {"environments": ["E1", "E2"]}}
 
 @pytest.mark.parametrize("name", sorted(p.name for p in EXPERIMENTS.glob("*.yaml")))
 def test_shipped_configs_load(name):
-    cfg = load_config(EXPERIMENTS / name)
+    from pcpg_dist.config.overrides import load_config_with  # a sweep: section is split off
+
+    cfg = load_config_with(EXPERIMENTS / name)
     assert cfg.name and cfg.flat()["name"] == cfg.name
 
 
@@ -106,10 +108,130 @@ def test_loading_a_config_imports_no_torch_and_no_stage():
     import subprocess
     import sys
 
-    code = ("import sys; from pcpg_dist.config import load_config; "
-            f"[load_config(p) for p in {[str(p) for p in sorted(EXPERIMENTS.glob('*.yaml'))]!r}]; "
+    code = ("import sys; from pcpg_dist.config.overrides import load_config_with; "
+            f"[load_config_with(p) for p in {[str(p) for p in sorted(EXPERIMENTS.glob('*.yaml'))]!r}]; "
             "heavy = [m for m in ('torch', 'ray', 'mlflow', 'optuna', 'pcpg_dist.bc', 'pcpg_dist.clustering', "
             "'pcpg_dist.tuning', 'pcpg_dist.runner', 'pcpg_dist.evaluation', 'pcpg_dist.ranking') if m in sys.modules]; "
             "print(heavy)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]", out.stdout + out.stderr
+
+
+# ---------------------------------------------------------------- hostile and careless input (issue 18)
+@pytest.mark.parametrize("patch, needle", [
+    ({"bc": {"betas": [2, -1]}}, "key 'bc.betas': value [2, -1] is not allowed — Adam beta1 must lie in [0, 1)"),
+    ({"bc": {"betas": [0.9, 1.0]}}, "Adam beta2 must lie in [0, 1)"),
+    ({"bc": {"lr": float("inf")}}, "key 'bc.lr': value inf is not allowed — Input should be a finite number"),
+    ({"bc": {"lr": float("nan")}}, "key 'bc.lr'"),
+    ({"bc": {"eps": float("inf")}}, "key 'bc.eps'"),
+    ({"evaluation": {"corruption_levels": [-0.5]}}, "corruption level c must lie in [0, 1], got -0.5"),
+    ({"evaluation": {"corruption_levels": [float("nan")]}}, "key 'evaluation.corruption_levels.0': value nan"),
+    ({"evaluation": {"corruption_ps": [0.0]}}, "key 'evaluation.corruption_ps'"),
+    ({"seed": 2**70}, "key 'seed'"),
+    ({"ranking": {"split_seed": 2**70}}, "key 'ranking.split_seed'"),
+    ({"evaluation": {"rollout_seed": -1}}, "key 'evaluation.rollout_seed'"),
+    ({"tuning": {"seeds": [2**40]}}, "tuning.seeds must be integers in 0..4294967295"),
+    ({"pbtg": {"initial_q": float("inf")}}, "key 'pbtg.initial_q'"),
+    ({"runner": {"cpus_per_task": 10**9}}, "key 'runner.cpus_per_task'"),
+    ({"bc": {"epochs": 10**12}}, "key 'bc.epochs'"),
+    ({"trajectories": {"n_actions": 1e12}}, "key 'trajectories.n_actions'"),
+    ({"tuning": {"k_range": [2, 10**6]}}, "k_range ends at most at 1000"),
+    ({"tuning": {"enqueue": [{"k": 10**9}]}}, "enqueue: k=1000000000 outside 1..1000"),
+    ({"tuning": {"ps": [2.0]}}, "tuning.ps: every p must lie in (0, 1]"),
+    ({"name": "a" * 5000}, "has 5000 characters; at most 100"),
+])
+def test_numeric_fields_are_checked_against_their_real_domain(tmp_path, patch, needle):
+    with pytest.raises(ConfigError) as e:
+        load_config(write(tmp_path, {**BASE, **patch}))
+    msg = str(e.value)
+    assert needle in msg and "\n" not in msg and len(msg) < 700
+
+
+@pytest.mark.parametrize("patch, lower", [
+    ({"pbtg": {"trajectories_per_style": 1e9}}, "lower pbtg.trajectories_per_style or pbtg.max_steps"),
+    ({"evaluation": {"rollouts_per_policy": 10**7, "max_steps": 10**5}},
+     "lower evaluation.rollouts_per_policy or evaluation.max_steps"),
+])
+def test_memory_is_estimated_from_the_config_before_anything_is_allocated(tmp_path, patch, lower):
+    import tracemalloc
+
+    tracemalloc.start()
+    with pytest.raises(ConfigError) as e:
+        load_config(write(tmp_path, {**BASE, **patch}))
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    msg = str(e.value)
+    assert lower in msg and "GiB of memory" in msg and "\n" not in msg
+    assert peak < 20 << 20  # refused from the numbers alone, no array was built
+
+
+def alias_bomb(levels: int = 9) -> str:
+    lines = ["l0: &l0 [x, x, x, x, x, x, x, x, x]"]
+    lines += [f"l{i}: &l{i} [" + ", ".join([f"*l{i - 1}"] * 9) + "]" for i in range(1, levels)]
+    return "\n".join([*lines, f"name: *l{levels - 1}", ""])  # 9**9 = 387 million values
+
+
+def test_yaml_alias_bomb_is_one_line_fast_and_small(tmp_path):
+    import time
+    import tracemalloc
+
+    path = tmp_path / "bomb.yaml"
+    path.write_text(alias_bomb())
+    tracemalloc.start()
+    t0 = time.perf_counter()
+    with pytest.raises(ConfigError) as e:
+        load_config(path)
+    seconds = time.perf_counter() - t0
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    msg = str(e.value)
+    assert "bomb.yaml, line" in msg and "expands to more than 100000 values" in msg and "\n" not in msg
+    assert peak < 20 << 20 and seconds < 10  # was 2 GB of error text and 14.5 GB of memory
+
+
+@pytest.mark.parametrize("content, needle", [
+    (b"name: x\nseed: \xff\xfe\n", "bad.yaml, line 2: not UTF-8 text (byte 14)"),
+    (b"a: &a [*a]\nname: x\n", "a YAML alias refers to a value that contains it"),
+    (b"name: " + b"[" * 60 + b"]" * 60 + b"\n", "nested more than 50 levels deep"),
+    (b"name: " + b"[" * 20_000 + b"]" * 20_000 + b"\n", "nested too deeply to read"),
+    (b"name: x\n" + b"#" * (2 << 20), "a config file may hold at most 1048576 bytes"),
+    (b"name: x\x00\n", "contains a NUL character"),
+    (b"name: x\x04\n", "bad.yaml: not valid YAML (unacceptable character #x0004"),  # found by tests/test_fuzz.py
+    (b'name: x\n"a\\nb": 1\n', r"unknown key 'a\nb'"),
+])
+def test_unreadable_config_files_are_one_line(tmp_path, content, needle):
+    path = tmp_path / "bad.yaml"
+    path.write_bytes(content)
+    with pytest.raises(ConfigError) as e:
+        load_config(path)
+    assert needle in str(e.value) and "\n" not in str(e.value) and "bad.yaml" in str(e.value)
+
+
+def test_a_config_that_is_not_a_regular_file_is_refused(tmp_path):
+    with pytest.raises(ConfigError, match="/dev/zero: cannot read config .not a regular file"):
+        load_config("/dev/zero")
+    with pytest.raises(ConfigError, match="not a regular file"):
+        load_config(tmp_path)
+
+
+def test_huge_values_are_cut_in_error_messages():
+    with pytest.raises(ConfigError) as e:
+        parse_config({"name": ["x" * 10_000] * 10_000})
+    assert len(str(e.value)) < 700 and "key 'name'" in str(e.value)
+
+
+@pytest.mark.parametrize("content, needle", [
+    (b"..S.\n\xff.G.\n", "E1.txt, line 2: not UTF-8 text"),
+    (b"." * (2 << 20), "at most 1048576 are allowed"),
+])
+def test_layout_files_are_checked_at_load(tmp_path, content, needle):
+    path = write(tmp_path, BASE)
+    (tmp_path / "gridworlds" / "E1.txt").write_bytes(content)
+    with pytest.raises(ConfigError) as e:
+        load_config(path)
+    assert needle in str(e.value) and "layout file" in str(e.value) and "\n" not in str(e.value)
+
+
+def test_mario_path_must_be_a_regular_file(tmp_path):
+    with pytest.raises(ConfigError, match="mario.path play log /dev/zero is not a regular file"):
+        load_config(write(tmp_path, {**BASE, "domain": "mario", "mario": {"path": "/dev/zero"}}))

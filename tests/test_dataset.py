@@ -107,3 +107,103 @@ def test_write_never_leaves_a_half_file(tmp_path, monkeypatch):
         write_datasets(tmp_path, [small(seed=3)], {})
     assert (tmp_path / "toy-E1.parquet").read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["manifest.json", "toy-E1.parquet"]
+
+
+# ---------------------------------------------------------------- hostile files (issue 18)
+def with_meta(table: pa.Table, **changes) -> pa.Table:
+    meta = json.loads(table.schema.metadata[b"pcpg"])
+    meta.update(changes)
+    return table.replace_schema_metadata({"pcpg": json.dumps(meta)})
+
+
+def with_column(table: pa.Table, name: str, values: np.ndarray) -> pa.Table:
+    i = table.schema.get_field_index(name)
+    return table.set_column(i, name, pa.array(values, table.schema.field(name).type))
+
+
+def action_at(table: pa.Table, row: int, value: int) -> np.ndarray:
+    a = table.column("action").to_numpy().copy()
+    a[row] = value
+    return a
+
+
+@pytest.mark.parametrize("mutate, needle", [
+    (lambda t: with_meta(t, env="../../evil"), "metadata env '../../evil' is not a plain name"),
+    (lambda t: with_meta(t, env="/etc"), "metadata env '/etc' is not a plain name"),
+    (lambda t: with_meta(t, domain="a/b"), "metadata domain 'a/b'"),
+    (lambda t: with_meta(t, n_actions=1e12), "n_actions 1000000000000 outside 1..1000000"),
+    (lambda t: with_meta(t, n_actions=float("inf")), "unreadable 'pcpg' schema metadata"),
+    (lambda t: with_meta(t, feature_names=7), "unreadable 'pcpg' schema metadata"),
+    (lambda t: t.replace_schema_metadata({"pcpg": "[" * 100_000}), "unreadable 'pcpg' schema metadata"),
+    (lambda t: with_column(t, "action", action_at(t, 0, -5)), "takes action -5, outside 0..3"),
+    (lambda t: with_column(t, "style", np.full(t.num_rows, -7)), "has style -7"),
+    (lambda t: with_column(t, "style", np.full(t.num_rows, 10**12)), "has style 1000000000000; styles are 0, 1, 2"),
+])
+def test_hostile_dataset_files_are_one_line_data_errors(tmp_path, mutate, needle):
+    table = small(n=3, seed=2).to_table()
+    assert table.column("action").to_numpy()[0] >= 0  # row 0 is mid-trajectory
+    path = tmp_path / "bad.parquet"
+    pq.write_table(mutate(table), path)
+    with pytest.raises(DataError, match="bad.parquet") as e:
+        load_dataset(path)
+    assert needle in str(e.value) and "\n" not in str(e.value) and len(str(e.value)) < 500
+
+
+@pytest.mark.parametrize("files, needle", [
+    (["toy-E1.parquet"], "'files' must map file names to their hashes (a JSON object), got list"),
+    ({"../toy-E1.parquet": {"sha256": "x", "rows": 1}}, "manifest file '../toy-E1.parquet' is not a plain name"),
+    ({"/etc/passwd": {"sha256": "x", "rows": 1}}, "manifest file '/etc/passwd' is not a plain name"),
+    ({"toy-E1.parquet": "abc"}, "entry 'toy-E1.parquet' must be a mapping"),
+])
+def test_manifest_entries_are_confined_and_typed(tmp_path, files, needle):
+    write_datasets(tmp_path, [small()], {})
+    manifest = json.loads((tmp_path / "manifest.json").read_text())
+    (tmp_path / "manifest.json").write_text(json.dumps({**manifest, "files": files}))
+    with pytest.raises(DataError) as e:
+        load_datasets(tmp_path)
+    assert needle in str(e.value) and "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("content, needle", [
+    (b"{not json", "unreadable manifest (JSONDecodeError"),
+    (b"\xff\xfe{}", "unreadable manifest (UnicodeDecodeError"),
+    (b"[" * 100_000, "unreadable manifest (RecursionError"),
+    (b"[1, 2]", "unreadable manifest (TypeError"),
+])
+def test_garbage_manifest_is_one_line(tmp_path, content, needle):
+    write_datasets(tmp_path, [small()], {})
+    (tmp_path / "manifest.json").write_bytes(content)
+    with pytest.raises(DataError) as e:
+        load_datasets(tmp_path)
+    assert needle in str(e.value) and "\n" not in str(e.value)
+
+
+def test_a_manifest_entry_linking_outside_its_folder_is_refused(tmp_path):
+    data, elsewhere = tmp_path / "data", tmp_path / "elsewhere"
+    write_datasets(elsewhere, [small()], {})
+    write_datasets(data, [small()], {})
+    (data / "toy-E1.parquet").unlink()
+    (data / "toy-E1.parquet").symlink_to(elsewhere / "toy-E1.parquet")
+    with pytest.raises(DataError, match="toy-E1.parquet: a link to .*elsewhere.*outside"):
+        load_datasets(data)
+
+
+def test_a_dataset_path_that_is_not_a_regular_file_is_refused(tmp_path):
+    with pytest.raises(DataError, match="/dev/zero: dataset file is not a regular file"):
+        read_parquet("/dev/zero")
+
+
+def test_memory_for_a_parquet_file_is_estimated_from_its_footer(tmp_path, monkeypatch):
+    """Simulated small machine: the table's decoded size (from the footer) is compared with half
+    the memory before a single row is read."""
+    from pcpg_dist.config import stages
+    from pcpg_dist.domains.trajectories.table import read_step_table
+
+    write_datasets(tmp_path, [small(n=50)], {})
+    path = tmp_path / "toy-E1.parquet"
+    assert load_dataset(path).n_trajectories == 50
+    monkeypatch.setattr(stages, "machine_memory", lambda: 20_000)
+    with pytest.raises(DataError, match=r"toy-E1.parquet: \d+ rows need about .* GiB of memory to load"):
+        load_dataset(path)
+    with pytest.raises(DataError, match="split the data into smaller files"):
+        read_step_table(path)

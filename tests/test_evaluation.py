@@ -110,3 +110,16 @@ def test_summarize_averages_environments(run, tmp_path):
     assert s.metrics["pcpg/accuracy/p1"] == pytest.approx(res.metrics["pcpg/accuracy/p1"])
     assert s.metrics["B/cross/diagonal_mean"] == res.metrics["cross/diagonal_mean"]
     assert set(s.tables["accuracy"].env) == {"A", "B"}
+
+
+def test_style_of_an_empty_cluster_is_none():
+    """k above the number of styles can leave a cluster without trajectories: no style (-1),
+    never a style index the domain does not have."""
+    from bc_toy import make_dataset
+
+    from pcpg_dist.evaluation import style_of_clusters
+
+    ds = make_dataset(40, seed=1)
+    labels = np.asarray(ds.styles, np.int64)
+    styles = style_of_clusters(ds, labels, int(labels.max()) + 3)
+    assert styles[: labels.max() + 1] == list(range(labels.max() + 1)) and styles[-2:] == [-1, -1]

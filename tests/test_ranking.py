@@ -121,11 +121,17 @@ def test_plan_cells_builds_pcpg_baseline_and_corruption_cells(toy):
     assert np.array_equal(by_key["k0-p1-s0"].mean, by_key["nc-p0.5-s1"].mean)
 
 
-def test_plan_cells_empty_subset_fails_clearly(toy):
+def test_plan_cells_skips_a_cluster_without_training_trajectories(toy):
+    """k above the number of styles can leave a cluster empty: it gets no agent (the evaluation
+    scores its test trajectories with No Clustering's agent), never a crash."""
     tr, _ = split_trajectories(toy.n_trajectories, 0.2, 0)
     labels = np.where(toy.styles == 1, 2, 0)  # no trajectory labelled 1
-    with pytest.raises(DataError, match="empty"):
-        plan_cells(toy, labels, tr, RankConfig(), seeds=[0])
+    cells = plan_cells(toy, labels, tr, RankConfig(ps=(1.0, 0.5)), seeds=[0], k=3,
+                       corruption_levels=(0.0,))
+    keys = {c.key for c in cells}
+    assert {"k0-p1-s0", "k2-p0.5-s0", "nc-p1-s0", "corrupt0-k2-p1-s0"} <= keys
+    assert not any(k.startswith(("k1-", "corrupt0-k1-")) for k in keys)
+    assert all(c.n_trajectories > 0 for c in cells)
 
 
 def test_custom_score_is_used(toy):

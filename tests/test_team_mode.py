@@ -185,12 +185,18 @@ def test_runs_metrics_and_artifacts_on_the_server(services, team_run):
     assert sorted(children) == ["E1", "E3"] and len(runs) == 3
     assert all(c.info.status == "FINISHED" for c in children.values())
 
-    # The parent's numbers are the sweep's summary, and they are real results, not placeholders.
+    # The parent's numbers are the run's summary, and they are real results, not placeholders;
+    # laid out for review: the classic runs table, headline keys only, accuracy over p as a curve.
+    assert exp.tags["mlflow.experimentKind"] == "custom_model_development"
     summary = json.loads((team_run["out"] / "summary" / "metrics.json").read_text())
     pm = parent.data.metrics
-    for key in ("pcpg/accuracy/p1", "pcpg/accuracy/p0.5", "clustering/ari", "random/accuracy"):
+    assert len(pm) <= 30 and not any(k.endswith("/std") or k.startswith(("E1/", "E3/")) for k in pm), sorted(pm)
+    for key in ("pcpg/accuracy/p1", "baseline/accuracy/p1", "clustering/ari", "random/accuracy"):
         assert pm[key] == pytest.approx(summary[key]), key
-    assert pm["pcpg/accuracy/p0.5"] > pm["random/accuracy"] + 0.2
+    curve = {m.step: m.value for m in client.get_metric_history(parent.info.run_id, "accuracy_vs_p/pcpg")}
+    assert curve == {100: pytest.approx(summary["pcpg/accuracy/p1"]), 50: pytest.approx(summary["pcpg/accuracy/p0.5"])}
+    assert curve[50] > pm["random/accuracy"] + 0.2
+    assert "pcpg run" in parent.data.tags["mlflow.note.content"]
     assert parent.data.params["bc.hidden_size"] == "16"
     for env, child in children.items():
         cm = child.data.metrics
@@ -198,6 +204,7 @@ def test_runs_metrics_and_artifacts_on_the_server(services, team_run):
         assert cm["pcpg/accuracy/p1"] > cm["random/accuracy"] + 0.2, env
         evaluation = {Path(a.path).name for a in client.list_artifacts(child.info.run_id, "evaluation")}
         assert "metrics.json" in evaluation and any(n.endswith(".png") for n in evaluation), evaluation
+        assert "metrics.csv" in evaluation and "done.json" not in evaluation, evaluation  # std table, no bookkeeping
         assert client.list_artifacts(child.info.run_id, "models"), env
 
     # Artifacts went through the server into its artifacts dir, and come back byte for byte.

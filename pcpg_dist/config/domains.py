@@ -10,11 +10,12 @@ import re
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import Field, ValidationInfo, field_validator, model_validator
+from pydantic import Field, PrivateAttr, ValidationInfo, field_validator, model_validator
 
 from pcpg_dist.schema import StrictModel
 
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]*$"
+MAX_NAME = 100  # names become folder and file names (255 bytes at most on common file systems)
 
 #: The paper's MiniDungeons training and test levels (13 in all; shipped in pcpg_dist/data).
 LEVELS_TRAIN: tuple[str, ...] = ("test", "hard", "random_1", "random_2", "gene_1", "gene_2", "strand_1")
@@ -27,9 +28,33 @@ EventEncoding = Literal["onehot", "id"]
 
 def safe_name(value: str, what: str) -> str:
     """Names become folder and run names: no path separators, no '..', nothing absolute."""
+    if len(value) > MAX_NAME:
+        raise ValueError(f"{what} {value[:40]!r}... has {len(value)} characters; at most {MAX_NAME} are allowed")
     if not re.match(NAME_PATTERN, value) or ".." in value:
         raise ValueError(f"{what} {value!r} must be letters, digits, '_', '.', '-' (no '/', no '..')")
     return value
+
+
+MAX_LEVEL_BYTES = 1 << 20  # a level or layout file is a screenful of characters
+MAX_PLAY_LOG_BYTES = 64 << 20  # a play log is read whole, ~5x its size in Python objects (shipped: 1.1 MB)
+
+
+def check_text_file(path: Path, what: str, max_bytes: int = MAX_LEVEL_BYTES, utf8: bool = True) -> None:
+    """A file the config points at must be a regular file of at most ``max_bytes`` bytes of UTF-8
+    text (a FIFO or /dev/zero would block or never end; a binary file is the wrong file)."""
+    if not path.is_file():
+        raise ValueError(f"{what} {path} " + ("is not a regular file" if path.exists() else "not found"))
+    size = path.stat().st_size
+    if size > max_bytes:
+        raise ValueError(f"{what} {path} has {size} bytes; at most {max_bytes} are allowed (wrong file?)")
+    if not utf8:
+        return
+    raw = path.read_bytes()
+    try:
+        raw.decode("utf-8")
+    except UnicodeDecodeError as e:
+        line = raw[: e.start].count(b"\n") + 1
+        raise ValueError(f"{what} {path}, line {line}: not UTF-8 text (byte {e.start}); save it as UTF-8") from None
 
 
 def relative_to_config(v: Path, info: ValidationInfo) -> Path:
@@ -38,18 +63,46 @@ def relative_to_config(v: Path, info: ValidationInfo) -> Path:
     return (Path(base) / v).resolve() if base is not None and not v.is_absolute() else v
 
 
+class RandomLayoutsConfig(StrictModel):
+    """Random style-distinct layouts instead of layout files (units R0000, R0001, ...)."""
+
+    count: int = Field(ge=1, le=10_000, description="number of layouts to draw")
+    seed: int = Field(0, ge=0, description="layout i is drawn from the seed sequence (seed, i): the same "
+                      "(count, seed) always gives the same layouts, and a larger count only adds layouts")
+
+    @property
+    def names(self) -> list[str]:
+        return [f"R{i:04d}" for i in range(self.count)]
+
+
 class GridWorldConfig(StrictModel):
-    """Which GridWorld layouts to use."""
+    """Which GridWorld layouts to use: layout files, or ``random_layouts`` drawn by the generator."""
 
     layout_dir: Annotated[Path, Field(description="folder of layout files NAME.txt; relative paths are "
                                                   "relative to the config file")] = Path("gridworlds")
     environments: Annotated[list[str], Field(min_length=1, description="layout names (files "
                                              "layout_dir/NAME.txt)")] = ["E1", "E2", "E3", "E4", "E5"]
 
+    random_layouts: RandomLayoutsConfig | None = Field(
+        None, description="{count: N, seed: S}: N random layouts (10x10, reachable goals, the four "
+        "styles' optimal routes distinct), named R0000..; replaces environments and layout files")
+
     @field_validator("layout_dir")
     @classmethod
     def _resolve(cls, v: Path, info: ValidationInfo) -> Path:
         return relative_to_config(v, info)
+
+    @model_validator(mode="after")
+    def _one_source(self) -> GridWorldConfig:
+        if self.random_layouts is not None and "environments" in self.model_fields_set:
+            raise ValueError("give either gridworld.environments (layout files) or gridworld.random_layouts, "
+                             "not both")
+        return self
+
+    @property
+    def units(self) -> list[str]:
+        """The layout names: the random layouts' R0000.. or ``environments``."""
+        return self.random_layouts.names if self.random_layouts is not None else list(self.environments)
 
     @field_validator("environments")
     @classmethod
@@ -60,14 +113,27 @@ class GridWorldConfig(StrictModel):
             raise ValueError("environment names must be unique")
         return v
 
+    # the layout files' text, read once on the driver when the config is checked and carried with
+    # the config to every task, so no worker needs the driver's disk (or sees a file edited since)
+    _texts: dict[str, str] = PrivateAttr(default_factory=dict)
+
     def layout_path(self, env: str) -> Path:
         return self.layout_dir / f"{env}.txt"
 
+    def layout_text(self, env: str) -> str:
+        if env not in self._texts:
+            self._texts[env] = self.layout_path(env).read_text(encoding="utf-8")
+        return self._texts[env]
+
     def check(self) -> None:
+        if self.random_layouts is not None:
+            return
         for env in self.environments:
             if not self.layout_path(env).is_file():
                 raise ValueError(f"layout file {self.layout_path(env)} for environment {env!r} not found "
                                  f"(key gridworld.environments)")
+            check_text_file(self.layout_path(env), "layout file")
+            self.layout_text(env)
 
 
 class MiniDungeonsConfig(StrictModel):
@@ -78,10 +144,11 @@ class MiniDungeonsConfig(StrictModel):
                                              "gene_2, strand_1)")] = list(LEVELS_TRAIN)
     test_levels: Annotated[list[str], Field(min_length=1, description="held-out levels for accuracy and "
                                             "rollouts (paper: holmgard_1, 2, 4, 6, 9, 10)")] = list(LEVELS_TEST)
-    runs_per_level: Annotated[int, Field(ge=1, description="episodes per (level, proxy) (paper: 10)")] = 10
+    runs_per_level: Annotated[int, Field(ge=1, le=100_000, description="episodes per (level, proxy) (paper: 10)")] = 10
     noise_min: Annotated[float, Field(ge=0, le=1, description="lower end of a run's proxy noise")] = 0.0
     noise_max: Annotated[float, Field(ge=0, le=1, description="upper end of a run's proxy noise")] = 0.2
-    max_steps: Annotated[int, Field(ge=1, description="turn cap of an episode (a cap is a failure)")] = 200
+    max_steps: Annotated[int, Field(ge=1, le=100_000, description="turn cap of an episode (a cap is a "
+                                                                  "failure)")] = 200
 
     @model_validator(mode="after")
     def _levels(self) -> MiniDungeonsConfig:
@@ -121,6 +188,10 @@ class MarioLoadConfig(StrictModel):
     @classmethod
     def _resolve(cls, v: Path | None, info: ValidationInfo) -> Path | None:
         return None if v is None else relative_to_config(v, info)
+
+    def check(self) -> None:
+        if self.path is not None:
+            check_text_file(self.path, "mario.path play log", MAX_PLAY_LOG_BYTES, utf8=False)
 
 
 class TrajectoriesConfig(StrictModel):

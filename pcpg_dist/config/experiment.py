@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
+import reprlib
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -37,6 +39,9 @@ from pcpg_dist.errors import ConfigError, PcpgError
 from pcpg_dist.schema import StrictModel
 
 MAX_SHOWN = 200  # characters of a value quoted in an error message
+MAX_CONFIG_BYTES = 1 << 20  # a config is a page of settings; a megabyte is far beyond any real one
+MAX_YAML_NODES = 100_000  # values after alias expansion: a 'billion laughs' file stops here
+MAX_YAML_DEPTH = 50  # nesting of lists and mappings
 
 
 class ExperimentConfig(StrictModel):
@@ -46,7 +51,7 @@ class ExperimentConfig(StrictModel):
     domain: Annotated[str, Field(description="a registered domain: gridworld, minidungeons, mario, "
                                              "trajectories, or a plugin's name (`pcpg domains` lists them)")] = "gridworld"
     seed: Annotated[int, Field(ge=0, le=2**32 - 1, description="base seed of data generation")] = 0
-    seeds: Annotated[list[int], Field(min_length=1, description="repetition seeds (clustering, split, BC init); "
+    seeds: Annotated[list[int], Field(min_length=1, max_length=1000, description="repetition seeds (clustering, split, BC init); "
                                                                 "results report mean and std over them")] = [0, 1, 2, 3]
     gridworld: GridWorldConfig = GridWorldConfig()
     minidungeons: MiniDungeonsConfig = MiniDungeonsConfig()
@@ -130,19 +135,35 @@ class ExperimentConfig(StrictModel):
         return out
 
 
+_REPR = reprlib.Repr()
+_REPR.maxlevel, _REPR.maxlist, _REPR.maxtuple, _REPR.maxdict, _REPR.maxset = 3, 8, 8, 6, 6
+_REPR.maxstring = _REPR.maxother = MAX_SHOWN
+_REPR.maxlong = 60
+
+
 def _shown(value: Any) -> str:
-    text = "{...}" if isinstance(value, dict) else repr(value)
-    return text if len(text) <= MAX_SHOWN else text[:MAX_SHOWN] + f"... ({len(text)} characters)"
+    """A value quoted in an error message: never more than a few hundred characters, and built
+    without the full ``repr`` of a huge value (an alias bomb's repr would be gigabytes)."""
+    text = "{...}" if isinstance(value, dict) else _REPR.repr(value)
+    return text if len(text) <= MAX_SHOWN else text[:MAX_SHOWN] + "..."
+
+
+def one_line(text: str, limit: int = 3 * MAX_SHOWN) -> str:
+    """``text`` on one line (control characters shown escaped), cut to ``limit`` characters."""
+    text = "".join(c if c.isprintable() else repr(c)[1:-1] for c in text[: 2 * limit])
+    return text if len(text) <= limit else text[:limit] + "..."
 
 
 def _describe(error: dict) -> str:
-    key = ".".join(str(p) for p in error["loc"]) or "(top level)"
+    key = one_line(".".join(str(p) for p in error["loc"]), MAX_SHOWN) or "(top level)"
     shown = "missing" if error["type"] == "missing" else _shown(error.get("input"))
-    msg = error["msg"].removeprefix("Value error, ")
+    msg = error["msg"].removeprefix("Value error, ").replace("\n", " ")
     if len(msg) > 2 * MAX_SHOWN:
         msg = msg[: 2 * MAX_SHOWN] + "..."
     if error["type"] == "extra_forbidden":
         return f"unknown key '{key}' — not a setting of this section (check the spelling)"
+    if isinstance(error.get("input"), dict) and error["type"] == "value_error":
+        return f"section '{key}': {msg}"  # a check across the section's keys: the message names them
     return f"key '{key}': value {shown} is not allowed — {msg}"
 
 
@@ -155,26 +176,111 @@ def parse_config(data: Any, source: str = "<config>", base_dir: Path | None = No
     except ValidationError as e:
         errors = e.errors(include_url=False)
         more = f" (and {len(errors) - 1} more problem(s))" if len(errors) > 1 else ""
-        raise ConfigError(f"{source}: {_describe(errors[0])}{more}") from None
+        raise ConfigError(one_line(f"{source}: {_describe(errors[0])}{more}")) from None
     try:  # the chosen domain's own settings and checks (files exist, a plugin's section, ...)
         cfg.domain_object.check_config(cfg)
     except (PcpgError, ValueError) as e:
-        raise ConfigError(f"{source}: {e}") from None
+        raise ConfigError(one_line(f"{source}: {e}")) from None
     return cfg
+
+
+class _BoundedLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, with the composed node graph measured before any Python value is
+    built: aliases are shared nodes there, so a file of a few lines cannot expand into gigabytes.
+
+    Numbers are read as YAML 1.2 reads them: ``2:8:1`` is text (a sweep range), not YAML 1.1's
+    base-60 integer 7681, and ``1e-3`` is a number, not text."""
+
+
+_INT, _FLOAT = "tag:yaml.org,2002:int", "tag:yaml.org,2002:float"
+_BoundedLoader.yaml_implicit_resolvers = {
+    first: [(tag, rx) for tag, rx in items if tag not in (_INT, _FLOAT)]
+    for first, items in yaml.SafeLoader.yaml_implicit_resolvers.items()}
+_BoundedLoader.add_implicit_resolver(
+    _INT, re.compile(r"^(?:[-+]?0b[0-1_]+|[-+]?0x[0-9a-fA-F_]+|[-+]?(?:0|[1-9][0-9_]*))$"), list("-+0123456789"))
+_BoundedLoader.add_implicit_resolver(
+    _FLOAT, re.compile(r"""^(?:[-+]?(?:[0-9][0-9_]*\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+                        |[0-9][0-9_]*[eE][-+]?[0-9]+
+                        |\.[0-9_]+(?:[eE][-+]?[0-9]+)?)
+                        |[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))$""", re.X), list("-+0123456789."))
+
+
+def _expanded_size(node: yaml.Node, path: str) -> int:
+    """Number of values ``node`` expands to (aliases counted every time they are used)."""
+    memo: dict[int, int] = {}
+    active: set[int] = set()
+
+    def size(n: yaml.Node, depth: int) -> int:
+        if id(n) in memo:
+            return memo[id(n)]
+        if id(n) in active:
+            raise ConfigError(f"{path}, line {n.start_mark.line + 1}: a YAML alias refers to a value that "
+                              f"contains it (a recursive structure); write the values out")
+        if depth > MAX_YAML_DEPTH:
+            raise ConfigError(f"{path}, line {n.start_mark.line + 1}: nested more than {MAX_YAML_DEPTH} "
+                              f"levels deep; a config needs a few")
+        active.add(id(n))
+        if isinstance(n, yaml.SequenceNode):
+            total = 1 + sum(size(c, depth + 1) for c in n.value)
+        elif isinstance(n, yaml.MappingNode):
+            total = 1 + sum(size(k, depth + 1) + size(v, depth + 1) for k, v in n.value)
+        else:
+            total = 1
+        active.discard(id(n))
+        if total > MAX_YAML_NODES:
+            raise ConfigError(f"{path}, line {n.start_mark.line + 1}: expands to more than {MAX_YAML_NODES} "
+                              f"values (YAML aliases repeat what they refer to); a config needs far fewer")
+        memo[id(n)] = total
+        return total
+
+    return size(node, 0)
+
+
+def read_yaml(path: Path, what: str = "config") -> Any:
+    """A bounded YAML read: a regular file of at most MAX_CONFIG_BYTES, UTF-8, at most
+    MAX_YAML_NODES values after alias expansion, at most MAX_YAML_DEPTH levels deep."""
+    try:
+        if not path.is_file():
+            reason = "not found" if not path.exists() else "not a regular file"
+            raise ConfigError(f"{path}: cannot read {what} ({reason})")
+        size = path.stat().st_size
+        if size > MAX_CONFIG_BYTES:
+            raise ConfigError(f"{path}: {size} bytes; a {what} file may hold at most {MAX_CONFIG_BYTES} bytes "
+                              f"(is this the right file?)")
+        with open(path, "rb") as f:
+            raw = f.read(MAX_CONFIG_BYTES + 1)
+    except OSError as e:
+        raise ConfigError(f"{path}: cannot read {what} ({e.strerror or e})") from None
+    if len(raw) > MAX_CONFIG_BYTES:  # the file grew while we looked
+        raise ConfigError(f"{path}: a {what} file may hold at most {MAX_CONFIG_BYTES} bytes")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as e:
+        line = raw[: e.start].count(b"\n") + 1
+        raise ConfigError(f"{path}, line {line}: not UTF-8 text (byte {e.start}); save the file as UTF-8") from None
+    if "\x00" in text:
+        raise ConfigError(f"{path}: contains a NUL character; a {what} is a text file")
+    try:
+        loader = _BoundedLoader(text)  # its reader rejects control characters at once
+    except yaml.YAMLError as e:
+        raise ConfigError(one_line(f"{path}: not valid YAML ({e})".split("\n")[0])) from None
+    try:
+        node = loader.get_single_node()
+        if node is None:
+            return None
+        _expanded_size(node, str(path))
+        return loader.construct_document(node)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f", line {mark.line + 1}" if mark else ""
+        problem = str(getattr(e, "problem", None) or e).replace("\n", " ")[:MAX_SHOWN]
+        raise ConfigError(f"{path}{where}: not valid YAML ({problem})") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: nested too deeply to read; a config needs a few levels") from None
+    finally:
+        loader.dispose()
 
 
 def load_config(path: str | Path) -> ExperimentConfig:
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as e:
-        raise ConfigError(f"{path}: cannot read config ({e.strerror})") from None
-    except UnicodeDecodeError as e:
-        raise ConfigError(f"{path}: not UTF-8 text (byte {e.start})") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        where = f", line {mark.line + 1}" if mark else ""
-        raise ConfigError(f"{path}{where}: not valid YAML ({getattr(e, 'problem', e)})") from None
-    return parse_config(data, source=str(path), base_dir=path.parent)
+    return parse_config(read_yaml(path), source=str(path), base_dir=path.parent)

@@ -16,6 +16,7 @@ from collections import deque
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
@@ -151,9 +152,13 @@ def parse_layout(text: str, name: str = "<layout>", check_styles: bool = True) -
 def load_layout(path: str | Path, check_styles: bool = True) -> Layout:
     path = Path(path)
     try:
-        text = path.read_text()
+        if path.is_file() and path.stat().st_size > 1 << 20:
+            raise LayoutError(f"{path}: {path.stat().st_size} bytes; a layout file may hold at most {1 << 20}")
+        text = path.read_text(encoding="utf-8")
     except OSError as e:
         raise LayoutError(f"{path}: cannot read layout file ({e.strerror})") from None
+    except UnicodeDecodeError as e:
+        raise LayoutError(f"{path}: not UTF-8 text (byte {e.start}); save the layout as UTF-8") from None
     # Errors name the file; the layout itself is named by its stem (E1, E2, ...).
     layout = parse_layout(text, name=str(path), check_styles=check_styles)
     return Layout(name=path.stem, grid=layout.grid)
@@ -273,13 +278,16 @@ def style_problem(layout: Layout, gamma: float = 0.99, max_steps: int = 100) -> 
     return "; ".join(dict.fromkeys(problems)) or None
 
 
-def random_layout(seed: int, size: int = 10, wall_density: float = 0.18, n_traps: int = 4,
-                  max_tries: int = 10_000) -> Layout:
+def random_layout(seed: int | Sequence[int], size: int = 10, wall_density: float = 0.18, n_traps: int = 4,
+                  max_tries: int = 10_000, name: str | None = None) -> Layout:
     """A random valid layout whose four styles have distinct optimal routes and signatures.
 
-    Deterministic in ``seed``: candidates are drawn from one generator until one passes.
+    Deterministic in ``seed`` (an int, or a sequence of ints = one seed-sequence entropy):
+    candidates are drawn from one generator until one passes :func:`parse_layout`'s checks (one S,
+    G, B1, B2; G and both bonuses reachable) and :func:`style_problem` finds nothing.
     """
     rng = np.random.default_rng(seed)
+    name = name or f"random-{seed}"
     for _ in range(max_tries):
         grid = np.where(rng.random((size, size)) < wall_density, "#", ".")
         free = np.argwhere(grid == ".")
@@ -290,12 +298,25 @@ def random_layout(seed: int, size: int = 10, wall_density: float = 0.18, n_traps
             grid[y, x] = ch
         text = "\n".join("".join(row) for row in grid)
         try:
-            layout = parse_layout(text, name=f"random-{seed}", check_styles=False)
+            layout = parse_layout(text, name=name, check_styles=False)
         except LayoutError:
             continue
         if style_problem(layout) is None:
             return layout
     raise LayoutError(f"random_layout({seed}): no valid layout in {max_tries} tries")
+
+
+def random_layout_name(index: int) -> str:
+    """Unit name of the index-th random layout (safe as a folder and run name)."""
+    return f"R{index:04d}"
+
+
+def random_layouts(count: int, seed: int, start: int = 0) -> list[Layout]:
+    """Layouts ``start .. start+count-1`` of the random family ``seed`` (``gridworld.random_layouts``).
+
+    Layout i comes from the seed sequence (seed, i) alone, so it does not depend on ``count``.
+    """
+    return [random_layout((seed, i), name=random_layout_name(i)) for i in range(start, start + count)]
 
 
 # ----------------------------------------------------------------------- rollouts

@@ -7,16 +7,42 @@ style's reward, optimal returns and drawings (Tables 3/5, Figs. 5, 6, 8).
 
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import Any
 
 from pcpg_dist.domains.base import Domain, DomainHooks
 
 
-def gridworld_layouts(cfg):
-    """The config's layouts, loaded and checked (style-distinct routes and signatures)."""
-    from pcpg_dist.domains.gridworld import load_layout
+@lru_cache(maxsize=8)
+def _random_family(count: int, seed: int):
+    from pcpg_dist.domains.gridworld import random_layouts
 
-    return [load_layout(cfg.gridworld.layout_path(env)) for env in cfg.gridworld.environments]
+    return tuple(random_layouts(count, seed))
+
+
+def gridworld_layouts(cfg):
+    """The config's layouts, checked (style-distinct routes and signatures): drawn by the
+    generator when ``gridworld.random_layouts`` is set, else read from the layout files."""
+    rl = cfg.gridworld.random_layouts
+    if rl is not None:
+        return list(_random_family(rl.count, rl.seed))
+    return [_file_layout(cfg, env) for env in cfg.gridworld.environments]
+
+
+def _file_layout(cfg, env: str, check_styles: bool = True):
+    """A layout file's layout, from the text the config captured on the driver."""
+    from pcpg_dist.domains.gridworld import Layout, parse_layout
+
+    gw = cfg.gridworld
+    return Layout(name=env, grid=parse_layout(gw.layout_text(env), name=str(gw.layout_path(env)),
+                                              check_styles=check_styles).grid)
+
+
+def gridworld_layout(cfg, unit: str):
+    """One unit's layout (unchecked for style problems: the data was generated from it)."""
+    if cfg.gridworld.random_layouts is not None:
+        return {lt.name: lt for lt in gridworld_layouts(cfg)}[unit]
+    return _file_layout(cfg, unit, check_styles=False)
 
 
 class GridWorldDomain(Domain):
@@ -31,8 +57,11 @@ class GridWorldDomain(Domain):
 
     def data_key(self, cfg) -> list[Any]:
         gw = cfg.gridworld
-        layouts = [gw.layout_path(e).read_text() for e in gw.environments]
-        return [self.name, cfg.seed, cfg.pbtg, gw.environments, layouts]
+        if gw.random_layouts is not None:  # the layouts' text, so a generator change regenerates
+            layouts = [lt.text() for lt in gridworld_layouts(cfg)]
+        else:
+            layouts = [gw.layout_text(e) for e in gw.environments]
+        return [self.name, cfg.seed, cfg.pbtg, gw.units, layouts]
 
     def generate(self, cfg, show_progress: bool = True):
         from pcpg_dist.pbtg import assemble_dataset, generate_pair
@@ -53,7 +82,7 @@ class GridWorldDomain(Domain):
         from pcpg_dist.domains import gridworld as gw
 
         steps = cfg.evaluation.max_steps
-        layout = gw.load_layout(cfg.gridworld.layout_path(unit), check_styles=False)
+        layout = gridworld_layout(cfg, unit)
         return DomainHooks(
             rollout=lambda policy, n, rng: gw.rollout(layout, policy, n, rng, max_steps=steps),
             returns=gw.returns, optimal_return=lambda r: gw.optimal_return(layout, r, max_steps=steps),

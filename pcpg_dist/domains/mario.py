@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pcpg_dist.config.domains import EventEncoding, Goal, MarioLoadConfig
+from pcpg_dist.config.domains import MAX_PLAY_LOG_BYTES, EventEncoding, Goal, MarioLoadConfig
 from pcpg_dist.dataset import Dataset
 from pcpg_dist.errors import DataError
 
@@ -53,6 +53,8 @@ SHIPPED_PACKAGE = "pcpg_dist"
 SHIPPED_PATH = ("data", "mario", "mario_stli_all_levels.log")
 SHIPPED_SHA256 = "ff427eb617213f81c138d67c707a6ec953fa79154d3566c940ffbe1ae08e876b"
 SHIPPED_EPISODES = 225
+
+MAX_COUNTER = 2**24  # float32 states hold counters exactly up to here; a human episode counts hundreds
 
 EVENT_ONEHOT = tuple(f"event_{i}" for i in range(N_ACTIONS))
 
@@ -94,6 +96,8 @@ def _parse_step(text: str) -> tuple[list[int] | None, str]:
         values = [int(p) for p in parts]
     except ValueError:
         return None, f"not an integer in {text[:60]!r}"
+    if max(values[:-1]) > MAX_COUNTER:
+        return None, f"counter above {MAX_COUNTER} in {text[:60]!r}"
     if min(values[:-1]) < 0:
         return None, f"negative counter in {text[:60]!r}"
     if not 0 <= values[-1] < N_ACTIONS:
@@ -148,6 +152,12 @@ def load_play_log(path: str | Path, strict: bool = True, goal: Goal = "no_death"
     if event not in ("onehot", "id"):
         raise DataError(f"event must be 'onehot' or 'id', got {event!r}")
     try:
+        if not path.is_file():  # a FIFO or /dev/zero would block or never end
+            raise DataError(f"{path}: cannot read play log (" + ("not a regular file)" if path.exists()
+                                                                  else "not found)"))
+        if path.stat().st_size > MAX_PLAY_LOG_BYTES:
+            raise DataError(f"{path}: {path.stat().st_size} bytes; a play log may hold at most {MAX_PLAY_LOG_BYTES} "
+                            f"(split it)")
         text = path.read_text(encoding="utf-8-sig", errors="replace")  # a BOM is not data
     except OSError as e:
         raise DataError(f"{path}: cannot read play log ({e.strerror or e})") from None

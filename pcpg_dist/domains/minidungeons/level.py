@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pcpg_dist.config.domains import LEVELS_TEST, LEVELS_TRAIN
+from pcpg_dist.config.domains import LEVELS_TEST, LEVELS_TRAIN, MAX_LEVEL_BYTES
 from pcpg_dist.errors import LayoutError
 
 # Tile codes of :attr:`Level.grid` (the start is stored as floor; its position is kept apart).
@@ -29,6 +29,7 @@ CHAR_TILE = {".": FLOOR, "#": WALL, "T": TREASURE, "P": POTION, "M": MONSTER, "E
 
 REWARD_KEYS = ("TURN", "EXIT", "KILL", "TREASURE", "POTION", "DEAD")
 #: Used when a props file has no REWARDS block (the values of gym-md's ``test`` level).
+MAX_PROP = 10**6  # hit points, powers and rewards: larger values overflow the game's counters
 DEFAULT_REWARDS = {"TURN": 1.0, "EXIT": 20.0, "KILL": 4.0, "TREASURE": 3.0, "POTION": 1.0, "DEAD": -20.0}
 
 
@@ -146,6 +147,8 @@ def parse_props(text: str, source: str = "<props>") -> Props:
         raw = json.loads(text)
     except json.JSONDecodeError as e:
         raise LayoutError(f"{source}:{e.lineno}: invalid JSON ({e.msg}, column {e.colno})") from None
+    except RecursionError:
+        raise LayoutError(f"{source}:1: JSON nested too deeply; a props file is one flat object") from None
     if not isinstance(raw, dict):
         raise LayoutError(f"{source}:1: expected a JSON object of rules, got {type(raw).__name__}")
 
@@ -158,15 +161,16 @@ def parse_props(text: str, source: str = "<props>") -> Props:
         ok = isinstance(v, int | float) and not isinstance(v, bool)
         if ok and integer:
             ok = float(v).is_integer()
-        if not ok or (positive and v <= 0):
+        if not ok or (positive and v <= 0) or abs(v) > MAX_PROP:
             kind = "a positive integer" if integer and positive else "a number"
-            raise LayoutError(f"{source}:{_key_line(text, key)}: '{key}' must be {kind}, got {v!r}")
+            raise LayoutError(f"{source}:{_key_line(text, key)}: '{key}' must be {kind} of at most "
+                              f"{MAX_PROP}, got {repr(v)[:40]}")
         return v
 
     def flag(key: str, default: bool) -> bool:
         v = raw.get(key, default)
         if not isinstance(v, bool):
-            raise LayoutError(f"{source}:{_key_line(text, key)}: '{key}' must be true or false, got {v!r}")
+            raise LayoutError(f"{source}:{_key_line(text, key)}: '{key}' must be true or false, got {repr(v)[:40]}")
         return v
 
     power = int(number("ENEMY_POWER"))
@@ -182,7 +186,7 @@ def parse_props(text: str, source: str = "<props>") -> Props:
     rewards = {}
     for k in REWARD_KEYS:
         v = rewards_raw.get(k)
-        if not isinstance(v, int | float) or isinstance(v, bool):
+        if not isinstance(v, int | float) or isinstance(v, bool) or not abs(v) <= MAX_PROP:
             raise LayoutError(f"{source}:{_key_line(text, 'REWARDS')}: REWARDS.{k} missing or not a number")
         rewards[k] = float(v)
     return Props(max_hp=int(number("PLAYER_MAX_HP")), hp_limit=flag("IS_PLAYER_HP_LIMIT", True),
@@ -195,12 +199,16 @@ def read_level(stage_path: str | Path, props_path: str | Path, name: str | None 
     stage_path, props_path = Path(stage_path), Path(props_path)
     for p in (stage_path, props_path):
         if not p.is_file():
-            raise LayoutError(f"{p}:1: level file not found")
-    try:
-        stage_text = stage_path.read_text(encoding="utf-8")
-        props_text = props_path.read_text(encoding="utf-8")
-    except UnicodeDecodeError as e:
-        raise LayoutError(f"{stage_path}:1: not a UTF-8 text file ({e.reason})") from None
+            raise LayoutError(f"{p}:1: level file not found" + (" (not a regular file)" if p.exists() else ""))
+        if p.stat().st_size > MAX_LEVEL_BYTES:
+            raise LayoutError(f"{p}:1: {p.stat().st_size} bytes; a level file may hold at most {MAX_LEVEL_BYTES}")
+    texts = []
+    for p in (stage_path, props_path):
+        try:
+            texts.append(p.read_text(encoding="utf-8"))
+        except UnicodeDecodeError as e:
+            raise LayoutError(f"{p}:1: not a UTF-8 text file ({e.reason})") from None
+    stage_text, props_text = texts
     grid, start, exit_ = parse_stage(stage_text, str(stage_path))
     props = parse_props(props_text, str(props_path))
     return Level(name=name or stage_path.stem, grid=grid, start=start, exit=exit_, props=props)

@@ -26,7 +26,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from pcpg_dist.dataset import MAX_ACTIONS, Dataset, bool_lists
+from pcpg_dist.dataset import MAX_ACTIONS, MAX_STYLES, Dataset, bool_lists, check_parquet_memory
 from pcpg_dist.errors import DataError
 
 DOMAIN = "trajectories"
@@ -34,6 +34,7 @@ REQUIRED = ("trajectory", "t", "action")
 RESERVED = {"trajectory", "t", "action", "reward", "valid", "env", "style", "success"}
 STATE = re.compile(r"^s(\d+)$")
 MAX_FILES = 10_000
+MAX_ENVS = 10_000  # each env is an evaluation unit with its own clustering and models
 
 
 @dataclass(frozen=True)
@@ -69,6 +70,7 @@ def read_step_table(path: str | Path) -> StepTable:
     """Read a Parquet file or a folder of them (their schemas must agree)."""
     path = Path(path)
     files = parquet_files(path)
+    check_parquet_memory(files, str(path))
     tables = []
     for f in files:
         try:
@@ -195,6 +197,9 @@ def datasets_from_table(step: StepTable, n_actions: int | None = None,
             raise _fail(source, "env", row, "is empty (null)")
         enc = pc.dictionary_encode(env_col.cast(pa.string())).combine_chunks()
         env_code = enc.indices.to_numpy().astype(np.int64)
+        if len(enc.dictionary) > MAX_ENVS:
+            raise DataError(f"{source}: column 'env' has {len(enc.dictionary)} distinct values; each is an "
+                            f"evaluation unit, at most {MAX_ENVS} are allowed (is it a per-trajectory id?)")
         env_names = [safe_env_name(v) for v in enc.dictionary.to_pylist()]
         if len(set(env_names)) != len(env_names):
             raise DataError(f"{source}: column 'env' has values that differ only in characters other than "
@@ -261,9 +266,10 @@ def datasets_from_table(step: StepTable, n_actions: int | None = None,
     rewards = _floats(table, "reward", source) if "reward" in names else np.zeros(rows)
     styles = (_per_trajectory(_integers(table, "style", source), starts, order, "style", source)
               if "style" in names else np.full(len(starts), -1, np.int64))
-    if (styles < -1).any():
-        bad = int(np.flatnonzero(styles < -1)[0])
-        raise _fail(source, "style", int(order[starts[bad]]), f"style {styles[bad]}; styles are 0, 1, 2, ...")
+    if ((styles < -1) | (styles >= MAX_STYLES)).any():
+        bad = int(np.flatnonzero((styles < -1) | (styles >= MAX_STYLES))[0])
+        raise _fail(source, "style", int(order[starts[bad]]), f"style {styles[bad]}; styles are 0, 1, 2, ... "
+                                                             f"(below {MAX_STYLES}), or -1 for unknown")
     success = (_per_trajectory(_floats(table, "success", source) != 0, starts, order, "success", source)
                if "success" in names else np.ones(len(starts), bool))
     skill = (_per_trajectory(_floats(table, skill_column, source), starts, order, skill_column, source)

@@ -1,0 +1,102 @@
+"""How time and driver memory grow with the number of environments (random GridWorld layouts).
+
+Runs `pcpg run` on N = 5, 20 and 80 style-distinct random layouts (``gridworld.random_layouts``,
+small per-environment data), each N in a fresh process so peaks do not carry over, tracking on
+(SQLite) as a user's run would have it. Prints per N: wall time, time per stage, time per
+environment, peak driver RSS, peak object-store use and MLflow logging time, then the ratios the
+cluster issue targets: driver peak RSS at N = 80 <= 1.5x its value at N = 5, time per environment
+at N = 80 within 1.2x of N = 20.
+
+Run: ``uv run python benchmarks/bench_scale.py [--sizes 5 20 80]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+CONFIG = {
+    "name": "scale", "domain": "gridworld", "seed": 0, "seeds": [0],
+    "pbtg": {"episodes": 10000, "trajectories_per_style": 160, "dataset_per_style": 40},
+    "clustering": {"k": 4},
+    "ranking": {"ps": [1.0, 0.5]},
+    "bc": {"epochs": 300},
+    "evaluation": {"rollouts_per_policy": 5, "corruption_levels": [0.0, 1.0], "figures": False},
+}
+
+
+def one(n: int) -> dict:
+    """Run one size in this process and return its figures."""
+    import psutil
+    import ray
+
+    from pcpg_dist.config import parse_config
+    from pcpg_dist.ray_utils import init_ray
+    from pcpg_dist.runner import run_experiment
+
+    cfg = parse_config({**CONFIG, "gridworld": {"random_layouts": {"count": n, "seed": 2024}}})
+    init_ray()
+    me = psutil.Process()
+    peak = {"rss": me.memory_info().rss, "store": 0.0}
+    stop = threading.Event()
+
+    def sample() -> None:
+        while not stop.is_set():
+            peak["rss"] = max(peak["rss"], me.memory_info().rss)
+            try:
+                total = ray.cluster_resources().get("object_store_memory", 0.0)
+                free = ray.available_resources().get("object_store_memory", total)
+                peak["store"] = max(peak["store"], total - free)
+            except Exception:  # noqa: BLE001 - sampling must never stop the run
+                pass
+            time.sleep(0.2)
+
+    thread = threading.Thread(target=sample, daemon=True)
+    thread.start()
+    with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.perf_counter()
+        result = run_experiment(cfg, workdir=Path(tmp) / "runs", tracking_uri=f"sqlite:///{tmp}/mlflow.db",
+                                show_progress=False)
+        wall = time.perf_counter() - t0
+    stop.set()
+    thread.join()
+    return {"n": n, "wall": wall, "stages": result.stage_seconds, "rss_mb": peak["rss"] / 2**20,
+            "store_mb": peak["store"] / 2**20, "accuracy": result.metrics.get("clustering/accuracy")}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--sizes", type=int, nargs="+", default=[5, 20, 80])
+    ap.add_argument("--one", type=int, default=None, help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.one is not None:
+        print(json.dumps(one(args.one)))
+        return
+    rows = []
+    for n in args.sizes:
+        out = subprocess.run([sys.executable, __file__, "--one", str(n)], capture_output=True, text=True)
+        if out.returncode != 0:
+            sys.exit(f"N={n} failed:\n{out.stderr[-3000:]}")
+        rows.append(json.loads(out.stdout.strip().splitlines()[-1]))
+    stages = list(rows[0]["stages"])
+    print(f"{'N':>4} {'wall s':>8} {'s/env':>7} {'RSS MB':>8} {'store MB':>9} "
+          + " ".join(f"{s:>9}" for s in stages) + "  clustering acc")
+    for r in rows:
+        print(f"{r['n']:>4} {r['wall']:8.1f} {r['wall'] / r['n']:7.2f} {r['rss_mb']:8.0f} {r['store_mb']:9.1f} "
+              + " ".join(f"{r['stages'].get(s, 0):9.1f}" for s in stages) + f"  {r['accuracy']:.3f}")
+    by = {r["n"]: r for r in rows}
+    if 5 in by and 80 in by:
+        print(f"driver peak RSS N=80 / N=5 = {by[80]['rss_mb'] / by[5]['rss_mb']:.2f}  (target <= 1.5)")
+    if 20 in by and 80 in by:
+        ratio = (by[80]["wall"] / 80) / (by[20]["wall"] / 20)
+        print(f"time per environment N=80 / N=20 = {ratio:.2f}  (target <= 1.2)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,205 @@
+"""The paper beside the run: its protocol (what a run must use to be a reproduction), the
+headline numbers, and for every table and figure the paper has what it reports and what this run
+measured. Numbers come from the domain's ``paper_numbers``; where the paper states a finding rather
+than a number (../shared/PAPER.md), the finding.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pandas as pd
+
+from pcpg_dist.report_data import PaperRow, fmt, inside, read_csv
+
+#: domains the paper has results for (others get no paper column and a banner saying so)
+PAPER_DOMAINS = ("gridworld", "minidungeons", "mario")
+
+#: the paper's protocol, checked against a run's config: (key, paper value, domains or None = all)
+PROTOCOL: tuple[tuple[str, object, tuple[str, ...] | None], ...] = (
+    ("seeds", 4, None),  # compared by count: the paper reports 4 seeds
+    ("ranking.ps", [1.0, 0.75, 0.5, 0.25, 0.1], None),
+    ("ranking.beta", 0.1, None),
+    ("clustering.method", "lstm_dec", None),
+    ("bc.hidden_layers", 3, None),
+    ("bc.hidden_size", 5, None),
+    ("bc.epochs", 2000, None),
+    ("clustering.k", 4, ("gridworld",)),
+    ("gridworld.environments", ["E1", "E2", "E3", "E4", "E5"], ("gridworld",)),
+    ("gridworld.random_layouts", None, ("gridworld",)),
+    ("pbtg.episodes", 20000, ("gridworld",)),
+    ("pbtg.trajectories_per_style", 8000, ("gridworld",)),
+    ("pbtg.dataset_per_style", 1000, ("gridworld",)),
+)
+
+# ----------------------------------------------------------------------------- content
+def paper_numbers(domain: str | None) -> dict[str, str]:
+    """The paper's figures for a domain (none for a domain that is not installed here)."""
+    from pcpg_dist.domains import registry
+    from pcpg_dist.errors import PcpgError
+
+    try:
+        return dict(registry.get(str(domain)).paper_numbers)
+    except PcpgError:
+        return {}
+
+
+def _get(cfg: dict, key: str):
+    value = cfg
+    for part in key.split("."):
+        if not isinstance(value, dict) or part not in value:
+            return None
+        value = value[part]
+    return value
+
+
+def protocol_differences(cfg: dict) -> list[tuple[str, str, str]]:
+    """(setting, this run, the paper) for every protocol setting the config changes."""
+    domain = cfg.get("domain", "gridworld")
+    out = []
+    for key, paper, domains in PROTOCOL:
+        if domains is not None and domain not in domains:
+            continue
+        ours = _get(cfg, key)
+        if key == "seeds":
+            if len(ours or []) != paper:
+                out.append((key, f"{len(ours or [])} seeds", f"{paper} seeds"))
+            continue
+        if isinstance(paper, list) and isinstance(ours, list):
+            same = [float(x) if isinstance(x, int | float) else x for x in ours] == paper
+        else:
+            same = ours == paper
+        if not same:
+            out.append((key, plain(ours), plain(paper)))
+    return out
+
+
+def plain(v) -> str:
+    if v is None:
+        return "none"
+    if isinstance(v, list | tuple):
+        return ", ".join(plain(x) for x in v)
+    if isinstance(v, dict):
+        return "set"
+    return f"{v:g}" if isinstance(v, float) else str(v)
+
+
+def _ps(metrics: dict) -> list[float]:
+    return sorted({float(k.split("/p")[1]) for k in metrics
+                   if k.startswith("pcpg/accuracy/p") and k.count("/") == 2})
+
+
+def headline(metrics: dict) -> dict:
+    """PCPG vs No Clustering per p (mean over environments) and the clustering quality."""
+    rows = []
+    for p in _ps(metrics):
+        pc, nc = metrics.get(f"pcpg/accuracy/p{p:g}"), metrics.get(f"baseline/accuracy/p{p:g}")
+        diff = pc - nc if pc is not None and nc is not None else None
+        rows.append({"p": fmt(p, 2).rstrip("0").rstrip("."), "pcpg": fmt(pc), "nc": fmt(nc),
+                     "diff": "—" if diff is None else f"{diff:+.3f}", "ahead": diff is not None and diff > 0})
+    wins = sum(r["ahead"] for r in rows)
+    compared = sum(r["diff"] != "—" for r in rows)
+    acc, ceil = metrics.get("clustering/accuracy"), metrics.get("clustering/ceiling")
+    gap = metrics.get("clustering/gap_to_ceiling")
+    return {"rows": rows, "wins": wins, "compared": compared,
+            "accuracy": None if acc is None else f"{acc:.4g}", "ceiling": None if ceil is None else f"{ceil:.4g}",
+            "gap": None if gap is None else f"{gap:+.4g}",
+            "random": fmt(metrics.get("random/accuracy"))}
+
+
+# ----------------------------------------------------------------------------- the paper's items
+def _env_tables(summary: Path, envs: list[str], name: str) -> list[pd.DataFrame]:
+    out = []
+    for env in envs:
+        path = summary / env / f"{name}.csv"
+        if inside(path, summary):
+            df = read_csv(path)
+            if df is not None and len(df):
+                out.append(df)
+    return out
+
+
+def paper_rows(domain: str, metrics: dict, summary: Path, envs: list[str]) -> list[PaperRow]:
+    """Every table and figure of the paper: what the paper reports and what this run measured."""
+    paper = paper_numbers(domain)
+    in_paper = domain in PAPER_DOMAINS
+    first = envs[0] if envs else ""
+
+    def said(key: str, finding: str) -> str:
+        if not in_paper:
+            return "not in the paper (domain " + domain + ")"
+        return paper.get(key, finding)
+
+    rows = []
+    h = headline(metrics)
+    rows.append(PaperRow("Clustering accuracy", "clustering",
+                         said("clustering accuracy", "not reported for this domain"),
+                         "—" if h["accuracy"] is None else h["accuracy"]
+                         + ("" if h["ceiling"] is None else f" (supervised ceiling {h['ceiling']})")))
+    rows.append(PaperRow("Fig. 4: accuracy vs p", "fig4", said("", "PCPG above No Clustering at every p"),
+                         f"PCPG above No Clustering at {h['wins']} of {h['compared']} p values"
+                         if h["compared"] else "—"))
+    dist = [metrics.get(f"reward_distance/style{s}") for s in range(16)]
+    rnd = [metrics.get(f"random/reward_distance/style{s}") for s in range(16)]
+    rows.append(PaperRow("Table 3: reward distance to the optimum, PCPG", f"{first}-reward",
+                         said("reward distance, PCPG (Table 3)", "not reported for this domain"),
+                         " / ".join(f"{v:.2f}" for v in dist if v is not None) or "— (no rollouts)"))
+    rows.append(PaperRow("Table 3: reward distance to the optimum, random", f"{first}-reward",
+                         said("reward distance, random (Table 3)", "not reported for this domain"),
+                         " / ".join(f"{v:.2f}" for v in rnd if v is not None) or "— (no rollouts)"))
+    cross = _env_tables(summary, envs, "cross_accuracy")
+    ours = "—"
+    if cross:
+        mats = [c.set_index(c.columns[0]).to_numpy(float) for c in cross]
+        if len({m.shape for m in mats}) == 1:
+            m = sum(mats) / len(mats)
+            diag = [m[i, i] for i in range(min(m.shape))]
+            off = [m[i, j] for i in range(m.shape[0]) for j in range(m.shape[1]) if i != j]
+            ours = "diagonal " + " / ".join(f"{v:.2f}" for v in diag)
+            if off:
+                ours += f"; off-diagonal {min(off):.2f} to {max(off):.2f}"
+    rows.append(PaperRow("Table 4: accuracy of π_k on H_k' (mean over p)", f"{first}-cross",
+                         said("cross-accuracy diagonal (Table 4)", "strongest on the diagonal"), ours))
+    lengths = _env_tables(summary, envs, "rollout_length")
+    ours = "— (no rollouts)"
+    if lengths:
+        d = pd.concat(lengths)
+        pc = d[d.method == "pcpg"].groupby("p")["mean"].mean()
+        at_top = d[(d.method == "pcpg") & (d.p == d.p.max())]["mean"]
+        if len(pc) >= 1:
+            ours = (f"PCPG mean length {pc.iloc[0]:.1f} at p={pc.index[0]:g} to {pc.iloc[-1]:.1f} at "
+                    f"p={pc.index[-1]:g}; styles at p={d.p.max():g} from {at_top.min():.1f} to {at_top.max():.1f}")
+    rows.append(PaperRow("Figs. 5 and 6: rollout length vs p", f"{first}-rollout_length",
+                         said("", "longer with higher p; styles converge to different lengths, "
+                                  "No Clustering to one"), ours))
+    corr = metrics.get("correlation/diagonal_mean")
+    rows.append(PaperRow("Fig. 7: model vs subset correlation", f"{first}-correlation",
+                         said("", "each model correlates most with its own subset"),
+                         "—" if corr is None else f"mean diagonal correlation {corr:.2f}"))
+    drawn = any(inside(summary / e / "rollouts.png", summary) for e in envs)
+    rows.append(PaperRow("Fig. 8: one rollout per style", f"{first}-rollouts",
+                         said("", "one rollout per style drawn on the grid"),
+                         "drawn below" if drawn else "— (the domain draws no rollouts)"))
+    corruption = _env_tables(summary, envs, "corruption_accuracy")
+    ours = "—"
+    if corruption:
+        d = pd.concat(corruption).groupby("c")[["mean", "std"]].mean()
+        ours = " ; ".join(f"c={c:g}: {r['mean']:.3f} ± {r['std']:.3f}" for c, r in d.iterrows())
+        nc = metrics.get("corruption/baseline/accuracy")
+        if nc is not None:
+            ours += f" (No Clustering {nc:.3f})"
+    rows.append(PaperRow("Fig. 9: accuracy vs label corruption", f"{first}-corruption",
+                         said("", "falls toward No Clustering as c rises; the spread grows"), ours))
+    rewards = _env_tables(summary, envs, "corruption_reward")
+    ours = "—"
+    if rewards:
+        d = pd.concat(rewards)
+        rcols = [c for c in d.columns if c.startswith("R") and not c.endswith("_std")]
+        spread = d.groupby("c")[rcols].std(ddof=0).mean(axis=1)
+        ours = "spread of subset rewards across clusters: " + " ; ".join(
+            f"c={c:g}: {v:.1f}" for c, v in spread.items())
+    rows.append(PaperRow("Table 5: subset rewards under label corruption", f"{first}-corruption_reward",
+                         said("", "subsets' rewards become alike as c rises"), ours))
+    return rows
+
+

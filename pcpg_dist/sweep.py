@@ -1,0 +1,270 @@
+"""`pcpg sweep`: a grid over config axes, every point run together on Ray, shared units run once.
+
+The points of a sweep are configs that differ in a few dotted keys. They run as one batch through
+:func:`pcpg_dist.runner.run_points`: their tasks interleave on the cluster, and the content-keyed
+cache (``<workdir>/<name>/cache``, the same one `pcpg run` of the base config uses) shares every
+unit whose inputs are equal: points that differ only in ``bc.*`` train on one dataset and one
+clustering; points that differ only in evaluation settings reuse the trained agents.
+
+Outputs under ``<workdir>/<name>/sweep/``: ``points/<point>/`` (each point's summary, report and
+agents, as `pcpg run` writes them), ``summary.csv`` (one row per point: its axes, the headline
+metrics and their std over seeds), one PNG per headline metric against each axis, and
+``report.html``. MLflow: one parent run per sweep, one child per point (its overrides as params,
+its headline metrics), the environments under each point as in `pcpg run`.
+
+Rerunning the same command is idempotent: finished points are read back, not rerun or relogged;
+adding a value to an axis runs only the new points.
+"""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+import json
+import math
+import re
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from pcpg_dist.config.overrides import apply_overrides, parse_overrides, read_raw, sweep_points
+from pcpg_dist.dataset import atomic_write_bytes
+
+STD = "/std"
+
+
+@dataclass
+class SweepResult:
+    out_dir: Path
+    axes: dict[str, list]
+    rows: list[dict[str, Any]]
+    figures: list[Path]
+    seconds: float
+    ran: int  # points computed or logged by this call (the rest were finished before)
+    computed: dict[str, int] = field(default_factory=dict)
+    parent_run_id: str | None = None
+
+
+def headline_keys(metrics: dict[str, float]) -> list[str]:
+    """What a sweep compares: clustering quality, PCPG and No Clustering at every p and PCPG's lead."""
+    keys = [k for k in ("clustering/accuracy", "clustering/ceiling", "clustering/gap_to_ceiling",
+                        "cross/diagonal_mean") if k in metrics]
+    ps = sorted({k.rsplit("/p", 1)[1] for k in metrics if re.fullmatch(r"pcpg/accuracy/p[0-9.]+", k)},
+                key=float, reverse=True)
+    for p in ps:
+        keys += [f"pcpg/accuracy/p{p}", f"baseline/accuracy/p{p}", f"pcpg_lead/p{p}"]
+    return keys
+
+
+def headline(metrics: dict[str, float]) -> dict[str, float]:
+    """The headline metrics of one point and their std over seeds (``key/std``) where logged."""
+    out: dict[str, float] = {}
+    for k in headline_keys(metrics):
+        if k.startswith("pcpg_lead/"):
+            p = k.split("/p", 1)[1]
+            a, b = metrics.get(f"pcpg/accuracy/p{p}"), metrics.get(f"baseline/accuracy/p{p}")
+            if a is not None and b is not None:
+                out[k] = a - b
+            continue
+        out[k] = metrics[k]
+        if k + STD in metrics:
+            out[k + STD] = metrics[k + STD]
+    return out
+
+
+def point_slug(overrides: dict[str, Any]) -> str:
+    """A stable folder name for a point: its overrides, readable and made safe, plus a short hash."""
+    text = "_".join(f"{k}={json.dumps(v) if isinstance(v, list | dict) else v}" for k, v in overrides.items())
+    digest = hashlib.sha256(json.dumps(overrides, sort_keys=True, default=str).encode()).hexdigest()[:8]
+    safe = re.sub(r"[^A-Za-z0-9._=-]+", "-", text)[:80].strip("-.") or "point"
+    return f"{safe}-{digest}"
+
+
+def _fmt(v: Any) -> str:
+    return json.dumps(v) if isinstance(v, list | dict | bool) or v is None else str(v)
+
+
+def _finished(out: Path, cfg, track: bool, uri: str | None) -> dict | None:
+    """The point's metrics if an earlier call finished it (same config, logged when tracking)."""
+    try:
+        run = json.loads((out / "summary" / "run.json").read_text())
+        metrics = json.loads((out / "summary" / "metrics.json").read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(run, dict) or run.get("config_hash") != cfg.hash() or not isinstance(metrics, dict):
+        return None
+    if track and not _run_finished(uri, run.get("parent_run_id")):
+        return None
+    return metrics
+
+
+def _run_finished(uri: str | None, run_id: Any) -> bool:
+    """Whether the point's MLflow run exists and finished (a deleted or killed one is redone)."""
+    if not isinstance(run_id, str) or not run_id:
+        return False
+    from mlflow import MlflowClient
+    from mlflow.exceptions import MlflowException
+
+    from pcpg_dist.tracking import default_tracking_uri
+
+    try:
+        info = MlflowClient(uri or default_tracking_uri()).get_run(run_id).info
+    except MlflowException:
+        return False
+    return info.status == "FINISHED" and info.lifecycle_stage == "active"
+
+
+def run_sweep(config: str | Path, axes_args: list[str], overrides: list[str] | None = None,
+              workdir: Path = Path("runs"), tracking_uri: str | None = None, track: bool = True,
+              show_progress: bool = True, command: str = "") -> SweepResult:
+    """Run (or resume) a sweep over ``axes_args`` (``KEY=v1,v2``) and the file's ``sweep:`` section."""
+    from pcpg_dist.config.experiment import parse_config
+    from pcpg_dist.runner import Point, run_points
+
+    t0 = time.perf_counter()
+    config = Path(config)
+    raw, section = read_raw(config)
+    raw = apply_overrides(raw, parse_overrides(overrides or []))
+    base = parse_config(raw, source=str(config), base_dir=config.parent)
+    axes, combos = sweep_points(section, axes_args, base.domain)
+    root = Path(workdir).resolve() / base.name
+    out = root / "sweep"
+    points = []
+    for combo in combos:
+        cfg = parse_config(apply_overrides(raw, combo), source=f"{config} with {_describe(combo)}",
+                           base_dir=config.parent)
+        points.append(Point(cfg, out / "points" / point_slug(combo), params={k: _fmt(v) for k, v in combo.items()},
+                            command=f"{command} [point {_describe(combo)}]" if command else ""))
+
+    description = (f"Sweep of {base.name} ({config.name}) over {', '.join(axes)}: {len(points)} points "
+                   f"({' x '.join(str(len(v)) for v in axes.values())})")
+    tracker = None
+    if track:
+        from pcpg_dist.tracking import SweepTracker
+
+        sweep_key = hashlib.sha256(json.dumps([base.hash(), [[_describe(c)] for c in combos]],
+                                              sort_keys=True).encode()).hexdigest()[:16]
+        tracker = SweepTracker.start(base.name, sweep_key, axes, description, tracking_uri)
+    try:
+        done = {id(p): _finished(p.out, p.cfg, track, tracking_uri) for p in points}
+        todo = [p for p in points if done[id(p)] is None]
+        results = run_points(todo, root / "cache", tracking_uri=tracking_uri, track=track,
+                             show_progress=show_progress,
+                             sweep_parent_id=tracker.parent_id if tracker else None) if todo else []
+        metrics_of = {id(p): r.metrics for p, r in zip(todo, results, strict=True)}
+        computed = results[0].computed if results else {}
+        rows = []
+        for p, combo in zip(points, combos, strict=True):
+            m = metrics_of.get(id(p)) or done[id(p)] or {}
+            rows.append({**{k: _fmt(v) if isinstance(v, list | dict) else v for k, v in combo.items()},
+                         "point": p.out.name, **headline(m)})
+        csv_path = _write_table(out, axes, rows)
+        figures = draw_sweep(out, axes, rows)
+        report = write_report(out, description, axes, rows, figures)
+        if tracker is not None:
+            best = {f"best/{k}": max(r[k] for r in rows if k in r) for k in ("clustering/accuracy",)
+                    if any(k in r for r in rows)}
+            tracker.finish(best, [csv_path, report, *figures])
+    except BaseException:
+        if tracker is not None:
+            tracker.fail()
+        raise
+    return SweepResult(out, axes, rows, figures, time.perf_counter() - t0, ran=len(todo), computed=computed,
+                       parent_run_id=tracker.parent_id if tracker else None)
+
+
+def _describe(combo: dict[str, Any]) -> str:
+    return ", ".join(f"{k}={_fmt(v)}" for k, v in combo.items())
+
+
+def _write_table(out: Path, axes: dict[str, list], rows: list[dict[str, Any]]) -> Path:
+    import pandas as pd
+
+    metric_cols = sorted({k for r in rows for k in r if k not in axes and k != "point"},
+                         key=lambda k: (k.removesuffix(STD), k.endswith(STD)))
+    table = pd.DataFrame(rows, columns=[*axes, *metric_cols, "point"])
+    path = out / "summary.csv"
+    atomic_write_bytes(path, table.to_csv(index=False, float_format="%.6g").encode())
+    return path
+
+
+def _numeric(values: list) -> bool:
+    return all(isinstance(v, int | float) and not isinstance(v, bool) for v in values)
+
+
+def draw_sweep(out: Path, axes: dict[str, list], rows: list[dict[str, Any]]) -> list[Path]:
+    """One PNG per headline metric against each axis: one line per value of the other axes, error
+    bars the std over seeds."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    metrics = [k for k in dict.fromkeys(k for r in rows for k in r)
+               if k not in axes and k != "point" and not k.endswith(STD)]
+    palette = ["#0072B2", "#E69F00", "#009E73", "#CC79A7", "#56B4E9", "#D55E00", "#F0E442", "#000000"]
+    paths = []
+    for axis, values in axes.items():
+        others = [a for a in axes if a != axis]
+        xs = values if _numeric(values) else list(range(len(values)))
+        for metric in metrics:
+            fig, ax = plt.subplots(figsize=(6.4, 4.0), dpi=110)
+            groups: dict[tuple, list[dict]] = {}
+            for r in rows:
+                groups.setdefault(tuple(_fmt(r[o]) for o in others), []).append(r)
+            for gi, (key, members) in enumerate(groups.items()):
+                by_x = {_fmt(r[axis]): r for r in members}
+                pts = [(x, by_x[_fmt(v)]) for x, v in zip(xs, values, strict=True) if _fmt(v) in by_x]
+                ys = [r.get(metric, math.nan) for _, r in pts]
+                err = [r.get(metric + STD, 0.0) for _, r in pts]
+                label = ", ".join(f"{o}={k}" for o, k in zip(others, key, strict=True)) or None
+                ax.errorbar([x for x, _ in pts], ys, yerr=err, marker="o", capsize=3, label=label,
+                            color=palette[gi % len(palette)])
+            if not _numeric(values):
+                ax.set_xticks(xs, [_fmt(v) for v in values])
+            ax.set_xlabel(axis)
+            ax.set_ylabel(metric)
+            ax.grid(alpha=0.3)
+            if len(groups) > 1:
+                ax.legend(fontsize=7, loc="best")
+            ax.set_title(f"{metric} vs {axis}", fontsize=10)
+            fig.tight_layout()
+            path = out / f"{re.sub(r'[^A-Za-z0-9._-]+', '_', metric)}__vs__{re.sub(r'[^A-Za-z0-9._-]+', '_', axis)}.png"
+            fig.savefig(path)
+            plt.close(fig)
+            paths.append(path)
+    return paths
+
+
+_REPORT = """<!doctype html>
+<html lang="en"><head><meta charset="utf-8"><title>{{ title }}</title>
+<style>body{font-family:system-ui,sans-serif;max-width:1100px;margin:1rem auto;padding:0 1rem;color:#222}
+table{border-collapse:collapse;font-size:.85rem;display:block;overflow-x:auto}
+td,th{border:1px solid #ccc;padding:.2rem .4rem;text-align:right}th{background:#f3f3f3}
+.figs{display:flex;flex-wrap:wrap;gap:.5rem}.figs img{max-width:48%;height:auto}</style></head><body>
+<h1>{{ title }}</h1><p>{{ description }}</p>
+<h2>Points</h2><table><thead><tr>{% for c in columns %}<th>{{ c }}</th>{% endfor %}</tr></thead><tbody>
+{% for r in rows %}<tr>{% for c in columns %}<td>{{ r[c] }}</td>{% endfor %}</tr>{% endfor %}</tbody></table>
+<h2>Figures</h2><div class="figs">{% for f in figures %}<img alt="{{ f.name }}" src="data:image/png;base64,{{ f.data }}">{% endfor %}</div>
+</body></html>
+"""
+
+
+def write_report(out: Path, description: str, axes: dict[str, list], rows: list[dict[str, Any]],
+                 figures: list[Path]) -> Path:
+    """A self-contained HTML page: the table of points and every figure (rendered from data)."""
+    import jinja2
+
+    columns = [*axes, *[k for k in dict.fromkeys(k for r in rows for k in r) if k not in axes and k != "point"]]
+
+    def cell(v: Any) -> str:
+        return f"{v:.4g}" if isinstance(v, float) else _fmt(v)
+
+    shown = [{c: cell(r.get(c, "")) for c in columns} for r in rows]
+    figs = [{"name": f.name, "data": base64.b64encode(f.read_bytes()).decode()} for f in figures]
+    html = jinja2.Environment(autoescape=True).from_string(_REPORT).render(
+        title=f"Sweep: {out.parent.name}", description=description, columns=columns, rows=shown, figures=figs)
+    path = out / "report.html"
+    atomic_write_bytes(path, html.encode())
+    return path

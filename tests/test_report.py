@@ -1,0 +1,285 @@
+"""The HTML report: valid HTML, no Markdown artefacts, headline and paper numbers first, real
+table headers, each figure beside its table, the protocol banner, and no file from outside the
+run's folder ever embedded.
+
+The fixture is the summary folder of a real tiny GridWorld run (tests/data/report_summary: its
+tables, metrics.json and run.json, as `pcpg run` wrote them); the figures are re-drawn from those
+tables by :func:`pcpg_dist.figures.redraw`, so the figure code runs here too.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import re
+import shutil
+from pathlib import Path
+
+import html5lib
+import pandas as pd
+import pytest
+
+from pcpg_dist import figures
+from pcpg_dist.report import build, render
+
+DATA = Path(__file__).parent / "data" / "report_summary"
+NS = "{http://www.w3.org/1999/xhtml}"
+
+
+def copy_summary(tmp: Path) -> Path:
+    summary = tmp / "tiny" / "summary"
+    shutil.copytree(DATA, summary)
+    return summary
+
+
+@pytest.fixture(scope="module")
+def summary(tmp_path_factory) -> Path:
+    folder = copy_summary(tmp_path_factory.mktemp("run"))
+    written = figures.redraw(folder)
+    assert len(written) >= 6  # Fig. 4 (summary + E1), Table 4, Fig. 7, Figs. 5-6 (two), Fig. 9
+    return folder
+
+
+@pytest.fixture(scope="module")
+def page(summary, tmp_path_factory) -> tuple[str, str]:
+    html_path, md_path = render(summary, tmp_path_factory.mktemp("report"))
+    return html_path.read_text(), md_path.read_text()
+
+
+def parse(text: str):
+    return html5lib.HTMLParser(strict=True, namespaceHTMLElements=True).parse(text)
+
+
+def text_of(el) -> str:
+    return "".join(el.itertext())
+
+
+def edit_run(summary: Path, tmp: Path, **changes) -> Path:
+    """A copy of the summary folder with run.json fields (or config keys, dotted) changed."""
+    folder = tmp / "edited" / "summary"
+    shutil.copytree(summary, folder)
+    run = json.loads((folder / "run.json").read_text())
+    for key, value in changes.items():
+        node = run
+        *path, last = key.split("__")
+        for part in path:
+            node = node[part]
+        node[last] = value
+    (folder / "run.json").write_text(json.dumps(run))
+    return folder
+
+
+def test_report_is_valid_html(page):
+    html, _ = page
+    parse(html)  # html5lib's strict parser raises on any parse error
+    assert html.startswith("<!DOCTYPE html>")
+
+
+def test_rendered_text_has_no_markdown_artefacts(page):
+    body = parse(page[0]).find(f"{NS}body")
+    text = text_of(body)
+    assert "`" not in text and "|" not in text and "**" not in text
+    for line in text.splitlines():
+        assert not re.match(r"\s*([-*+]|\d+\.|#+)\s", line), line
+
+
+def test_headline_comes_first_with_clustering_gap(page, summary):
+    html, _ = page
+    metrics = json.loads((summary / "metrics.json").read_text())
+    order = [html.index(s) for s in ('id="protocol"', 'id="headline"', 'id="paper"', 'id="fig4"',
+                                     'id="env-E1"', 'id="cache"', 'id="reproduce"', 'id="provenance"')]
+    assert order == sorted(order)
+    headline = html[html.index('id="headline"'): html.index('id="paper"')]
+    for key in ("clustering/accuracy", "clustering/ceiling", "clustering/gap_to_ceiling"):
+        assert f"{metrics[key]:{'+' if 'gap' in key else ''}.4g}" in headline, key
+    assert f"{metrics['pcpg/accuracy/p1']:.3f}" in headline
+    assert f"{metrics['baseline/accuracy/p1']:.3f}" in headline
+
+
+def test_paper_numbers_beside_ours_for_every_table_and_figure(page, summary):
+    root = parse(page[0])
+    section = next(s for s in root.iter(f"{NS}section") if s.get("id") == "paper")
+    rows = [[text_of(td) for td in tr.iter(f"{NS}td")] for tr in section.iter(f"{NS}tr")][1:]
+    items = " ".join(r[0] for r in rows)
+    for ref in ("Table 3", "Table 4", "Table 5", "Fig. 4", "Figs. 5 and 6", "Fig. 7", "Fig. 8", "Fig. 9"):
+        assert ref in items, ref
+    paper = {r[0]: r[1] for r in rows}
+    assert paper["Table 3: reward distance to the optimum, PCPG"] == "8.66 / 44.85 / 46.28 / 50.79"
+    assert paper["Clustering accuracy"] == "0.66"
+    assert all(r[1] and r[2] and r[2] != "—" for r in rows), rows  # ours measured for each item
+    anchors = set(re.findall(r'id="([^"]+)"', page[0]))
+    assert set(re.findall(r'href="#([^"]+)"', page[0])) <= anchors  # every link lands on a section
+    cross = pd.read_csv(summary / "E1" / "cross_accuracy.csv", index_col=0)
+    ours = {r[0]: r[2] for r in rows}["Table 4: accuracy of π_k on H_k' (mean over p)"]
+    assert ours.startswith(f"diagonal {cross.loc['k0', 'k0']:.2f} / {cross.loc['k1', 'k1']:.2f}")
+
+
+def test_tables_have_real_headers_and_figures_sit_beside_their_tables(page):
+    html, _ = page
+    assert "Unnamed" not in html
+    root = parse(html)
+    env = next(s for s in root.iter(f"{NS}section") if s.get("id") == "env-E1")
+    pairs = 0
+    for sec in env.iter(f"{NS}section"):
+        for div in sec.iter(f"{NS}div"):
+            if div.get("class") == "pair":
+                assert len(list(div.iter(f"{NS}img"))) == 1 and len(list(div.iter(f"{NS}table"))) >= 1
+                pairs += 1
+    assert pairs >= 5  # Fig. 4, Table 4, Fig. 7, Figs. 5-6 (rollouts and kept data), Fig. 9
+    heads = [text_of(th) for th in root.iter(f"{NS}th")]
+    assert "PCPG ± std" in heads and "H k0" in heads and "environment" in heads
+
+
+def test_provenance_config_and_machine_are_folded_tables(page, summary):
+    root = parse(page[0])
+    prov = next(s for s in root.iter(f"{NS}section") if s.get("id") == "provenance")
+    folded = {text_of(d.find(f"{NS}summary")): d for d in prov.iter(f"{NS}details")}
+    assert set(folded) == {"Run, code and seeds", "Package versions", "Machine", "Full config"}
+    assert all(d.get("open") is None for d in folded.values())
+    machine = json.loads((summary / "run.json").read_text())["provenance"]["machine"]
+    cells = [text_of(c) for c in folded["Machine"].iter() if c.tag in (f"{NS}th", f"{NS}td")]
+    assert cells == [x for k, v in machine.items() for x in (k, str(v))]
+
+
+def test_images_are_inlined_pngs_of_the_summary(page, summary):
+    html, _ = page
+    uris = re.findall(r'src="data:image/png;base64,([^"]+)"', html)
+    pngs = sorted(summary.rglob("*.png"))
+    assert len(uris) == len(pngs)
+    assert {base64.b64decode(u) for u in uris} == {p.read_bytes() for p in pngs}
+
+
+def test_no_file_outside_the_run_folder_is_embedded(summary, tmp_path):
+    """Issue 18 item 1: a crafted run.json or a symlink in the summary embeds nothing."""
+    secret = tmp_path / "secret.png"
+    secret.write_bytes(b"\x89PNG\r\n\x1a\n" + b"TOP-SECRET-BYTES" * 8)
+    folder = edit_run(summary, tmp_path, command="pcpg run x\n![x](/etc/passwd)\n![y](" + str(secret) + ")\n",
+                      figures=["/etc/passwd", str(secret)], config__name="../../etc/passwd")
+    (folder / "E1" / "evil.png").symlink_to(secret)
+    (folder / "E1" / "passwd.csv").symlink_to("/etc/passwd")
+    (folder / "E2").symlink_to(secret.parent)  # a folder link: not an environment of the run
+    out = tmp_path / "out"
+    html_path, md_path = render(folder, out)
+    html, md = html_path.read_text(), md_path.read_text()
+    for text in (html, md):
+        assert "root:" not in text and "TOP-SECRET" not in text
+        assert base64.b64encode(secret.read_bytes()).decode()[:40] not in text
+    assert len(re.findall("data:image/png;base64,", html)) == len(list(summary.rglob("*.png")))
+    assert "E2" not in {p.name for p in (out / "figures").iterdir()}
+    assert all(p.read_bytes() != secret.read_bytes() for p in (out / "figures").iterdir())
+    assert "/etc/passwd" in html  # the crafted command is shown as text, escaped
+    parse(html)
+
+
+def test_banner_names_every_setting_that_differs_from_the_paper(page, summary, tmp_path):
+    html, _ = page
+    banner = html[html.index('id="protocol"'): html.index('id="headline"')]
+    assert "Not the paper&#39;s protocol" in banner or "Not the paper's protocol" in banner
+    for key in ("seeds", "ranking.ps", "bc.epochs", "gridworld.environments", "pbtg.dataset_per_style"):
+        assert f"<td>{key}</td>" in banner, key
+    paper = edit_run(summary, tmp_path, config__seeds=[0, 1, 2, 3],
+                     config__ranking__ps=[1.0, 0.75, 0.5, 0.25, 0.1],
+                     config__bc__epochs=2000, config__bc__hidden_size=5, config__bc__hidden_layers=3,
+                     config__gridworld__environments=["E1", "E2", "E3", "E4", "E5"],
+                     config__pbtg__trajectories_per_style=8000, config__pbtg__dataset_per_style=1000,
+                     config__pbtg__episodes=20000, config__clustering__k=4,
+                     config__clustering__method="lstm_dec")
+    assert build(paper).differences == []
+    html = render(paper, tmp_path / "paper")[0].read_text()
+    assert "The paper's protocol" in html and "Not the paper" not in html
+    other = edit_run(summary, tmp_path / "o", config__domain="trajectories")
+    page_other = build(other)
+    assert not page_other.in_paper and all("not in the paper" in r.paper for r in page_other.paper)
+
+
+def test_cache_section_says_which_stages_were_served_from_cache(summary, tmp_path):
+    fresh = build(summary)
+    assert fresh.cached == []
+    cached = build(edit_run(summary, tmp_path, computed={"clustering": 0, "train_groups": 0, "evaluations": 0}))
+    assert cached.cached == ["cluster", "train", "evaluate"]
+    html = render(edit_run(summary, tmp_path / "c", computed={"clustering": 0, "train_groups": 3,
+                                                                  "evaluations": 1}), tmp_path / "r")[0]
+    assert "Served from the cache in this invocation: cluster." in html.read_text()
+    # the runner's own record wins: a cached stage keeps the seconds of the run that computed it
+    recorded = build(edit_run(summary, tmp_path / "d", cached_stages=["generate", "cluster"],
+                              computed={"data": 0, "clustering": 0, "train_groups": 2, "evaluations": 1}))
+    assert recorded.cached == ["generate", "cluster"]
+    rows = {r[0]: r for r in recorded.stages}
+    assert rows["generate"][2:] == ["0 data sets generated", "cache (seconds of the run that computed it)"]
+    assert rows["train"][2:] == ["2 groups of cells trained", "computed"]
+
+
+def test_markdown_twin_escapes_data(summary, tmp_path):
+    folder = edit_run(summary, tmp_path, command="pcpg run a|b `x` *y*")
+    md = render(folder, tmp_path / "out")[1].read_text()
+    assert "pcpg run a|b `x` *y*" in md  # the command block shows it verbatim (indented code)
+    assert "| command | pcpg run a\\|b \\`x\\` \\*y\\* |" in md  # escaped inside a table
+
+
+def test_reproduce_command_is_linked(page, summary):
+    html, md = page
+    target = str(summary.resolve().parent)
+    assert f"pcpg reproduce {target}" in html and f"pcpg reproduce {target}" in md
+    assert '<a href="#reproduce">' in html
+
+
+def test_report_cli_on_a_run_folder(summary, tmp_path):
+    from pcpg_dist.cli import main
+
+    assert main(["report", str(summary.parent), "--out", str(tmp_path / "rep")]) == 0
+    assert (tmp_path / "rep" / "report.html").stat().st_size > 10_000
+
+
+def test_figures_share_one_p_convention_and_readable_heatmap_text(tmp_path):
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots()
+    figures.p_axis(ax, [1.0, 0.1, 0.5, 0.25])
+    lo, hi = ax.get_xlim()
+    assert lo < 0.1 < 1.0 < hi and list(ax.get_xticks()) == [0.1, 0.25, 0.5, 1.0]
+    plt.close(fig)
+    cmap = plt.get_cmap("cividis")
+    assert figures._text_colour(cmap(0.0)) == "white" and figures._text_colour(cmap(1.0)) == "black"
+    rdbu = plt.get_cmap("RdBu_r")
+    assert figures._text_colour(rdbu(0.5)) == "black" and figures._text_colour(rdbu(0.0)) == "white"
+
+
+def test_quick_config_gets_the_banner_and_the_paper_config_does_not():
+    from pcpg_dist.config import load_config
+    from pcpg_dist.report import protocol_differences
+
+    root = Path(__file__).resolve().parent.parent / "experiments"
+    quick_cfg, paper_cfg = load_config(root / "quick.yaml"), load_config(root / "gridworld_paper.yaml")
+
+    def method_differs(cfg) -> set[str]:  # the paper clusters with lstm_dec; a config may not
+        return {"clustering.method"} if cfg.clustering.method != "lstm_dec" else set()
+
+    quick = protocol_differences(quick_cfg.model_dump(mode="json"))
+    assert {k for k, _, _ in quick} == {"seeds", "ranking.ps", "bc.epochs", "gridworld.environments",
+                                       "pbtg.trajectories_per_style", "pbtg.dataset_per_style"} | method_differs(quick_cfg)
+    assert ("gridworld.environments", "E1, E3", "E1, E2, E3, E4, E5") in quick
+    paper = protocol_differences(paper_cfg.model_dump(mode="json"))
+    assert {k for k, _, _ in paper} == method_differs(paper_cfg)
+
+
+def test_a_domain_without_rollouts_or_labels_renders(summary, tmp_path):
+    """Mario-like: no rollouts, no corruption study, no true styles; every paper row still says
+    what is missing, and the page stays valid."""
+    folder = edit_run(summary, tmp_path, config__domain="mario")
+    for name in ("rollouts", "rollout_length", "reward_distance", "corruption_accuracy", "corruption_reward",
+                 "corruption"):
+        for f in (folder / "E1").glob(f"{name}.*"):
+            f.unlink()
+    metrics = json.loads((folder / "metrics.json").read_text())
+    kept = {k: v for k, v in metrics.items() if "reward_distance" not in k and "ceiling" not in k
+            and k != "clustering/accuracy"}
+    (folder / "metrics.json").write_text(json.dumps(kept))
+    page_model = build(folder)
+    ours = {r.item.split(":")[0]: r.ours for r in page_model.paper}
+    assert ours["Table 3"] == "— (no rollouts)" and ours["Fig. 9"] == "—" and ours["Fig. 8"].startswith("—")
+    assert page_model.headline["accuracy"] is None and page_model.headline["compared"] == 2
+    html = render(folder, tmp_path / "out")[0].read_text()
+    parse(html)
+    assert 'id="E1-corruption"' not in html and 'href="#E1-corruption"' not in html
+    anchors = set(re.findall(r'id="([^"]+)"', html))
+    assert set(re.findall(r'href="#([^"]+)"', html)) <= anchors and "E1-cross" in anchors

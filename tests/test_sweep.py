@@ -1,0 +1,191 @@
+"""`key=value` overrides and `pcpg sweep`: axes, shared stages, tables, figures, MLflow, resume."""
+
+from __future__ import annotations
+
+import csv
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+from pcpg_dist.cli import main
+from pcpg_dist.config.overrides import load_config_with, parse_range, parse_value, sweep_points
+from pcpg_dist.errors import ConfigError
+from pcpg_dist.sweep import point_slug, run_sweep
+
+ROOT = Path(__file__).resolve().parent.parent
+QUICK = ROOT / "experiments" / "quick.yaml"
+
+TINY = {
+    "name": "sweeptiny", "seed": 1, "seeds": [0, 1],
+    "gridworld": {"layout_dir": str(ROOT / "experiments" / "gridworlds"), "environments": ["E1"]},
+    "pbtg": {"episodes": 20000, "trajectories_per_style": 120, "dataset_per_style": 60},
+    "clustering": {"k": 4, "method": "lstm_dec", "pretrain_epochs": 4, "dec_epochs": 2},
+    "ranking": {"ps": [1.0, 0.5]},
+    "bc": {"epochs": 150, "hidden_size": 16},
+    "evaluation": {"rollouts_per_policy": 5, "corruption_levels": [0.0, 1.0], "figures": False},
+}
+
+
+# --------------------------------------------------------------------------- overrides
+def test_override_changes_the_setting_and_is_validated_like_the_file():
+    cfg = load_config_with(QUICK, ["bc.lr=0.003", "clustering.k=5", "ranking.ps=[1.0, 0.25]", "bc.lr=1e-3"])
+    assert cfg.bc.lr == 0.001 and cfg.clustering.k == 5 and list(cfg.ranking.ps) == [1.0, 0.25]
+    with pytest.raises(ConfigError, match="bc.lr"):
+        load_config_with(QUICK, ["bc.lr=-1"])
+
+
+@pytest.mark.parametrize("item, closest", [("bc.epitchs=3", "bc.epochs"), ("clustrng.k=3", "clustering.k"),
+                                           ("evaluation.rollout_per_policy=3", "evaluation.rollouts_per_policy")])
+def test_unknown_key_names_the_closest_valid_key(item, closest):
+    with pytest.raises(ConfigError, match=f"did you mean '{closest}'"):
+        load_config_with(QUICK, [item])
+
+
+def test_unknown_key_on_the_command_line_is_one_line_exit_2(capsys):
+    assert main(["run", str(QUICK), "--no-tracking", "bc.epitchs=3"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "bc.epochs" in err[0]
+    assert main(["run", str(QUICK), "--no-tracking", "notanassignment"]) == 2
+
+
+def test_values_are_read_as_yaml():
+    assert parse_value("1e-3") == 0.001 and parse_value("3") == 3 and parse_value("true") is True
+    assert parse_value("[1, 0.5]") == [1, 0.5] and parse_value("lstm_dec") == "lstm_dec"
+
+
+def test_ranges_and_grids():
+    assert parse_range("0:0.6:0.1") == [0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6]
+    assert parse_range("2:8:2") == [2, 4, 6, 8]
+    assert parse_range("a:b:c") is None
+    with pytest.raises(ConfigError):
+        parse_range("1:0:1")
+    axes, points = sweep_points({"grid": {"clustering.k": [2, 4]}, "zip": {"bc.epochs": [10, 20, 30],
+                                                                         "bc.hidden_size": [4, 8, 16]}},
+                                ["bc.lr=0.01,0.1"], "gridworld")
+    assert len(points) == 2 * 2 * 3 and list(axes) == ["clustering.k", "bc.lr", "bc.epochs", "bc.hidden_size"]
+    assert {(p["bc.epochs"], p["bc.hidden_size"]) for p in points} == {(10, 4), (20, 8), (30, 16)}
+    with pytest.raises(ConfigError, match="equally many"):
+        sweep_points({"zip": {"bc.epochs": [1, 2], "bc.lr": [0.1]}}, [], "gridworld")
+    with pytest.raises(ConfigError, match="did you mean"):
+        sweep_points(None, ["bc.lrr=0.1,0.2"], "gridworld")
+
+
+def test_a_yaml_range_is_a_range_not_a_base60_number(tmp_path):
+    """YAML 1.1 reads `2:8:1` as the integer 7681; the config loader reads it as text (a range)."""
+    path = tmp_path / "s.yaml"
+    path.write_text("name: s\nbc:\n  lr: 1e-3\nsweep:\n  grid:\n    clustering.k: 2:8:1\n")
+    from pcpg_dist.config.overrides import read_raw
+
+    raw, section = read_raw(path)
+    assert raw["bc"]["lr"] == 0.001
+    axes, points = sweep_points(section, [], "gridworld")
+    assert axes == {"clustering.k": [2, 3, 4, 5, 6, 7, 8]} and len(points) == 7
+
+
+def test_point_folders_are_stable_and_safe():
+    a = point_slug({"bc.lr": 0.01, "evaluation.corruption_levels": [0, 1]})
+    assert a == point_slug({"bc.lr": 0.01, "evaluation.corruption_levels": [0, 1]})
+    assert a != point_slug({"bc.lr": 0.02, "evaluation.corruption_levels": [0, 1]})
+    assert "/" not in a and ".." not in a.replace("=0.", "")
+    assert "/" not in point_slug({"gridworld.layout_dir": "../../etc"})
+
+
+# --------------------------------------------------------------------------- end to end
+def read_rows(path: Path) -> list[dict[str, str]]:
+    with open(path) as f:
+        return list(csv.DictReader(f))
+
+
+@pytest.fixture(scope="module")
+def tiny_yaml(tmp_path_factory):
+    path = tmp_path_factory.mktemp("sweepcfg") / "tiny.yaml"
+    path.write_text(yaml.safe_dump({**TINY, "sweep": {"grid": {"bc.hidden_size": [8, 16]}}}))
+    return path
+
+
+@pytest.mark.slow
+def test_sweep_shares_stages_logs_once_and_resumes(ray_session, tiny_yaml, tmp_path):
+    from mlflow import MlflowClient
+
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    first = run_sweep(tiny_yaml, ["bc.epochs=100,200"], workdir=tmp_path / "runs", tracking_uri=uri,
+                      show_progress=False)
+    assert len(first.rows) == 4 and first.ran == 4
+    # one dataset and one clustering for four points; four distinct BC trainings and evaluations
+    assert first.computed["data"] == 1 and first.computed["clustering"] == 1
+    assert first.computed["evaluations"] == 4
+    rows = read_rows(first.out_dir / "summary.csv")
+    assert [r["bc.hidden_size"] for r in rows] == ["8", "8", "16", "16"]
+    assert all(float(r["clustering/accuracy"]) == float(rows[0]["clustering/accuracy"]) for r in rows)
+    assert all(0 <= float(r["pcpg/accuracy/p1"]) <= 1 and r["pcpg/accuracy/p1/std"] != "" for r in rows)
+    assert len({r["pcpg/accuracy/p1"] for r in rows}) > 1  # the BC settings did change the agents
+    figs = sorted(p.name for p in first.out_dir.glob("*.png"))
+    assert "pcpg_accuracy_p1__vs__bc.epochs.png" in figs and "clustering_accuracy__vs__bc.hidden_size.png" in figs
+    html = (first.out_dir / "report.html").read_text()
+    assert html.count("data:image/png;base64,") == len(figs) and "bc.hidden_size" in html
+
+    client = MlflowClient(uri)
+    exp = client.get_experiment_by_name("sweeptiny")
+    runs = client.search_runs([exp.experiment_id], max_results=1000)
+    sweep_runs = [r for r in runs if r.info.run_id == first.parent_run_id]
+    points = [r for r in runs if r.data.tags.get("mlflow.parentRunId") == first.parent_run_id]
+    assert len(sweep_runs) == 1 and len(points) == 4
+    assert {(r.data.params["bc.hidden_size"], r.data.params["bc.epochs"]) for r in points} == {
+        ("8", "100"), ("8", "200"), ("16", "100"), ("16", "200")}
+    assert all(r.info.status == "FINISHED" for r in runs)
+    n_runs = len(runs)
+
+    # the same command again: nothing runs, nothing is logged twice, the table is identical
+    again = run_sweep(tiny_yaml, ["bc.epochs=100,200"], workdir=tmp_path / "runs", tracking_uri=uri,
+                      show_progress=False)
+    assert again.ran == 0 and again.parent_run_id == first.parent_run_id
+    assert read_rows(again.out_dir / "summary.csv") == rows
+    assert len(client.search_runs([exp.experiment_id], max_results=1000)) == n_runs
+
+    # a new value on an axis runs only the new points
+    more = run_sweep(tiny_yaml, ["bc.epochs=100,200,300"], workdir=tmp_path / "runs", tracking_uri=uri,
+                     show_progress=False)
+    assert more.ran == 2 and more.computed["clustering"] == 0 and more.computed["data"] == 0
+    new_rows = read_rows(more.out_dir / "summary.csv")
+    assert [r for r in new_rows if r["bc.epochs"] != "300"] == rows
+
+
+@pytest.mark.slow
+def test_sweep_killed_at_any_moment_resumes_to_identical_tables(tmp_path, tiny_yaml):
+    """kill -9 a `pcpg sweep` mid-way; rerunning the same command gives the uninterrupted tables."""
+    cmd = [sys.executable, "-m", "pcpg_dist.cli", "sweep", str(tiny_yaml), "bc.epochs=100,200", "--quiet",
+           "--workdir", str(tmp_path / "runs"), "--tracking-uri", f"sqlite:///{tmp_path / 'mlflow.db'}"]
+    env = {k: v for k, v in os.environ.items() if k not in ("RAY_ADDRESS", "MLFLOW_TRACKING_URI")}
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            start_new_session=True)
+    cache = tmp_path / "runs" / "sweeptiny" / "cache" / "train"
+    deadline = time.monotonic() + 600
+    while time.monotonic() < deadline and proc.poll() is None and not (cache.exists() and any(cache.iterdir())):
+        time.sleep(0.5)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=900)
+    assert done.returncode == 0, done.stderr[-2000:]
+    whole = subprocess.run([*cmd[:-4], "--workdir", str(tmp_path / "clean"), "--no-tracking"], env=env,
+                           capture_output=True, text=True, timeout=900)
+    assert whole.returncode == 0, whole.stderr[-2000:]
+    a = read_rows(tmp_path / "runs" / "sweeptiny" / "sweep" / "summary.csv")
+    b = read_rows(tmp_path / "clean" / "sweeptiny" / "sweep" / "summary.csv")
+    assert a == b and len(a) == 4
+    from mlflow import MlflowClient
+
+    client = MlflowClient(f"sqlite:///{tmp_path / 'mlflow.db'}")
+    exp = client.get_experiment_by_name("sweeptiny")
+    runs = client.search_runs([exp.experiment_id], max_results=1000)
+    assert not [r for r in runs if r.info.status == "RUNNING"]
+    roots = [r for r in runs if "mlflow.parentRunId" not in r.data.tags]
+    assert len(roots) == 1  # one sweep run, never a duplicate after the kill
+    points = [r for r in runs if r.data.tags.get("mlflow.parentRunId") == roots[0].info.run_id
+              and r.info.status == "FINISHED"]
+    assert len(points) == 4

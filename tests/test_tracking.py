@@ -1,0 +1,379 @@
+"""MLflow layout for review, idempotent reruns, the store under concurrent use, sweep runs.
+
+The run results are the GridWorld reference metrics (tests/reference/metrics.json: a real run's
+summary: environment E2, ps 1 and 0.5, corruption levels 0 and 1), so the layout is checked on
+what a run really logs; no Ray and no training here.
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import subprocess
+import sys
+import textwrap
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pytest
+
+from pcpg_dist.config import load_config
+from pcpg_dist.errors import ServiceError
+from pcpg_dist.tracking import (
+    EXPERIMENT_KIND,
+    MAX_PARENT_METRICS,
+    SweepTracker,
+    Tracker,
+    log_environment,
+    open_experiment,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+REFERENCE = json.loads((ROOT / "tests" / "reference" / "metrics.json").read_text())["gridworld"]
+ENVS = sorted({k.split("/")[0] for k in REFERENCE if k.startswith("E")})
+
+
+@dataclass
+class Result:
+    """What the runner hands to :meth:`Tracker.finish` (the fields it reads)."""
+
+    out_dir: Path
+    metrics: dict[str, float]
+    clustering: dict[str, dict[str, float]]
+    stage_seconds: dict[str, float] = field(default_factory=dict)
+    cached_stages: list[str] = field(default_factory=list)
+
+
+def make_result(out: Path) -> Result:
+    summary = out / "summary"
+    (summary / "E1").mkdir(parents=True, exist_ok=True)
+    (summary / "metrics.json").write_text(json.dumps(REFERENCE))
+    (summary / "run.json").write_text(json.dumps({"command": "pcpg run experiments/quick.yaml"}))
+    (summary / "accuracy_vs_p.csv").write_text("env,p,pcpg\nE1,1.0,0.8\n")
+    (summary / "E1" / "done.json").write_text("{}")  # cache bookkeeping: must not be uploaded
+    (summary / "E1" / "table.csv").write_text("a\n1\n")
+    (out / "report").mkdir(exist_ok=True)
+    (out / "report" / "report.html").write_text("<html></html>")
+    clustering = {e: {k.split("/", 1)[1]: v for k, v in REFERENCE.items() if k.startswith(f"{e}/clustering/")}
+                  for e in ENVS}
+    return Result(out, dict(REFERENCE), clustering,
+                  {"generate": 1.5, "cluster": 2.0, "train": 3.0, "evaluate": 1.0, "summary": 0.5})
+
+
+def env_metrics(env: str) -> dict[str, float]:
+    return {k.split("/", 1)[1]: v for k, v in REFERENCE.items() if k.startswith(f"{env}/")}
+
+
+def run_once(cfg, uri: str, out: Path, summary_seconds: float = 0.5) -> Tracker:
+    """What `pcpg run` does with tracking, for one finished run (children, then the parent)."""
+    result = make_result(out)
+    result.stage_seconds["summary"] = summary_seconds  # recomputed by every run, so it varies
+    tracker = Tracker.start(cfg, uri, out)
+    evaluation = out / "eval"
+    evaluation.mkdir(exist_ok=True)
+    (evaluation / "metrics.json").write_text("{}")
+    (evaluation / "done.json").write_text("{}")
+    for env in ENVS:
+        if not tracker.env_logged(env, f"key-{env}"):
+            log_environment(tracker.child_info(env, f"key-{env}", result.clustering[env]), env, str(evaluation),
+                            env_metrics(env), [])
+    tracker.finish(result, report_dir=out / "report")
+    return tracker
+
+
+@pytest.fixture(scope="module")
+def cfg():
+    return load_config(ROOT / "experiments" / "quick.yaml")
+
+
+def all_artifacts(client, run_id: str, path: str | None = None) -> list[str]:
+    out = []
+    for a in client.list_artifacts(run_id, path):
+        out += all_artifacts(client, run_id, a.path) if a.is_dir else [a.path]
+    return out
+
+
+def histories(client, run) -> dict[str, list]:
+    return {k: client.get_metric_history(run.info.run_id, k) for k in run.data.metrics}
+
+
+def test_parent_layout_for_review(cfg, tmp_path):
+    from mlflow import MlflowClient
+
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    tracker = run_once(cfg, uri, tmp_path / "out")
+    client = MlflowClient(uri)
+    exp = client.get_experiment(tracker.experiment_id)
+    assert exp.tags[EXPERIMENT_KIND[0]] == "custom_model_development"  # opens on the runs table
+    parent = client.get_run(tracker.parent_id)
+    keys = set(parent.data.metrics)
+    assert len(keys) <= MAX_PARENT_METRICS, sorted(keys)
+    assert not any(k.endswith("/std") or k.startswith(tuple(f"{e}/" for e in ENVS)) for k in keys), sorted(keys)
+    # the headline numbers are the run's, not placeholders
+    for key in ("pcpg/accuracy/p1", "baseline/accuracy/p1", "clustering/accuracy", "random/accuracy"):
+        assert parent.data.metrics[key] == pytest.approx(REFERENCE[key]), key
+    # accuracy over p as a curve: one point per p, step = 100 p, values in p order
+    curve = client.get_metric_history(tracker.parent_id, "accuracy_vs_p/pcpg")
+    assert sorted((m.step, m.value) for m in curve) == [(50, pytest.approx(REFERENCE["pcpg/accuracy/p0.5"])),
+                                                        (100, pytest.approx(REFERENCE["pcpg/accuracy/p1"]))]
+    corruption = client.get_metric_history(tracker.parent_id, "accuracy_vs_corruption/pcpg")
+    assert sorted(m.step for m in corruption) == [0, 100]
+    note = parent.data.tags["mlflow.note.content"]
+    assert "pcpg run experiments/quick.yaml" in note and f"{REFERENCE['pcpg/accuracy/p1']:.3f}" in note
+    assert parent.info.status == "FINISHED"
+    files = all_artifacts(client, tracker.parent_id)
+    assert "summary/accuracy_vs_p.csv" in files and "report/report.html" in files
+    assert not any(Path(f).name == "done.json" for f in files), files
+    std = client.download_artifacts(tracker.parent_id, "summary/metrics.csv", str(tmp_path / "dl"))
+    rows = {r.split(",")[0]: r.split(",") for r in Path(std).read_text().splitlines()[1:]}
+    assert float(rows["pcpg/accuracy/p1"][2]) == pytest.approx(REFERENCE["pcpg/accuracy/p1/std"])
+    # children: per-environment detail, curves by p, no std sections, no bookkeeping files
+    children = client.search_runs([tracker.experiment_id], f"tags.`mlflow.parentRunId` = '{tracker.parent_id}'")
+    assert sorted(c.data.tags["pcpg.env"] for c in children) == ENVS
+    for child in children:
+        cm = child.data.metrics
+        assert not any(k.endswith("/std") for k in cm)
+        assert "pcpg/accuracy/k0/by_p" in cm and "clustering/ari" in cm
+        assert all(Path(f).name != "done.json" for f in all_artifacts(client, child.info.run_id))
+
+
+def test_rerun_from_cache_logs_nothing_again(cfg, tmp_path):
+    from mlflow import MlflowClient
+
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    first = run_once(cfg, uri, tmp_path / "out")
+    client = MlflowClient(uri)
+    before = client.get_run(first.parent_id)
+    hist_before = histories(client, before)
+    for i in range(2):
+        again = run_once(cfg, uri, tmp_path / "out", summary_seconds=0.7 + i)
+        assert again.parent_id == first.parent_id
+    after = client.get_run(first.parent_id)
+    assert (after.info.start_time, after.info.end_time) == (before.info.start_time, before.info.end_time)
+    assert after.data.metrics == before.data.metrics
+    for key, hist in histories(client, after).items():
+        steps = [m.step for m in hist]
+        assert len(steps) == len(set(steps)) == len(hist_before[key]), key  # one value per step, ever
+        if not key.startswith("accuracy_vs_"):
+            assert len(hist) == 1, key
+    runs = client.search_runs([first.experiment_id])
+    assert len(runs) == 1 + len(ENVS) and all(r.info.status == "FINISHED" for r in runs)
+
+
+def test_killed_parent_resumes_and_is_finished_once(cfg, tmp_path):
+    from mlflow import MlflowClient
+
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    tracker = Tracker.start(cfg, uri, tmp_path / "out")
+    tracker.fail()
+    client = MlflowClient(uri)
+    assert client.get_run(tracker.parent_id).info.status == "KILLED"
+    resumed = run_once(cfg, uri, tmp_path / "out")
+    assert resumed.parent_id == tracker.parent_id
+    assert client.get_run(tracker.parent_id).info.status == "FINISHED"
+
+
+CONCURRENT = textwrap.dedent("""
+    import sys
+    from pathlib import Path
+    sys.path.insert(0, {tests!r})
+    from test_tracking import run_once
+    from pcpg_dist.config import load_config
+    cfg = load_config({config!r})
+    run_once(cfg, {uri!r}, Path(sys.argv[1]))
+""")
+
+
+@pytest.mark.slow
+def test_two_processes_on_one_store_make_one_parent(cfg, tmp_path):
+    """Two `pcpg run`s of one config started together: on a fresh folder, then on the existing store."""
+    from mlflow import MlflowClient
+
+    uri = f"sqlite:///{tmp_path / 'store' / 'mlflow.db'}"
+    script = tmp_path / "one_run.py"
+    script.write_text(CONCURRENT.format(tests=str(ROOT / "tests"), config=str(ROOT / "experiments" / "quick.yaml"),
+                                        uri=uri))
+    for round_ in ("fresh", "existing"):
+        procs = [subprocess.Popen([sys.executable, str(script), str(tmp_path / f"{round_}{i}")], text=True,
+                                  stdout=subprocess.PIPE, stderr=subprocess.STDOUT) for i in range(2)]
+        outs = [p.communicate(timeout=600)[0] for p in procs]
+        assert [p.returncode for p in procs] == [0, 0], outs
+        client = MlflowClient(uri)
+        exp = client.get_experiment_by_name(cfg.name)
+        runs = client.search_runs([exp.experiment_id])
+        parents = [r for r in runs if r.data.tags.get("pcpg.role") == "parent"]
+        assert len(parents) == 1, (round_, [r.info.run_id for r in parents])
+        children = [r for r in runs if r.data.tags.get("mlflow.parentRunId") == parents[0].info.run_id]
+        assert sorted(c.data.tags["pcpg.env"] for c in children) == ENVS, round_
+        assert all(r.info.status == "FINISHED" for r in runs)
+        assert all(len(h) == 1 for k, h in histories(client, parents[0]).items() if "_vs_" not in k)
+
+
+def _partial_store(db: Path, revisions_done: int) -> None:
+    """A store as a migration killed after ``revisions_done`` steps leaves it (one step's tables
+    created, its version not yet recorded: SQLite runs DDL outside the migration's transaction)."""
+    from alembic import command
+    from alembic.script import ScriptDirectory
+    from mlflow.store.db.utils import InitialBase, _get_alembic_config, create_sqlalchemy_engine
+
+    uri = f"sqlite:///{db}"
+    engine = create_sqlalchemy_engine(uri)
+    InitialBase.metadata.create_all(engine)
+    config = _get_alembic_config(uri)
+    revisions = list(reversed(list(ScriptDirectory.from_config(config).walk_revisions())))
+    with engine.begin() as connection:
+        config.attributes["connection"] = connection
+        command.upgrade(config, revisions[revisions_done].revision)
+    engine.dispose()
+    con = sqlite3.connect(db)
+    con.execute("UPDATE alembic_version SET version_num = ?", (revisions[revisions_done - 1].revision,))
+    con.commit()
+    con.close()
+
+
+def test_half_created_store_is_repaired(cfg, tmp_path, caplog):
+    from mlflow import MlflowClient
+    from mlflow.store.tracking.sqlalchemy_store import SqlAlchemyStore
+    from sqlalchemy.exc import OperationalError
+
+    db = tmp_path / "mlflow.db"
+    _partial_store(db, 5)
+    uri = f"sqlite:///{db}"
+    with pytest.raises(OperationalError):  # MLflow alone cannot open it again
+        SqlAlchemyStore(uri, (tmp_path / "mlruns").as_uri())
+    with caplog.at_level("WARNING", logger="pcpg_dist.tracking"):
+        tracker = run_once(cfg, uri, tmp_path / "out")
+    assert MlflowClient(uri).get_run(tracker.parent_id).info.status == "FINISHED"
+    moved = list(tmp_path.glob("mlflow.db.incomplete-*"))
+    assert len(moved) == 1
+    lines = [r.getMessage() for r in caplog.records]
+    assert len(lines) == 1 and "half-created" in lines[0] and "\n" not in lines[0]
+
+
+@pytest.mark.slow
+def test_store_whose_first_migration_was_killed_opens(cfg, tmp_path):
+    """kill -9 while MLflow creates a fresh store (as a run stopped during its first seconds would):
+    the next run repairs it or finds it whole, and logs."""
+    import os
+    import signal
+    import time
+
+    from mlflow import MlflowClient
+
+    db = tmp_path / "mlflow.db"
+    uri = f"sqlite:///{db}"
+    proc = subprocess.Popen([sys.executable, "-c", f"from mlflow import MlflowClient; "
+                             f"MlflowClient({uri!r}).search_experiments()"], stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 120
+    while not (db.exists() and db.stat().st_size > 0) and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.02)
+    time.sleep(0.3)  # inside the migration's dozens of steps
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    tracker = run_once(cfg, uri, tmp_path / "out")
+    assert MlflowClient(uri).get_run(tracker.parent_id).info.status == "FINISHED"
+
+
+def test_damaged_store_with_runs_is_one_line(cfg, tmp_path):
+    db = tmp_path / "mlflow.db"
+    uri = f"sqlite:///{db}"
+    open_experiment("kept", uri)
+    from mlflow import MlflowClient
+
+    MlflowClient(uri).create_run(MlflowClient(uri).get_experiment_by_name("kept").experiment_id)
+    con = sqlite3.connect(db)
+    con.execute("UPDATE alembic_version SET version_num = 'not_a_revision'")
+    con.commit()
+    con.close()
+    import pcpg_dist.tracking as tracking
+
+    tracking._prepared.discard(uri)  # a new process would check again
+    with pytest.raises(ServiceError) as err:
+        tracking.prepare_store(uri)
+    msg = str(err.value)
+    assert "\n" not in msg and str(db) in msg and "1 runs" in msg
+    assert list(tmp_path.glob("mlflow.db.backup-*"))
+
+
+def test_sweep_run_is_found_again_and_points_nest_under_it(cfg, tmp_path):
+    from mlflow import MlflowClient
+
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    axes = {"bc.lr": [0.01, 0.001], "clustering.k": [2, 4]}
+    sweep = SweepTracker.start("quick-sweep", "abc123", axes, "lr x k on quick", uri)
+    again = SweepTracker.start("quick-sweep", "abc123", axes, "lr x k on quick", uri)
+    assert again.parent_id == sweep.parent_id
+    other = SweepTracker.start("quick-sweep", "def456", axes, "another grid", uri)
+    assert other.parent_id != sweep.parent_id
+    client = MlflowClient(uri)
+    run = client.get_run(sweep.parent_id)
+    assert run.data.params["sweep.bc.lr"] == "0.01,0.001" and run.data.tags["mlflow.note.content"] == "lr x k on quick"
+
+    point = Tracker.start(cfg, uri, tmp_path / "p0", parent_run_id=sweep.parent_id, params={"bc.lr": "0.01"})
+    assert Tracker.start(cfg, uri, tmp_path / "p0", parent_run_id=sweep.parent_id,
+                         params={"bc.lr": "0.01"}).parent_id == point.parent_id
+    solo = Tracker.start(cfg, uri, tmp_path / "solo")  # the same config outside the sweep: its own run
+    assert solo.parent_id != point.parent_id
+    prun = client.get_run(point.parent_id)
+    assert prun.data.tags["mlflow.parentRunId"] == sweep.parent_id and prun.data.params["bc.lr"] == "0.01"
+    assert prun.info.experiment_id == sweep.experiment_id
+
+    artifact = tmp_path / "summary.csv"
+    artifact.write_text("bc.lr,pcpg\n0.01,0.8\n")
+    for _ in range(2):
+        sweep.finish({"best/pcpg_accuracy": 0.8}, [artifact])
+    run = client.get_run(sweep.parent_id)
+    assert run.info.status == "FINISHED"
+    assert len(client.get_metric_history(sweep.parent_id, "best/pcpg_accuracy")) == 1
+    assert [a.path for a in client.list_artifacts(sweep.parent_id)] == ["summary.csv"]
+    other.fail()
+    assert client.get_run(other.parent_id).info.status == "KILLED"
+
+
+# --------------------------------------------------------------------------- the terminal
+def test_version_flag_and_global_quiet_verbose():
+    import pcpg_dist
+    from pcpg_dist.cli import build_parser
+
+    res = subprocess.run([sys.executable, "-m", "pcpg_dist.cli", "--version"], capture_output=True, text=True,
+                         timeout=120)
+    assert res.returncode == 0 and res.stdout.strip() == f"pcpg {pcpg_dist.__version__}" and not res.stderr
+    args = build_parser().parse_args(["-q", "domains"])
+    assert args.global_quiet and not args.verbose
+    assert build_parser().parse_args(["--verbose", "domains"]).verbose
+
+
+def test_written_files_follow_the_umask(tmp_path):
+    """atomic_write_bytes (every table, manifest and run.json) no longer leaves 0600 files."""
+    import os
+
+    from pcpg_dist.dataset import FILE_MODE, atomic_write_bytes
+
+    atomic_write_bytes(tmp_path / "x.json", b"{}")
+    mask = os.umask(0o022)
+    os.umask(mask)
+    assert (tmp_path / "x.json").stat().st_mode & 0o777 == FILE_MODE == 0o666 & ~mask
+
+
+def test_setup_output_silences_library_chatter(monkeypatch):
+    import logging
+
+    from pcpg_dist.progress import setup_output
+
+    monkeypatch.delenv("MLFLOW_LOGGING_LEVEL", raising=False)
+    monkeypatch.delenv("RAY_AUTH_MODE", raising=False)
+    pcpg = logging.getLogger("pcpg_dist")
+    for attr in ("handlers", "propagate", "level"):  # put back for the other tests (caplog)
+        monkeypatch.setattr(pcpg, attr, getattr(pcpg, attr))
+    for name in ("mlflow", "alembic"):
+        monkeypatch.setattr(logging.getLogger(name), "level", logging.getLogger(name).level)
+    setup_output()
+    import os
+
+    assert os.environ["MLFLOW_LOGGING_LEVEL"] == "WARNING" and os.environ["RAY_AUTH_MODE"] == "token"
+    auth = logging.getLogger("ray._private.authentication.authentication_token_setup")
+    notice = logging.LogRecord(auth.name, logging.WARNING, __file__, 1, "Token authentication is enabled for "
+                               "this Ray cluster. Set RAY_AUTH_MODE=disabled to opt out.", None, None)
+    security = logging.LogRecord(auth.name, logging.WARNING, __file__, 1, "Token authentication is disabled "
+                                 "for this Ray cluster.", None, None)
+    assert not auth.filter(notice) and auth.filter(security)  # the security warning stays
