@@ -100,18 +100,21 @@ def cluster(tmp_path_factory):
         shutil.copyfile(ROOT / "experiments" / "gridworlds" / f"{env}.txt", drv / "layouts" / f"{env}.txt")
     (drv / "tiny.yaml").write_text(yaml.safe_dump(TINY))
     port, dash = free_port(), free_port()
+    # Each node's agent on its own free port: Ray's default (52365) is held by this test session's
+    # own private Ray, and a head whose agent cannot bind it refuses every job submission.
+    agent_ports = [f"--dashboard-agent-listen-port={free_port()}" for _ in range(2)]
     logs = drv.parent / f"{drv.name}-logs"
     logs.mkdir()
     head = subprocess.Popen(
         [str(BIN / "ray"), "start", "--head", "--block", "--num-cpus=0", "--node-ip-address=127.0.0.1",
          f"--port={port}", "--include-dashboard=true", "--dashboard-host=127.0.0.1", f"--dashboard-port={dash}",
-         "--disable-usage-stats"],
+         "--disable-usage-stats", agent_ports[0]],
         env=clean_env(), stdout=(logs / "head.log").open("w"),  # noqa: SIM115 - open for the node's life
         stderr=subprocess.STDOUT, start_new_session=True)
     hidden = [drv, ROOT / "pcpg_dist", ROOT / "experiments"]
     mounts = " && ".join(f"mount -t tmpfs tmpfs '{d}'" for d in hidden)
     worker_cmd = (f"{mounts} && exec '{BIN / 'ray'}' start --block --address=127.0.0.1:{port} --num-cpus=2 "
-                  f"--node-ip-address=127.0.0.1 --disable-usage-stats")
+                  f"--node-ip-address=127.0.0.1 --disable-usage-stats {agent_ports[1]}")
     worker = None
     try:
         wait_for_cpus(f"127.0.0.1:{port}", 0)
@@ -177,12 +180,8 @@ def test_ray_job_submit(cluster, tmp_path):
     cfg = cluster["drv"] / "tiny.yaml"
     out_dir = tmp_path / "job-out"
     entry = ["pcpg", "run", str(cfg), "--no-tracking", "--quiet", "--workdir", str(out_dir), "bc.epochs=100"]
-    for _ in range(6):  # the head's job agent may still be starting on a busy machine
-        job = subprocess.run([str(BIN / "ray"), "job", "submit", "--address", cluster["dashboard"], "--", *entry],
-                             cwd=tmp_path, env=clean_env(), capture_output=True, text=True, timeout=900)
-        if "No available agent" not in job.stdout + job.stderr:
-            break
-        time.sleep(10)
+    job = subprocess.run([str(BIN / "ray"), "job", "submit", "--address", cluster["dashboard"], "--", *entry],
+                         cwd=tmp_path, env=clean_env(), capture_output=True, text=True, timeout=900)
     assert job.returncode == 0, (job.stdout + job.stderr)[-3000:]
     assert "succeeded" in (job.stdout + job.stderr).lower()
     m = results(out_dir / "nodisk")
