@@ -38,21 +38,35 @@ def _disable_uv_hook() -> None:
 
 
 @contextlib.contextmanager
-def _loopback_only() -> Iterator[None]:
-    """Keep ``_node_ip_address="127.0.0.1"`` as given: Ray 2.60's ``ray.init`` swaps a loopback
-    address for the machine's network address, and its servers then listen on every interface.
-    With the node address left on loopback, GCS, raylet and workers listen on 127.0.0.1 only
-    (tests/test_cluster.py checks the sockets)."""
-    from ray._private import services
+def _private_node() -> Iterator[None]:
+    """Start a private node that keeps to itself, by two patches held only during ``ray.init``:
 
-    original = getattr(services, "resolve_ip_for_localhost", None)
-    if original is not None:
+    - keep ``_node_ip_address="127.0.0.1"`` as given: Ray 2.60's ``ray.init`` swaps a loopback
+      address for the machine's network address, and its servers then listen on every interface.
+      On loopback, GCS, raylet and workers listen on 127.0.0.1 only (tests/test_cluster.py checks
+      the sockets);
+    - let the node's dashboard agent take a free port instead of Ray's fixed default (52365): a
+      `ray start` cluster begun on the same machine while a run holds that port gets a head
+      whose agent cannot bind it, and that head refuses every `ray job submit`.
+    """
+    from ray._private import node, services
+
+    original_resolve = getattr(services, "resolve_ip_for_localhost", None)
+    if original_resolve is not None:
         services.resolve_ip_for_localhost = lambda host: host
+    original_node_init = node.Node.__init__
+
+    def node_init(self, ray_params, *args, **kwargs):
+        ray_params.dashboard_agent_listen_port = 0  # 0 = any free port (the agent reports it)
+        original_node_init(self, ray_params, *args, **kwargs)
+
+    node.Node.__init__ = node_init
     try:
         yield
     finally:
-        if original is not None:
-            services.resolve_ip_for_localhost = original
+        node.Node.__init__ = original_node_init
+        if original_resolve is not None:
+            services.resolve_ip_for_localhost = original_resolve
 
 
 def package_runtime_env() -> dict[str, Any]:
@@ -81,7 +95,7 @@ def init_ray(address: str | None = None, num_cpus: int | None = None) -> None:
             os.environ.pop("RAY_ADDRESS", None)
             for attempt in range(3):
                 try:
-                    with _loopback_only():
+                    with _private_node():
                         ray.init(address="local", num_cpus=num_cpus or available_cpus(), include_dashboard=False,
                                  object_store_memory=300_000_000, log_to_driver=False,
                                  runtime_env={"env_vars": dict(THREAD_ENV)}, logging_level=logging.WARNING,
