@@ -20,13 +20,13 @@ import subprocess
 import sys
 import time
 import urllib.request
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
 
 from pcpg_dist import figures
 from pcpg_dist.config import load_config
+from pcpg_dist.runner import RunResult
 from pcpg_dist.tracking import Tracker, log_environment, ui_link
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -36,15 +36,6 @@ WIDTH = 1280
 ML = "workflowType=machine_learning"  # MLflow 3.17's UI switch for classic ML pages (see tracking.ui_link)
 
 pytestmark = pytest.mark.slow
-
-
-@dataclass
-class Result:
-    out_dir: Path
-    metrics: dict[str, float]
-    clustering: dict[str, dict[str, float]]
-    stage_seconds: dict[str, float] = field(default_factory=dict)
-    cached_stages: list[str] = field(default_factory=list)
 
 
 def chromium_path() -> str | None:
@@ -80,8 +71,8 @@ def store(tmp_path_factory) -> dict:
         per_env = {k.split("/", 1)[1]: v for k, v in metrics.items() if k.startswith(f"{env}/")}
         log_environment(tracker.child_info(env, f"unit-{env}", clustering[env]), env, str(summary / env),
                         per_env, [])
-    result = Result(out, metrics, clustering, {"generate": 30.0, "cluster": 12.0, "train": 40.0,
-                                               "evaluate": 9.0, "summary": 2.0})
+    result = RunResult(out, metrics, clustering, {"generate": 30.0, "cluster": 12.0, "train": 40.0,
+                                                  "evaluate": 9.0, "summary": 2.0})
     tracker.finish(result)
     return {"uri": uri, "tracker": tracker, "envs": envs, "run_name": f"{cfg.name}-{cfg.hash()[:8]}"}
 
