@@ -100,8 +100,9 @@ def cluster(tmp_path_factory):
         shutil.copyfile(ROOT / "experiments" / "gridworlds" / f"{env}.txt", drv / "layouts" / f"{env}.txt")
     (drv / "tiny.yaml").write_text(yaml.safe_dump(TINY))
     port, dash = free_port(), free_port()
-    # Each node's agent on its own free port: Ray's default (52365) is held by this test session's
-    # own private Ray, and a head whose agent cannot bind it refuses every job submission.
+    # Each node's agent on its own free port: both nodes share this machine, and Ray's fixed default
+    # (52365) may be held by anything else on it; a head whose agent cannot bind its port refuses
+    # every job submission.
     agent_ports = [f"--dashboard-agent-listen-port={free_port()}" for _ in range(2)]
     logs = drv.parent / f"{drv.name}-logs"
     logs.mkdir()
