@@ -113,6 +113,11 @@ class TrainedCells:
 
         return run
 
+    def cell_params(self, cell: int | str) -> list[np.ndarray]:
+        """One cell's parameters as [W0, b0, W1, b1, ...] (what ``train_cells(init=...)`` takes)."""
+        i = self.index(cell) if isinstance(cell, str) else cell
+        return [self.params[f"{w}{layer}"][i] for layer in range(len(self.sizes) - 1) for w in "Wb"]
+
     # ------------------------------------------------------------------ combine
     def select(self, keys: Sequence[str]) -> TrainedCells:
         idx = [self.index(k) for k in keys]
@@ -226,8 +231,13 @@ def buckets(rows: Sequence[int], overhead: int) -> list[list[int]]:
     return groups[::-1]
 
 
-def train_cells(cells: Sequence[Cell], cfg: BCConfig) -> TrainedCells:
-    """Train one policy per cell; pure and deterministic (what one Ray task runs on a group)."""
+def train_cells(cells: Sequence[Cell], cfg: BCConfig,
+                init: Sequence[list[np.ndarray] | None] | None = None) -> TrainedCells:
+    """Train one policy per cell; pure and deterministic (what one Ray task runs on a group).
+
+    ``init[i]``, where given, is cell i's starting parameters (W0, b0, W1, b1, ...; e.g. a
+    trained No Clustering agent to fine-tune) instead of the seeded initialisation.
+    """
     if not cells:
         raise DataError("no cells to train")
     d, n_actions = cells[0].state_dim, cells[0].n_actions
@@ -240,25 +250,37 @@ def train_cells(cells: Sequence[Cell], cfg: BCConfig) -> TrainedCells:
     data = [dedupe_rows(c.states, c.valid, c.actions, c.weights) if cfg.dedupe
             else (c.states, c.valid, c.actions, c.weights) for c in cells]
     sizes = layer_sizes(d, n_actions, cfg)
+    starts = [_start(sizes, c, None if init is None else init[i]) for i, c in enumerate(cells)]
     device = resolve_device(cfg.device)
     dtype = torch.float32 if cfg.dtype == "float32" else torch.float64
     params = {f"{w}{i}": np.zeros((len(cells), *((a, b) if w == "W" else (b,))), np.float32)
               for i, (a, b) in enumerate(zip(sizes[:-1], sizes[1:], strict=True)) for w in "Wb"}
     losses = np.zeros(len(cells))
     if _engine(cfg, device) == "numba":
-        trained, losses = _train_numba(cells, data, sizes, cfg)
+        trained, losses = _train_numba(cells, data, sizes, cfg, starts)
         check_finite(cells, trained, losses, cfg)
         return TrainedCells(tuple(c.spec for c in cells), sizes, cfg.activation, trained,
                             np.stack([c.mean for c in cells]), np.stack([c.std for c in cells]), losses)
     for group in buckets([len(x[2]) for x in data], cfg.bucket_overhead_rows):
         trained, loss = _train_group([cells[i] for i in group], [data[i] for i in group],
-                                     sizes, cfg, device, dtype)
+                                     sizes, cfg, device, dtype, [starts[i] for i in group])
         for name, value in trained.items():
             params[name][group] = value
         losses[group] = loss
     check_finite(cells, params, losses, cfg)
     return TrainedCells(tuple(c.spec for c in cells), sizes, cfg.activation, params,
                         np.stack([c.mean for c in cells]), np.stack([c.std for c in cells]), losses)
+
+
+def _start(sizes: tuple[int, ...], cell: Cell, given: list[np.ndarray] | None) -> np.ndarray:
+    """A cell's starting parameters as one flat vector: ``given`` (checked) or its seeded init."""
+    if given is None:
+        return np.concatenate([p.ravel() for p in init_params(sizes, cell.spec.seed)])
+    want = [(a, b) if i % 2 == 0 else (b,) for a, b in zip(sizes[:-1], sizes[1:], strict=True) for i in range(2)]
+    got = [tuple(np.shape(p)) for p in given]
+    if got != want:
+        raise DataError(f"cell {cell.key}: starting parameters have shapes {got}, the network needs {want}")
+    return np.concatenate([np.asarray(p, np.float64).ravel() for p in given])
 
 
 def check_finite(cells: Sequence[Cell], params: dict[str, np.ndarray], losses: np.ndarray, cfg: BCConfig) -> None:
@@ -279,9 +301,13 @@ def _engine(cfg: BCConfig, device: torch.device) -> str:
     if cfg.engine == "numba" and (device.type != "cpu" or cfg.dtype != "float32"):
         raise ConfigError("bc.engine 'numba' runs on the CPU in float32 only "
                           f"(got device {device.type}, dtype {cfg.dtype})")
-    if cfg.engine == "auto":
-        return "numba" if device.type == "cpu" and cfg.dtype == "float32" else "torch"
-    return cfg.engine
+    engine = cfg.engine
+    if engine == "auto":
+        engine = "numba" if device.type == "cpu" and cfg.dtype == "float32" else "torch"
+    if engine == "torch" and cfg.batch_size is not None:
+        raise ConfigError(f"bc.batch_size={cfg.batch_size} needs the numba engine (CPU, float32); "
+                          f"got engine {engine} on {device.type} in {cfg.dtype}: set bc.batch_size: null")
+    return engine
 
 
 def _thread_schedule(rows: Sequence[int], slots: int) -> tuple[np.ndarray, np.ndarray]:
@@ -297,20 +323,23 @@ def _thread_schedule(rows: Sequence[int], slots: int) -> tuple[np.ndarray, np.nd
 
 
 def _train_numba(cells: Sequence[Cell], data: list[tuple[np.ndarray, ...]], sizes: tuple[int, ...],
-                 cfg: BCConfig) -> tuple[dict, np.ndarray]:
+                 cfg: BCConfig, starts: list[np.ndarray]) -> tuple[dict, np.ndarray]:
     import numba
 
     from pcpg_dist.bc_kernel import train_kernel
 
     n_layers = len(sizes) - 1
+    if cfg.batch_size is not None:  # minibatches are blocks of one fixed shuffle per cell
+        data = [tuple(a[order] for a in x) for x, order in
+                ((x, np.random.default_rng([c.spec.seed, 1]).permutation(len(x[2])))
+                 for c, x in zip(cells, data, strict=True))]
     rows = [len(x[2]) for x in data]
     row_off = np.r_[0, np.cumsum(rows)].astype(np.int64)
     xt = np.concatenate([(s - c.mean) / c.std for c, (s, _, _, _) in zip(cells, data, strict=True)])
     neg = np.concatenate([np.where(v, 0.0, _NEG) for _, v, _, _ in data]).astype(np.float32)
     acts = np.concatenate([a for _, _, a, _ in data]).astype(np.int64)
     wn = np.concatenate([w / w.sum() for _, _, _, w in data]).astype(np.float32)
-    theta = np.stack([np.concatenate([p.ravel() for p in init_params(sizes, c.spec.seed)])
-                      for c in cells]).astype(np.float32)
+    theta = np.stack(starts).astype(np.float32)
     numel = [x for a, b in zip(sizes[:-1], sizes[1:], strict=True) for x in (a * b, b)]
     offs = np.r_[0, np.cumsum(numel)].astype(np.int64)
     # follow the thread count the caller gave torch (parallel.set_threads): an oversubscribed
@@ -321,7 +350,7 @@ def _train_numba(cells: Sequence[Cell], data: list[tuple[np.ndarray, ...]], size
     train_kernel(np.ascontiguousarray(xt.T, np.float32), np.ascontiguousarray(neg.T), acts, wn,
                  row_off, theta, np.array(sizes, np.int64), offs[0:-1:2].copy(), offs[1::2].copy(),
                  cfg.epochs, cfg.lr, cfg.betas[0], cfg.betas[1], cfg.eps,
-                 cfg.activation == "relu", schedule, sched_off, losses)
+                 cfg.activation == "relu", schedule, sched_off, losses, cfg.batch_size or 0)
     out = {}
     for i, (a, b) in enumerate(zip(sizes[:-1], sizes[1:], strict=True)):
         out[f"W{i}"] = theta[:, offs[2 * i]:offs[2 * i + 1]].reshape(-1, a, b).copy()
@@ -331,7 +360,8 @@ def _train_numba(cells: Sequence[Cell], data: list[tuple[np.ndarray, ...]], size
 
 
 def _train_group(cells: list[Cell], data: list[tuple[np.ndarray, ...]], sizes: tuple[int, ...],
-                 cfg: BCConfig, device: torch.device, dtype: torch.dtype) -> tuple[dict, np.ndarray]:
+                 cfg: BCConfig, device: torch.device, dtype: torch.dtype,
+                 starts: list[np.ndarray]) -> tuple[dict, np.ndarray]:
     n_cells, n_rows = len(cells), max(len(x[2]) for x in data)
     d, n_actions = sizes[0], sizes[-1]
     x = np.zeros((n_cells, n_rows, d), np.float32)
@@ -355,9 +385,7 @@ def _train_group(cells: list[Cell], data: list[tuple[np.ndarray, ...]], sizes: t
               for a, b in zip(sizes[:-1], sizes[1:], strict=True) for i in range(2)]
     numel = [a * b for a, b in shapes]
     offs = np.r_[0, np.cumsum(numel)]
-    flat = np.zeros((n_cells, offs[-1]), np.float64)
-    for j, cell in enumerate(cells):
-        flat[j] = np.concatenate([p.ravel() for p in init_params(sizes, cell.spec.seed)])
+    flat = np.stack(starts)
     theta, grad = t(flat), torch.zeros(n_cells, int(offs[-1]), dtype=dtype, device=device)
     m, v = torch.zeros_like(theta), torch.zeros_like(theta)
 

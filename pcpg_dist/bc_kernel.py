@@ -7,7 +7,9 @@ needs no padding. Cells are independent, so a cell's parameters do not depend on
 cells share the call: training alone or in a batch is bit-for-bit the same.
 
 The maths is the torch engine's: weighted-mean masked cross-entropy, full batch, Adam exactly as
-``torch.optim.Adam`` (no weight decay, no amsgrad).
+``torch.optim.Adam`` (no weight decay, no amsgrad). With ``batch > 0`` an epoch is instead one
+pass over the cell's rows in consecutive blocks of ``batch`` rows (the caller shuffles the rows
+once), one Adam step per block on the block's share of the loss scaled by rows / block rows.
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ def tanh32(x):  # pragma: no cover - compiled
 
 @njit(cache=True, fastmath={"reassoc", "contract", "nsz"}, parallel=True)
 def train_kernel(xt, neg, acts, wn, row_off, theta, sizes, w_off, b_off, epochs, lr, beta1,
-                 beta2, eps, relu, schedule, sched_off, loss_out):  # pragma: no cover - compiled
+                 beta2, eps, relu, schedule, sched_off, loss_out, batch):  # pragma: no cover - compiled
     """Train every cell in place.
 
     xt (d, R) normalised inputs; neg (A, R) 0 or -1e9 per action; acts (R,) targets;
@@ -47,6 +49,8 @@ def train_kernel(xt, neg, acts, wn, row_off, theta, sizes, w_off, b_off, epochs,
     theta (C, P) parameters (updated in place); sizes (L+1,) layer widths; w_off/b_off (L,)
     offsets of each layer's (in, out) weights and (out,) bias in a row of theta.
     ``schedule[sched_off[t]:sched_off[t+1]]`` lists the cells thread slot t trains.
+    ``batch`` rows per Adam step (0: the whole cell, full batch); the last pass is always the
+    whole cell and gives ``loss_out``.
     """
     n_layers = len(sizes) - 1
     maxw = 0
@@ -70,7 +74,19 @@ def train_kernel(xt, neg, acts, wn, row_off, theta, sizes, w_off, b_off, epochs,
             grad = np.zeros(n_params, np.float32)
             mx = np.empty(n, np.float32)
             tot = np.empty(n, np.float32)
-            for step in range(1, epochs + 2):
+            nb = 1 if batch <= 0 or batch >= n else (n + batch - 1) // batch
+            for step in range(1, epochs * nb + 2):
+                # rows k0..k1 of the cell this step, weights scaled by n / rows: a block's
+                # gradient is then an unbiased estimate of the full-batch gradient (distinct rows
+                # keep their counts as weights, so renormalising within a block would favour
+                # rare rows)
+                k0 = 0
+                k1 = n
+                scale = np.float32(1.0)
+                if nb > 1 and step <= epochs * nb:
+                    k0 = ((step - 1) % nb) * batch
+                    k1 = min(n, k0 + batch)
+                    scale = np.float32(n / (k1 - k0))
                 # ---- forward: h[l+1] = act(W_l^T h[l] + b_l); h[L] = logits + mask
                 for layer in range(n_layers):
                     fin = sizes[layer]
@@ -79,48 +95,48 @@ def train_kernel(xt, neg, acts, wn, row_off, theta, sizes, w_off, b_off, epochs,
                     bo = b_off[layer]
                     for j in range(fout):
                         bj = th[bo + j]
-                        for k in range(n):
+                        for k in range(k0, k1):
                             h[layer + 1, j, k] = bj
                         for i in range(fin):
                             w = th[wo + i * fout + j]
-                            for k in range(n):
+                            for k in range(k0, k1):
                                 h[layer + 1, j, k] += w * h[layer, i, k]
                         if layer < n_layers - 1:
                             if relu:
-                                for k in range(n):
+                                for k in range(k0, k1):
                                     h[layer + 1, j, k] = max(h[layer + 1, j, k], np.float32(0.0))
                             else:
-                                for k in range(n):
+                                for k in range(k0, k1):
                                     h[layer + 1, j, k] = tanh32(h[layer + 1, j, k])
                         else:
-                            for k in range(n):
+                            for k in range(k0, k1):
                                 h[layer + 1, j, k] += neg[j, r0 + k]
                 # ---- softmax over actions; g[0] = w * (softmax - onehot)
                 lg = h[n_layers]
-                for k in range(n):
+                for k in range(k0, k1):
                     mx[k] = lg[0, k]
                 for a in range(1, n_actions):
-                    for k in range(n):
+                    for k in range(k0, k1):
                         mx[k] = max(mx[k], lg[a, k])
-                for k in range(n):
+                for k in range(k0, k1):
                     tot[k] = 0.0
                 for a in range(n_actions):
-                    for k in range(n):
+                    for k in range(k0, k1):
                         e = np.exp(lg[a, k] - mx[k])
                         g[0, a, k] = e
                         tot[k] += e
-                if step == epochs + 1:  # final pass: loss only
+                if step == epochs * nb + 1:  # final pass over the whole cell: loss only
                     loss = 0.0
-                    for k in range(n):
+                    for k in range(k0, k1):
                         a = acts[r0 + k]
                         loss -= wn[r0 + k] * (lg[a, k] - mx[k] - np.log(tot[k]))
                     loss_out[c] = loss
                     break
                 for a in range(n_actions):
-                    for k in range(n):
-                        g[0, a, k] = g[0, a, k] / tot[k] * wn[r0 + k]
-                for k in range(n):
-                    g[0, acts[r0 + k], k] -= wn[r0 + k]
+                    for k in range(k0, k1):
+                        g[0, a, k] = g[0, a, k] / tot[k] * (wn[r0 + k] * scale)
+                for k in range(k0, k1):
+                    g[0, acts[r0 + k], k] -= wn[r0 + k] * scale
                 # ---- backward
                 cur = 0
                 for layer in range(n_layers - 1, -1, -1):
@@ -130,30 +146,30 @@ def train_kernel(xt, neg, acts, wn, row_off, theta, sizes, w_off, b_off, epochs,
                     bo = b_off[layer]
                     for j in range(fout):
                         acc = np.float32(0.0)
-                        for k in range(n):
+                        for k in range(k0, k1):
                             acc += g[cur, j, k]
                         grad[bo + j] = acc
                     for i in range(fin):
                         for j in range(fout):
                             acc = np.float32(0.0)
-                            for k in range(n):
+                            for k in range(k0, k1):
                                 acc += h[layer, i, k] * g[cur, j, k]
                             grad[wo + i * fout + j] = acc
                     if layer > 0:
                         nxt = 1 - cur
                         for i in range(fin):
-                            for k in range(n):
+                            for k in range(k0, k1):
                                 g[nxt, i, k] = 0.0
                             for j in range(fout):
                                 w = th[wo + i * fout + j]
-                                for k in range(n):
+                                for k in range(k0, k1):
                                     g[nxt, i, k] += w * g[cur, j, k]
                             if relu:
-                                for k in range(n):
+                                for k in range(k0, k1):
                                     if h[layer, i, k] <= 0.0:
                                         g[nxt, i, k] = 0.0
                             else:
-                                for k in range(n):
+                                for k in range(k0, k1):
                                     g[nxt, i, k] *= 1.0 - h[layer, i, k] * h[layer, i, k]
                         cur = nxt
                 # ---- Adam

@@ -175,3 +175,64 @@ def test_device_config():
 def _resolve(name):
     from pcpg_dist.bc import resolve_device
     return resolve_device(name)
+
+
+def test_minibatches_learn_and_step_on_each_block(toy):
+    """bc.batch_size: one Adam step per block of the cell's shuffled rows, on the block's share of
+    the cell's loss scaled by rows / block rows (an unbiased estimate of the full-batch gradient);
+    a block as large as the cell is full batch (rows shuffled: same model up to float32
+    summation order)."""
+    ds, te, cells = toy
+    cell = next(c for c in cells if c.key == "k0-p1-s0")
+    full = train_cells([cell], BCConfig(epochs=40))
+    same = train_cells([cell], BCConfig(epochs=40, batch_size=cell.n_rows))
+    for name in full.params:
+        np.testing.assert_allclose(full.params[name], same.params[name], atol=1e-5)
+    # one epoch of two blocks = two Adam steps, on the first then the second half of the shuffle
+    half = (cell.n_rows + 1) // 2
+    order = np.random.default_rng([cell.spec.seed, 1]).permutation(cell.n_rows)
+    sizes = (4, 5, 5, 5, 4)
+    params = [torch.tensor(p, dtype=torch.float64, requires_grad=True) for p in init_params(sizes, cell.spec.seed)]
+    opt = torch.optim.Adam(params, lr=0.01)
+    for block in (order[:half], order[half:]):
+        part = dataclasses.replace(cell, states=cell.states[block], valid=cell.valid[block],
+                                   actions=cell.actions[block], weights=cell.weights[block])
+        _, grads = weighted_loss_and_grad(part, [p.detach().numpy() for p in params], "tanh")
+        share = cell.weights[block].sum() / cell.weights.sum() * cell.n_rows / len(block)
+        for p, g in zip(params, grads, strict=True):
+            p.grad = torch.tensor(g * share)
+        opt.step()
+    got = train_cells([cell], BCConfig(epochs=1, batch_size=half, dedupe=False))
+    for i in range(4):
+        np.testing.assert_allclose(got.params[f"W{i}"][0], params[2 * i].detach().numpy(), atol=2e-6)
+    # it learns the style as full batch (2000 steps) does; same seed, same numbers
+    mini = train_cells(cells, BCConfig(epochs=150, batch_size=8))
+    again = train_cells(cells, BCConfig(epochs=150, batch_size=8))
+    for name in mini.params:
+        assert np.array_equal(mini.params[name], again.params[name])
+    for style in (0, 1):
+        assert _test_accuracy(mini, ds, te, f"k{style}-p1-s0", style) >= 0.8
+
+
+def test_minibatches_need_the_numba_engine():
+    from pydantic import ValidationError
+    for bad in ({"engine": "torch"}, {"dtype": "float64"}, {"device": "cuda"}):
+        with pytest.raises(ValidationError, match="batch_size needs the numba engine"):
+            BCConfig(batch_size=64, **bad)
+    with pytest.raises(ValidationError):
+        BCConfig(batch_size=0)
+
+
+def test_training_starts_from_given_parameters(toy):
+    """``init``: a cell starts from another agent's weights (fine-tuning) instead of its seed."""
+    ds, te, cells = toy
+    donor = train_cells(cells[:1], BCConfig(epochs=300))
+    start = donor.cell_params(0)
+    unchanged = train_cells(cells[1:2], BCConfig(epochs=0), init=[start])
+    for i, p in enumerate(start):
+        assert np.array_equal(unchanged.cell_params(0)[i], p)
+    tuned = train_cells(cells[1:2], BCConfig(epochs=5), init=[start])
+    scratch = train_cells(cells[1:2], BCConfig(epochs=5))
+    assert tuned.final_loss[0] < scratch.final_loss[0]  # five steps from a trained agent beat five from noise
+    with pytest.raises(DataError, match="starting parameters have shapes"):
+        train_cells(cells[1:2], BCConfig(epochs=5, hidden_size=7), init=[start])

@@ -156,7 +156,12 @@ class BCConfig(StrictModel):
     activation: Literal["relu", "tanh"] = Field("tanh", description=(
         "Hidden activation. tanh by default: with 5-unit layers relu units die and some seeds "
         "lose a style (measured on GridWorld, docs/bc_and_evaluation.md)."))
-    epochs: int = Field(2000, ge=0, le=MAX_COUNT, description="Full-batch Adam steps (paper: '2000 episodes').")
+    epochs: int = Field(2000, ge=0, le=MAX_COUNT, description=(
+        "Full-batch Adam steps (paper: '2000 episodes'); with batch_size, passes over the rows."))
+    batch_size: int | None = Field(None, ge=1, le=10**9, description=(
+        "Rows per Adam step; null (the paper) trains full batch. Set it where cells hold tens of "
+        "thousands of distinct rows (Mario): one epoch is then one pass over a cell's rows, "
+        "shuffled once from the cell's seed, in blocks of this many. Numba engine only."))
     lr: float = Field(0.01, gt=0.0, le=100.0, description="Adam learning rate (finite, > 0).")
     betas: tuple[float, float] = Field((0.9, 0.999), description="Adam beta1, beta2, each in [0, 1).")
     eps: float = Field(1e-8, gt=0.0, le=1.0, description="Adam epsilon (finite, > 0).")
@@ -180,6 +185,14 @@ class BCConfig(StrictModel):
             if not 0.0 <= b < 1.0:
                 raise ValueError(f"Adam beta{i + 1} must lie in [0, 1), got {b}")
         return v
+
+    @model_validator(mode="after")
+    def _batch_engine(self) -> BCConfig:
+        if self.batch_size is not None and (self.engine == "torch" or self.device == "cuda"
+                                            or self.dtype != "float32"):
+            raise ValueError("batch_size needs the numba engine (device cpu, dtype float32, "
+                             "engine auto or numba); set batch_size: null for the others")
+        return self
 
 
 class EvalConfig(StrictModel):
