@@ -89,9 +89,9 @@ def evaluate_unit(unit: Unit, labels: np.ndarray, trained, cfg, out_dir: str | P
 
 def run_unit(unit: Unit, cfg, out_dir: str | Path | None = None) -> UnitResult:
     """The whole chain in this process (a notebook, a test, one tuning trial)."""
-    from pcpg_dist.bc import train_cells
+    from pcpg_dist.bc import train_plan
 
     clustering = cluster_unit(unit, cfg.clustering, cfg.seed)
-    trained = train_cells(plan_unit(unit, clustering.labels, cfg), cfg.bc)
+    trained = train_plan(plan_unit(unit, clustering.labels, cfg), cfg.bc)
     metrics = evaluate_unit(unit, clustering.labels, trained, cfg, out_dir)
     return UnitResult(clustering, {**clustering.metrics, **metrics})

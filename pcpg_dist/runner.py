@@ -116,12 +116,13 @@ def cluster_task(unit: Unit, cluster_cfg, seed: int, threads: int) -> dict:
     return {"labels": result.labels.tolist(), "metrics": result.metrics, "model": model}
 
 
-def train_task(cells: list, bc_cfg, threads: int):
-    """Train one group of cells in one vectorised pass (a Ray task); returns the trained arrays."""
+def train_task(cells: list, bc_cfg, threads: int, init: list | None = None):
+    """Train one group of cells in one vectorised pass (a Ray task); returns the trained arrays.
+    ``init``: the cells' starting parameters (``bc.init: no_clustering``)."""
     from pcpg_dist.bc import train_cells
 
     set_threads(threads)
-    return train_cells(cells, bc_cfg)
+    return train_cells(cells, bc_cfg, init)
 
 
 def evaluate_task(unit: Unit, labels: np.ndarray, trained, cfg: ExperimentConfig, threads: int) -> dict:
@@ -235,7 +236,7 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
                 show_progress: bool, sweep_parent_id: str | None) -> list[RunResult]:
     import ray
 
-    from pcpg_dist.bc import TrainedCells
+    from pcpg_dist.bc import TrainedCells, finetune_config, split_for_init
     from pcpg_dist.pipeline import plan_unit
     from pcpg_dist.ray_utils import check_resources
 
@@ -295,21 +296,19 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
         clusters = {k: cache.read_json("cluster", k, "result.json") for p in points for k in p.ckeys.values()}
         times["cluster"] = time.perf_counter() - t0
 
-        # ---- Steps B + C: plan every cell, train in groups
+        # ---- Steps B + C: plan every cell, train in groups. With bc.init no_clustering a second
+        # round trains the other cells, each from the first round's No Clustering agent.
         t0 = time.perf_counter()
+        later: list[tuple[Point, str, list, list[str]]] = []
         jobs = {}
         for p in points:
             cfg = p.cfg
             for e, u in p.units.items():
-                cells = plan_unit(u, np.asarray(clusters[p.ckeys[e]]["labels"], np.int64), cfg)
-                for g in range(0, len(cells), cfg.runner.group_size):
-                    chunk = cells[g: g + cfg.runner.group_size]
-                    key = content_key(CODE_VERSION, p.ckeys[e], cfg.ranking, cfg.bc,
-                                      cfg.evaluation.corruption_levels, cfg.evaluation.corruption_ps,
-                                      [c.key for c in chunk])
-                    p.groups.append((e, key, chunk))
-                    if key not in jobs and cache.done("train", key) is None:
-                        jobs[key] = (chunk, cfg.bc, cfg.runner.cpus_per_task)
+                first, rest = split_for_init(
+                    plan_unit(u, np.asarray(clusters[p.ckeys[e]]["labels"], np.int64), cfg), cfg.bc)
+                _add_groups(p, e, first, cache, jobs, cfg.bc, [])
+                if rest:
+                    later.append((p, e, rest, [k for ge, k, _ in p.groups if ge == e]))
 
         def save_group(key: str, trained) -> None:
             folder = cache.start("train", key)
@@ -318,6 +317,13 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
 
         computed["train_groups"] = _run_stage("Step C: BC groups", train_task, jobs, threads, save_group,
                                               show_progress)
+        if later:
+            jobs = {}
+            for p, e, rest, base_keys in later:
+                base = TrainedCells.concat([TrainedCells.load(cache.path("train", k) / "cells") for k in base_keys])
+                _add_groups(p, e, rest, cache, jobs, finetune_config(p.cfg.bc), base_keys, base)
+            computed["train_groups"] += _run_stage("Step C: BC groups from No Clustering", train_task, jobs,
+                                                   threads, save_group, show_progress)
         times["train"] = time.perf_counter() - t0
 
         # ---- Evaluation per environment (MLflow child runs are logged after the summary)
@@ -348,6 +354,23 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
             if p.tracker is not None:
                 p.tracker.fail()
         raise
+
+
+def _add_groups(p: Point, unit: str, cells: list, cache: Cache, jobs: dict[str, tuple], bc_cfg,
+                base_keys: list[str], base=None) -> None:
+    """Cut ``cells`` into groups of ``runner.group_size``: each a content-keyed training job
+    (unless cached); with ``base`` (the No Clustering agents) each cell starts from its own."""
+    from pcpg_dist.bc import init_from
+
+    cfg = p.cfg
+    for g in range(0, len(cells), cfg.runner.group_size):
+        chunk = cells[g: g + cfg.runner.group_size]
+        key = content_key(CODE_VERSION, p.ckeys[unit], cfg.ranking, cfg.bc, cfg.evaluation.corruption_levels,
+                          cfg.evaluation.corruption_ps, [c.key for c in chunk], base_keys)
+        p.groups.append((unit, key, chunk))
+        if key not in jobs and cache.done("train", key) is None:
+            jobs[key] = (chunk, bc_cfg, cfg.runner.cpus_per_task,
+                         None if base is None else init_from(chunk, base))
 
 
 def _finish_point(p: Point, cache: Cache, clusters: dict, times: dict[str, float], computed: dict[str, int],

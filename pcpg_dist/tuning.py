@@ -95,7 +95,7 @@ def score_trial(datasets: dict[str, Unit], cfg: ExperimentConfig, tune: TuneConf
     ``{"value": score or None, "pruned": reason or None, "metrics": {...}}``. True styles, where
     the data has them, only go into the metrics (``*/ari``), never into the score.
     """
-    from pcpg_dist.bc import train_cells
+    from pcpg_dist.bc import train_plan
     from pcpg_dist.pipeline import cluster_unit, evaluate_unit, plan_unit
     from pcpg_dist.ranking import fmt
 
@@ -121,7 +121,7 @@ def score_trial(datasets: dict[str, Unit], cfg: ExperimentConfig, tune: TuneConf
                     "pruned": f"{env}: smallest cluster holds {int(sizes.min())} of {len(train_idx)} training "
                               f"trajectories (< min_cluster_fraction {tune.min_cluster_fraction})"}
         cells = plan_unit(unit, labels, trial_cfg, rank_cfg=rank, seeds=seeds, corruption=False)
-        trained = train_cells(cells, trial_cfg.bc)
+        trained = train_plan(cells, trial_cfg.bc)
         ev = evaluate_unit(unit, labels, trained, trial_cfg, rank_cfg=rank, eval_cfg=eval_cfg,
                            rollouts=False, extras=False)
         acc = float(np.mean([ev[f"pcpg/accuracy/p{fmt(p)}"] for p in rank.ps]))

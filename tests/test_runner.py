@@ -153,3 +153,28 @@ def test_report_renders_everything(first_run, tmp_path):
     acc = f"{result.metrics['clustering/accuracy']:.4g}"
     assert acc in md
     assert np.isfinite(result.metrics["cross/diagonal_mean"])
+
+
+@pytest.mark.slow
+def test_agents_start_from_no_clustering(first_run, tiny_cfg):
+    """bc.init no_clustering: a second round of Ray tasks trains every per-cluster and corrupted
+    agent from the No Clustering agent of its p and seed. With 0 fine-tuning epochs each must be
+    that agent exactly; the data and clustering come from the cache."""
+    from pcpg_dist.bc import TrainedCells
+
+    work, _, _ = first_run
+    cfg = tiny_cfg.model_copy(update={"bc": tiny_cfg.bc.model_copy(
+        update={"init": "no_clustering", "finetune_epochs": 0})})
+    train_dir = work / "runs" / "tiny" / "cache" / "train"
+    before = set(train_dir.iterdir())
+    result = run_experiment(cfg, workdir=work / "runs", track=False, show_progress=False)
+    assert result.computed["clustering"] == 0 and result.computed["train_groups"] >= 2
+    trained = TrainedCells.concat([TrainedCells.load(d / "cells") for d in sorted(set(train_dir.iterdir()) - before)])
+    nc = {(s.p, s.seed): i for i, s in enumerate(trained.specs) if s.kind == "nc"}
+    others = [i for i, s in enumerate(trained.specs) if s.kind != "nc"]
+    assert {trained.specs[i].kind for i in others} == {"pcpg", "corrupt"}
+    for i in others:
+        s = trained.specs[i]
+        for a, b in zip(trained.cell_params(i), trained.cell_params(nc[(s.p, s.seed)]), strict=True):
+            assert np.array_equal(a, b), s.key
+    assert result.metrics["pcpg/accuracy/p1"] == pytest.approx(result.metrics["baseline/accuracy/p1"])

@@ -163,6 +163,13 @@ class BCConfig(StrictModel):
         "thousands of distinct rows (Mario): one epoch is then one pass over a cell's rows, "
         "shuffled once from the cell's seed, in blocks of this many. Numba engine only."))
     lr: float = Field(0.01, gt=0.0, le=100.0, description="Adam learning rate (finite, > 0).")
+    init: Literal["scratch", "no_clustering"] = Field("scratch", description=(
+        "scratch (the paper): every agent starts from its seeded initialisation. no_clustering: "
+        "the No Clustering agents train first, then every other agent (per cluster, corrupted "
+        "labels) starts from the No Clustering agent of its p and seed and trains "
+        "finetune_epochs on its own rows, so it keeps what all players share (docs/mario.md)."))
+    finetune_epochs: int | None = Field(None, ge=0, le=MAX_COUNT, description=(
+        "Epochs of the agents that start from No Clustering (init no_clustering; null: epochs)."))
     betas: tuple[float, float] = Field((0.9, 0.999), description="Adam beta1, beta2, each in [0, 1).")
     eps: float = Field(1e-8, gt=0.0, le=1.0, description="Adam epsilon (finite, > 0).")
     device: Literal["cpu", "cuda", "auto"] = Field("cpu", description=(
