@@ -9,7 +9,10 @@ cells share the call: training alone or in a batch is bit-for-bit the same.
 The maths is the torch engine's: weighted-mean masked cross-entropy, full batch, Adam exactly as
 ``torch.optim.Adam`` (no weight decay, no amsgrad). With ``batch > 0`` an epoch is instead one
 pass over the cell's rows in consecutive blocks of ``batch`` rows (the caller shuffles the rows
-once), one Adam step per block on the block's share of the loss scaled by rows / block rows.
+once), one Adam step per block on the block's share of the loss scaled by rows / block rows. A
+block is copied into the same contiguous buffers full batch uses, so every inner loop runs over
+``range(rows)`` of a C-contiguous array and vectorises (loops over ``range(k0, k1)`` of the cell's
+rows measured 5x slower).
 """
 
 from __future__ import annotations
@@ -39,7 +42,70 @@ def tanh32(x):  # pragma: no cover - compiled
     return p / q
 
 
-@njit(cache=True, fastmath={"reassoc", "contract", "nsz"}, parallel=True)
+_FM = {"reassoc", "contract", "nsz"}
+
+
+@njit(inline="always", fastmath=_FM)
+def _load(xt, neg, acts, wn, start, rows, scale, h, negb, actb, wb):  # pragma: no cover - compiled
+    """Copy ``rows`` rows from ``start`` into the block buffers (weights times ``scale``)."""
+    for i in range(xt.shape[0]):
+        for k in range(rows):
+            h[0, i, k] = xt[i, start + k]
+    for a in range(neg.shape[0]):
+        for k in range(rows):
+            negb[a, k] = neg[a, start + k]
+    for k in range(rows):
+        actb[k] = acts[start + k]
+        wb[k] = wn[start + k] * scale
+
+
+@njit(inline="always", fastmath=_FM)
+def _forward(h, th, negb, sizes, w_off, b_off, rows, relu):  # pragma: no cover - compiled
+    """h[l+1] = act(W_l^T h[l] + b_l); h[L] = logits + mask, for the first ``rows`` columns."""
+    n_layers = len(sizes) - 1
+    for layer in range(n_layers):
+        fin = sizes[layer]
+        fout = sizes[layer + 1]
+        wo = w_off[layer]
+        bo = b_off[layer]
+        for j in range(fout):
+            bj = th[bo + j]
+            for k in range(rows):
+                h[layer + 1, j, k] = bj
+            for i in range(fin):
+                w = th[wo + i * fout + j]
+                for k in range(rows):
+                    h[layer + 1, j, k] += w * h[layer, i, k]
+            if layer < n_layers - 1:
+                if relu:
+                    for k in range(rows):
+                        h[layer + 1, j, k] = max(h[layer + 1, j, k], np.float32(0.0))
+                else:
+                    for k in range(rows):
+                        h[layer + 1, j, k] = tanh32(h[layer + 1, j, k])
+            else:
+                for k in range(rows):
+                    h[layer + 1, j, k] += negb[j, k]
+
+
+@njit(inline="always", fastmath=_FM)
+def _softmax(lg, e, mx, tot, rows, n_actions):  # pragma: no cover - compiled
+    """e = exp(logits - max) per row; mx the max, tot the sum."""
+    for k in range(rows):
+        mx[k] = lg[0, k]
+    for a in range(1, n_actions):
+        for k in range(rows):
+            mx[k] = max(mx[k], lg[a, k])
+    for k in range(rows):
+        tot[k] = 0.0
+    for a in range(n_actions):
+        for k in range(rows):
+            x = np.exp(lg[a, k] - mx[k])
+            e[a, k] = x
+            tot[k] += x
+
+
+@njit(cache=True, fastmath=_FM, parallel=True)
 def train_kernel(xt, neg, acts, wn, row_off, theta, sizes, w_off, b_off, epochs, lr, beta1,
                  beta2, eps, relu, schedule, sched_off, loss_out, batch):  # pragma: no cover - compiled
     """Train every cell in place.
@@ -49,8 +115,8 @@ def train_kernel(xt, neg, acts, wn, row_off, theta, sizes, w_off, b_off, epochs,
     theta (C, P) parameters (updated in place); sizes (L+1,) layer widths; w_off/b_off (L,)
     offsets of each layer's (in, out) weights and (out,) bias in a row of theta.
     ``schedule[sched_off[t]:sched_off[t+1]]`` lists the cells thread slot t trains.
-    ``batch`` rows per Adam step (0: the whole cell, full batch); the last pass is always the
-    whole cell and gives ``loss_out``.
+    ``batch`` rows per Adam step (0: the whole cell, full batch); ``loss_out`` is the loss over
+    the whole cell after training.
     """
     n_layers = len(sizes) - 1
     maxw = 0
@@ -63,80 +129,38 @@ def train_kernel(xt, neg, acts, wn, row_off, theta, sizes, w_off, b_off, epochs,
             c = schedule[q]
             r0 = row_off[c]
             n = row_off[c + 1] - r0
-            h = np.empty((n_layers + 1, maxw, n), np.float32)
-            g = np.empty((2, maxw, n), np.float32)
-            for i in range(sizes[0]):
-                for k in range(n):
-                    h[0, i, k] = xt[i, r0 + k]
+            nb = 1 if batch <= 0 or batch >= n else (n + batch - 1) // batch
+            cap = n if nb == 1 else batch
+            h = np.empty((n_layers + 1, maxw, cap), np.float32)
+            g = np.empty((2, maxw, cap), np.float32)
+            negb = np.empty((n_actions, cap), np.float32)
+            actb = np.empty(cap, np.int64)
+            wb = np.empty(cap, np.float32)
+            mx = np.empty(cap, np.float32)
+            tot = np.empty(cap, np.float32)
             th = theta[c]
             m = np.zeros(n_params, np.float32)
             v = np.zeros(n_params, np.float32)
             grad = np.zeros(n_params, np.float32)
-            mx = np.empty(n, np.float32)
-            tot = np.empty(n, np.float32)
-            nb = 1 if batch <= 0 or batch >= n else (n + batch - 1) // batch
-            for step in range(1, epochs * nb + 2):
-                # rows k0..k1 of the cell this step, weights scaled by n / rows: a block's
-                # gradient is then an unbiased estimate of the full-batch gradient (distinct rows
-                # keep their counts as weights, so renormalising within a block would favour
-                # rare rows)
-                k0 = 0
-                k1 = n
-                scale = np.float32(1.0)
-                if nb > 1 and step <= epochs * nb:
+            rows = n
+            if nb == 1:
+                _load(xt, neg, acts, wn, r0, n, np.float32(1.0), h, negb, actb, wb)
+            for step in range(1, epochs * nb + 1):
+                if nb > 1:
+                    # a block's weights scaled by n / rows: its gradient is an unbiased estimate
+                    # of the full-batch gradient (distinct rows keep their counts as weights, so
+                    # renormalising within a block would favour rare rows)
                     k0 = ((step - 1) % nb) * batch
-                    k1 = min(n, k0 + batch)
-                    scale = np.float32(n / (k1 - k0))
-                # ---- forward: h[l+1] = act(W_l^T h[l] + b_l); h[L] = logits + mask
-                for layer in range(n_layers):
-                    fin = sizes[layer]
-                    fout = sizes[layer + 1]
-                    wo = w_off[layer]
-                    bo = b_off[layer]
-                    for j in range(fout):
-                        bj = th[bo + j]
-                        for k in range(k0, k1):
-                            h[layer + 1, j, k] = bj
-                        for i in range(fin):
-                            w = th[wo + i * fout + j]
-                            for k in range(k0, k1):
-                                h[layer + 1, j, k] += w * h[layer, i, k]
-                        if layer < n_layers - 1:
-                            if relu:
-                                for k in range(k0, k1):
-                                    h[layer + 1, j, k] = max(h[layer + 1, j, k], np.float32(0.0))
-                            else:
-                                for k in range(k0, k1):
-                                    h[layer + 1, j, k] = tanh32(h[layer + 1, j, k])
-                        else:
-                            for k in range(k0, k1):
-                                h[layer + 1, j, k] += neg[j, r0 + k]
+                    rows = min(n, k0 + batch) - k0
+                    _load(xt, neg, acts, wn, r0 + k0, rows, np.float32(n / rows), h, negb, actb, wb)
+                _forward(h, th, negb, sizes, w_off, b_off, rows, relu)
                 # ---- softmax over actions; g[0] = w * (softmax - onehot)
-                lg = h[n_layers]
-                for k in range(k0, k1):
-                    mx[k] = lg[0, k]
-                for a in range(1, n_actions):
-                    for k in range(k0, k1):
-                        mx[k] = max(mx[k], lg[a, k])
-                for k in range(k0, k1):
-                    tot[k] = 0.0
+                _softmax(h[n_layers], g[0], mx, tot, rows, n_actions)
                 for a in range(n_actions):
-                    for k in range(k0, k1):
-                        e = np.exp(lg[a, k] - mx[k])
-                        g[0, a, k] = e
-                        tot[k] += e
-                if step == epochs * nb + 1:  # final pass over the whole cell: loss only
-                    loss = 0.0
-                    for k in range(k0, k1):
-                        a = acts[r0 + k]
-                        loss -= wn[r0 + k] * (lg[a, k] - mx[k] - np.log(tot[k]))
-                    loss_out[c] = loss
-                    break
-                for a in range(n_actions):
-                    for k in range(k0, k1):
-                        g[0, a, k] = g[0, a, k] / tot[k] * (wn[r0 + k] * scale)
-                for k in range(k0, k1):
-                    g[0, acts[r0 + k], k] -= wn[r0 + k] * scale
+                    for k in range(rows):
+                        g[0, a, k] = g[0, a, k] / tot[k] * wb[k]
+                for k in range(rows):
+                    g[0, actb[k], k] -= wb[k]
                 # ---- backward
                 cur = 0
                 for layer in range(n_layers - 1, -1, -1):
@@ -146,30 +170,30 @@ def train_kernel(xt, neg, acts, wn, row_off, theta, sizes, w_off, b_off, epochs,
                     bo = b_off[layer]
                     for j in range(fout):
                         acc = np.float32(0.0)
-                        for k in range(k0, k1):
+                        for k in range(rows):
                             acc += g[cur, j, k]
                         grad[bo + j] = acc
                     for i in range(fin):
                         for j in range(fout):
                             acc = np.float32(0.0)
-                            for k in range(k0, k1):
+                            for k in range(rows):
                                 acc += h[layer, i, k] * g[cur, j, k]
                             grad[wo + i * fout + j] = acc
                     if layer > 0:
                         nxt = 1 - cur
                         for i in range(fin):
-                            for k in range(k0, k1):
+                            for k in range(rows):
                                 g[nxt, i, k] = 0.0
                             for j in range(fout):
                                 w = th[wo + i * fout + j]
-                                for k in range(k0, k1):
+                                for k in range(rows):
                                     g[nxt, i, k] += w * g[cur, j, k]
                             if relu:
-                                for k in range(k0, k1):
+                                for k in range(rows):
                                     if h[layer, i, k] <= 0.0:
                                         g[nxt, i, k] = 0.0
                             else:
-                                for k in range(k0, k1):
+                                for k in range(rows):
                                     g[nxt, i, k] *= 1.0 - h[layer, i, k] * h[layer, i, k]
                         cur = nxt
                 # ---- Adam
@@ -179,3 +203,17 @@ def train_kernel(xt, neg, acts, wn, row_off, theta, sizes, w_off, b_off, epochs,
                     m[p] = beta1 * m[p] + (1.0 - beta1) * grad[p]
                     v[p] = beta2 * v[p] + (1.0 - beta2) * grad[p] * grad[p]
                     th[p] -= lr / bc1 * m[p] / (np.sqrt(v[p]) / bc2 + eps)
+            # ---- the final loss over the whole cell, block by block
+            loss = 0.0
+            for blk in range(nb):
+                if nb > 1:
+                    k0 = blk * batch
+                    rows = min(n, k0 + batch) - k0
+                    _load(xt, neg, acts, wn, r0 + k0, rows, np.float32(1.0), h, negb, actb, wb)
+                _forward(h, th, negb, sizes, w_off, b_off, rows, relu)
+                lg = h[n_layers]
+                _softmax(lg, g[0], mx, tot, rows, n_actions)
+                for k in range(rows):
+                    a = actb[k]
+                    loss -= wb[k] * (lg[a, k] - mx[k] - np.log(tot[k]))
+            loss_out[c] = loss
