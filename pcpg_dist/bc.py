@@ -250,6 +250,8 @@ def train_cells(cells: Sequence[Cell], cfg: BCConfig,
     data = [dedupe_rows(c.states, c.valid, c.actions, c.weights) if cfg.dedupe
             else (c.states, c.valid, c.actions, c.weights) for c in cells]
     sizes = layer_sizes(d, n_actions, cfg)
+    if init is not None and len(init) != len(cells):
+        raise DataError(f"{len(init)} starting parameter sets for {len(cells)} cells: give one per cell (None: seeded)")
     starts = [_start(sizes, c, None if init is None else init[i]) for i, c in enumerate(cells)]
     device = resolve_device(cfg.device)
     dtype = torch.float32 if cfg.dtype == "float32" else torch.float64

@@ -236,3 +236,5 @@ def test_training_starts_from_given_parameters(toy):
     assert tuned.final_loss[0] < scratch.final_loss[0]  # five steps from a trained agent beat five from noise
     with pytest.raises(DataError, match="starting parameters have shapes"):
         train_cells(cells[1:2], BCConfig(epochs=5, hidden_size=7), init=[start])
+    with pytest.raises(DataError, match="2 starting parameter sets for 1 cells"):
+        train_cells(cells[1:2], BCConfig(epochs=5), init=[start, start])
