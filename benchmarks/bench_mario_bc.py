@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pcpg_dist.bc import train_cells
+from pcpg_dist.bc import TrainedCells, train_cells
 from pcpg_dist.config.experiment import load_config
 from pcpg_dist.domains.mario_domain import MarioDomain
 from pcpg_dist.parallel import set_threads
@@ -109,8 +109,6 @@ def main() -> None:
     tuned = train_cells(pcpg, mini.model_copy(update={"epochs": args.finetune_epochs}),
                         init=[base.cell_params(nc_index[(c.spec.p, c.spec.seed)]) for c in pcpg])
     merged = base.select([c.key for c in cells if c.spec.kind == "nc"])
-    from pcpg_dist.bc import TrainedCells
-
     ev2 = scores(TrainedCells.concat([merged, tuned]), labels, ps)
     fine = [ev2[f"pcpg/accuracy/p{fmt(p)}"] for p in ps]
     print(f"Part 2: split {args.split}, seeds {seeds}, labels: {source}")
