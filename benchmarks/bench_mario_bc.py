@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pcpg_dist.bc import TrainedCells, train_cells
+from pcpg_dist.bc import TrainedCells, init_from, train_cells
 from pcpg_dist.config.experiment import load_config
 from pcpg_dist.domains.mario_domain import MarioDomain
 from pcpg_dist.parallel import set_threads
@@ -104,10 +104,8 @@ def main() -> None:
     ev = scores(base, labels, ps)
     nc_acc = [ev[f"baseline/accuracy/p{fmt(p)}"] for p in ps]
     scratch = [ev[f"pcpg/accuracy/p{fmt(p)}"] for p in ps]
-    nc_index = {(s.p, s.seed): i for i, s in enumerate(base.specs) if s.kind == "nc"}
     pcpg = [c for c in cells if c.spec.kind == "pcpg"]
-    tuned = train_cells(pcpg, mini.model_copy(update={"epochs": args.finetune_epochs}),
-                        init=[base.cell_params(nc_index[(c.spec.p, c.spec.seed)]) for c in pcpg])
+    tuned = train_cells(pcpg, mini.model_copy(update={"epochs": args.finetune_epochs}), init=init_from(pcpg, base))
     merged = base.select([c.key for c in cells if c.spec.kind == "nc"])
     ev2 = scores(TrainedCells.concat([merged, tuned]), labels, ps)
     fine = [ev2[f"pcpg/accuracy/p{fmt(p)}"] for p in ps]

@@ -19,6 +19,7 @@ written, so a tracking server that goes down costs no work.
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import tempfile
 import time
@@ -320,7 +321,9 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
         if later:
             jobs = {}
             for p, e, rest, base_keys in later:
-                base = TrainedCells.concat([TrainedCells.load(cache.path("train", k) / "cells") for k in base_keys])
+                # read only when some group of this unit is not cached yet
+                base = functools.cache(lambda keys=tuple(base_keys): TrainedCells.concat(
+                    [TrainedCells.load(cache.path("train", k) / "cells") for k in keys]))
                 _add_groups(p, e, rest, cache, jobs, finetune_config(p.cfg.bc), base_keys, base)
             computed["train_groups"] += _run_stage("Step C: BC groups from No Clustering", train_task, jobs,
                                                    threads, save_group, show_progress)
@@ -357,9 +360,9 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
 
 
 def _add_groups(p: Point, unit: str, cells: list, cache: Cache, jobs: dict[str, tuple], bc_cfg,
-                base_keys: list[str], base=None) -> None:
+                base_keys: list[str], base: Callable[[], Any] | None = None) -> None:
     """Cut ``cells`` into groups of ``runner.group_size``: each a content-keyed training job
-    (unless cached); with ``base`` (the No Clustering agents) each cell starts from its own."""
+    (unless cached); with ``base`` (returns the No Clustering agents) each cell starts from its own."""
     from pcpg_dist.bc import init_from
 
     cfg = p.cfg
@@ -370,7 +373,7 @@ def _add_groups(p: Point, unit: str, cells: list, cache: Cache, jobs: dict[str, 
         p.groups.append((unit, key, chunk))
         if key not in jobs and cache.done("train", key) is None:
             jobs[key] = (chunk, bc_cfg, cfg.runner.cpus_per_task,
-                         None if base is None else init_from(chunk, base))
+                         None if base is None else init_from(chunk, base()))
 
 
 def _finish_point(p: Point, cache: Cache, clusters: dict, times: dict[str, float], computed: dict[str, int],
