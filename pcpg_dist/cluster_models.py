@@ -234,6 +234,66 @@ def batches_to(batches: list[PackedBatch], device: torch.device) -> list[PackedB
 
 
 # --------------------------------------------------------------------- the saved model
+class PolicyMixture(nn.Module):
+    """k policies pi_c(a | s) over one shared tanh MLP trunk: k softmax heads of n_actions logits.
+
+    ``policy_mix`` clusters with it: a trajectory's score for cluster c is log prior_c plus the sum
+    of log pi_c(a_t | s_t) over its steps (the transitions are the same for every style, so they
+    cancel). The states are normalised with the training mean/std before the trunk.
+    """
+
+    def __init__(self, state_dim: int, hidden_size: int, k: int, n_actions: int) -> None:
+        super().__init__()
+        self.k, self.n_actions = int(k), int(n_actions)
+        self.trunk = nn.Sequential(nn.Linear(state_dim, hidden_size), nn.Tanh(),
+                                   nn.Linear(hidden_size, hidden_size), nn.Tanh())
+        self.heads = nn.Linear(hidden_size, self.k * self.n_actions)
+        self.register_buffer("log_prior", torch.full((self.k,), -math.log(self.k)))
+
+    def reset_parameters(self, generator: torch.Generator) -> None:
+        """PyTorch's default init, drawn from a local generator (see SequenceAutoencoder)."""
+        with torch.no_grad():
+            for lin in (self.trunk[0], self.trunk[2], self.heads):
+                bound = 1.0 / math.sqrt(lin.in_features)
+                lin.weight.uniform_(-bound, bound, generator=generator)
+                lin.bias.uniform_(-bound, bound, generator=generator)
+
+    def step_log_probs(self, states: torch.Tensor, actions: torch.Tensor,
+                       valid: torch.Tensor) -> torch.Tensor:
+        """(k, rows): log pi_c(a_t | s_t) of every step under every head, invalid actions masked."""
+        logits = self.heads(self.trunk(states)).view(len(states), self.k, self.n_actions)
+        logits = logits.permute(1, 0, 2).masked_fill(~valid, -1e9)
+        picked = actions.expand(self.k, -1).unsqueeze(-1)
+        return torch.log_softmax(logits, -1).gather(2, picked).squeeze(-1)
+
+
+def policy_inputs(dataset, states: np.ndarray, mean: np.ndarray, std: np.ndarray):
+    """The steps a policy mixture scores: normalised states, actions, valid masks, trajectory index.
+
+    Only rows with an action (every row but a trajectory's last); a taken action always counts as
+    valid, so a log whose valid mask disagrees with its actions cannot give -inf scores.
+    """
+    actions = np.asarray(dataset.actions, np.int64)
+    n_actions = int(dataset.n_actions)
+    rows = np.flatnonzero(actions >= 0)
+    if rows.size and actions[rows].max() >= n_actions:
+        raise DataError(f"{dataset.domain}-{dataset.env}: action {int(actions[rows].max())} "
+                        f"outside 0..{n_actions - 1}")
+    valid = np.asarray(dataset.valid, bool)[rows].copy()
+    valid[np.arange(rows.size), actions[rows]] = True
+    traj = np.repeat(np.arange(len(dataset.lengths)), dataset.lengths)[rows]
+    norm = ((states[rows] - mean) / std).astype(np.float32)
+    return (torch.from_numpy(norm), torch.from_numpy(actions[rows]), torch.from_numpy(valid),
+            torch.from_numpy(traj))
+
+
+def trajectory_scores(policy: PolicyMixture, inputs, n: int) -> torch.Tensor:
+    """(k, n): log prior + summed step log-likelihood of each trajectory under each policy."""
+    s, a, valid, traj = inputs
+    lp = policy.step_log_probs(s, a, valid)
+    return torch.zeros(policy.k, n).index_add_(1, traj, lp) + policy.log_prior[:, None]
+
+
 class ClusterModel:
     """A fitted clusterer: feature pipeline + centroids; assigns trajectories to styles.
 
@@ -253,6 +313,7 @@ class ClusterModel:
         feature_names: tuple[str, ...] = (),
         vocabulary: np.ndarray | None = None,
         bag=None,
+        policy: PolicyMixture | None = None,
     ) -> None:
         self.method = method
         self.config = dict(config)
@@ -264,6 +325,7 @@ class ClusterModel:
         self.feature_names = tuple(feature_names)
         self.vocabulary = None if vocabulary is None else np.asarray(vocabulary, np.float32)
         self.bag = bag  # BagVocabulary of the bag_* methods (pcpg_dist/cluster_features.py)
+        self.policy = policy  # policy_mix: k policies; features = posteriors, centroids = I_k
 
     @property
     def k(self) -> int:
@@ -286,6 +348,14 @@ class ClusterModel:
             return normalize(bag_matrix(states, offsets, actions, self.bag))
         if self.vocabulary is not None:
             return visit_features(states, offsets, self.vocabulary)
+        if self.policy is not None:
+            if int(dataset.n_actions) != self.policy.n_actions:
+                raise DataError(f"policy_mix model was fitted on {self.policy.n_actions} actions, "
+                                f"dataset {dataset.domain}-{dataset.env} has {dataset.n_actions}")
+            inputs = policy_inputs(dataset, states, self.mean, self.std)
+            with torch.no_grad():
+                scores = trajectory_scores(self.policy, inputs, len(offsets) - 1)
+            return torch.softmax(scores, 0).T.numpy().astype(np.float32)
         if self.autoencoder is None:
             return ((summary_features(states, offsets) - self.mean) / self.std).astype(np.float32)
         norm = (states - self.mean) / self.std
@@ -327,6 +397,10 @@ class ClusterModel:
             tensors.update(
                 {f"ae.{k}": v.detach().clone() for k, v in self.autoencoder.state_dict().items()}
             )
+        if self.policy is not None:
+            tensors.update(
+                {f"pm.{k}": v.detach().clone() for k, v in self.policy.state_dict().items()}
+            )
         torch.save(tensors, directory / WEIGHTS_FILE)
         meta = {
             "format_version": FORMAT_VERSION,
@@ -338,6 +412,8 @@ class ClusterModel:
         }
         if self.bag is not None:
             meta["bag_n_actions"] = self.bag.n_actions
+        if self.policy is not None:
+            meta["n_actions"] = self.policy.n_actions
         (directory / CONFIG_FILE).write_text(json.dumps(meta, indent=2, sort_keys=True))
         return directory
 
@@ -395,7 +471,19 @@ def load_model(directory: str | Path) -> ClusterModel:
             ae.load_state_dict({k[3:]: v for k, v in tensors.items() if k.startswith("ae.")})
         except (KeyError, RuntimeError) as e:
             raise DataError(f"{w_path}: weights do not fit a {method} model ({e})") from None
-    elif method not in ("summary_kmeans", "visits_kmeans", *BAG_METHODS):
+    policy = None
+    if method == "policy_mix":
+        n_actions = meta.get("n_actions")
+        if not isinstance(n_actions, int) or not 1 <= n_actions <= 1_000_000:
+            raise DataError(f"{cfg_path}: policy_mix model needs 'n_actions', an integer in 1..1000000")
+        if centroids.ndim != 2 or centroids.shape[0] != centroids.shape[1]:
+            raise DataError(f"{w_path}: weights do not fit a policy_mix model (centroids must be k x k)")
+        try:
+            policy = PolicyMixture(state_dim, int(config["hidden_size"]), int(centroids.shape[0]), n_actions)
+            policy.load_state_dict({k[3:]: v for k, v in tensors.items() if k.startswith("pm.")})
+        except (KeyError, RuntimeError) as e:
+            raise DataError(f"{w_path}: weights do not fit a policy_mix model ({e})") from None
+    elif method not in ("lstm_dec", "lstm_kmeans", "summary_kmeans", "visits_kmeans", *BAG_METHODS):
         raise DataError(f"{cfg_path}: unknown clustering method '{method}'")
     bag = None
     if method in BAG_METHODS:
@@ -414,5 +502,5 @@ def load_model(directory: str | Path) -> ClusterModel:
         raise DataError(f"{w_path}: weights do not fit a visits_kmeans model")
     return ClusterModel(
         method, config, state_dim, mean, std, centroids, ae, tuple(meta.get("feature_names") or ()),
-        vocab.numpy() if vocab is not None else None, bag,
+        vocab.numpy() if vocab is not None else None, bag, policy,
     )

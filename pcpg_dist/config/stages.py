@@ -78,14 +78,16 @@ class ClusterConfig(StrictModel):
     states (see docs/clustering.md); lstm_dec stays available by name."""
 
     method: Literal["lstm_dec", "lstm_kmeans", "summary_kmeans", "visits_kmeans", "bag_kmeans",
-                    "bag_mop", "bag_auto"] = Field(
+                    "bag_mop", "bag_auto", "policy_mix"] = Field(
         "bag_auto",
         description="lstm_dec: autoencoder + DEC loss (the paper); lstm_kmeans: k-means on "
         "pretrained latents; summary_kmeans: k-means on length, final and mean state; "
         "visits_kmeans: k-means (cosine) on which distinct states a trajectory visits (for "
         "discrete-state games; no network, seconds); bag_kmeans: weighted k-means (cosine) on "
         "distinct rows of visited states + state-actions + final state; bag_mop: a mixture of k "
-        "policies (EM) started from bag_kmeans; bag_auto: both, the higher silhouette kept.",
+        "policies (EM) started from bag_kmeans; bag_auto: both, the higher silhouette kept; "
+        "policy_mix: a mixture of k neural policies (hard EM) started from k-means on the "
+        "monotone features' gain and mean, for continuous states (docs/clustering.md).",
     )
     k: int = Field(4, ge=1, le=1000, description="Number of clusters (play-styles).")
     hidden_size: int = Field(
@@ -139,6 +141,15 @@ class ClusterConfig(StrictModel):
     device: Literal["cpu", "cuda"] = Field(
         "cpu", description="Where the LSTM methods train: 'cpu', or 'cuda' (a GPU; an error if "
         "none is available). The bag and k-means methods always run on the CPU.")
+    em_iterations: int = Field(
+        10, ge=1, le=10_000, description="policy_mix: at most this many EM rounds (policies "
+        "refitted to the labels, then every trajectory moved to its most likely policy).")
+    policy_steps: int = Field(
+        50, ge=1, le=100_000, description="policy_mix: full-batch Adam steps per EM round.")
+    policy_lr: float = Field(0.01, gt=0.0, le=1.0, description="policy_mix: Adam learning rate.")
+    em_tol: float = Field(
+        0.005, ge=0.0, le=1.0, description="policy_mix: stop once fewer than this fraction of "
+        "labels change in an EM round (0 = run all em_iterations).")
     silhouette_sample: int = Field(
         4000,
         ge=2,
