@@ -2,6 +2,7 @@
 
     uv run python benchmarks/bench_clustering.py --threads 1
     uv run python benchmarks/bench_clustering.py --methods bag_auto lstm_dec --heldout 0
+    uv run python benchmarks/bench_clustering.py --groups minidungeons --methods policy_mix lstm_dec
 
 Data: the paper protocol's PBTG datasets (seed 0, 1000 trajectories per style) of E1-E5 and of
 ``--heldout`` fresh random style-distinct layouts (``gridworld.random_layouts`` family
@@ -13,6 +14,10 @@ cross-validated logistic regression given the true styles, pcpg_dist/ceiling.py)
 per method the mean and worst gap over E1-E5 and over the held-out layouts. The off-the-shelf peer
 is tslearn's TimeSeriesKMeans with DTW on the (x, y, b1, b2) sequences; DTW is O(n^2 T^2), so it
 runs on a seeded subsample of ``--dtw-sample`` trajectories per dataset (said in the output).
+
+The ``minidungeons`` group is the paper's MiniDungeons unit (780 trajectories, k = 6) at data
+seeds ``--md-seeds``, prepared as ``pcpg run`` prepares it: the clusterer sees each level's states
+standardised, the ceiling the raw ones (as in the pipeline's ``clustering/ceiling``).
 """
 
 from __future__ import annotations
@@ -34,7 +39,8 @@ from pcpg_dist.domains import gridworld as gw
 from pcpg_dist.parallel import set_threads
 from pcpg_dist.pbtg import assemble_dataset, generate_pair
 
-METHODS = ("bag_auto", "bag_kmeans", "bag_mop", "visits_kmeans", "summary_kmeans", "lstm_dec", "dtw_kmeans")
+METHODS = ("bag_auto", "bag_kmeans", "bag_mop", "visits_kmeans", "summary_kmeans", "lstm_dec", "policy_mix",
+           "dtw_kmeans")
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -53,6 +59,26 @@ def datasets(cache: Path, heldout: int, heldout_seed: int, groups: tuple[str, ..
         yield group, lt.name, read_parquet(path)
 
 
+def minidungeons_units(seeds: list[int]):
+    """(group, name, raw Dataset, clustering input) of MiniDungeons' paper unit per data seed."""
+    from dataclasses import replace
+
+    from pcpg_dist.dataset import Dataset
+    from pcpg_dist.domains.base import standardised
+    from pcpg_dist.domains.minidungeons.data import (
+        LEVELS_TEST,
+        LEVELS_TRAIN,
+        generate_trajectories,
+        part_seed,
+    )
+
+    for seed in seeds:
+        parts = [Dataset.concat([generate_trajectories(lv, p, 10, part_seed(seed, lv, p)) for p in range(6)],
+                                renumber=True) for lv in (*LEVELS_TRAIN, *LEVELS_TEST)]
+        yield ("minidungeons", f"seed{seed}", replace(Dataset.concat(parts), env="levels"),
+               replace(Dataset.concat([standardised(p) for p in parts]), env="levels"))
+
+
 def dtw_labels(ds, k: int, sample: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """tslearn TimeSeriesKMeans (DTW) on a seeded subsample: (sample indices, labels)."""
     from tslearn.clustering import TimeSeriesKMeans
@@ -67,11 +93,12 @@ def dtw_labels(ds, k: int, sample: int, seed: int) -> tuple[np.ndarray, np.ndarr
 
 def run_one(ds, method: str, seed: int, dtw_sample: int) -> dict[str, float]:
     start = time.perf_counter()
+    k = len(np.unique(ds.styles))
     if method == "dtw_kmeans":
-        idx, labels = dtw_labels(ds, 4, dtw_sample, seed)
+        idx, labels = dtw_labels(ds, k, dtw_sample, seed)
         true = ds.styles[idx]
     else:
-        labels, true = cluster(ds, ClusterConfig(method=method), seed=seed).labels, ds.styles
+        labels, true = cluster(ds, ClusterConfig(method=method, k=k), seed=seed).labels, ds.styles
     row = {"seconds": time.perf_counter() - start}
     row.update(clustering_metrics(true, labels))
     return row
@@ -83,7 +110,10 @@ def main() -> None:
     ap.add_argument("--heldout", type=int, default=20, help="number of held-out random layouts")
     ap.add_argument("--heldout-seed", type=int, default=917_2024, help="random_layouts family of the bench")
     ap.add_argument("--cache", type=Path, default=Path("data/bench_clustering"))
-    ap.add_argument("--groups", nargs="*", default=["paper", "heldout"], choices=["paper", "heldout"])
+    ap.add_argument("--groups", nargs="*", default=["paper", "heldout"],
+                    choices=["paper", "heldout", "minidungeons"])
+    ap.add_argument("--md-seeds", nargs="*", type=int, default=[0, 1, 2, 3, 4],
+                    help="MiniDungeons data seeds (group minidungeons)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--dtw-sample", type=int, default=300, help="trajectories per dataset for DTW")
@@ -93,22 +123,26 @@ def main() -> None:
     print(f"threads={args.threads} cpus={os.cpu_count()} load={os.getloadavg()[0]:.1f} "
           f"held-out family={args.heldout_seed} x{args.heldout}; dtw_kmeans on {args.dtw_sample} "
           f"trajectories per dataset (subsample)")
-    print(f"{'group':<8}{'env':<7}{'ceiling':>8}{'method':>16}{'acc':>7}{'ARI':>7}{'NMI':>7}{'gap':>8}{'s':>7}")
+    print(f"{'group':<13}{'env':<7}{'ceiling':>8}{'method':>16}{'acc':>7}{'ARI':>7}{'NMI':>7}{'gap':>8}{'s':>7}")
     gaps: dict[tuple[str, str], list[float]] = {}
     secs: dict[tuple[str, str], list[float]] = {}
-    for group, name, ds in datasets(args.cache, args.heldout, args.heldout_seed, tuple(args.groups)):
+    units = [(g, n, ds, ds) for g, n, ds in datasets(args.cache, args.heldout, args.heldout_seed,
+                                                     tuple(args.groups))]
+    if "minidungeons" in args.groups:
+        units = [*units, *minidungeons_units(args.md_seeds)]
+    for group, name, ds, cluster_input in units:
         top = supervised_ceiling(ds, seed=args.seed)
         for method in args.methods:
-            r = run_one(ds, method, args.seed, args.dtw_sample)
+            r = run_one(cluster_input, method, args.seed, args.dtw_sample)
             gap = top - r["accuracy"]
             gaps.setdefault((group, method), []).append(gap)
             secs.setdefault((group, method), []).append(r["seconds"])
-            print(f"{group:<8}{name:<7}{top:>8.3f}{method:>16}{r['accuracy']:>7.3f}{r['ari']:>7.3f}"
+            print(f"{group:<13}{name:<7}{top:>8.3f}{method:>16}{r['accuracy']:>7.3f}{r['ari']:>7.3f}"
                   f"{r['nmi']:>7.3f}{gap:>+8.3f}{r['seconds']:>7.1f}", flush=True)
     print("\nsummary: gap = ceiling - accuracy (target: mean and worst <= 0.010)")
-    print(f"{'group':<8}{'method':>16}{'mean gap':>10}{'worst gap':>10}{'total s':>9}")
+    print(f"{'group':<13}{'method':>16}{'mean gap':>10}{'worst gap':>10}{'total s':>9}")
     for (group, method), g in gaps.items():
-        print(f"{group:<8}{method:>16}{statistics.mean(g):>+10.4f}{max(g):>+10.4f}"
+        print(f"{group:<13}{method:>16}{statistics.mean(g):>+10.4f}{max(g):>+10.4f}"
               f"{sum(secs[(group, method)]):>9.1f}")
 
 

@@ -64,8 +64,10 @@ __all__ = [
     "cluster",
     "clustering_metrics",
     "cluster_sizes",
+    "counter_summary",
     "hungarian_mapping",
     "load_model",
+    "monotone_features",
 ]
 
 
@@ -345,20 +347,21 @@ def _fit_policy_mix(dataset, states: np.ndarray, offsets: np.ndarray, cfg: Clust
     (+ log cluster share). Stops when fewer than ``em_tol`` of the labels moved.
     """
     n = len(offsets) - 1
-    labels = KMeans(n_clusters=cfg.k, n_init=cfg.kmeans_n_init, random_state=seed).fit_predict(
-        counter_summary(states, offsets)).astype(np.int64)
     mean, std = fit_normaliser(states)
     inputs = policy_inputs(dataset, states, mean, std)
     s, a, valid, traj = inputs
     if not len(a):
         raise DataError(f"policy_mix: {dataset.domain}-{dataset.env} has no step with an action "
                         "(it clusters by the actions taken)")
+    labels = KMeans(n_clusters=cfg.k, n_init=cfg.kmeans_n_init, random_state=seed).fit_predict(
+        counter_summary(states, offsets)).astype(np.int64)
     gen = torch.Generator().manual_seed(seed)
     policy = PolicyMixture(states.shape[1], cfg.hidden_size, cfg.k, dataset.n_actions)
     policy.reset_parameters(gen)
     opt = torch.optim.Adam(policy.parameters(), lr=cfg.policy_lr)
     rounds, moved = 0, 1.0
-    for rounds in range(1, cfg.em_iterations + 1):
+    while rounds < cfg.em_iterations:
+        rounds += 1
         own = torch.from_numpy(labels)[traj]
         with torch.no_grad():
             share = np.bincount(labels, minlength=cfg.k) / n

@@ -1,0 +1,121 @@
+"""policy_mix: a mixture of k neural policies over whole trajectories (continuous states)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from pcpg_dist.clustering import (
+    ClusterConfig,
+    cluster,
+    clustering_metrics,
+    counter_summary,
+    load_model,
+    monotone_features,
+)
+from pcpg_dist.dataset import Dataset
+from pcpg_dist.errors import DataError
+from pcpg_dist.parallel import set_threads
+
+MOVES = np.array([[-1, 0], [0, 1], [1, 0], [0, -1]], float)  # up, right, down, left
+FAST = dict(method="policy_mix", k=4, hidden_size=16, kmeans_n_init=4)
+
+
+def goal_seekers(n_per_style: int, seed: int) -> Dataset:
+    """Four styles, each heading for its own one of four goals. Every state holds the unit
+    direction to each goal (8 numbers, fresh each step, as if the map changed) and a step
+    counter; the actions are the moves toward the style's goal, with 20 % random moves. Lengths
+    are drawn independently of style, so the counter says nothing: only the actions do."""
+    rng = np.random.default_rng(seed)
+    trajs, styles = [], []
+    for style in range(4):
+        for _ in range(n_per_style):
+            t = int(rng.integers(10, 30))
+            move = rng.integers(0, 4, size=(t, 4))  # the best move toward each goal, per step
+            states = np.column_stack([MOVES[move].reshape(t, 8), np.arange(t) / 100])
+            greedy = move[:-1, style]
+            actions = np.where(rng.random(t - 1) < 0.2, rng.integers(0, 4, t - 1), greedy)
+            trajs.append({"states": states, "actions": actions, "valid": np.full(t, 15),
+                          "rewards": np.zeros(t - 1)})
+            styles.append(style)
+    return Dataset.from_trajectories("toy", "goals", 4, trajs, styles, [True] * len(trajs))
+
+
+@pytest.fixture(scope="module")
+def goals() -> Dataset:
+    set_threads(1)
+    return goal_seekers(40, seed=7)
+
+
+@pytest.fixture(scope="module")
+def fitted(goals):
+    return cluster(goals, ClusterConfig(**FAST), seed=0)
+
+
+def test_separates_styles_that_only_the_actions_show(goals, fitted):
+    # the label-free start (k-means on the counter) is near chance here; EM has to find the styles
+    from sklearn.cluster import KMeans
+
+    summary = counter_summary(goals.states, goals.offsets)
+    start = KMeans(4, n_init=4, random_state=0).fit_predict(summary)
+    assert clustering_metrics(goals.styles, start)["accuracy"] < 0.45
+    m = clustering_metrics(goals.styles, fitted.labels)
+    assert m["accuracy"] >= 0.95, m
+    assert fitted.metrics["em_rounds"] >= 2
+    assert fitted.latents.shape == (goals.n_trajectories, 4)  # posteriors over the k policies
+    np.testing.assert_allclose(fitted.latents.sum(axis=1), 1.0, atol=1e-5)
+    assert not {"ari", "nmi", "accuracy"} & set(fitted.metrics)
+
+
+def test_same_seed_same_labels_and_global_rng_untouched(goals, fitted):
+    torch.manual_seed(123)
+    before = torch.rand(1)
+    torch.manual_seed(123)
+    again = cluster(goals, ClusterConfig(**FAST), seed=0)
+    assert torch.equal(torch.rand(1), before)
+    np.testing.assert_array_equal(again.labels, fitted.labels)
+    shuffled = goals.with_styles(np.zeros(goals.n_trajectories, np.int64))
+    np.testing.assert_array_equal(cluster(shuffled, ClusterConfig(**FAST), seed=0).labels,
+                                  fitted.labels)  # never reads the styles
+
+
+def test_saved_model_predicts_the_same_and_unseen_trajectories(tmp_path, goals, fitted):
+    fitted.model.save(tmp_path / "m")
+    model = load_model(tmp_path / "m")
+    np.testing.assert_array_equal(model.predict(goals), fitted.labels)
+    fresh = goal_seekers(10, seed=99)
+    m = clustering_metrics(fresh.styles, model.predict(fresh))
+    assert m["accuracy"] >= 0.9, m
+
+
+def test_bad_input_and_bad_files_are_data_errors(tmp_path, goals, fitted):
+    no_actions = Dataset.from_trajectories(
+        "toy", "still", 4, [{"states": np.zeros((1, 9)), "actions": np.zeros(0, np.int64),
+                             "valid": np.full(1, 15), "rewards": np.zeros(0)}] * 4,
+        [0] * 4, [True] * 4)
+    with pytest.raises(DataError, match="no step with an action"):
+        cluster(no_actions, ClusterConfig(**FAST), seed=0)
+    fitted.model.save(tmp_path / "m")
+    meta = json.loads((tmp_path / "m" / "cluster_model.json").read_text())
+    meta["n_actions"] = "four"
+    (tmp_path / "m" / "cluster_model.json").write_text(json.dumps(meta))
+    with pytest.raises(DataError, match="n_actions"):
+        load_model(tmp_path / "m")
+    meta["n_actions"] = 5
+    (tmp_path / "m" / "cluster_model.json").write_text(json.dumps(meta))
+    with pytest.raises(DataError, match="do not fit a policy_mix model"):
+        load_model(tmp_path / "m")
+
+
+def test_counters_are_found_without_labels():
+    # feature 0 counts up, 1 goes up and down, 2 is constant, 3 restarts at 0 in each trajectory
+    a = np.array([[0, 1, 5, 0], [1, 0, 5, 1], [2, 1, 5, 2]], float)
+    b = np.array([[0, 0, 5, 0], [0, 1, 5, 3]], float)
+    states, offsets = np.vstack([a, b]), np.array([0, 3, 5])
+    np.testing.assert_array_equal(monotone_features(states, offsets), [0, 3])
+    summary = counter_summary(states, offsets)  # gain and mean of features 0 and 3
+    assert summary.shape == (2, 4)
+    np.testing.assert_allclose(summary.mean(axis=0), 0, atol=1e-9)
