@@ -309,7 +309,6 @@ def _fit_bag(dataset, states: np.ndarray, offsets: np.ndarray, cfg: ClusterConfi
     return labels_u[inv].astype(np.int64), x, model
 
 
-
 def monotone_features(states: np.ndarray, offsets: np.ndarray) -> np.ndarray:
     """Indices of the state features that never decrease within any trajectory and do change
     somewhere: counters (steps, kills, treasure, ...), found without labels."""
