@@ -281,7 +281,7 @@ def policy_inputs(dataset, states: np.ndarray, mean: np.ndarray, std: np.ndarray
                         f"outside 0..{n_actions - 1}")
     valid = np.asarray(dataset.valid, bool)[rows].copy()
     valid[np.arange(rows.size), actions[rows]] = True
-    traj = np.repeat(np.arange(len(dataset.lengths)), dataset.lengths)[rows]
+    traj = dataset.row_trajectory[rows]
     norm = ((states[rows] - mean) / std).astype(np.float32)
     return (torch.from_numpy(norm), torch.from_numpy(actions[rows]), torch.from_numpy(valid),
             torch.from_numpy(traj))
@@ -297,8 +297,10 @@ def trajectory_scores(policy: PolicyMixture, inputs, n: int) -> torch.Tensor:
 class ClusterModel:
     """A fitted clusterer: feature pipeline + centroids; assigns trajectories to styles.
 
-    ``method`` is ``lstm_dec`` / ``lstm_kmeans`` (features = encoder latents of normalised states)
-    or ``summary_kmeans`` (features = normalised :func:`summary_features`).
+    ``method`` is ``lstm_dec`` / ``lstm_kmeans`` (features = encoder latents of normalised states),
+    ``summary_kmeans`` (features = normalised :func:`summary_features`), ``visits_kmeans`` / the
+    ``bag_*`` methods (visitation features), or ``policy_mix`` (features = the posterior over the
+    k policies of :class:`PolicyMixture`; centroids = the identity, so nearest = most likely).
     """
 
     def __init__(
