@@ -36,9 +36,12 @@ def mario_cfg(tmp_path_factory):
         "name": "mario_small", "domain": "mario", "seed": 0, "seeds": [0, 1],
         "mario": {"path": str(small_log(where / "small.log")), "event": "onehot", "counters": True,
                   "increments": True},
-        "clustering": {"k": 2, "batch_size": 16, "pretrain_epochs": 4, "dec_epochs": 2},
+        # experiments/mario.yaml's pipeline: policy-mixture clusters, minibatch BC, per-cluster
+        # agents fine-tuned from the No Clustering one
+        "clustering": {"method": "policy_mix", "k": 2},
         "ranking": {"ps": [1.0, 0.5]},
-        "bc": {"hidden_layers": 2, "hidden_size": 16, "epochs": 200, "lr": 0.03},
+        "bc": {"hidden_layers": 2, "hidden_size": 16, "batch_size": 512, "epochs": 20, "lr": 0.01,
+               "init": "no_clustering", "finetune_epochs": 5},
     }
     (where / "mario.yaml").write_text(yaml.safe_dump(raw))
     return load_config(where / "mario.yaml")
