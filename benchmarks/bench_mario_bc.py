@@ -7,8 +7,9 @@ Part 1 trains the No Clustering agents (p = 1, 0.5, 0.1, one seed) of experiment
 two ways: the config's 300 full-batch steps at lr 0.03, and minibatches (``--batch-size``,
 ``--epochs`` passes, ``--lr``); it prints seconds, the speed ratio and held-out accuracy.
 
-Part 2 needs cluster labels (``--labels``: a run's ``labels.json``/``result.json`` with a
-``labels`` list, one per episode; default: k-means on each episode's event histogram, k = 2).
+Part 2 needs cluster labels (``--labels``: ``pcpg cluster``'s ``smb/labels.json``, or a run's
+file with a ``labels`` list; one per episode; default: k-means on each episode's event
+histogram, k = 2).
 It trains PCPG and No Clustering at every p with the minibatch settings, then the PCPG
 agents again, each started from the No Clustering agent of its p and seed and fine-tuned for
 ``--finetune-epochs``, and prints PCPG - No Clustering per p for both. ``--split`` picks the
@@ -93,7 +94,9 @@ def main() -> None:
             print(f"  {name:48s} {dt:7.1f} s ({base_time / dt:5.1f}x)  accuracy {accs}", flush=True)
 
     if args.labels is not None:
-        labels = np.asarray(json.loads(args.labels.read_text())["labels"], np.int64)
+        raw = json.loads(args.labels.read_text())
+        # `pcpg cluster` writes a bare list (<env>/labels.json); a run's files hold {"labels": [...]}
+        labels = np.asarray(raw["labels"] if isinstance(raw, dict) else raw, np.int64)
         source = str(args.labels)
     else:
         labels = histogram_labels(ds, cfg.clustering.k, cfg.seed)
