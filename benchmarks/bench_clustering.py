@@ -39,7 +39,7 @@ from pcpg_dist.domains import gridworld as gw
 from pcpg_dist.parallel import set_threads
 from pcpg_dist.pbtg import assemble_dataset, generate_pair
 
-METHODS = ("bag_auto", "bag_kmeans", "bag_mop", "visits_kmeans", "summary_kmeans", "lstm_dec", "policy_mix",
+METHODS = ("bag_auto", "greedy_mix", "bag_kmeans", "bag_mop", "visits_kmeans", "summary_kmeans", "lstm_dec", "policy_mix",
            "dtw_kmeans")
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -37,7 +37,9 @@ FORMAT_VERSION = 1
 CONFIG_FILE = "cluster_model.json"
 WEIGHTS_FILE = "cluster_model.pt"
 #: Methods on visitation bags (pcpg_dist/cluster_features.py): nearest cluster mean in bag space.
-BAG_METHODS = ("bag_kmeans", "bag_mop", "bag_auto")
+BAG_METHODS = ("bag_kmeans", "bag_mop", "bag_auto", "greedy_mix")
+#: Bag methods whose model is a mixture of greedy policies (pcpg_dist/greedy_mix.py)
+GREEDY_METHODS = ("bag_auto", "greedy_mix")
 
 
 # --------------------------------------------------------------------- input checks and features
@@ -316,6 +318,7 @@ class ClusterModel:
         vocabulary: np.ndarray | None = None,
         bag=None,
         policy: PolicyMixture | None = None,
+        greedy: tuple[np.ndarray, np.ndarray, float] | None = None,
     ) -> None:
         self.method = method
         self.config = dict(config)
@@ -328,6 +331,9 @@ class ClusterModel:
         self.vocabulary = None if vocabulary is None else np.asarray(vocabulary, np.float32)
         self.bag = bag  # BagVocabulary of the bag_* methods (pcpg_dist/cluster_features.py)
         self.policy = policy  # policy_mix: k policies; features = posteriors, centroids = I_k
+        # greedy_mix / bag_auto: (votes (k, V, A) over the bag's states, log cluster shares, noise)
+        self.greedy = None if greedy is None else (np.asarray(greedy[0], np.float64),
+                                                   np.asarray(greedy[1], np.float64), float(greedy[2]))
 
     @property
     def k(self) -> int:
@@ -378,7 +384,28 @@ class ClusterModel:
 
     def predict(self, dataset) -> np.ndarray:
         """Cluster label (0..k-1) of every trajectory of ``dataset``."""
+        if self.greedy is not None:
+            return self._greedy_predict(dataset)
         return self.assign(self.features(dataset))
+
+    def _greedy_predict(self, dataset) -> np.ndarray:
+        from pcpg_dist import greedy_mix
+        from pcpg_dist.cluster_features import _state_columns
+
+        states, offsets = checked_sequences(dataset, where=f"{self.method} model")
+        if states.shape[1] != self.state_dim:
+            raise DataError(f"{self.method} model was fitted on {self.state_dim} state features, "
+                            f"dataset {dataset.domain}-{dataset.env} has {states.shape[1]}")
+        votes, log_share, noise = self.greedy
+        if int(dataset.n_actions) != votes.shape[2]:
+            raise DataError(f"{self.method} model was fitted on {votes.shape[2]} actions, "
+                            f"dataset {dataset.domain}-{dataset.env} has {dataset.n_actions}")
+        n = len(offsets) - 1
+        steps = greedy_mix.Steps.build(_state_columns(states, self.bag.states),
+                                       np.asarray(dataset.actions, np.int64), dataset.valid,
+                                       np.repeat(np.arange(n), np.diff(offsets)), n, votes.shape[1],
+                                       votes.shape[2])
+        return greedy_mix.predict(steps, votes, log_share, noise)
 
     # ------------------------------------------------------------- persistence
     def save(self, directory: str | Path) -> Path:
@@ -403,6 +430,10 @@ class ClusterModel:
             tensors.update(
                 {f"pm.{k}": v.detach().clone() for k, v in self.policy.state_dict().items()}
             )
+        if self.greedy is not None:
+            tensors["greedy_votes"] = torch.from_numpy(self.greedy[0])
+            tensors["greedy_log_share"] = torch.from_numpy(self.greedy[1])
+            tensors["greedy_noise"] = torch.tensor([self.greedy[2]], dtype=torch.float64)
         torch.save(tensors, directory / WEIGHTS_FILE)
         meta = {
             "format_version": FORMAT_VERSION,
@@ -498,11 +529,21 @@ def load_model(directory: str | Path) -> ClusterModel:
         bag = BagVocabulary(bs.numpy(), keys.numpy().astype(np.int64), int(meta["bag_n_actions"]))
         if centroids.shape[1] != bag.width:
             raise DataError(f"{w_path}: weights do not fit a {method} model")
+    greedy = None
+    if method in GREEDY_METHODS:
+        gv, gs, ge = (tensors.get(f"greedy_{x}") for x in ("votes", "log_share", "noise"))
+        if (gv is None or gs is None or ge is None or tuple(ge.shape) != (1,)
+                or not 0.0 < float(ge[0]) < 1.0 or gv.ndim != 3 or gv.shape[0] != centroids.shape[0]
+                or gv.shape[1] != len(bag.states) or gv.shape[2] != bag.n_actions
+                or tuple(gs.shape) != (gv.shape[0],)
+                or not (torch.isfinite(gv).all() and torch.isfinite(gs).all())):
+            raise DataError(f"{w_path}: weights do not fit a {method} model (greedy votes)")
+        greedy = (gv.numpy(), gs.numpy(), float(ge[0]))
     vocab = tensors.get("vocabulary")
     if method == "visits_kmeans" and (vocab is None or vocab.ndim != 2 or vocab.shape[1] != state_dim
                                       or centroids.shape[1] != vocab.shape[0]):
         raise DataError(f"{w_path}: weights do not fit a visits_kmeans model")
     return ClusterModel(
         method, config, state_dim, mean, std, centroids, ae, tuple(meta.get("feature_names") or ()),
-        vocab.numpy() if vocab is not None else None, bag, policy,
+        vocab.numpy() if vocab is not None else None, bag, policy, greedy,
     )

@@ -15,7 +15,10 @@ Methods (one interface, so the LSTM model's value is measured, not assumed):
 - ``bag_kmeans`` — weighted k-means (cosine) on distinct visitation rows: visited states,
   state-actions and the final state (pcpg_dist/cluster_features.py), duplicates as weights.
 - ``bag_mop`` — a mixture of k policies pi_c(a | s) fitted by EM from bag_kmeans' labels.
-- ``bag_auto`` — both, and the one with the higher silhouette (no labels) is kept.
+- ``greedy_mix`` — a mixture of k greedy policies, each trajectory with its own noise level, fitted
+  from bag_kmeans' labels (pcpg_dist/greedy_mix.py): style = which action, skill = how often not.
+- ``bag_auto`` (the default) — greedy_mix on discrete states, the paper's lstm_dec on continuous
+  ones (where a state is almost never seen twice, a per-state policy says nothing).
 - ``policy_mix`` — a mixture of k neural policies pi_c(a | s) (shared trunk, k heads) fitted by
   hard EM over whole trajectories, started from k-means on the gain and mean of the features that
   never decrease within a trajectory (counters); for continuous states (MiniDungeons).
@@ -265,10 +268,16 @@ def _silhouette_precomputed(dist: np.ndarray, labels: np.ndarray) -> float | Non
 
 def _fit_bag(dataset, states: np.ndarray, offsets: np.ndarray, cfg: ClusterConfig, seed: int,
              metrics: dict[str, float]):
-    """bag_kmeans / bag_mop / bag_auto on distinct visitation rows; returns (labels, x, model)."""
+    """bag_kmeans / bag_mop / greedy_mix / bag_auto on visitation rows; returns (labels, x, model).
+
+    Every one starts from weighted k-means on the distinct bag rows; bag_mop refines that by a
+    free mixture of policies, greedy_mix and bag_auto by a mixture of greedy policies with
+    per-trajectory noise (pcpg_dist/greedy_mix.py).
+    """
     from sklearn.preprocessing import normalize
 
-    from pcpg_dist.cluster_features import bag_matrix, dedup_rows, fit_vocabulary
+    from pcpg_dist import greedy_mix
+    from pcpg_dist.cluster_features import _state_columns, bag_matrix, dedup_rows, fit_vocabulary
 
     actions = np.asarray(dataset.actions, np.int64)
     vocab = fit_vocabulary(states, actions, int(dataset.n_actions))
@@ -278,35 +287,29 @@ def _fit_bag(dataset, states: np.ndarray, offsets: np.ndarray, cfg: ClusterConfi
     metrics["distinct_trajectories"] = float(len(first))
     k = min(cfg.k, len(first))
     km = KMeans(n_clusters=k, n_init=cfg.kmeans_n_init, random_state=seed).fit(xu, sample_weight=w)
-    candidates = {"bag_kmeans": km.labels_}
-    if cfg.method in ("bag_mop", "bag_auto") and len(vocab.sa_keys):
-        candidates["bag_mop"] = _mixture_of_policies(xu, w, vocab, km.labels_, k)
-    if cfg.method == "bag_auto":
-        # Label-free choice: the candidate whose clusters are tightest and best apart (silhouette,
-        # cosine geometry of the bag rows, on a seeded sample of all trajectories).
-        # One distance matrix of the sample serves every candidate and the reported silhouette.
-        idx, dist = _sample_distances(x, cfg.silhouette_sample, seed, first[inv])
-        scores = {}
-        for name, lab in candidates.items():
-            s = _silhouette_precomputed(dist, lab[inv][idx])
-            if s is not None:
-                scores[name] = metrics[f"candidate_silhouette/{name}"] = s
-        chosen = max(scores, key=scores.get) if scores else "bag_kmeans"
-        if chosen in scores:
-            metrics["silhouette"] = scores[chosen]
-        metrics["auto_chose_mop"] = float(chosen == "bag_mop")
-        labels_u = candidates[chosen]
+    greedy = None
+    if cfg.method == "bag_mop" and len(vocab.sa_keys):
+        labels = _mixture_of_policies(xu, w, vocab, km.labels_, k)[inv]
+    elif cfg.method in ("greedy_mix", "bag_auto"):
+        steps = greedy_mix.Steps.build(_state_columns(states, vocab.states), actions, dataset.valid,
+                                       np.repeat(np.arange(len(offsets) - 1), np.diff(offsets)),
+                                       len(offsets) - 1, len(vocab.states), int(dataset.n_actions))
+        fit = greedy_mix.fit(steps, km.labels_[inv], cfg.k)
+        labels, greedy = fit.labels, (fit.votes, fit.log_share, fit.noise)
+        metrics.update({"em_rounds": float(fit.sweeps), "greedy_mix_moved": fit.moved,
+                        "greedy_mix_noise": fit.noise, "greedy_mix_noise_start": fit.noise_start,
+                        "greedy_mix_loglik_per_step": fit.log_likelihood / max(steps.counts.sum(), 1.0)})
     else:
-        labels_u = candidates[cfg.method if cfg.method in candidates else "bag_kmeans"]
-        idx, dist = _sample_distances(x, cfg.silhouette_sample, seed, first[inv])
-        s = _silhouette_precomputed(dist, labels_u[inv][idx])
-        if s is not None:
-            metrics["silhouette"] = s
-    centroids = _weighted_means(xu, w, labels_u, cfg.k)
+        labels = km.labels_[inv]
+    idx, dist = _sample_distances(x, cfg.silhouette_sample, seed, first[inv])
+    s = _silhouette_precomputed(dist, labels[idx])
+    if s is not None:
+        metrics["silhouette"] = s
+    centroids = _weighted_means(x, np.ones(len(labels)), labels, cfg.k)
     d = states.shape[1]
     model = ClusterModel(cfg.method, cfg.model_dump(), d, np.zeros(d), np.ones(d), centroids, None,
-                         tuple(dataset.feature_names), None, vocab)
-    return labels_u[inv].astype(np.int64), x, model
+                         tuple(dataset.feature_names), None, vocab, greedy=greedy)
+    return labels.astype(np.int64), x, model
 
 
 def monotone_features(states: np.ndarray, offsets: np.ndarray) -> np.ndarray:
@@ -398,6 +401,10 @@ def cluster(dataset, cfg: ClusterConfig, seed: int) -> Clustering:
             f"fewer than k={cfg.k} clusters"
         )
     metrics: dict[str, float] = {}
+    if cfg.method == "greedy_mix" and _mostly_distinct_states(states):
+        raise DataError(f"clustering.method greedy_mix: most states of {dataset.domain}-{dataset.env} "
+                        "occur once (continuous states), so a per-state policy cannot be estimated; "
+                        "use bag_auto, policy_mix or lstm_dec")
     if cfg.method == "bag_auto" and _mostly_distinct_states(states):
         # Continuous states (Mario): every state is new, a visitation bag says nothing; the
         # sequence model is the one that can still see a style there.

@@ -211,7 +211,7 @@ def grid_data():
     return assemble_dataset([generate_pair(layout, r, cfg, 0) for r in range(4)])
 
 
-@pytest.mark.parametrize("method", ["bag_kmeans", "bag_mop", "bag_auto"])
+@pytest.mark.parametrize("method", ["bag_kmeans", "bag_mop", "greedy_mix", "bag_auto"])
 def test_bag_clusterers_separate_gridworld_styles(grid_data, method):
     res = cluster(grid_data, ClusterConfig(method=method), seed=0)
     m = clustering_metrics(grid_data.styles, res.labels)
@@ -221,17 +221,16 @@ def test_bag_clusterers_separate_gridworld_styles(grid_data, method):
         np.testing.assert_array_equal(res.model.predict(grid_data), res.labels)
 
 
-def test_bag_auto_picks_by_silhouette_without_labels(grid_data):
+def test_bag_auto_is_greedy_mix_from_bag_kmeans_without_labels(grid_data):
     shuffled = grid_data.with_styles(np.random.default_rng(1).permutation(grid_data.styles))
     a = cluster(grid_data, ClusterConfig(method="bag_auto"), seed=0)
     b = cluster(shuffled, ClusterConfig(method="bag_auto"), seed=0)
     np.testing.assert_array_equal(a.labels, b.labels)  # same seed, same labels; styles unread
-    scores = {k.split("/")[1]: v for k, v in a.metrics.items() if k.startswith("candidate_silhouette/")}
-    assert set(scores) == {"bag_kmeans", "bag_mop"}
-    chosen = "bag_mop" if a.metrics["auto_chose_mop"] else "bag_kmeans"
-    assert scores[chosen] == max(scores.values())
-    alone = cluster(grid_data, ClusterConfig(method=chosen), seed=0)
-    np.testing.assert_array_equal(alone.labels, a.labels)
+    named = cluster(grid_data, ClusterConfig(method="greedy_mix"), seed=0)
+    np.testing.assert_array_equal(named.labels, a.labels)
+    km = cluster(grid_data, ClusterConfig(method="bag_kmeans"), seed=0).labels
+    assert a.metrics["greedy_mix_moved"] == pytest.approx(float((a.labels != km).mean()))
+    assert 0.0 < a.metrics["greedy_mix_noise"] < 1.0
 
 
 def test_bag_model_saves_and_predicts_unseen_trajectories(tmp_path, grid_data):

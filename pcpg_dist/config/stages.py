@@ -73,19 +73,21 @@ class RankConfig(StrictModel):
 
 
 class ClusterConfig(StrictModel):
-    """Step A settings. The default method, bag_auto, is the best label-free clusterer on 20
-    held-out random GridWorld layouts and falls back to the paper's lstm_dec on continuous
-    states (see docs/clustering.md); lstm_dec stays available by name."""
+    """Step A settings. The default method, bag_auto (greedy_mix on discrete states), is the best
+    label-free clusterer on 20 held-out random GridWorld layouts and falls back to the paper's
+    lstm_dec on continuous states (see docs/clustering.md); lstm_dec stays available by name."""
 
     method: Literal["lstm_dec", "lstm_kmeans", "summary_kmeans", "visits_kmeans", "bag_kmeans",
-                    "bag_mop", "bag_auto", "policy_mix"] = Field(
+                    "bag_mop", "greedy_mix", "bag_auto", "policy_mix"] = Field(
         "bag_auto",
         description="lstm_dec: autoencoder + DEC loss (the paper); lstm_kmeans: k-means on "
         "pretrained latents; summary_kmeans: k-means on length, final and mean state; "
         "visits_kmeans: k-means (cosine) on which distinct states a trajectory visits (for "
         "discrete-state games; no network, seconds); bag_kmeans: weighted k-means (cosine) on "
         "distinct rows of visited states + state-actions + final state; bag_mop: a mixture of k "
-        "policies (EM) started from bag_kmeans; bag_auto: both, the higher silhouette kept; "
+        "policies (EM) started from bag_kmeans; greedy_mix: a mixture of k greedy policies with "
+        "per-trajectory noise, refined from bag_kmeans (discrete states); bag_auto: greedy_mix, "
+        "or lstm_dec where states are continuous; "
         "policy_mix: a mixture of k neural policies (hard EM) started from k-means on the "
         "monotone features' gain and mean, for continuous states (docs/clustering.md).",
     )

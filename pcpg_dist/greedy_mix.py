@@ -1,0 +1,267 @@
+"""``greedy_mix``: a mixture of k greedy policies with uniform noise (Step A, discrete states).
+
+The generative story of a play-style dataset, in its simplest form: style c is a policy that
+picks one action ``g_c(s)`` in every state; a trajectory follows its style's policy except that,
+at a step, with probability ``eps`` it takes a uniformly random valid action. Style is *which*
+action a player prefers; skill is how often they stray.
+A free mixture of policies lacks that split: there a cluster can also explain "noisy players",
+so it clusters by skill as readily as by style (``bag_mop``, docs/clustering.md). Here every
+cluster is a deterministic policy and noise is the same uniform stray for all of them.
+
+For one step, ``P(a | s, c) = (1 - eps) [a = g_c(s)] + eps / n(s)`` with ``n(s)`` the valid
+actions in s, so ``log P = log(eps / n) + [a = g_c(s)] * lam`` with ``lam = log(1 + (1 - eps) n /
+eps)``: every step votes ``lam`` for its action. The greedy
+action of each (cluster, state) is never fixed: it is marginalised under a uniform prior over the
+valid actions, so a state that a cluster's trajectories rarely visit says little about it:
+
+    F_c(s) = log sum_a exp(V_c[s, a]) - log n(s),   V_c[s, a] = sum of lam over c's steps (s, a).
+
+The collapsed log-likelihood of a labelling is ``sum_steps log(eps / n) + sum_c sum_s F_c(s)``
+(+ the multinomial prior of the cluster sizes). Fitting is coordinate ascent on it: trajectory
+after trajectory moves to the cluster that raises it most (its own votes taken out first, so a
+trajectory never votes for itself), sweep after sweep until none moves; every move raises the
+likelihood, so it cannot cycle. It starts from labels given by the caller (``bag_kmeans``' in
+``pcpg_dist.clustering``): ascent of this kind refines a partition, it does not find one.
+
+The noise level of the moves is one ``eps`` shared by all trajectories. Which one matters where a
+group of trajectories of one style sits in another's cluster (a near-tie a small eps breaks and a
+large one keeps), so the ascent runs once per level of :data:`NOISE_LEVELS` and the labelling
+with the highest *profile* likelihood (maximised over eps on a grid) is kept: a label-free choice.
+
+Trajectories with the same multiset of (state, action) steps are the same to this model, so they
+are collapsed once and carry their count. Everything is numpy/scipy on a (trajectories x
+state-actions) count matrix; no network.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+from scipy import sparse
+from scipy.special import logsumexp
+
+#: the shared noise levels the ascent is run at (the best by profile likelihood is kept)
+NOISE_LEVELS = (0.05, 0.1, 0.15, 0.2, 0.3)
+#: the grid the profile likelihood is maximised over
+NOISE_GRID = np.linspace(0.02, 0.5, 25)
+
+
+@dataclass(frozen=True)
+class Steps:
+    """The steps of a dataset as the model sees them: per trajectory, counts of (state, action)."""
+
+    counts: sparse.csr_matrix  # (n, S * A) how often trajectory i took action a in state s
+    valid: np.ndarray  # (S, A) bool: the valid actions of each state
+    n_actions: int
+
+    @property
+    def n_states(self) -> int:
+        return self.valid.shape[0]
+
+    @staticmethod
+    def build(state_ids: np.ndarray, actions: np.ndarray, valid_rows: np.ndarray, row_traj: np.ndarray,
+              n: int, n_states: int, n_actions: int) -> Steps:
+        """From per-row state ids (-1 = unknown state, skipped), actions (-1 = none), valid masks."""
+        step = (actions >= 0) & (state_ids >= 0)
+        s, a = state_ids[step], actions[step].astype(np.int64)
+        valid = np.zeros((n_states, n_actions), bool)
+        valid[s] = np.asarray(valid_rows, bool)[step]
+        valid[s, a] = True  # an action taken is valid, whatever the mask says
+        counts = sparse.csr_matrix((np.ones(len(s)), (row_traj[step], s * n_actions + a)),
+                                   shape=(n, n_states * n_actions))
+        counts.sum_duplicates()
+        return Steps(counts, valid, int(n_actions))
+
+
+def _marginal(v: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """``F`` of the module doc for vote rows ``v`` (..., A): log-mean-exp over the valid actions."""
+    nv = np.maximum(valid.sum(-1), 1)
+    return logsumexp(np.where(valid, v, -np.inf), axis=-1) - np.log(nv)
+
+
+def _weights(steps: Steps, eps: float) -> sparse.csr_matrix:
+    """Each trajectory's (state, action) counts times the vote weight lam(eps, n(s))."""
+    c = steps.counts.tocoo()
+    nv = steps.valid.sum(1)[c.col // steps.n_actions]
+    lam = np.log1p((1.0 - eps) * nv / eps)
+    w = sparse.csr_matrix((c.data * lam, (c.row, c.col)), shape=c.shape)
+    w.sort_indices()
+    return w
+
+
+def votes(steps: Steps, weights: sparse.csr_matrix, labels: np.ndarray, mult: np.ndarray, k: int) -> np.ndarray:
+    """(k, S, A) summed vote weights of each cluster's steps (``mult`` = copies of each row)."""
+    n = len(labels)
+    m = sparse.csr_matrix((mult, (labels, np.arange(n))), shape=(k, n))
+    return np.asarray((m @ weights).todense()).reshape(k, steps.n_states, steps.n_actions)
+
+
+def log_likelihood(steps: Steps, mult: np.ndarray, labels: np.ndarray, k: int, eps: float) -> float:
+    """The collapsed log-likelihood of a labelling at noise ``eps`` (the module doc's formula)."""
+    v = votes(steps, _weights(steps, eps), labels, mult, k)
+    seen = steps.valid.any(1)
+    c = steps.counts.tocoo()
+    nv = steps.valid.sum(1)[c.col // steps.n_actions]
+    sizes = np.bincount(labels, mult, minlength=k)
+    nz = sizes[sizes > 0]
+    return (float((c.data * mult[c.row] * np.log(eps / nv)).sum())
+            + float(_marginal(v[:, seen], steps.valid[seen][None]).sum())
+            + float((nz * np.log(nz / nz.sum())).sum()))
+
+
+def profile_log_likelihood(steps: Steps, mult: np.ndarray, labels: np.ndarray, k: int) -> tuple[float, float]:
+    """``(max over eps of log_likelihood, that eps)`` on :data:`NOISE_GRID`."""
+    ll = [log_likelihood(steps, mult, labels, k, float(e)) for e in NOISE_GRID]
+    i = int(np.argmax(ll))
+    return ll[i], float(NOISE_GRID[i])
+
+
+@numba.njit(cache=True)
+def _lme(v, valid):
+    """log-mean-exp of v over the valid entries (``_marginal`` of one row)."""
+    top, nv = -np.inf, 0
+    for a in range(v.shape[0]):
+        if valid[a]:
+            nv += 1
+            top = max(top, v[a])
+    if nv == 0:
+        return 0.0
+    total = 0.0
+    for a in range(v.shape[0]):
+        if valid[a]:
+            total += np.exp(v[a] - top)
+    return top + np.log(total) - np.log(nv)
+
+
+@numba.njit(cache=True)
+def _size_term(n, total):
+    return n * np.log(n / total) if n > 0 else 0.0
+
+
+@numba.njit(cache=True)
+def _ascend(indptr, pstate, pw, valid, v, labels, mult, sizes, max_sweeps):
+    """Coordinate ascent: each row (with its ``mult`` copies) moves to the cluster that raises the
+    collapsed log-likelihood most; ``v`` and ``sizes`` are updated in place. Returns the sweeps."""
+    k, n_actions = v.shape[0], v.shape[2]
+    total = sizes.sum()
+    tmp = np.empty(n_actions)
+    for sweep in range(max_sweeps):
+        moves = 0
+        for u in range(labels.shape[0]):
+            c0, m = labels[u], mult[u]
+            lose = _size_term(sizes[c0] - m, total) - _size_term(sizes[c0], total)
+            for p in range(indptr[u], indptr[u + 1]):
+                s = pstate[p]
+                for a in range(n_actions):
+                    tmp[a] = v[c0, s, a] - m * pw[p, a]
+                lose += _lme(tmp, valid[s]) - _lme(v[c0, s], valid[s])
+            best, best_c = 0.0, c0
+            for c in range(k):
+                if c == c0:
+                    continue
+                gain = _size_term(sizes[c] + m, total) - _size_term(sizes[c], total)
+                for p in range(indptr[u], indptr[u + 1]):
+                    s = pstate[p]
+                    for a in range(n_actions):
+                        tmp[a] = v[c, s, a] + m * pw[p, a]
+                    gain += _lme(tmp, valid[s]) - _lme(v[c, s], valid[s])
+                if lose + gain > best + 1e-9:
+                    best, best_c = lose + gain, c
+            if best_c != c0:
+                for p in range(indptr[u], indptr[u + 1]):
+                    s = pstate[p]
+                    for a in range(n_actions):
+                        v[c0, s, a] -= m * pw[p, a]
+                        v[best_c, s, a] += m * pw[p, a]
+                sizes[c0] -= m
+                sizes[best_c] += m
+                labels[u] = best_c
+                moves += 1
+        if moves == 0:
+            return sweep + 1
+    return max_sweeps
+
+
+def _per_state(weights: sparse.csr_matrix, n_actions: int):
+    """Row u's votes grouped by state: ``(indptr (n+1,), state (P,), votes (P, A))``."""
+    w = weights.tocoo()
+    n_states = weights.shape[1] // n_actions
+    key = w.row.astype(np.int64) * n_states + w.col // n_actions
+    pairs, pair_of = np.unique(key, return_inverse=True)
+    pw = np.zeros((len(pairs), n_actions))
+    np.add.at(pw, (pair_of, w.col % n_actions), w.data)
+    indptr = np.searchsorted(pairs // n_states, np.arange(weights.shape[0] + 1)).astype(np.int64)
+    return indptr, (pairs % n_states).astype(np.int64), pw
+
+
+def ascend(steps: Steps, mult: np.ndarray, labels: np.ndarray, k: int, eps: float,
+           max_sweeps: int) -> tuple[np.ndarray, int]:
+    """The coordinate ascent of the module doc at noise ``eps``: ``(labels, sweeps)``."""
+    w = _weights(steps, eps)
+    labels = np.array(labels, np.int64)
+    v = votes(steps, w, labels, mult, k)
+    sizes = np.bincount(labels, mult, minlength=k).astype(np.float64)
+    indptr, pstate, pw = _per_state(w, steps.n_actions)
+    sweeps = _ascend(indptr, pstate, pw, steps.valid, v, labels, np.asarray(mult, np.float64), sizes,
+                     max_sweeps)
+    return labels, sweeps
+
+
+@dataclass(frozen=True)
+class GreedyMixFit:
+    labels: np.ndarray  # (n,) per trajectory
+    votes: np.ndarray  # (k, S, A) of the final labels at ``noise``
+    log_share: np.ndarray  # (k,) log cluster sizes / n
+    noise: float  # the profile-likelihood noise level of the final labels
+    noise_start: float  # the level whose ascent was kept
+    sweeps: int
+    moved: float  # fraction of trajectories whose label differs from the start
+    log_likelihood: float  # the profile log-likelihood of the final labels
+
+
+def fit(steps: Steps, init: np.ndarray, k: int, max_sweeps: int = 100,
+        noise_levels: tuple[float, ...] = NOISE_LEVELS) -> GreedyMixFit:
+    """Refine the labelling ``init`` (n,) as the module doc says. Deterministic (no randomness).
+
+    Rows with identical (state, action) counts are the same to the model and are collapsed first.
+    """
+    from pcpg_dist.cluster_features import dedup_rows
+
+    init = np.asarray(init, np.int64)
+    first, mult, inv = dedup_rows(steps.counts)
+    uniq = Steps(steps.counts[first], steps.valid, steps.n_actions)
+    start = np.zeros((len(first), k))  # copies of one row take the start label most of them have
+    np.add.at(start, (inv, init), 1.0)
+    start = start.argmax(1)
+    best = None
+    for eps in noise_levels:
+        labels, sweeps = ascend(uniq, mult, start, k, eps, max_sweeps)
+        ll, eps_hat = profile_log_likelihood(uniq, mult, labels, k)
+        if best is None or ll > best[0] + 1e-9:
+            best = (ll, eps_hat, eps, labels, sweeps)
+    ll, eps_hat, eps0, labels, sweeps = best
+    v = votes(uniq, _weights(uniq, eps_hat), labels, mult, k)
+    sizes = np.bincount(labels, mult, minlength=k)
+    out = labels[inv]
+    return GreedyMixFit(out, v, np.log(np.maximum(sizes, 1e-3) / mult.sum()), eps_hat, eps0, sweeps,
+                        float((out != init).mean()), ll)
+
+
+def scores(steps: Steps, weights: sparse.csr_matrix, v: np.ndarray, log_share: np.ndarray) -> np.ndarray:
+    """(n, k) gain in collapsed log-likelihood from adding each trajectory to each cluster's votes."""
+    indptr, state, d = _per_state(weights, steps.n_actions)
+    traj = np.repeat(np.arange(weights.shape[0]), np.diff(indptr))
+    valid = steps.valid[state]
+    out = np.zeros((weights.shape[0], v.shape[0]))
+    for c in range(v.shape[0]):
+        base = v[c][state]
+        out[:, c] = np.bincount(traj, _marginal(base + d, valid) - _marginal(base, valid),
+                                minlength=weights.shape[0])
+    return out + log_share[None, :]
+
+
+def predict(steps: Steps, v: np.ndarray, log_share: np.ndarray, eps: float) -> np.ndarray:
+    """Labels of (new) trajectories under fitted votes: the cluster their steps raise most."""
+    return scores(steps, _weights(steps, eps), v, log_share).argmax(1)
