@@ -294,10 +294,14 @@ def _fit_bag(dataset, states: np.ndarray, offsets: np.ndarray, cfg: ClusterConfi
         steps = greedy_mix.Steps.build(_state_columns(states, vocab.states), actions, dataset.valid,
                                        np.repeat(np.arange(len(offsets) - 1), np.diff(offsets)),
                                        len(offsets) - 1, len(vocab.states), int(dataset.n_actions))
-        fit = greedy_mix.fit(steps, km.labels_[inv], cfg.k)
+        starts = [km.labels_[inv]] + [
+            KMeans(n_clusters=kk, n_init=cfg.kmeans_n_init, random_state=seed).fit(xu, sample_weight=w).labels_[inv]
+            for kk in (k + 1, k + 2) if kk <= len(first)]
+        fit = greedy_mix.fit(steps, starts, k)
         labels, greedy = fit.labels, (fit.votes, fit.log_share, fit.noise)
         metrics.update({"em_rounds": float(fit.sweeps), "greedy_mix_moved": fit.moved,
                         "greedy_mix_noise": fit.noise, "greedy_mix_noise_start": fit.noise_start,
+                        "greedy_mix_start_clusters": float(fit.start_clusters),
                         "greedy_mix_loglik_per_step": fit.log_likelihood / max(steps.counts.sum(), 1.0)})
     else:
         labels = km.labels_[inv]

@@ -22,6 +22,10 @@ after trajectory moves to the cluster that raises it most (its own votes taken o
 trajectory never votes for itself), sweep after sweep until none moves; every move raises the
 likelihood, so it cannot cycle. It starts from labels given by the caller (``bag_kmeans``' in
 ``pcpg_dist.clustering``): ascent of this kind refines a partition, it does not find one.
+A group of trajectories of one style that the start put with another style can hold together
+there (each is best where the rest of its group is). Starts with more clusters than k give such
+a group a cluster of its own; merging clusters down to k by likelihood then joins it to the style
+it belongs to. So the caller passes starts with k, k + 1 and k + 2 clusters.
 
 The noise level of the moves is one ``eps`` shared by all trajectories. Which one matters where a
 group of trajectories of one style sits in another's cluster (a near-tie a small eps breaks and a
@@ -40,6 +44,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 from scipy import sparse
+from scipy.optimize import linear_sum_assignment
 from scipy.special import logsumexp
 
 #: the shared noise levels the ascent is run at (the best by profile likelihood is kept)
@@ -216,37 +221,72 @@ class GreedyMixFit:
     log_share: np.ndarray  # (k,) log cluster sizes / n
     noise: float  # the profile-likelihood noise level of the final labels
     noise_start: float  # the level whose ascent was kept
+    start_clusters: int  # the size of the start whose result was kept
     sweeps: int
-    moved: float  # fraction of trajectories whose label differs from the start
+    moved: float  # fraction of trajectories whose label differs from the first start
     log_likelihood: float  # the profile log-likelihood of the final labels
 
 
-def fit(steps: Steps, init: np.ndarray, k: int, max_sweeps: int = 100,
+def merge_down(steps: Steps, mult: np.ndarray, labels: np.ndarray, k: int, eps: float) -> np.ndarray:
+    """Merge clusters pairwise, each time the pair whose merge keeps the likelihood highest, until k."""
+    labels = np.array(labels, np.int64)
+    while labels.max(initial=0) + 1 > k:
+        n_clusters = labels.max() + 1
+        best = None
+        for a in range(n_clusters):
+            for b in range(a + 1, n_clusters):
+                merged = np.where(labels == b, a, labels)
+                merged[merged > b] -= 1
+                ll = log_likelihood(steps, mult, merged, n_clusters - 1, eps)
+                if best is None or ll > best[0]:
+                    best = (ll, merged)
+        labels = best[1]
+    return labels
+
+
+def fit(steps: Steps, starts: list[np.ndarray], k: int, max_sweeps: int = 100,
         noise_levels: tuple[float, ...] = NOISE_LEVELS) -> GreedyMixFit:
-    """Refine the labelling ``init`` (n,) as the module doc says. Deterministic (no randomness).
+    """Refine the start labellings (each (n,), with k or more clusters) as the module doc says;
+    a start with more than k clusters is refined at its own size, merged down to k
+    (:func:`merge_down`) and refined again. Deterministic (no randomness); the result with the
+    highest profile likelihood over all starts and noise levels is kept (the first on a tie).
 
     Rows with identical (state, action) counts are the same to the model and are collapsed first.
     """
     from pcpg_dist.cluster_features import dedup_rows
 
-    init = np.asarray(init, np.int64)
     first, mult, inv = dedup_rows(steps.counts)
     uniq = Steps(steps.counts[first], steps.valid, steps.n_actions)
-    start = np.zeros((len(first), k))  # copies of one row take the start label most of them have
-    np.add.at(start, (inv, init), 1.0)
-    start = start.argmax(1)
     best = None
-    for eps in noise_levels:
-        labels, sweeps = ascend(uniq, mult, start, k, eps, max_sweeps)
-        ll, eps_hat = profile_log_likelihood(uniq, mult, labels, k)
-        if best is None or ll > best[0] + 1e-9:
-            best = (ll, eps_hat, eps, labels, sweeps)
-    ll, eps_hat, eps0, labels, sweeps = best
+    for init in starts:
+        init = np.asarray(init, np.int64)
+        size = int(init.max(initial=0)) + 1
+        start = np.zeros((len(first), max(size, k)))  # copies of one row take their majority label
+        np.add.at(start, (inv, init), 1.0)
+        start = start.argmax(1)
+        for eps in noise_levels:
+            labels, sweeps = ascend(uniq, mult, start, max(size, k), eps, max_sweeps)
+            if size > k:
+                labels, more = ascend(uniq, mult, merge_down(uniq, mult, labels, k, eps), k, eps, max_sweeps)
+                sweeps += more
+            ll, eps_hat = profile_log_likelihood(uniq, mult, labels, k)
+            if best is None or ll > best[0] + 1e-9:
+                best = (ll, eps_hat, eps, size, labels, sweeps)
+    ll, eps_hat, eps0, size, labels, sweeps = best
+    # number the clusters as the first start does (most shared trajectories), so the labels of
+    # a refined start stay comparable with it
+    first_start = np.asarray(starts[0], np.int64)
+    overlap = np.zeros((k, max(k, int(first_start.max(initial=0)) + 1)))
+    np.add.at(overlap, (labels[inv], first_start), 1.0)
+    rows, cols = linear_sum_assignment(-overlap)
+    rename = np.arange(k)
+    rename[rows] = cols
+    labels = rename[labels]
     v = votes(uniq, _weights(uniq, eps_hat), labels, mult, k)
     sizes = np.bincount(labels, mult, minlength=k)
     out = labels[inv]
-    return GreedyMixFit(out, v, np.log(np.maximum(sizes, 1e-3) / mult.sum()), eps_hat, eps0, sweeps,
-                        float((out != init).mean()), ll)
+    return GreedyMixFit(out, v, np.log(np.maximum(sizes, 1e-3) / mult.sum()), eps_hat, eps0, size,
+                        sweeps, float((out != first_start).mean()), ll)
 
 
 def scores(steps: Steps, weights: sparse.csr_matrix, v: np.ndarray, log_share: np.ndarray) -> np.ndarray:

@@ -34,10 +34,10 @@ def test_recovers_styles_that_a_bad_start_mixes_up():
     rng = np.random.default_rng(1)
     start = np.where(rng.random(len(styles)) < 0.3, rng.integers(0, 3, len(styles)), styles)
     assert clustering_metrics(styles, start)["accuracy"] < 0.85
-    fit = greedy_mix.fit(steps, start, 3)
+    fit = greedy_mix.fit(steps, [start], 3)
     assert clustering_metrics(styles, fit.labels)["accuracy"] >= 0.98
     assert fit.moved > 0.1 and 0.05 < fit.noise < 0.3  # the data's mean noise is 0.15
-    again = greedy_mix.fit(steps, start, 3)
+    again = greedy_mix.fit(steps, [start], 3)
     np.testing.assert_array_equal(again.labels, fit.labels)  # no randomness
     ones = np.ones(len(styles))
     assert fit.log_likelihood >= greedy_mix.profile_log_likelihood(steps, ones, start, 3)[0]
