@@ -294,9 +294,11 @@ def _fit_bag(dataset, states: np.ndarray, offsets: np.ndarray, cfg: ClusterConfi
         steps = greedy_mix.Steps.build(_state_columns(states, vocab.states), actions, dataset.valid,
                                        np.repeat(np.arange(len(offsets) - 1), np.diff(offsets)),
                                        len(offsets) - 1, len(vocab.states), int(dataset.n_actions))
+        # starts: k-means with k, k + 1 and k + 2 clusters, from three seeds (greedy_mix.py says why)
         starts = [km.labels_[inv]] + [
-            KMeans(n_clusters=kk, n_init=cfg.kmeans_n_init, random_state=seed).fit(xu, sample_weight=w).labels_[inv]
-            for kk in (k + 1, k + 2) if kk <= len(first)]
+            KMeans(n_clusters=kk, n_init=cfg.kmeans_n_init, random_state=seed + r).fit(
+                xu, sample_weight=w).labels_[inv]
+            for r in range(3) for kk in (k, k + 1, k + 2) if kk <= len(first) and (r, kk) != (0, k)]
         fit = greedy_mix.fit(steps, starts, k)
         labels, greedy = fit.labels, (fit.votes, fit.log_share, fit.noise)
         metrics.update({"em_rounds": float(fit.sweeps), "greedy_mix_moved": fit.moved,
