@@ -299,7 +299,7 @@ def _fit_bag(dataset, states: np.ndarray, offsets: np.ndarray, cfg: ClusterConfi
             KMeans(n_clusters=kk, n_init=cfg.kmeans_n_init, random_state=seed + r).fit(
                 xu, sample_weight=w).labels_[inv]
             for r in range(3) for kk in (k, k + 1, k + 2) if kk <= len(first) and (r, kk) != (0, k)]
-        fit = greedy_mix.fit(steps, starts, k)
+        fit = greedy_mix.fit(steps, starts, cfg.k)
         labels, greedy = fit.labels, (fit.votes, fit.log_share, fit.noise)
         metrics.update({"em_rounds": float(fit.sweeps), "greedy_mix_moved": fit.moved,
                         "greedy_mix_noise": fit.noise, "greedy_mix_noise_start": fit.noise_start,

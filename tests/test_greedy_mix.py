@@ -117,3 +117,16 @@ def test_bad_inputs_and_files_fail_with_one_data_error(tmp_path, e4):
     torch.save(tensors, tmp_path / "n" / "cluster_model.pt")
     with pytest.raises(DataError, match="greedy votes"):
         load_model(tmp_path / "n")
+
+
+def test_fewer_distinct_trajectories_than_clusters(tmp_path, e4):
+    """Three distinct trajectories, ten copies each, k = 4: every copy of one trajectory gets one
+    label, at most three clusters are used, and the saved model gives the labels back."""
+    rows = np.concatenate([np.full(10, i) for i in (0, 1500, 3100)])
+    ds = e4.subset(rows)
+    res = cluster(ds, ClusterConfig(method="greedy_mix", k=4), seed=0)
+    assert len(np.unique(res.labels)) <= 3
+    for block in res.labels.reshape(3, 10):
+        assert len(set(block)) == 1
+    res.model.save(tmp_path / "m")
+    np.testing.assert_array_equal(load_model(tmp_path / "m").predict(ds), res.labels)
