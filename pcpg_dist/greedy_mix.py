@@ -3,40 +3,42 @@
 The generative story of a play-style dataset, in its simplest form: style c is a policy that
 picks one action ``g_c(s)`` in every state; a trajectory follows its style's policy except that,
 at a step, with probability ``eps`` it takes a uniformly random valid action. Style is *which*
-action a player prefers; skill is how often they stray.
-A free mixture of policies lacks that split: there a cluster can also explain "noisy players",
-so it clusters by skill as readily as by style (``bag_mop``, docs/clustering.md). Here every
-cluster is a deterministic policy and noise is the same uniform stray for all of them.
+action a player prefers; skill is how often they stray. A free mixture of policies lacks that
+split: there a cluster can also explain "noisy players", so it clusters by skill as readily as by
+style (``bag_mop``, docs/clustering.md). Here every cluster is a deterministic policy and the
+noise is the same uniform stray for all of them.
 
 For one step, ``P(a | s, c) = (1 - eps) [a = g_c(s)] + eps / n(s)`` with ``n(s)`` the valid
-actions in s, so ``log P = log(eps / n) + [a = g_c(s)] * lam`` with ``lam = log(1 + (1 - eps) n /
-eps)``: every step votes ``lam`` for its action. The greedy
-action of each (cluster, state) is never fixed: it is marginalised under a uniform prior over the
-valid actions, so a state that a cluster's trajectories rarely visit says little about it:
+actions in s, so ``log P = log(eps / n) + [a = g_c(s)] * lam`` with
+``lam = log(1 + (1 - eps) n / eps)``: every step votes ``lam`` for its action. The greedy action
+of each (cluster, state) is never fixed: it is marginalised under a uniform prior over the valid
+actions, so a state that a cluster's trajectories rarely visit says little about it:
 
     F_c(s) = log sum_a exp(V_c[s, a]) - log n(s),   V_c[s, a] = sum of lam over c's steps (s, a).
 
 The collapsed log-likelihood of a labelling is ``sum_steps log(eps / n) + sum_c sum_s F_c(s)``
-(+ the multinomial prior of the cluster sizes). Fitting is coordinate ascent on it: trajectory
-after trajectory moves to the cluster that raises it most (its own votes taken out first, so a
-trajectory never votes for itself), sweep after sweep until none moves; every move raises the
-likelihood, so it cannot cycle. It starts from labels given by the caller (``bag_kmeans``' in
-``pcpg_dist.clustering``): ascent of this kind refines a partition, it does not find one.
-A group of trajectories of one style that the start put with another style can hold together
-there (each is best where the rest of its group is). Starts with more clusters than k give such
-a group a cluster of its own; merging clusters down to k by likelihood then joins it to the style
-it belongs to. So the caller passes starts with k, k + 1 and k + 2 clusters, each from three
-k-means seeds: on E1-E5 at three data seeds and four clustering seeds, one k-means seed per size
-left 4 of 60 fits more than a point below the supervised ceiling, three seeds 1 (docs/clustering.md).
+plus the multinomial prior of the cluster sizes.
 
-The noise level of the moves is one ``eps`` shared by all trajectories. Which one matters where a
-group of trajectories of one style sits in another's cluster (a near-tie a small eps breaks and a
-large one keeps), so the ascent runs once per level of :data:`NOISE_LEVELS` and the labelling
-with the highest *profile* likelihood (maximised over eps on a grid) is kept: a label-free choice.
+**Fit.** Coordinate ascent on it (a numba kernel): trajectory after trajectory moves to the
+cluster that raises it most (its own votes taken out first, so a trajectory never votes for
+itself), sweep after sweep until none moves. Every move raises the likelihood, so it cannot
+cycle. Trajectories with the same multiset of (state, action) steps are the same to this model,
+so they are collapsed once and carry their count.
 
-Trajectories with the same multiset of (state, action) steps are the same to this model, so they
-are collapsed once and carry their count. Everything is numpy/scipy on a (trajectories x
-state-actions) count matrix; no network.
+**Starts.** Ascent refines a partition; it does not find one, and it cannot move a *group*: a
+group of one style's trajectories that the start put with another style can hold together there
+(each is best where the rest of its group is). Starts with more clusters than k give such a group
+a cluster of its own; merging clusters down to k by likelihood then joins it to the style it
+belongs to. So the caller (``pcpg_dist.clustering``) passes k-means starts with k, k + 1 and
+k + 2 clusters, each from three k-means seeds (on E1-E5 at three data seeds and four clustering
+seeds, one k-means seed per size left 4 of 60 fits more than a point below the supervised
+ceiling, three seeds 1; docs/clustering.md).
+
+**Noise level.** One ``eps`` shared by all trajectories. Which one matters where a group sits in
+another style's cluster (a near-tie that a small eps breaks and a large one keeps), so the ascent
+runs once per level of :data:`NOISE_LEVELS`, and of all starts and levels the labelling with the
+highest *profile* likelihood (maximised over eps on :data:`NOISE_GRID`) is kept. No labels are
+read anywhere.
 """
 
 from __future__ import annotations
