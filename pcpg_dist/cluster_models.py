@@ -390,9 +390,8 @@ class ClusterModel:
 
     def _greedy_predict(self, dataset) -> np.ndarray:
         from pcpg_dist import greedy_mix
-        from pcpg_dist.cluster_features import _state_columns
 
-        states, offsets = checked_sequences(dataset, where=f"{self.method} model")
+        states, _ = checked_sequences(dataset, where=f"{self.method} model")
         if states.shape[1] != self.state_dim:
             raise DataError(f"{self.method} model was fitted on {self.state_dim} state features, "
                             f"dataset {dataset.domain}-{dataset.env} has {states.shape[1]}")
@@ -400,12 +399,8 @@ class ClusterModel:
         if int(dataset.n_actions) != votes.shape[2]:
             raise DataError(f"{self.method} model was fitted on {votes.shape[2]} actions, "
                             f"dataset {dataset.domain}-{dataset.env} has {dataset.n_actions}")
-        n = len(offsets) - 1
-        steps = greedy_mix.Steps.build(_state_columns(states, self.bag.states),
-                                       np.asarray(dataset.actions, np.int64), dataset.valid,
-                                       np.repeat(np.arange(n), np.diff(offsets)), n, votes.shape[1],
-                                       votes.shape[2])
-        return greedy_mix.predict(steps, votes, log_share, noise)
+        return greedy_mix.predict(greedy_mix.Steps.of_dataset(dataset, states, self.bag.states),
+                                  votes, log_share, noise)
 
     # ------------------------------------------------------------- persistence
     def save(self, directory: str | Path) -> Path:

@@ -15,8 +15,8 @@ Methods (one interface, so the LSTM model's value is measured, not assumed):
 - ``bag_kmeans`` — weighted k-means (cosine) on distinct visitation rows: visited states,
   state-actions and the final state (pcpg_dist/cluster_features.py), duplicates as weights.
 - ``bag_mop`` — a mixture of k policies pi_c(a | s) fitted by EM from bag_kmeans' labels.
-- ``greedy_mix`` — a mixture of k greedy policies, each trajectory with its own noise level, fitted
-  from bag_kmeans' labels (pcpg_dist/greedy_mix.py): style = which action, skill = how often not.
+- ``greedy_mix`` — a mixture of k greedy policies with one uniform noise level, fitted by
+  coordinate ascent from bag_kmeans' labels (pcpg_dist/greedy_mix.py): style = which action.
 - ``bag_auto`` (the default) — greedy_mix on discrete states, the paper's lstm_dec on continuous
   ones (where a state is almost never seen twice, a per-state policy says nothing).
 - ``policy_mix`` — a mixture of k neural policies pi_c(a | s) (shared trunk, k heads) fitted by
@@ -272,12 +272,12 @@ def _fit_bag(dataset, states: np.ndarray, offsets: np.ndarray, cfg: ClusterConfi
 
     Every one starts from weighted k-means on the distinct bag rows; bag_mop refines that by a
     free mixture of policies, greedy_mix and bag_auto by a mixture of greedy policies with
-    per-trajectory noise (pcpg_dist/greedy_mix.py).
+    uniform noise (pcpg_dist/greedy_mix.py).
     """
     from sklearn.preprocessing import normalize
 
     from pcpg_dist import greedy_mix
-    from pcpg_dist.cluster_features import _state_columns, bag_matrix, dedup_rows, fit_vocabulary
+    from pcpg_dist.cluster_features import bag_matrix, dedup_rows, fit_vocabulary
 
     actions = np.asarray(dataset.actions, np.int64)
     vocab = fit_vocabulary(states, actions, int(dataset.n_actions))
@@ -291,9 +291,7 @@ def _fit_bag(dataset, states: np.ndarray, offsets: np.ndarray, cfg: ClusterConfi
     if cfg.method == "bag_mop" and len(vocab.sa_keys):
         labels = _mixture_of_policies(xu, w, vocab, km.labels_, k)[inv]
     elif cfg.method in ("greedy_mix", "bag_auto"):
-        steps = greedy_mix.Steps.build(_state_columns(states, vocab.states), actions, dataset.valid,
-                                       np.repeat(np.arange(len(offsets) - 1), np.diff(offsets)),
-                                       len(offsets) - 1, len(vocab.states), int(dataset.n_actions))
+        steps = greedy_mix.Steps.of_dataset(dataset, states, vocab.states)
         # starts: k-means with k, k + 1 and k + 2 clusters, from three seeds (greedy_mix.py says why)
         starts = [km.labels_[inv]] + [
             KMeans(n_clusters=kk, n_init=cfg.kmeans_n_init, random_state=seed + r).fit(

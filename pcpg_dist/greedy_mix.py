@@ -83,6 +83,15 @@ class Steps:
         counts.sum_duplicates()
         return Steps(counts, valid, int(n_actions))
 
+    @staticmethod
+    def of_dataset(dataset, states: np.ndarray, vocab_states: np.ndarray) -> Steps:
+        """A dataset's steps over the distinct states of a bag vocabulary (other states skipped)."""
+        from pcpg_dist.cluster_features import _state_columns
+
+        return Steps.build(_state_columns(states, vocab_states), np.asarray(dataset.actions, np.int64),
+                           dataset.valid, dataset.row_trajectory, dataset.n_trajectories,
+                           len(vocab_states), int(dataset.n_actions))
+
 
 def _marginal(v: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """``F`` of the module doc for vote rows ``v`` (..., A): log-mean-exp over the valid actions."""
@@ -122,10 +131,9 @@ def _size_terms(sizes: np.ndarray) -> float:
     return float((nz * np.log(nz / nz.sum())).sum())
 
 
-def _stray_term(steps: Steps, mult: np.ndarray, eps: float) -> float:
-    """sum over all steps of log(eps / n(s)): the same for every labelling at one eps."""
-    per_state = np.asarray(steps.counts.T @ mult).reshape(steps.n_states, steps.n_actions).sum(1)
-    return float((per_state * np.log(eps / np.maximum(steps.valid.sum(1), 1))).sum())
+def _steps_per_state(steps: Steps, mult: np.ndarray) -> np.ndarray:
+    """(S,) how many steps were taken in each state (``mult`` = copies of each row)."""
+    return np.asarray(steps.counts.T @ mult).reshape(steps.n_states, steps.n_actions).sum(1)
 
 
 def _cluster_terms(steps: Steps, counts: np.ndarray, eps: float) -> np.ndarray:
@@ -135,19 +143,25 @@ def _cluster_terms(steps: Steps, counts: np.ndarray, eps: float) -> np.ndarray:
     return _marginal(v, steps.valid[seen][None]).sum(1)
 
 
+def _log_likelihood(steps: Steps, per_state: np.ndarray, counts: np.ndarray, size_terms: float,
+                    eps: float) -> float:
+    """The module doc's formula from its parts: sum over steps of log(eps / n(s)), the clusters' F
+    terms, the size prior."""
+    stray = float((per_state * np.log(eps / np.maximum(steps.valid.sum(1), 1))).sum())
+    return stray + float(_cluster_terms(steps, counts, eps).sum()) + size_terms
+
+
 def log_likelihood(steps: Steps, mult: np.ndarray, labels: np.ndarray, k: int, eps: float) -> float:
     """The collapsed log-likelihood of a labelling at noise ``eps`` (the module doc's formula)."""
-    counts = cluster_counts(steps, labels, mult, k)
-    return (_stray_term(steps, mult, eps) + float(_cluster_terms(steps, counts, eps).sum())
-            + _size_terms(np.bincount(labels, mult, minlength=k)))
+    return _log_likelihood(steps, _steps_per_state(steps, mult), cluster_counts(steps, labels, mult, k),
+                           _size_terms(np.bincount(labels, mult, minlength=k)), eps)
 
 
 def profile_log_likelihood(steps: Steps, mult: np.ndarray, labels: np.ndarray, k: int) -> tuple[float, float]:
     """``(max over eps of log_likelihood, that eps)`` on :data:`NOISE_GRID`."""
-    counts = cluster_counts(steps, labels, mult, k)
+    per_state, counts = _steps_per_state(steps, mult), cluster_counts(steps, labels, mult, k)
     size = _size_terms(np.bincount(labels, mult, minlength=k))
-    ll = [_stray_term(steps, mult, float(e)) + float(_cluster_terms(steps, counts, float(e)).sum()) + size
-          for e in NOISE_GRID]
+    ll = [_log_likelihood(steps, per_state, counts, size, float(e)) for e in NOISE_GRID]
     i = int(np.argmax(ll))
     return ll[i], float(NOISE_GRID[i])
 
@@ -273,18 +287,14 @@ def merge_down(steps: Steps, mult: np.ndarray, labels: np.ndarray, k: int, eps: 
     terms = _cluster_terms(steps, counts, eps)
     sizes = np.bincount(labels, mult, minlength=n_clusters).astype(np.float64)
     total = sizes.sum()
-
-    def size_term(n):
-        return n * np.log(n / total) if n > 0 else 0.0
-
     while n_clusters > k:
         best = None
         for a in range(n_clusters):
             for b in range(a + 1, n_clusters):
                 joined = counts[a] + counts[b]
                 merged_term = float(_cluster_terms(steps, joined[None], eps)[0])
-                delta = (merged_term - terms[a] - terms[b] + size_term(sizes[a] + sizes[b])
-                         - size_term(sizes[a]) - size_term(sizes[b]))
+                delta = (merged_term - terms[a] - terms[b] + _size_term(sizes[a] + sizes[b], total)
+                         - _size_term(sizes[a], total) - _size_term(sizes[b], total))
                 if best is None or delta > best[0]:
                     best = (delta, a, b, merged_term)
         _, a, b, merged_term = best

@@ -85,8 +85,8 @@ class ClusterConfig(StrictModel):
         "visits_kmeans: k-means (cosine) on which distinct states a trajectory visits (for "
         "discrete-state games; no network, seconds); bag_kmeans: weighted k-means (cosine) on "
         "distinct rows of visited states + state-actions + final state; bag_mop: a mixture of k "
-        "policies (EM) started from bag_kmeans; greedy_mix: a mixture of k greedy policies with "
-        "per-trajectory noise, refined from bag_kmeans (discrete states); bag_auto: greedy_mix, "
+        "policies (EM) started from bag_kmeans; greedy_mix: a mixture of k greedy policies with one "
+        "uniform noise level, refined from bag_kmeans (discrete states); bag_auto: greedy_mix, "
         "or lstm_dec where states are continuous; "
         "policy_mix: a mixture of k neural policies (hard EM) started from k-means on the "
         "monotone features' gain and mean, for continuous states (docs/clustering.md).",
