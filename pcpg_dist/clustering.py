@@ -297,11 +297,12 @@ def _fit_bag(dataset, states: np.ndarray, offsets: np.ndarray, cfg: ClusterConfi
             KMeans(n_clusters=kk, n_init=cfg.kmeans_n_init, random_state=seed + r).fit(
                 xu, sample_weight=w).labels_[inv]
             for r in range(3) for kk in (k, k + 1, k + 2) if kk <= len(first) and (r, kk) != (0, k)]
-        fit = greedy_mix.fit(steps, starts, cfg.k)
+        fit = greedy_mix.fit(steps, starts, cfg.k, seed=seed)
         labels, greedy = fit.labels, (fit.votes, fit.log_share, fit.noise)
         metrics.update({"em_rounds": float(fit.sweeps), "greedy_mix_moved": fit.moved,
                         "greedy_mix_noise": fit.noise, "greedy_mix_noise_start": fit.noise_start,
                         "greedy_mix_start_clusters": float(fit.start_clusters),
+                        "greedy_mix_split_merges": float(fit.split_merges),
                         "greedy_mix_loglik_per_step": fit.log_likelihood / max(steps.counts.sum(), 1.0)})
     else:
         labels = km.labels_[inv]
