@@ -284,6 +284,17 @@ class GreedyMixFit:
     split_merges: int = 0  # split-and-merge moves accepted after the best start
 
 
+def _merge_gain(steps: Steps, counts: np.ndarray, terms: np.ndarray, sizes: np.ndarray, a: int, b: int,
+                eps: float) -> tuple[float, float]:
+    """``(change in log-likelihood, merged cluster's F term)`` of merging clusters a and b: only the
+    pair's F terms and size terms change."""
+    merged = float(_cluster_terms(steps, (counts[a] + counts[b])[None], eps)[0])
+    total = sizes.sum()
+    delta = (merged - terms[a] - terms[b] + _size_term(sizes[a] + sizes[b], total)
+             - _size_term(sizes[a], total) - _size_term(sizes[b], total))
+    return delta, merged
+
+
 def merge_down(steps: Steps, mult: np.ndarray, labels: np.ndarray, k: int, eps: float) -> np.ndarray:
     """Merge clusters pairwise, each time the pair whose merge keeps the likelihood highest, until k.
 
@@ -294,15 +305,11 @@ def merge_down(steps: Steps, mult: np.ndarray, labels: np.ndarray, k: int, eps: 
     counts = cluster_counts(steps, labels, mult, n_clusters)
     terms = _cluster_terms(steps, counts, eps)
     sizes = np.bincount(labels, mult, minlength=n_clusters).astype(np.float64)
-    total = sizes.sum()
     while n_clusters > k:
         best = None
         for a in range(n_clusters):
             for b in range(a + 1, n_clusters):
-                joined = counts[a] + counts[b]
-                merged_term = float(_cluster_terms(steps, joined[None], eps)[0])
-                delta = (merged_term - terms[a] - terms[b] + _size_term(sizes[a] + sizes[b], total)
-                         - _size_term(sizes[a], total) - _size_term(sizes[b], total))
+                delta, merged_term = _merge_gain(steps, counts, terms, sizes, a, b, eps)
                 if best is None or delta > best[0]:
                     best = (delta, a, b, merged_term)
         _, a, b, merged_term = best
@@ -340,15 +347,10 @@ def split_merge(steps: Steps, mult: np.ndarray, labels: np.ndarray, k: int, eps:
         counts = cluster_counts(steps, labels, mult, k)
         terms = _cluster_terms(steps, counts, eps)
         sizes = np.bincount(labels, mult, minlength=k).astype(np.float64)
-        total = sizes.sum()
-        cost = []
-        for a in range(k):
-            for b in range(a + 1, k):
-                joined = float(_cluster_terms(steps, (counts[a] + counts[b])[None], eps)[0])
-                cost.append((joined - terms[a] - terms[b] + _size_term(sizes[a] + sizes[b], total)
-                             - _size_term(sizes[a], total) - _size_term(sizes[b], total), a, b))
+        gains = [(_merge_gain(steps, counts, terms, sizes, a, b, eps)[0], a, b)
+                 for a in range(k) for b in range(a + 1, k)]
         top = None
-        for _, a, b in sorted(cost, key=lambda t: -t[0])[:max_pairs]:
+        for _, a, b in sorted(gains, key=lambda t: -t[0])[:max_pairs]:
             merged = np.where(labels == b, a, labels)  # label b is free now
             for c in range(k):
                 members = np.flatnonzero(merged == c)
