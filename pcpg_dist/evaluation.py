@@ -213,32 +213,37 @@ def evaluate(
                 for p in ps if f"baseline/accuracy/p{fmt(p)}" in metrics]
         metrics["pcpg/wins_over_baseline"] = float(np.mean(wins))
 
-    # ---- Table 4 and Fig. 7: cross accuracy and model-vs-subset correlation
-    if all(("pcpg", c, p, s, 0.0) in cells for c in range(k) for p in ps for s in seeds):
-        cross = np.zeros((len(seeds), len(ps), k, k))
+    # ---- Table 4 and Fig. 7: cross accuracy and model-vs-subset correlation, over the clusters
+    # that have an agent (a clusterer may leave some of k empty: greedy_mix does when k is above
+    # the styles its likelihood supports)
+    used = [c for c in range(k) if all(("pcpg", c, p, s, 0.0) in cells for p in ps for s in seeds)]
+    metrics["cross/clusters"] = float(len(used))
+    if used:
+        n_used = len(used)
+        cross = np.zeros((len(seeds), len(ps), n_used, n_used))
         corr = np.zeros_like(cross)
         test_labels = labels[test_idx]
         has_steps = scorer.steps > 0
         for a, s in enumerate(seeds):
             for b, p in enumerate(ps):
-                for c in range(k):
+                for row, c in enumerate(used):
                     i = cells[("pcpg", c, p, s, 0.0)]
                     per_traj = scorer.correct[i, has_steps] / scorer.steps[has_steps]
-                    for c2 in range(k):
-                        cross[a, b, c, c2] = scorer.accuracy(i, h_test[(c2, p)])
+                    for col, c2 in enumerate(used):
+                        cross[a, b, row, col] = scorer.accuracy(i, h_test[(c2, p)])
                         member = (test_labels[has_steps] == c2).astype(float)
                         ok = per_traj.std() > 0 and member.std() > 0
-                        corr[a, b, c, c2] = np.corrcoef(per_traj, member)[0, 1] if ok else 0.0
-        names = [f"k{c}" for c in range(k)]
+                        corr[a, b, row, col] = np.corrcoef(per_traj, member)[0, 1] if ok else 0.0
+        names = [f"k{c}" for c in used]
         for name, arr in (("cross_accuracy", cross), ("correlation", corr)):
             per_seed = arr.mean(axis=1)
             tables[name] = pd.DataFrame(per_seed.mean(axis=0), index=names, columns=names)
             tables[f"{name}_std"] = pd.DataFrame(per_seed.std(axis=0), index=names, columns=names)
         m = cross.mean(axis=(0, 1))
-        off = ~np.eye(k, dtype=bool)
+        off = ~np.eye(n_used, dtype=bool)
         put("cross/diagonal_mean", list(np.diagonal(cross.mean(axis=1), axis1=1, axis2=2).mean(axis=1)))
-        metrics["cross/offdiagonal_mean"] = float(m[off].mean()) if k > 1 else float("nan")
-        metrics["cross/diagonal_is_row_max"] = float(np.mean(m.argmax(axis=1) == np.arange(k)))
+        metrics["cross/offdiagonal_mean"] = float(m[off].mean()) if n_used > 1 else float("nan")
+        metrics["cross/diagonal_is_row_max"] = float(np.mean(m.argmax(axis=1) == np.arange(n_used)))
         metrics["correlation/diagonal_mean"] = float(np.diagonal(corr.mean(axis=(0, 1))).mean())
 
     # ---- Fig. 6 from the data: mean length of the training subsets each agent imitates. The only

@@ -123,3 +123,17 @@ def test_style_of_an_empty_cluster_is_none():
     labels = np.asarray(ds.styles, np.int64)
     styles = style_of_clusters(ds, labels, int(labels.max()) + 3)
     assert styles[: labels.max() + 1] == list(range(labels.max() + 1)) and styles[-2:] == [-1, -1]
+
+
+def test_table_4_covers_the_clusters_that_have_agents(tmp_path):
+    """A clusterer may leave some of its k clusters empty (greedy_mix does when k is above the
+    styles its likelihood supports): Table 4 is then over the clusters with an agent, not dropped."""
+    ds = make_dataset(120, seed=1)
+    tr, te = split_trajectories(ds.n_trajectories, RANK.test_fraction, RANK.split_seed)
+    labels = np.where(ds.styles == 1, 2, 0)  # k = 3, cluster 1 empty
+    rank = RankConfig(ps=(1.0, 0.5))
+    model = train_cells(plan_cells(ds, labels, tr, rank, seeds=[0], k=3), BCConfig(epochs=1500))
+    res = evaluate(ds, labels, te, model, rank, EvalConfig(corruption_levels=()), tmp_path, k=3)
+    assert res.metrics["cross/clusters"] == 2
+    assert list(res.tables["cross_accuracy"].index) == ["k0", "k2"]
+    assert res.metrics["cross/diagonal_mean"] > 0.8 and res.metrics["cross/diagonal_is_row_max"] == 1.0
