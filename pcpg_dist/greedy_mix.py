@@ -325,7 +325,7 @@ def merge_down(steps: Steps, mult: np.ndarray, labels: np.ndarray, k: int, eps: 
 
 def split_merge(steps: Steps, mult: np.ndarray, labels: np.ndarray, k: int, eps: float,
                 max_sweeps: int = 100, seed: int = 0, max_rounds: int = 10,
-                max_pairs: int = 6) -> tuple[np.ndarray, float, int]:
+                max_pairs: int = 6) -> tuple[np.ndarray, tuple[float, float], int]:
     """Split-and-merge moves from a converged labelling (SMEM, Ueda et al. 2000), for the group
     that no single move shifts and that no start happened to free.
 
@@ -333,14 +333,15 @@ def split_merge(steps: Steps, mult: np.ndarray, labels: np.ndarray, k: int, eps:
     likelihood) and splits another in two (2-means on the members' normalised (state, action)
     counts, seeded); the ascent at ``eps`` then refines it. The candidate with the highest profile
     likelihood replaces the labelling if it beats it, and the moves repeat until none does (at most
-    ``max_rounds`` rounds). Returns ``(labels, profile log-likelihood, rounds accepted)``.
+    ``max_rounds`` rounds). Returns ``(labels, (profile log-likelihood, its eps), moves accepted)``.
     """
     from sklearn.cluster import KMeans
     from sklearn.exceptions import ConvergenceWarning
     from sklearn.preprocessing import normalize
 
     labels = np.array(labels, np.int64)
-    best, _ = profile_log_likelihood(steps, mult, labels, k)
+    best = profile_log_likelihood(steps, mult, labels, k)
+    scored = {labels.tobytes(): best}  # candidates often refine back to a labelling already scored
     rows = normalize(steps.counts)
     accepted = 0
     for _ in range(max_rounds):
@@ -349,25 +350,30 @@ def split_merge(steps: Steps, mult: np.ndarray, labels: np.ndarray, k: int, eps:
         sizes = np.bincount(labels, mult, minlength=k).astype(np.float64)
         gains = [(_merge_gain(steps, counts, terms, sizes, a, b, eps)[0], a, b)
                  for a in range(k) for b in range(a + 1, k)]
-        top = None
+        top, halves = None, {}  # a cluster outside the merged pair splits the same way every time
         for _, a, b in sorted(gains, key=lambda t: -t[0])[:max_pairs]:
             merged = np.where(labels == b, a, labels)  # label b is free now
             for c in range(k):
                 members = np.flatnonzero(merged == c)
                 if c == b or len(members) < 2:
                     continue
-                with warnings.catch_warnings():  # members whose rows are all proportional
-                    warnings.simplefilter("ignore", ConvergenceWarning)
-                    half = KMeans(n_clusters=2, n_init=3, random_state=seed).fit(
-                        rows[members], sample_weight=mult[members]).labels_
+                key = members.tobytes()
+                if key not in halves:
+                    with warnings.catch_warnings():  # members whose rows are all proportional
+                        warnings.simplefilter("ignore", ConvergenceWarning)
+                        halves[key] = KMeans(n_clusters=2, n_init=3, random_state=seed).fit(
+                            rows[members], sample_weight=mult[members]).labels_
+                half = halves[key]
                 if half.min() == half.max():
                     continue
                 start = merged.copy()
                 start[members[half == 1]] = b
                 moved, _ = ascend(steps, mult, start, k, eps, max_sweeps)
-                ll, _ = profile_log_likelihood(steps, mult, moved, k)
-                if ll > best + 1e-6 and (top is None or ll > top[0]):
-                    top = (ll, moved)
+                key = moved.tobytes()
+                if key not in scored:
+                    scored[key] = profile_log_likelihood(steps, mult, moved, k)
+                if scored[key][0] > best[0] + 1e-6 and (top is None or scored[key][0] > top[0][0]):
+                    top = (scored[key], moved)
         if top is None:
             break
         best, labels = top
@@ -410,13 +416,10 @@ def fit(steps: Steps, starts: list[np.ndarray], k: int, max_sweeps: int = 100,
             if best is None or ll > best[0] + 1e-9:
                 best = (ll, eps_hat, eps, size, labels, sweeps)
     ll, eps_hat, eps0, size, labels, sweeps = best
+    split_merges = 0
     if split_merge_rounds > 0 and k > 1 and len(first) > k:
-        labels, _, split_merges = split_merge(uniq, mult, labels, k, eps0, max_sweeps, seed,
-                                              split_merge_rounds)
-        if split_merges:
-            ll, eps_hat = profile_log_likelihood(uniq, mult, labels, k)
-    else:
-        split_merges = 0
+        labels, (ll, eps_hat), split_merges = split_merge(uniq, mult, labels, k, eps0, max_sweeps,
+                                                          seed, split_merge_rounds)
     # number the clusters as the first start does (most shared trajectories), so the labels of
     # a refined start stay comparable with it
     first_start = np.asarray(starts[0], np.int64)
