@@ -439,16 +439,8 @@ def cluster(dataset, cfg: ClusterConfig, seed: int) -> Clustering:
         mean, std = fit_normaliser(feats)
         norm = ((feats - mean) / std).astype(np.float32)
         centroids = _kmeans(norm, cfg.k, seed, cfg.kmeans_n_init)
-        model = ClusterModel(
-            cfg.method,
-            config,
-            states.shape[1],
-            mean,
-            std,
-            centroids,
-            None,
-            tuple(dataset.feature_names),
-        )
+        model = ClusterModel(cfg.method, config, states.shape[1], mean, std, centroids, None,
+                             tuple(dataset.feature_names))
         latents = norm
     else:
         # Torch's global RNG is untouched (local generator); fork it anyway so nothing inside
@@ -456,16 +448,8 @@ def cluster(dataset, cfg: ClusterConfig, seed: int) -> Clustering:
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(seed)
             ae, mean, std, centroids = _fit_lstm(states, offsets, cfg, seed, metrics)
-        model = ClusterModel(
-            cfg.method,
-            config,
-            states.shape[1],
-            mean,
-            std,
-            centroids,
-            ae,
-            tuple(dataset.feature_names),
-        )
+        model = ClusterModel(cfg.method, config, states.shape[1], mean, std, centroids, ae,
+                             tuple(dataset.feature_names))
         latents = model.features(dataset)
     if labels is None:
         labels = model.assign(latents)
