@@ -140,7 +140,7 @@ def evaluate(
     k = int(labels.max()) + 1 if k is None else k
     test_idx = np.sort(np.asarray(test_idx, np.int64))
     if not len(test_idx):
-        raise DataError("evaluation needs test trajectories (rank.test_fraction > 0)")
+        raise DataError("evaluation needs test trajectories (ranking.test_fraction > 0)")
     train_idx = np.setdiff1d(np.arange(dataset.n_trajectories), test_idx)
     cells = _cell_table(trained)
     seeds = sorted({s.seed for s in trained.specs})

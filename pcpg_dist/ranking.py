@@ -36,13 +36,19 @@ def performance(dataset: Dataset, beta: float = 0.1) -> np.ndarray:
 def split_trajectories(n: int, test_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """A seeded random split of positions 0..n-1 into sorted (train, test) index arrays.
 
-    At least one trajectory stays in training; ``round`` decides the test size.
+    ``round`` decides the test size; with ``test_fraction > 0`` at least one trajectory is held
+    out (the evaluation needs one) and at least one stays in training.
     """
     if n < 1:
         raise DataError("cannot split an empty dataset")
     if not 0.0 <= test_fraction < 1.0:
         raise DataError(f"test_fraction must lie in [0, 1), got {test_fraction}")
+    if test_fraction > 0 and n < 2:
+        raise DataError(f"ranking.test_fraction: {n} trajectory cannot be split into training and "
+                        "test trajectories (need at least 2)")
     n_test = min(n - 1, int(round(test_fraction * n)))
+    if test_fraction > 0:
+        n_test = max(1, n_test)
     perm = np.random.default_rng(seed).permutation(n)
     return np.sort(perm[n_test:]), np.sort(perm[:n_test])
 

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import gc
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +15,7 @@ import yaml
 from pcpg_dist.cli import main
 from pcpg_dist.config import load_config
 from pcpg_dist.dataset import load_datasets
+from pcpg_dist.errors import DataError
 from pcpg_dist.generate import generate, generate_to
 from pcpg_dist.pbtg import generate_pair
 from pcpg_dist.ray_utils import run_tasks
@@ -53,6 +56,25 @@ def test_data_is_bit_identical_with_one_or_two_workers(ray_session, tmp_path):
         sel = whole.subset(np.nonzero(whole.styles == r)[0])
         np.testing.assert_array_equal(sel.states, part.states)
         np.testing.assert_array_equal(sel.epsilon, part.epsilon)
+
+
+def test_failing_task_is_one_line_and_the_rest_are_cancelled_quietly(ray_session, capfd, caplog):
+    def task(i):  # defined here, so Ray ships it by value
+        if i == 0:
+            time.sleep(0.5)
+            raise DataError("task 0: bad input")
+        start = time.time()
+        while time.time() - start < 3:  # still running when task 0 fails
+            pass
+        raise DataError(f"task {i}: fails later")
+
+    with pytest.raises(DataError, match="task 0: bad input") as raised:
+        run_tasks(task, [(0,), (1,)], "fails", show_progress=False)
+    del raised  # its traceback holds run_tasks' references to the other task
+    gc.collect()
+    time.sleep(5)  # past the moment task 1 would have failed unread
+    err = capfd.readouterr().err + caplog.text
+    assert "fails later" not in err and "Unhandled error" not in err
 
 
 def test_cli_errors_are_one_line_with_exit_code_2(tmp_path, capsys):

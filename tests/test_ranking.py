@@ -63,6 +63,15 @@ def test_split_is_seeded_disjoint_and_complete():
         split_trajectories(0, 0.2, 0)
 
 
+def test_split_holds_out_at_least_one_trajectory():
+    # round(0.2 * 2) = 0 would leave the evaluation nothing to test on after all the training
+    tr, te = split_trajectories(2, 0.2, seed=0)
+    assert len(te) == 1 and len(tr) == 1
+    assert [len(split_trajectories(n, 0.2, 0)[1]) for n in (3, 7, 8, 100)] == [1, 1, 2, 20]
+    with pytest.raises(DataError, match="ranking.test_fraction"):
+        split_trajectories(1, 0.2, 0)
+
+
 def test_threshold_per_cluster_and_test_subsets_alike(toy):
     cfg = RankConfig()
     tr, te = split_trajectories(toy.n_trajectories, cfg.test_fraction, 0)
@@ -87,6 +96,8 @@ def test_rank_config_rejects_bad_values():
         RankConfig(ps=(1.5,))
     with pytest.raises(ValidationError):
         RankConfig(beta=0.1, unknown=3)
+    with pytest.raises(ValidationError, match="test_fraction"):
+        RankConfig(test_fraction=0.0)  # every run evaluates on held-out trajectories
 
 
 def test_corrupt_labels_exact_fraction_and_always_wrong(rng):

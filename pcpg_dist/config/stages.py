@@ -49,8 +49,9 @@ class RankConfig(StrictModel):
         "(paper: 0.1)."))
     ps: tuple[float, ...] = Field(DEFAULT_PS, min_length=1, description=(
         "Fractions p of each cluster kept after ranking (top p by Performance); each in (0, 1]."))
-    test_fraction: float = Field(0.2, ge=0.0, lt=1.0, description=(
-        "Fraction of trajectories held out for testing, split before thresholding."))
+    test_fraction: float = Field(0.2, gt=0.0, lt=1.0, description=(
+        "Fraction of trajectories held out for testing, split before thresholding (every run "
+        "evaluates its agents on them, so at least one is held out)."))
     split_seed: int = Field(0, ge=0, le=MAX_SEED, description=(
         "Seed of the train/test split; one split per environment, shared by all seeds' models so "
         "that PCPG and No Clustering are compared on the same unseen trajectories."))
