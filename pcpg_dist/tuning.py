@@ -63,6 +63,8 @@ def apply_params(cfg: ExperimentConfig, params: dict[str, int]) -> ExperimentCon
     for name, value in params.items():
         section, key = TARGETS[name]
         data[section][key] = int(value)
+    if data["clustering"]["k"] < 2:  # one cluster: no other to corrupt labels into
+        data["evaluation"]["corruption_levels"] = (0.0,)
     return type(cfg).model_validate(data)
 
 

@@ -49,6 +49,9 @@ def test_layout_dir_is_relative_to_the_config_file(tmp_path):
     ({"name": "/abs"}, "key 'name'"),
     ({"gridworld": {"environments": ["E9"]}}, "E9.txt for environment 'E9' not found"),
     ({"domain": "chess"}, "key 'domain': value 'chess'"),
+    ({"ranking": {"test_fraction": 0}}, "key 'ranking.test_fraction': value 0 is not allowed"),
+    ({"clustering": {"k": 1}}, "exp.yaml: clustering.k = 1 leaves no other cluster to corrupt labels into: "
+     "set evaluation.corruption_levels to [0.0]"),
 ])
 def test_bad_values_give_one_line(tmp_path, patch, needle):
     data = {**BASE, **patch}

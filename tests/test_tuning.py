@@ -96,6 +96,10 @@ def test_suggest_fixes_single_value_dimensions_and_apply_sets_the_config(tmp_pat
     assert (tuned.clustering.k, tuned.clustering.hidden_size, tuned.clustering.latent_size,
             tuned.bc.hidden_layers, tuned.bc.hidden_size) == (3, 8, 4, 2, 16)
     assert tuned.clustering.pretrain_epochs == cfg.clustering.pretrain_epochs
+    # k_range may start at 1: that trial (and a best config with k = 1) corrupts nothing
+    one = apply_params(cfg, {"k": 1, "lstm_hidden": 8, "latent": 4, "bc_layers": 2, "bc_width": 16})
+    assert one.clustering.k == 1 and one.evaluation.corruption_levels == (0.0,)
+    assert cfg.evaluation.corruption_levels != (0.0,)
 
 
 def test_best_config_is_loadable_elsewhere(tmp_path):

@@ -79,6 +79,14 @@ class ExperimentConfig(StrictModel):
                 del data[dom]
         return data
 
+    @model_validator(mode="after")
+    def _corruption_needs_two_clusters(self) -> ExperimentConfig:
+        """Corrupting labels moves trajectories to *other* clusters: with one there is none."""
+        if self.clustering.k < 2 and any(c > 0 for c in self.evaluation.corruption_levels):
+            raise ValueError("clustering.k = 1 leaves no other cluster to corrupt labels into: set "
+                             "evaluation.corruption_levels to [0.0], or clustering.k to 2 or more")
+        return self
+
     @field_validator("name")
     @classmethod
     def _name(cls, v: str) -> str:
@@ -163,7 +171,8 @@ def _describe(error: dict) -> str:
     if error["type"] == "extra_forbidden":
         return f"unknown key '{key}' — not a setting of this section (check the spelling)"
     if isinstance(error.get("input"), dict) and error["type"] == "value_error":
-        return f"section '{key}': {msg}"  # a check across the section's keys: the message names them
+        # a check across keys: the message names them
+        return f"section '{key}': {msg}" if error["loc"] else msg
     return f"key '{key}': value {shown} is not allowed — {msg}"
 
 
