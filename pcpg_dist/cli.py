@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import logging
 import os
 import sys
 from pathlib import Path
@@ -163,6 +164,13 @@ def _cmd_classify(args: argparse.Namespace) -> None:
     atomic_write_bytes(out, table.to_csv(index=False).encode())
     console.print(f"{ds.n_trajectories} trajectories -> {out}; cluster sizes "
                   f"{[int((pred == c).sum()) for c in range(int(pred.max()) + 1)]}")
+    unknown = model.unknown_rows(ds)
+    if unknown is not None:
+        console.print(f"{unknown:.0%} of the rows are in states the model was not fitted on")
+        if unknown > 0.1:  # a fresh sample of the same layout: ~1 % (docs/clustering.md)
+            logging.getLogger(__name__).warning(
+                "%s: %.0f%% of the rows are in states %s was not fitted on: is it the same layout or "
+                "game? Their labels rest on the remaining rows", args.dataset, 100 * unknown, args.model)
     if (ds.styles >= 0).all():
         m = clustering_metrics(ds.styles, pred)
         console.print("against the true styles: " + ", ".join(f"{k} {v:.3f}" for k, v in m.items()

@@ -388,6 +388,19 @@ class ClusterModel:
             return self._greedy_predict(dataset)
         return self.assign(self.features(dataset))
 
+    def unknown_rows(self, dataset) -> float | None:
+        """Fraction of ``dataset``'s rows whose state is not among the states the model was fitted
+        on (``None`` for models of continuous states). Those rows say nothing to a bag model, so
+        a high fraction means another layout or game than the one it was fitted on."""
+        if self.bag is None:
+            return None
+        from pcpg_dist.cluster_features import _state_columns
+
+        states, _ = checked_sequences(dataset, where=f"{self.method} model")
+        if states.shape[1] != self.state_dim or not len(states):
+            return None  # predict() says what is wrong
+        return float((_state_columns(states, self.bag.states) < 0).mean())
+
     def _greedy_predict(self, dataset) -> np.ndarray:
         from pcpg_dist import greedy_mix
 

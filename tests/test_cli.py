@@ -106,3 +106,40 @@ def test_domains_lists_the_builtins(capsys):
     lines = capsys.readouterr().out.splitlines()
     assert [ln.split()[0] for ln in lines[:4]] == ["gridworld", "minidungeons", "mario", "trajectories"]
     assert all(ln.split()[1] == "built-in" for ln in lines[:4])
+
+
+def test_classify_writes_the_models_labels_and_warns_on_another_layout(tmp_path, capsys):
+    import pandas as pd
+
+    from pcpg_dist.clustering import ClusterConfig, cluster
+    from pcpg_dist.config import PBTGConfig
+    from pcpg_dist.dataset import write_parquet
+    from pcpg_dist.domains.gridworld import random_layouts
+    from pcpg_dist.pbtg import assemble_dataset
+
+    pbtg = PBTGConfig(episodes=3000, trajectories_per_style=60, dataset_per_style=40)
+    same, other = random_layouts(2, 11)
+    fitted = assemble_dataset([generate_pair(same, r, pbtg, 0) for r in range(4)])
+    res = cluster(fitted, ClusterConfig(k=4), seed=0)
+    res.model.save(tmp_path / "model")
+    fresh = assemble_dataset([generate_pair(same, r, pbtg, 1) for r in range(4)])  # new players
+    elsewhere = assemble_dataset([generate_pair(other, r, pbtg, 0) for r in range(4)])
+    write_parquet(fresh, tmp_path / "fresh.parquet")
+    write_parquet(elsewhere, tmp_path / "elsewhere.parquet")
+
+    assert main(["classify", str(tmp_path / "model"), str(tmp_path / "fresh.parquet"),
+                 "--out", str(tmp_path / "fresh.csv")]) == 0
+    table = pd.read_csv(tmp_path / "fresh.csv")
+    assert table["trajectory"].tolist() == fresh.trajectory_ids.tolist()
+    assert (table["predicted_style"].to_numpy() == res.model.predict(fresh)).all()
+    out, err = capsys.readouterr()
+    assert "against the true styles" in out and "not fitted on" in out and "WARNING" not in err.upper()
+    assert res.model.unknown_rows(fresh) < 0.1
+
+    assert main(["classify", str(tmp_path / "model"), str(tmp_path / "elsewhere.parquet"),
+                 "--out", str(tmp_path / "elsewhere.csv")]) == 0
+    share = res.model.unknown_rows(elsewhere)
+    assert share > 0.1
+    out, err = capsys.readouterr()
+    assert f"{share:.0%} of the rows are in states the model was not fitted on" in out
+    assert "elsewhere.parquet" in err and "same layout or game" in err
