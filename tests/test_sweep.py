@@ -74,6 +74,8 @@ def test_ranges_and_grids():
         sweep_points({"zip": {"bc.epochs": [1, 2], "bc.lr": [0.1]}}, [], "gridworld")
     with pytest.raises(ConfigError, match="did you mean"):
         sweep_points(None, ["bc.lrr=0.1,0.2"], "gridworld")
+    with pytest.raises(ConfigError, match="sweep axis 'clustering.k': range '4:2:1': needs start <= stop"):
+        sweep_points(None, ["clustering.k=4:2:1"], "gridworld")
 
 
 def test_a_yaml_range_is_a_range_not_a_base60_number(tmp_path):

@@ -168,7 +168,10 @@ def axis_values(key: str, spec: Any) -> list[Any]:
     if isinstance(spec, list):
         values = spec
     elif isinstance(spec, str):
-        values = parse_range(spec.strip())
+        try:
+            values = parse_range(spec.strip())
+        except ConfigError as e:
+            raise ConfigError(f"sweep axis {key!r}: {e}") from None
         if values is None:
             values = [parse_value(v) for v in _split_commas(spec)]
     else:
