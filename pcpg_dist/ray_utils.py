@@ -201,9 +201,12 @@ def _abandon(refs: list[Any]) -> None:
 
     if not refs:
         return
-    for ref in refs:
-        ray.cancel(ref)
-    done, _ = ray.wait(refs, num_returns=len(refs), timeout=10.0)
+    try:  # cleaning up must never replace the error being raised
+        for ref in refs:
+            ray.cancel(ref)
+        done, _ = ray.wait(refs, num_returns=len(refs), timeout=10.0)
+    except Exception:  # noqa: BLE001 - e.g. Ray already shut down
+        return
     for ref in done:
         with contextlib.suppress(Exception):  # cancelled or failed: either way nothing to report
             ray.get(ref)
