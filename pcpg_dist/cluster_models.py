@@ -339,14 +339,19 @@ class ClusterModel:
     def k(self) -> int:
         return int(self.centroids.shape[0])
 
-    def features(self, dataset) -> np.ndarray:
-        """The space the centroids live in: latents (LSTM methods) or normalised summaries."""
+    def _checked_states(self, dataset) -> tuple[np.ndarray, np.ndarray]:
+        """``dataset``'s (states, offsets), checked, with as many state features as the model's."""
         states, offsets = checked_sequences(dataset, where=f"{self.method} model")
         if states.shape[1] != self.state_dim:
             raise DataError(
                 f"{self.method} model was fitted on {self.state_dim} state features, "
                 f"dataset {dataset.domain}-{dataset.env} has {states.shape[1]}"
             )
+        return states, offsets
+
+    def features(self, dataset) -> np.ndarray:
+        """The space the centroids live in: latents (LSTM methods) or normalised summaries."""
+        states, offsets = self._checked_states(dataset)
         if self.bag is not None:
             from sklearn.preprocessing import normalize
 
@@ -396,18 +401,13 @@ class ClusterModel:
             return None
         from pcpg_dist.cluster_features import _state_columns
 
-        states, _ = checked_sequences(dataset, where=f"{self.method} model")
-        if states.shape[1] != self.state_dim or not len(states):
-            return None  # predict() says what is wrong
+        states, _ = self._checked_states(dataset)
         return float((_state_columns(states, self.bag.states) < 0).mean())
 
     def _greedy_predict(self, dataset) -> np.ndarray:
         from pcpg_dist import greedy_mix
 
-        states, _ = checked_sequences(dataset, where=f"{self.method} model")
-        if states.shape[1] != self.state_dim:
-            raise DataError(f"{self.method} model was fitted on {self.state_dim} state features, "
-                            f"dataset {dataset.domain}-{dataset.env} has {states.shape[1]}")
+        states, _ = self._checked_states(dataset)
         votes, log_share, noise = self.greedy
         if int(dataset.n_actions) != votes.shape[2]:
             raise DataError(f"{self.method} model was fitted on {votes.shape[2]} actions, "

@@ -357,13 +357,13 @@ def split_merge(steps: Steps, mult: np.ndarray, labels: np.ndarray, k: int, eps:
                 members = np.flatnonzero(merged == c)
                 if c == b or len(members) < 2:
                     continue
-                key = members.tobytes()
-                if key not in halves:
+                group = members.tobytes()
+                if group not in halves:
                     with warnings.catch_warnings():  # members whose rows are all proportional
                         warnings.simplefilter("ignore", ConvergenceWarning)
-                        halves[key] = KMeans(n_clusters=2, n_init=3, random_state=seed).fit(
+                        halves[group] = KMeans(n_clusters=2, n_init=3, random_state=seed).fit(
                             rows[members], sample_weight=mult[members]).labels_
-                half = halves[key]
+                half = halves[group]
                 if half.min() == half.max():
                     continue
                 start = merged.copy()

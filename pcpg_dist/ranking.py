@@ -43,11 +43,11 @@ def split_trajectories(n: int, test_fraction: float, seed: int) -> tuple[np.ndar
         raise DataError("cannot split an empty dataset")
     if not 0.0 <= test_fraction < 1.0:
         raise DataError(f"test_fraction must lie in [0, 1), got {test_fraction}")
-    if test_fraction > 0 and n < 2:
-        raise DataError(f"ranking.test_fraction: {n} trajectory cannot be split into training and "
-                        "test trajectories (need at least 2)")
     n_test = min(n - 1, int(round(test_fraction * n)))
     if test_fraction > 0:
+        if n < 2:
+            raise DataError(f"ranking.test_fraction: {n} trajectory cannot be split into training "
+                            "and test trajectories (need at least 2)")
         n_test = max(1, n_test)
     perm = np.random.default_rng(seed).permutation(n)
     return np.sort(perm[n_test:]), np.sort(perm[:n_test])

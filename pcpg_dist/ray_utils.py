@@ -187,7 +187,32 @@ def run_tasks(fn: Callable[..., Any], calls: Sequence[tuple], description: str,
 
     with progress_bar(description, total=len(calls), enabled=show_progress) as advance:
         try:
-            _run(index, submit, advance, description, num_cpus, show_progress, results, on_result)
+            submit()
+            idle_since = time.monotonic()
+            while index:
+                done, _ = ray.wait(list(index), num_returns=1, timeout=2.0)
+                if not done:
+                    if time.monotonic() - idle_since > 5 and show_progress:
+                        waiting = _waiting_for(num_cpus, len(index))
+                        advance(0, description=f"{description} ({waiting})" if waiting else description)
+                    continue
+                idle_since = time.monotonic()
+                for ref in done:
+                    i = index.pop(ref)
+                    try:
+                        value = ray.get(ref)
+                    except ray.exceptions.RayTaskError as e:
+                        # A user mistake inside a task surfaces as the project's own one-line error.
+                        if isinstance(e.cause, PcpgError):
+                            raise e.cause from None
+                        raise
+                    if on_result is not None:
+                        on_result(i, value)
+                    else:
+                        results[i] = value
+                    del value
+                    advance(1, description=description)
+                submit()
         except BaseException:
             _abandon(list(index))
             raise
@@ -210,37 +235,3 @@ def _abandon(refs: list[Any]) -> None:
     for ref in done:
         with contextlib.suppress(Exception):  # cancelled or failed: either way nothing to report
             ray.get(ref)
-
-
-def _run(index: dict[Any, int], submit: Callable[[], None], advance: Callable[..., None], description: str,
-         num_cpus: int, show_progress: bool, results: list[Any],
-         on_result: Callable[[int, Any], None] | None) -> None:
-    """The wait loop of :func:`run_tasks`: collect finished tasks, submit more, until none is left."""
-    import ray
-
-    submit()
-    idle_since = time.monotonic()
-    while index:
-        done, _ = ray.wait(list(index), num_returns=1, timeout=2.0)
-        if not done:
-            if time.monotonic() - idle_since > 5 and show_progress:
-                waiting = _waiting_for(num_cpus, len(index))
-                advance(0, description=f"{description} ({waiting})" if waiting else description)
-            continue
-        idle_since = time.monotonic()
-        for ref in done:
-            i = index.pop(ref)
-            try:
-                value = ray.get(ref)
-            except ray.exceptions.RayTaskError as e:
-                # A user mistake inside a task surfaces as the project's own one-line error.
-                if isinstance(e.cause, PcpgError):
-                    raise e.cause from None
-                raise
-            if on_result is not None:
-                on_result(i, value)
-            else:
-                results[i] = value
-            del value
-            advance(1, description=description)
-        submit()
