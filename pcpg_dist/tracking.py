@@ -48,6 +48,11 @@ from pcpg_dist.provenance import git_commit, uv_lock_hash
 # run that logs the agents model would print its URL on stdout, among the results.
 os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
 os.environ.setdefault("MLFLOW_SUPPRESS_PRINTING_URL_TO_STDOUT", "true")
+# MLflow retries each HTTP call 7 times with doubling waits (~4 min a call, sized for a hosted
+# service's rate limits) and _retry below tries each call 5 times on top, so a tracking server that
+# died mid-sweep took 29 min to be reported (53 s now). Two retries a call ride out a restart; a
+# value the user set wins.
+os.environ.setdefault("MLFLOW_HTTP_REQUEST_MAX_RETRIES", "2")
 
 log = logging.getLogger(__name__)
 

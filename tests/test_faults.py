@@ -59,11 +59,11 @@ def results_only(metrics: dict[str, float]) -> dict[str, float]:
 
 
 def sweep_env() -> dict[str, str]:
-    env = {k: v for k, v in os.environ.items() if k not in ("RAY_ADDRESS", "MLFLOW_TRACKING_URI")}
-    # MLflow's own HTTP retries (7, ~4 min per call by default) on top of pcpg's 5 attempts would
-    # make a dead server take ~20 min to report; pcpg's own backoff (~15 s) is what is tested.
-    env.update(RAY_AUTH_MODE="disabled", RAY_ENABLE_UV_RUN_RUNTIME_ENV="0", PYTHONUNBUFFERED="1",
-               MLFLOW_HTTP_REQUEST_MAX_RETRIES="0", MLFLOW_HTTP_REQUEST_TIMEOUT="30")
+    # MLflow's HTTP settings are pcpg's defaults: a dead server must be reported well within
+    # SWEEP_TIMEOUT with them (MLflow's own, 7 retries a call, took ~20 min).
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("RAY_ADDRESS", "MLFLOW_TRACKING_URI") and not k.startswith("MLFLOW_HTTP_")}
+    env.update(RAY_AUTH_MODE="disabled", RAY_ENABLE_UV_RUN_RUNTIME_ENV="0", PYTHONUNBUFFERED="1")
     return env
 
 
