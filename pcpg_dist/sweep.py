@@ -23,6 +23,7 @@ import hashlib
 import json
 import math
 import re
+import reprlib
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,6 +31,7 @@ from typing import Any
 
 from pcpg_dist.config.overrides import apply_overrides, parse_overrides, read_raw, sweep_points
 from pcpg_dist.dataset import atomic_write_bytes
+from pcpg_dist.errors import ConfigError
 
 STD = "/std"
 
@@ -125,9 +127,13 @@ def run_sweep(config: str | Path, axes_args: list[str], overrides: list[str] | N
     t0 = time.perf_counter()
     config = Path(config)
     raw, section = read_raw(config)
-    raw = apply_overrides(raw, parse_overrides(overrides or []))
+    fixed = parse_overrides(overrides or [])
+    raw = apply_overrides(raw, fixed)
     base = parse_config(raw, source=str(config), base_dir=config.parent)
     axes, combos = sweep_points(section, axes_args, base.domain)
+    if both := sorted(set(fixed) & set(axes)):  # the axis would silently win
+        raise ConfigError(f"{both[0]!r} is both a sweep axis and a single value ({both[0]}={reprlib.repr(fixed[both[0]])}); "
+                          f"give it once")
     root = Path(workdir).resolve() / base.name
     out = root / "sweep"
     points = []

@@ -78,6 +78,26 @@ def test_ranges_and_grids():
         sweep_points(None, ["clustering.k=4:2:1"], "gridworld")
 
 
+def test_sweep_mistakes_are_refused_before_anything_is_built(capsys):
+    """Counted before the points are built (three axes of 1000 values grew past 3 GB), overflowing
+    ranges, an axis given twice, a value repeated, an axis also fixed: one line each, exit 2."""
+    with pytest.raises(ConfigError, match="the sweep has 1000000000 points; at most 10000"):
+        sweep_points(None, ["clustering.k=1:1000:1", "bc.epochs=1:1000:1", "seed=1:1000:1"], "gridworld")
+    for spec in ("1e308:1e309:1", "0:1e300:1e-300"):
+        with pytest.raises(ConfigError, match="more than 10000 values"):
+            sweep_points(None, [f"clustering.k={spec}"], "gridworld")
+    with pytest.raises(ConfigError, match="'clustering.k' is given twice"):
+        sweep_points(None, ["clustering.k=2,3", "clustering.k=4,5"], "gridworld")
+    with pytest.raises(ConfigError, match="repeats the value 3"):
+        sweep_points(None, ["clustering.k=3,3"], "gridworld")
+    with pytest.raises(ConfigError, match="under both 'grid:' and 'zip:'"):
+        sweep_points({"grid": {"bc.lr": [0.1, 0.2]}, "zip": {"bc.lr": [0.3, 0.4]}}, [], "gridworld")
+    assert main(["sweep", str(QUICK), "clustering.k=2,3", "clustering.k=5", "--no-tracking"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "'clustering.k' is both a sweep axis and a single value" in err[0], err
+    assert parse_value("1:30") == "1:30"  # YAML 1.1 read it as 90, silently
+
+
 def test_a_yaml_range_is_a_range_not_a_base60_number(tmp_path):
     """YAML 1.1 reads `2:8:1` as the integer 7681; the config loader reads it as text (a range)."""
     path = tmp_path / "s.yaml"

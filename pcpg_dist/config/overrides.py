@@ -21,7 +21,10 @@ from __future__ import annotations
 import copy
 import difflib
 import itertools
+import json
+import math
 import re
+import reprlib
 from pathlib import Path
 from typing import Any
 
@@ -78,12 +81,15 @@ def check_key(key: str, domain: str | None) -> None:
 
 
 def parse_value(text: str) -> Any:
-    """A command-line value as YAML would read it, with ``1e-3`` as a number (YAML 1.1 reads it as text)."""
+    """A command-line value as a config file's YAML reads it: ``1e-3`` a number, ``1:30`` text (YAML
+    1.1 would read them as text and as the base-60 integer 90)."""
+    from pcpg_dist.config.experiment import _BoundedLoader
+
     text = text.strip()
     if _NUMBER.match(text):
         return int(text) if re.fullmatch(r"[+-]?\d+", text) else float(text)
     try:
-        value = yaml.safe_load(text) if len(text) <= 10_000 else text
+        value = yaml.load(text, Loader=_BoundedLoader) if len(text) <= 10_000 else text
     except yaml.YAMLError:
         return text
     return value
@@ -155,7 +161,11 @@ def parse_range(text: str) -> list[float] | None:
     start, stop, step = (float(p) for p in parts)
     if step <= 0 or stop < start:
         raise ConfigError(f"range {text!r}: needs start <= stop and a positive step")
-    n = int(round((stop - start) / step)) + 1
+    span = (stop - start) / step  # inf or above 2**63 for 1e308:1e309:1 or 0:1e300:1e-300
+    if not span < MAX_POINTS:
+        raise ConfigError(f"range {text!r} has more than {MAX_POINTS} values; a sweep axis may have at most "
+                          f"{MAX_POINTS}")
+    n = int(round(span)) + 1
     if n > MAX_POINTS:
         raise ConfigError(f"range {text!r} has {n} values; a sweep axis may have at most {MAX_POINTS}")
     ints = all(float(p).is_integer() and "." not in p for p in parts)
@@ -180,6 +190,12 @@ def axis_values(key: str, spec: Any) -> list[Any]:
         raise ConfigError(f"sweep axis {key!r} has no values")
     if len(values) > MAX_POINTS:
         raise ConfigError(f"sweep axis {key!r} has {len(values)} values; at most {MAX_POINTS}")
+    seen: set[str] = set()
+    for v in values:  # a repeat would run one point twice into one folder
+        shown = json.dumps(v, sort_keys=True, default=str)
+        if shown in seen:
+            raise ConfigError(f"sweep axis {key!r} repeats the value {reprlib.repr(v)}; give each value once")
+        seen.add(shown)
     return values
 
 
@@ -214,8 +230,15 @@ def sweep_points(section: Any, cli_axes: list[str], domain: str | None) -> tuple
                 raise ConfigError(f"sweep.{name}: must map dotted keys to values, e.g. bc.lr: [0.001, 0.01]")
             for key, spec in axes.items():
                 target[str(key)] = axis_values(str(key), spec)
-    for item in cli_axes:
+    if both := sorted(set(grid) & set(zipped)):
+        raise ConfigError(f"sweep: {both[0]!r} is under both 'grid:' and 'zip:'; an axis goes under one of them")
+    on_cli: set[str] = set()
+    for item in cli_axes:  # an axis on the command line replaces the file's
         key, value = split_assignment(item)
+        if key in on_cli:
+            raise ConfigError(f"sweep axis {key!r} is given twice on the command line; give it once as "
+                              f"{key}=v1,v2,...")
+        on_cli.add(key)
         zipped.pop(key, None)
         grid[key] = axis_values(key, value)
     for key in [*grid, *zipped]:
@@ -225,11 +248,12 @@ def sweep_points(section: Any, cli_axes: list[str], domain: str | None) -> tuple
         raise ConfigError(f"sweep.zip: axes that move together need equally many values; got {shown}")
     if not grid and not zipped:
         raise ConfigError("a sweep needs at least one axis: AXIS=v1,v2 on the command line or a sweep: section")
+    n_zip = len(next(iter(zipped.values()))) if zipped else 1
+    n_points = math.prod(len(v) for v in grid.values()) * n_zip  # counted before any is built
+    if n_points > MAX_POINTS:
+        raise ConfigError(f"the sweep has {n_points} points; at most {MAX_POINTS}")
     combos: list[dict[str, Any]] = [dict(zip(grid, vals, strict=True)) for vals in itertools.product(*grid.values())]
     if zipped:
-        n = len(next(iter(zipped.values())))
-        rows = [{k: v[i] for k, v in zipped.items()} for i in range(n)]
+        rows = [{k: v[i] for k, v in zipped.items()} for i in range(n_zip)]
         combos = [{**c, **r} for c in combos for r in rows]
-    if len(combos) > MAX_POINTS:
-        raise ConfigError(f"the sweep has {len(combos)} points; at most {MAX_POINTS}")
     return {**grid, **zipped}, combos
