@@ -216,17 +216,89 @@ def _artifact_root(uri: str) -> str | None:
 
 
 def check_reachable(uri: str, timeout: float = 8.0) -> None:
-    """Fail fast (within ``timeout`` s) with the URI in the message when a server is down."""
-    if not uri.startswith(("http://", "https://")):
+    """Fail fast (within ``timeout`` s), on one line naming the URI, when pcpg cannot use a tracking
+    URI: a server that is down, a scheme MLflow does not store runs in, a folder store (MLflow 3
+    refuses them), or a ``sqlite:///`` path that is not an MLflow database (pcpg would otherwise
+    repair it as a half-created store, moving the user's file aside)."""
+    scheme = uri.partition("://")[0].lower() if "://" in uri else ""
+    forms = ("use sqlite:///PATH/mlflow.db, http(s)://HOST:PORT or postgresql+psycopg2://USER@HOST:PORT/DB, "
+             "or --no-tracking")
+    if scheme in ("http", "https"):
+        try:
+            with urllib.request.urlopen(uri.rstrip("/") + "/health", timeout=timeout) as resp:
+                if resp.status != 200:
+                    raise ServiceError(f"MLflow server at {_shown(uri)} answered {resp.status} on /health")
+        except (urllib.error.URLError, OSError, TimeoutError, ValueError) as e:
+            reason = getattr(e, "reason", e)
+            raise ServiceError(f"MLflow tracking server {_shown(uri)} is unreachable ({reason}); start it or set "
+                               f"MLFLOW_TRACKING_URI to a reachable server (unset = local sqlite)") from None
+    elif scheme == "sqlite":
+        if (db := _sqlite_path(uri)) is not None:
+            _check_sqlite_store(uri, db)
+    elif scheme == "postgresql":
+        raise ServiceError(f"tracking URI {_shown(uri)}: write postgresql+psycopg2://... (SQLAlchemy reads a "
+                           f"bare postgresql:// as the psycopg 3 driver, which pcpg does not ship)")
+    elif scheme.split("+")[0] in ("postgresql", "mysql", "mssql"):
+        _check_port(uri, timeout)
+    elif uri.startswith("databricks"):
         return
+    elif scheme in ("", "file"):
+        if os.environ.get("MLFLOW_ALLOW_FILE_STORE", "").lower() not in ("1", "true"):
+            raise ServiceError(f"tracking URI {_shown(uri)} is a folder store, which MLflow 3 no longer accepts; "
+                               f"{forms}")
+    else:
+        raise ServiceError(f"tracking URI {_shown(uri)}: MLflow stores runs at no {scheme}:// address; {forms}")
+
+
+def _shown(uri: str) -> str:
+    """A URI for a message: its password hidden, its length bounded."""
+    uri = re.sub(r"(://[^:/@]*):[^@/]*@", r"\1:***@", uri)
+    return repr(uri if len(uri) <= 200 else uri[:200] + "...")
+
+
+def _check_port(uri: str, timeout: float) -> None:
+    """A database server's port answers (SQLAlchemy would retry for minutes, in 169 lines)."""
+    import socket
+    import urllib.parse
+
     try:
-        with urllib.request.urlopen(uri.rstrip("/") + "/health", timeout=timeout) as resp:
-            if resp.status != 200:
-                raise ServiceError(f"MLflow server at {uri} answered {resp.status} on /health")
-    except (urllib.error.URLError, OSError, TimeoutError) as e:
-        reason = getattr(e, "reason", e)
-        raise ServiceError(f"MLflow tracking server {uri} is unreachable ({reason}); start it or set "
-                           f"MLFLOW_TRACKING_URI to a reachable server (unset = local sqlite)") from None
+        url = urllib.parse.urlsplit(uri)
+        host, port = url.hostname or "localhost", url.port or {"mysql": 3306, "mssql": 1433}.get(
+            url.scheme.split("+")[0], 5432)
+        socket.create_connection((host, port), timeout=timeout).close()
+    except (OSError, ValueError) as e:
+        raise ServiceError(f"tracking database {_shown(uri)} is unreachable ({e}); start it or fix the URI") from None
+
+
+def _check_sqlite_store(uri: str, db: Path) -> None:
+    """``db`` is missing (MLflow creates it), empty, or an SQLite database whose tables are MLflow's."""
+    if not db.exists():
+        return
+    if not db.is_file():
+        raise ServiceError(f"tracking URI {_shown(uri)}: {db} is not a regular file; a sqlite:/// URI names "
+                           f"an MLflow database file (created if missing)")
+    with db.open("rb") as f:
+        head = f.read(16)
+    if head and head != b"SQLite format 3\x00":
+        raise ServiceError(f"tracking URI {_shown(uri)}: {db} is not an SQLite database; point the URI at an "
+                           f"MLflow database or a new file")
+    try:
+        con = sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=30)
+        try:
+            tables = {t: {c[1] for c in con.execute(f"PRAGMA table_info('{t}')")}
+                      for (t,) in con.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+        finally:
+            con.close()
+    except sqlite3.Error:
+        return  # unreadable: prepare_store's repair decides (a killed first migration looks like this)
+    # A store whatever its MLflow version, or one left half-created, has these columns where it has
+    # these tables; another program's database (its own 'runs' table, say) does not.
+    own = {"runs": "run_uuid", "experiments": "experiment_id", "alembic_version": "version_num"}
+    foreign = [t for t in tables if not t.startswith("sqlite_") and t not in own and not tables.keys() & own]
+    foreign += [t for t, col in own.items() if t in tables and col not in tables[t]]
+    if foreign:
+        raise ServiceError(f"tracking URI {_shown(uri)}: {db} is an SQLite database of another program (table "
+                           f"{foreign[0]!r} is not MLflow's); point the URI at an MLflow database or a new file")
 
 
 def _client(uri: str):

@@ -368,3 +368,35 @@ def test_setup_output_silences_library_chatter(monkeypatch):
     security = logging.LogRecord(auth.name, logging.WARNING, __file__, 1, "Token authentication is disabled "
                                  "for this Ray cluster.", None, None)
     assert not auth.filter(notice) and auth.filter(security)  # the security warning stays
+
+
+def test_a_tracking_uri_pcpg_cannot_use_is_one_line_and_nothing_of_the_users_is_touched(tmp_path, capsys):
+    """A sqlite:/// path naming a text file, a folder or another program's database used to be
+    'repaired' (moved aside, exit 0); other schemes failed after the data was generated, in 50-170
+    lines of traceback. Now each is one line before anything starts, and the files are as they were."""
+    from pcpg_dist.cli import main
+
+    notes, folder, app = tmp_path / "notes.txt", tmp_path / "data", tmp_path / "app.db"
+    notes.write_text("my notes\n")
+    (folder / "kept.txt").parent.mkdir()
+    (folder / "kept.txt").write_text("kept\n")
+    con = sqlite3.connect(app)
+    con.execute("CREATE TABLE runs (id INTEGER, note TEXT)")
+    con.execute("INSERT INTO runs VALUES (1, 'precious')")
+    con.commit()
+    con.close()
+    app_bytes = app.read_bytes()
+    cases = {f"sqlite:///{notes}": "is not an SQLite database", f"sqlite:///{folder}": "is not a regular file",
+             f"sqlite:///{app}": "table 'runs' is not MLflow's", "foo://x": "MLflow stores runs at no foo://",
+             str(tmp_path / "nodir" / "mlruns"): "folder store",
+             "postgresql://u@127.0.0.1:1/db": "write postgresql+psycopg2://",
+             "postgresql+psycopg2://u:secret@127.0.0.1:1/db": "is unreachable"}
+    for uri, says in cases.items():
+        work = tmp_path / "runs"
+        assert main(["run", str(ROOT / "experiments" / "quick.yaml"), "--tracking-uri", uri,
+                     "--workdir", str(work)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("pcpg: error:") and says in err[0], (uri, err)
+        assert "secret" not in err[0] and not work.exists()
+    assert notes.read_text() == "my notes\n" and (folder / "kept.txt").read_text() == "kept\n"
+    assert app.read_bytes() == app_bytes and sorted(p.name for p in tmp_path.iterdir()) == ["app.db", "data", "notes.txt"]
