@@ -85,6 +85,8 @@ def init_ray(address: str | None = None, num_cpus: int | None = None) -> None:
         return
     address = address or os.environ.get("RAY_ADDRESS") or None
     _disable_uv_hook()
+    if address:
+        _check_port(address)
     try:
         if address:
             ray.init(address=address, log_to_driver=False, runtime_env=package_runtime_env(),
@@ -113,6 +115,28 @@ def init_ray(address: str | None = None, num_cpus: int | None = None) -> None:
             raise ServiceError("Ray did not start within its 30 s limit three times (is the machine "
                                "overloaded?); retry when it is less busy") from None
         raise
+
+
+def _check_port(address: str, timeout: float = 5.0) -> None:
+    """A cluster's head answers at ``address`` (``host:port`` or ``ray://host:port``; ``auto`` finds
+    the local one). Ray itself waits ~14 min on a dead one, printing its C++ log all the while."""
+    import socket
+    import urllib.parse
+
+    if address == "auto":
+        return
+    try:
+        url = urllib.parse.urlsplit(address if "://" in address else f"gcs://{address}")
+        host, port = url.hostname, url.port
+    except ValueError:
+        host = port = None
+    if not host or not port:
+        raise ServiceError(f"--ray-address {address[:200]!r}: expected HOST:PORT, ray://HOST:PORT or auto")
+    try:
+        socket.create_connection((host, port), timeout=timeout).close()
+    except OSError as e:
+        raise ServiceError(f"no Ray cluster answers at {address[:200]} ({e}); start one with `ray start --head` "
+                           f"there or check --ray-address / RAY_ADDRESS") from None
 
 
 # --------------------------------------------------------------------------- what the cluster has

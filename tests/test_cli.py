@@ -143,3 +143,15 @@ def test_classify_writes_the_models_labels_and_warns_on_another_layout(tmp_path,
     out, err = capsys.readouterr()
     assert f"{share:.0%} of the rows are in states the model was not fitted on" in out
     assert "elsewhere.parquet" in err and "same layout or game" in err
+
+
+def test_a_ray_address_where_nothing_answers_is_one_line_at_once(tmp_path):
+    """Ray waited ~14 min on a dead head (821 s measured), printing its C++ log all the while."""
+    for address, says in [("127.0.0.1:1", "no Ray cluster answers at 127.0.0.1:1"),
+                          ("ray://127.0.0.1:1", "no Ray cluster answers"), ("foo", "expected HOST:PORT")]:
+        out = subprocess.run([sys.executable, "-m", "pcpg_dist.cli", "generate", str(ROOT / "experiments" / "quick.yaml"),
+                              "--out", str(tmp_path / "data"), "--ray-address", address],
+                             capture_output=True, text=True, timeout=120, cwd=tmp_path)
+        err = out.stderr.strip().splitlines()
+        assert out.returncode == 2 and len(err) == 1 and says in err[0], (address, out.stderr[-2000:])
+        assert not (tmp_path / "data").exists()
