@@ -18,6 +18,7 @@ order with CSR-style ``offsets``, so a trajectory is a slice and subsets are che
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import os
@@ -401,11 +402,21 @@ def sha256_file(path: Path) -> str:
     return h.hexdigest()
 
 
+def _temp_beside(path: Path) -> tuple[int, str]:
+    """A temporary file in ``path``'s folder; an error names ``path`` (not the temporary name)."""
+    if path.is_dir():
+        raise IsADirectoryError(errno.EISDIR, "it is a folder; name a file", str(path))
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        return tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    except OSError as e:
+        raise OSError(e.errno, e.strerror, str(path)) from None
+
+
 def atomic_write_bytes(path: Path, data: bytes) -> None:
     """Write to a temporary file beside ``path`` and rename it: a crash never leaves a half file."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    fd, tmp = _temp_beside(path)
     os.fchmod(fd, FILE_MODE)
     try:
         with os.fdopen(fd, "wb") as f:
@@ -421,8 +432,7 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
 def write_parquet(dataset: Dataset, path: Path) -> str:
     """Write one dataset atomically; returns its SHA-256."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    fd, tmp = _temp_beside(path)
     os.fchmod(fd, FILE_MODE)
     os.close(fd)
     try:

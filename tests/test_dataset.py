@@ -207,3 +207,18 @@ def test_memory_for_a_parquet_file_is_estimated_from_its_footer(tmp_path, monkey
         load_dataset(path)
     with pytest.raises(DataError, match="split the data into smaller files"):
         read_step_table(path)
+
+
+def test_a_write_that_cannot_happen_names_the_target_not_a_temporary_file(tmp_path, capsys):
+    """`pcpg classify --out FOLDER` said `cannot access .FOLDER.ib_9sz9s.tmp: Is a directory`."""
+    from pcpg_dist.dataset import atomic_write_bytes
+
+    (tmp_path / "out").mkdir()
+    with pytest.raises(IsADirectoryError) as e:
+        atomic_write_bytes(tmp_path / "out", b"x")
+    assert e.value.filename == str(tmp_path / "out") and list((tmp_path / "out").iterdir()) == []
+    (tmp_path / "file").write_text("")
+    with pytest.raises(OSError) as e:
+        atomic_write_bytes(tmp_path / "file" / "below.csv", b"x")  # a folder that is a file
+    assert e.value.filename == str(tmp_path / "file" / "below.csv")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "out"]
