@@ -24,6 +24,7 @@ import logging
 import os
 import sys
 import warnings
+import zipfile
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -160,15 +161,40 @@ def write_env_agents(path: str | Path, env: str, cells) -> Path:
     return path.with_suffix(".npz")
 
 
+class AgentFileError(ValueError):
+    """An ``<env>.npz`` + ``<env>.json`` pair that cannot be read: one line naming the file."""
+
+
+# what a missing or garbage file, or JSON that is not the mapping write_env_agents makes, raises
+_UNREADABLE = (OSError, ValueError, TypeError, KeyError, EOFError, RecursionError, zipfile.BadZipFile)
+
+
+def _unreadable(path: Path, e: Exception) -> AgentFileError:
+    cause = " ".join(str(e).split())[:200]
+    return AgentFileError(f"{path}: unreadable agents file ({type(e).__name__}: {cause})")
+
+
 def read_env_agents(path: str | Path) -> EnvAgents:
+    """The agents :func:`write_env_agents` wrote; :class:`AgentFileError` naming the file that
+    cannot be read. Whether sizes, specs and weights agree is checked by the code that builds on
+    them (``pcpg_dist.onnx_export.check_cells``)."""
     path = Path(path).with_suffix("")
-    meta = json.loads(path.with_suffix(".json").read_text())
-    with np.load(path.with_suffix(".npz"), allow_pickle=False) as z:
-        arrays = {n: z[n] for n in z.files}
-    n_layers = len(meta["sizes"]) - 1
-    params = {f"{w}{i}": arrays[f"{w}{i}"] for i in range(n_layers) for w in "Wb"}
-    return EnvAgents(meta["env"], tuple(CellInfo(**s) for s in meta["specs"]), tuple(meta["sizes"]),
-                     meta["activation"], params, arrays["mean"], arrays["std"])
+    json_path, npz_path = path.with_suffix(".json"), path.with_suffix(".npz")
+    try:
+        meta = json.loads(json_path.read_text())
+        specs = tuple(CellInfo(**s) for s in meta["specs"])
+        sizes = tuple(meta["sizes"])
+        env, activation = meta["env"], meta["activation"]
+    except _UNREADABLE as e:
+        raise _unreadable(json_path, e) from None
+    try:
+        with np.load(npz_path, allow_pickle=False) as z:  # a pickled array is refused, never run
+            arrays = {n: z[n] for n in z.files}
+        params = {f"{w}{i}": arrays[f"{w}{i}"] for i in range(len(sizes) - 1) for w in "Wb"}
+        mean, std = arrays["mean"], arrays["std"]
+    except _UNREADABLE as e:
+        raise _unreadable(npz_path, e) from None
+    return EnvAgents(env, specs, sizes, activation, params, mean, std)
 
 
 def read_all(folder: str | Path) -> dict[str, EnvAgents]:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import reprlib
 import tempfile
 from dataclasses import asdict
 from pathlib import Path
@@ -29,6 +30,8 @@ from pcpg_dist.errors import DataError, ServiceError
 OPSET = 13  # Gather, MatMul, Where, ArgMax(select_last_index): all there; old enough for most runtimes
 IR_VERSION = 7  # the IR of opset 13, so older runtimes read the file too
 FORMAT = 1
+ACTIVATIONS = ("relu", "tanh")  # bc.activation's values: both have an ONNX operator
+CELL_KINDS = ("pcpg", "nc", "corrupt")  # CellSpec.kind
 
 
 # --------------------------------------------------------------------------- reading agents
@@ -37,29 +40,104 @@ def load_agents_folder(folder: Path) -> dict:
 
     Two layouts: a run's output (``<env>/groupNNN.pt|.json``, written by ``pcpg run``) and the
     MLflow ``agents`` model's artifacts (``<env>.npz|.json``, see :mod:`pcpg_dist.agent_model`).
+    Every file is checked (:func:`check_cells`) and every env name must be a plain name, since it
+    becomes a file name: a DataError naming the file otherwise.
     """
     from pcpg_dist.bc import TrainedCells
+    from pcpg_dist.dataset import confined
 
     folder = Path(folder)
     out = {}
     for env_dir in sorted(p for p in folder.iterdir() if p.is_dir()):
         groups = sorted(env_dir.glob("*.pt"))
         if groups:
-            out[env_dir.name] = TrainedCells.concat([TrainedCells.load(g) for g in groups])
+            confined(folder, env_dir.name, f"{env_dir}: env folder")
+            parts = []
+            for g in groups:
+                parts.append(TrainedCells.load(g))
+                check_cells(g.with_suffix(".json"), parts[-1])
+            out[env_dir.name] = TrainedCells.concat(parts)
     npz = sorted(folder.glob("*.npz"))
     if npz:
         from pcpg_dist import agent_model
         from pcpg_dist.ranking import CellSpec
 
         for path in npz:
-            env = agent_model.read_env_agents(path)
+            source = path.with_suffix(".json")
+            try:
+                env = agent_model.read_env_agents(path)
+            except agent_model.AgentFileError as e:
+                raise DataError(str(e)) from None
+            confined(folder, env.env, f"{source}: env")
+            if env.env != path.stem:
+                raise DataError(f"{source}: env {env.env!r} does not match the file's name "
+                                f"(expected {path.stem!r}, as in {path.name})")
+            if env.env in out:
+                raise DataError(f"{source}: env {env.env!r} is also in {folder / env.env}/; keep one")
             specs = tuple(CellSpec(s.key, s.kind, s.k, s.p, s.seed, s.c) for s in env.specs)
-            out[env.env] = TrainedCells(specs, env.sizes, env.activation, env.params, env.mean, env.std,
-                                        np.zeros(len(specs), np.float32))
+            cells = TrainedCells(specs, env.sizes, env.activation, env.params, env.mean, env.std,
+                                 np.zeros(len(specs), np.float32))
+            check_cells(source, cells)
+            out[env.env] = cells
     if not out:
         raise DataError(f"{folder}: no trained agents (expected <env>/*.pt from pcpg run, "
                         f"or <env>.npz from the MLflow agents model)")
     return out
+
+
+def check_cells(source: Path | str, cells) -> None:
+    """A DataError naming ``source`` unless the cells' JSON (specs, sizes, activation) agrees
+    with their weights: one spec per weight set, ``W{l}`` of shape (cells, sizes[l], sizes[l+1]),
+    ``b{l}`` (cells, sizes[l+1]), mean and std (cells, sizes[0]), p in (0, 1]."""
+    sizes, n = cells.sizes, len(cells.specs)
+    if len(sizes) < 2 or not all(_whole(x) and x >= 1 for x in sizes):
+        raise DataError(f"{source}: sizes {reprlib.repr(list(sizes))} must be a list of at least two "
+                        f"positive whole numbers (state width, hidden widths, n_actions)")
+    if cells.activation not in ACTIVATIONS:
+        raise DataError(f"{source}: activation {reprlib.repr(cells.activation)} is not one of "
+                        f"{', '.join(ACTIVATIONS)}")
+    if n == 0:
+        raise DataError(f"{source}: specs is empty; the file must list one spec per trained cell")
+    for i, s in enumerate(cells.specs):
+        _check_spec(f"{source}: specs[{i}]", s)
+    if len({s.key for s in cells.specs}) != n:
+        raise DataError(f"{source}: specs repeat a cell key; each cell needs its own")
+    arrays = []
+    for layer in range(len(sizes) - 1):
+        arrays += [(f"W{layer}", cells.params[f"W{layer}"], (n, sizes[layer], sizes[layer + 1])),
+                   (f"b{layer}", cells.params[f"b{layer}"], (n, sizes[layer + 1]))]
+    arrays += [("mean", cells.mean, (n, sizes[0])), ("std", cells.std, (n, sizes[0]))]
+    for name, value, want in arrays:
+        shape = np.shape(value)
+        if shape[:1] != want[:1]:
+            raise DataError(f"{source}: {n} specs for {shape[0] if shape else 0} weight sets ({name} "
+                            f"has shape {shape}); the file must list one spec per trained cell")
+        if shape != want or not np.issubdtype(np.asarray(value).dtype, np.floating):
+            raise DataError(f"{source}: {name} has shape {shape} ({np.asarray(value).dtype}), but sizes "
+                            f"{list(sizes)} need {want} floats")
+
+
+def _check_spec(where: str, s) -> None:
+    if not isinstance(s.key, str) or not s.key:
+        raise DataError(f"{where}: key {reprlib.repr(s.key)} must be a non-empty string")
+    if s.kind not in CELL_KINDS:
+        raise DataError(f"{where}: kind {reprlib.repr(s.kind)} is not one of {', '.join(CELL_KINDS)}")
+    for field in ("k", "seed"):
+        if not _whole(getattr(s, field)):
+            raise DataError(f"{where}: {field} {reprlib.repr(getattr(s, field))} must be a whole number")
+    if not _number(s.p) or not 0 < s.p <= 1:
+        raise DataError(f"{where}: p {reprlib.repr(s.p)} must be a number in (0, 1]")
+    if not _number(s.c) or not 0 <= s.c <= 1:
+        raise DataError(f"{where}: c {reprlib.repr(s.c)} must be a number in [0, 1]")
+
+
+def _whole(x) -> bool:
+    return isinstance(x, int | np.integer) and not isinstance(x, bool)
+
+
+def _number(x) -> bool:
+    finite_number = isinstance(x, int | float | np.integer | np.floating) and not isinstance(x, bool)
+    return finite_number and bool(np.isfinite(x))
 
 
 def resolve_agents(target: str, tracking_uri: str | None, workdir: Path) -> Path:
@@ -129,7 +207,7 @@ def build_model(env: str, cells):
     from onnx import TensorProto, helper, numpy_helper
 
     d, n_actions, n_layers = cells.state_dim, cells.n_actions, len(cells.sizes) - 1
-    if cells.activation not in ("relu", "tanh"):
+    if cells.activation not in ACTIVATIONS:
         raise DataError(f"env {env}: activation {cells.activation!r} has no ONNX export (relu, tanh)")
 
     def const(name: str, value: np.ndarray):
@@ -188,17 +266,24 @@ def build_model(env: str, cells):
 
 
 def export_onnx(ensembles: dict, out: Path) -> list[Path]:
-    """Write ``agents_<env>.onnx`` + ``agents_<env>.json`` per environment; returns the paths."""
-    from pcpg_dist.dataset import atomic_write_bytes
+    """Write ``agents_<env>.onnx`` + ``agents_<env>.json`` per environment; returns the paths.
+
+    Every env name is checked and every model built before the first file is written, so a bad
+    env writes nothing, not even ``out``.
+    """
+    from pcpg_dist.dataset import atomic_write_bytes, confined
 
     out = Path(out)
+    models = {}
+    for env, cells in sorted(ensembles.items()):
+        confined(out, env, "env")  # the env becomes a file name under out
+        models[env] = build_model(env, cells)
     out.mkdir(parents=True, exist_ok=True)
     written = []
-    for env, cells in sorted(ensembles.items()):
-        model = build_model(env, cells)
+    for env, model in models.items():
         onnx_path, json_path = out / f"agents_{env}.onnx", out / f"agents_{env}.json"
         atomic_write_bytes(onnx_path, model.SerializeToString(deterministic=True))
-        atomic_write_bytes(json_path, (json.dumps(sidecar(env, cells), indent=1) + "\n").encode())
+        atomic_write_bytes(json_path, (json.dumps(sidecar(env, ensembles[env]), indent=1) + "\n").encode())
         written += [onnx_path, json_path]
     return written
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import pathlib
 import subprocess
 import sys
 
@@ -15,6 +16,7 @@ from bc_toy import make_dataset
 from pcpg_dist.bc import BCConfig, TrainedCells, train_cells
 from pcpg_dist.cli import main
 from pcpg_dist.dataset import Dataset
+from pcpg_dist.errors import DataError
 from pcpg_dist.onnx_export import build_model, export_onnx, load_agents_folder
 from pcpg_dist.ranking import RankConfig, plan_cells, split_trajectories
 
@@ -166,3 +168,65 @@ def test_cli_bad_run_is_one_line_exit_2(tmp_path, target):
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("pcpg: error: ") and str(tmp_path / target) in lines[0]
     assert not (tmp_path / "out").exists() and not (tmp_path / "no.db").exists()
+
+
+def _files(root) -> set:
+    return {p for p in root.rglob("*") if p.is_file()}
+
+
+def _set(key, value):
+    return lambda m: m.__setitem__(key, value)
+
+
+# (layout, how the agents' JSON is changed, what the one error line says after the file's name)
+HOSTILE_AGENTS = {
+    "env escapes": ("npz", _set("env", "x/../../escaped"), "env 'x/../../escaped' is not a plain name"),
+    "env absolute": ("npz", _set("env", "/tmp/abs_escaped"), "env '/tmp/abs_escaped' is not a plain name"),
+    "env renamed": ("npz", _set("env", "E2"), "env 'E2' does not match the file's name (expected 'E1'"),
+    "not json": ("npz", "{not json", "unreadable agents file (JSONDecodeError"),
+    "no activation": ("npz", lambda m: m.pop("activation"), "unreadable agents file (KeyError: 'activation')"),
+    "p zero": ("npz", lambda m: m["specs"][1].__setitem__("p", 0), "specs[1]: p 0 must be a number in (0, 1]"),
+    "too few sizes": ("pt", _set("sizes", [4, 8, 4]), "W1 has shape (12, 8, 8) (float32), but sizes [4, 8, 4] "
+                                                      "need (12, 8, 4)"),
+    "wider sizes": ("pt", _set("sizes", [4, 7, 7, 7, 4]), "W0 has shape (12, 4, 8) (float32), but sizes"),
+    "sizes string": ("pt", _set("sizes", "abc"), "sizes ['a', 'b', 'c'] must be a list of at least two positive"),
+    "no specs": ("pt", _set("specs", []), "specs is empty"),
+    "3 specs": ("pt", lambda m: m.__setitem__("specs", m["specs"][:3]), "3 specs for 12 weight sets"),
+    "p string": ("pt", lambda m: m["specs"][0].__setitem__("p", "x"), "specs[0]: p 'x' must be a number in (0, 1]"),
+    "activation": ("pt", _set("activation", "sigmoid"), "activation 'sigmoid' is not one of relu, tanh"),
+}
+
+
+@pytest.mark.parametrize("case", HOSTILE_AGENTS)
+def test_hostile_agent_files_are_one_line_and_write_nothing(case, grid, tmp_path, capsys):
+    from pcpg_dist import agent_model
+
+    layout, edit, says = HOSTILE_AGENTS[case]
+    cells = train_toy(grid, "tanh", epochs=0)  # 12 cells, sizes (4, 8, 8, 8, 4)
+    agents = tmp_path / "run" / "agents"
+    if layout == "npz":  # the MLflow agents model's artifacts
+        agent_model.write_env_agents(agents / "E1", "E1", cells)
+        meta_file = agents / "E1.json"
+    else:  # pcpg run's output
+        cells.save(agents / "E1" / "group000")
+        meta_file = agents / "E1" / "group000.json"
+    if isinstance(edit, str):
+        meta_file.write_text(edit)
+    else:
+        meta = json.loads(meta_file.read_text())
+        edit(meta)
+        meta_file.write_text(json.dumps(meta))
+    before = _files(tmp_path)
+    out = tmp_path / "deep" / "out"  # where "x/../../escaped" would land, were it used
+    assert main(["export", "onnx", str(tmp_path / "run"), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"pcpg: error: {meta_file}: {says}"), err
+    assert _files(tmp_path) == before and not out.exists() and not (tmp_path / "deep").exists()
+    assert not pathlib.Path("/tmp/abs_escaped").exists()
+
+
+def test_export_onnx_refuses_an_env_that_is_not_a_plain_name_before_writing(grid, tmp_path):
+    cells = train_toy(grid, "tanh", epochs=0)
+    with pytest.raises(DataError, match=r"env '\.\./E2' is not a plain name"):
+        export_onnx({"E1": cells, "../E2": cells}, tmp_path / "out")
+    assert not (tmp_path / "out").exists() and _files(tmp_path) == set()
