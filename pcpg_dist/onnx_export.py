@@ -150,12 +150,15 @@ def resolve_agents(target: str, tracking_uri: str | None, workdir: Path) -> Path
     if path.exists():
         raise DataError(f"{path}: no trained agents here (expected {path}/agents/<env>/*.pt, "
                         f"written by pcpg run)")
-    from pcpg_dist.tracking import check_reachable, default_tracking_uri, find_sweep_run
+    from pcpg_dist.tracking import (
+        check_reachable,
+        check_store_holds,
+        default_tracking_uri,
+        find_sweep_run,
+    )
 
     uri = tracking_uri or default_tracking_uri()
-    if uri.startswith("sqlite:///") and not Path(uri.removeprefix("sqlite:///")).is_file():
-        raise DataError(f"{target!r} is neither a run's output folder nor an MLflow run: no such "
-                        f"folder, and no MLflow store at {uri}")
+    check_store_holds(target, uri)
     check_reachable(uri)
     from mlflow.exceptions import MlflowException
 

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from pcpg_dist.dataset import atomic_write_bytes
+from pcpg_dist.errors import ConfigError
 from pcpg_dist.paper_comparison import (  # noqa: F401 - paper_numbers/PROTOCOL re-exported
     PAPER_DOMAINS,
     PROTOCOL,
@@ -40,7 +41,8 @@ from pcpg_dist.report_data import (
     fmt,
     inside,
     read_csv,
-    read_json,
+    read_metrics,
+    read_run,
     table_of,
 )
 
@@ -106,27 +108,27 @@ def _ref_key(item: str) -> str:
 
 
 def _stage_rows(run: dict, n_envs: int) -> tuple[list[list[str]], list[str]]:
-    """(stage, seconds, work done, source) rows and the stages served wholly from the cache."""
-    computed = run.get("computed") if isinstance(run.get("computed"), dict) else {}
-    seconds = run.get("stage_seconds") if isinstance(run.get("stage_seconds"), dict) else {}
+    """(stage, seconds, work done, source) rows and the stages served wholly from the cache
+    (``run`` as :func:`read_run` checked it)."""
+    computed, seconds = run.get("computed", {}), run.get("stage_seconds", {})
     work = {"generate": ("data", "data sets generated"),
             "cluster": ("clustering", f"of {n_envs} clusterings computed"),
             "train": ("train_groups", "groups of cells trained"),
             "evaluate": ("evaluations", f"of {n_envs} evaluations computed")}
     listed = run.get("cached_stages")
-    if isinstance(listed, list):  # the runner's own record (it keeps a cached stage's first timing)
-        cached = [str(s) for s in listed]
+    if listed is not None:  # the runner's own record (it keeps a cached stage's first timing)
+        cached = list(listed)
     else:
-        cached = [s for s, (key, _) in work.items() if key in computed and not int(computed[key])]
+        cached = [s for s, (key, _) in work.items() if key in computed and not computed[key]]
     rows = []
     for stage, secs in seconds.items():
         key, what = work.get(stage, ("", ""))
-        done = f"{int(computed[key])} {what}" if key in computed else "—"
+        done = f"{computed[key]} {what}" if key in computed else "—"
         if stage in cached:
-            source = "cache (seconds of the run that computed it)" if isinstance(listed, list) else "cache"
+            source = "cache (seconds of the run that computed it)" if listed is not None else "cache"
         else:
             source = "computed"
-        rows.append([stage, fmt(float(secs), 2) if isinstance(secs, int | float) else str(secs), done, source])
+        rows.append([stage, fmt(float(secs), 2), done, source])
     return rows, cached
 
 
@@ -157,9 +159,9 @@ class Report:
 def build(summary: Path, reproduce_target: str | None = None) -> Report:
     """The page model of a summary folder (reads only files inside it)."""
     summary = Path(summary)
-    run = read_json(summary / "run.json")
-    metrics = read_json(summary / "metrics.json")
-    cfg = run.get("config") if isinstance(run.get("config"), dict) else {}
+    run = read_run(summary / "run.json")
+    metrics = read_metrics(summary / "metrics.json")
+    cfg = run.get("config", {})
     name, domain = str(cfg.get("name", summary.parent.name)), str(cfg.get("domain", "gridworld"))
     envs = [d.name for d in sorted(summary.iterdir()) if d.is_dir() and not d.is_symlink()]
     paper = paper_rows(domain, metrics, summary, envs)
@@ -182,7 +184,7 @@ def build(summary: Path, reproduce_target: str | None = None) -> Report:
         if row.anchor not in anchors:
             row.anchor = ""  # nothing to link to (e.g. no rollouts in this domain)
     stages, cached = _stage_rows(run, len(envs))
-    prov = run.get("provenance") if isinstance(run.get("provenance"), dict) else {}
+    prov = run.get("provenance", {})
     target = reproduce_target or str(summary.resolve().parent)
     facts = [("command", str(run.get("command", "—"))), ("git commit", str(prov.get("git_commit", "—"))),
              ("uv.lock sha256", str(prov.get("uv_lock", "—"))), ("config hash", str(run.get("config_hash", "—"))),
@@ -219,22 +221,38 @@ def _environment():
     return env
 
 
+def check_out_dir(summary: Path, out_dir: Path) -> None:
+    """The report goes outside the summary folder: every folder in there is read as an environment."""
+    summary_at, out_at = Path(summary).resolve(), Path(out_dir).resolve()
+    if out_at == summary_at or summary_at in out_at.parents:
+        raise ConfigError(f"--out {out_dir}: inside the run's summary folder {summary}, where the next report "
+                          f"would read its figures as an environment; choose a folder outside it "
+                          f"(default: {Path(summary).parent / 'report'})")
+
+
 def render(summary: Path, out_dir: Path, reproduce_target: str | None = None) -> tuple[Path, Path]:
-    """Write ``report.html`` (self-contained) and ``report.md`` (+ ``figures/``) into ``out_dir``."""
+    """Write ``report.html`` (self-contained) and ``report.md`` (+ ``figures/``) into ``out_dir``.
+
+    Everything is read and rendered before the first byte is written, and each file is written
+    atomically: a bad summary leaves ``out_dir`` as it was.
+    """
     summary, out_dir = Path(summary), Path(out_dir)
+    check_out_dir(summary, out_dir)
     report = build(summary, reproduce_target)
     env = _environment()
-    out_dir.mkdir(parents=True, exist_ok=True)
-    html_path = out_dir / "report.html"
-    atomic_write_bytes(html_path, env.get_template("report.html.j2").render(r=report).encode())
-    fig_dir = out_dir / "figures"
-    fig_dir.mkdir(exist_ok=True)
+    html = env.get_template("report.html.j2").render(r=report).encode()
+    md = env.get_template("report.md.j2").render(r=report).encode()
+    figures = {}  # only files the page model took from inside the summary
     for sections in [report.summary_sections] + [s + m for _, s, m in report.envs]:
         for sec in sections:
-            if sec.figure is not None:  # only files the page model took from inside the summary
-                (fig_dir / sec.figure.file.replace("/", "_")).write_bytes((summary / sec.figure.file).read_bytes())
-    md_path = out_dir / "report.md"
-    atomic_write_bytes(md_path, env.get_template("report.md.j2").render(r=report).encode())
+            if sec.figure is not None:
+                figures[sec.figure.file.replace("/", "_")] = (summary / sec.figure.file).read_bytes()
+    (out_dir / "figures").mkdir(parents=True, exist_ok=True)
+    for name, data in figures.items():
+        atomic_write_bytes(out_dir / "figures" / name, data)
+    html_path, md_path = out_dir / "report.html", out_dir / "report.md"
+    atomic_write_bytes(html_path, html)
+    atomic_write_bytes(md_path, md)
     return html_path, md_path
 
 
@@ -283,9 +301,15 @@ def resolve_summary(target: str, tracking_uri: str | None, workdir: Path) -> tup
         return path, None
     if (path / "summary" / "run.json").is_file():
         return path / "summary", None
-    from pcpg_dist.tracking import check_reachable, default_tracking_uri, find_sweep_run
+    from pcpg_dist.tracking import (
+        check_reachable,
+        check_store_holds,
+        default_tracking_uri,
+        find_sweep_run,
+    )
 
     uri = tracking_uri or default_tracking_uri()
+    check_store_holds(target, uri)
     check_reachable(uri)
     run_id = find_sweep_run(target, uri).info.run_id
     local = Path(workdir) / ".report-cache" / run_id

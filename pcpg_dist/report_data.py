@@ -10,6 +10,7 @@ from __future__ import annotations
 import base64
 import json
 import math
+import reprlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -89,20 +90,162 @@ def files_in(folder: Path, root: Path, suffix: str) -> list[Path]:
 def read_json(path: Path) -> dict:
     try:
         data = json.loads(path.read_text())
-    except (OSError, ValueError) as e:
+    except (OSError, ValueError, RecursionError) as e:  # RecursionError: brackets nested too deep
         raise DataError(f"{path}: unreadable ({e})") from None
     if not isinstance(data, dict):
         raise DataError(f"{path}: expected a JSON object, found {type(data).__name__}")
     return data
 
 
-def read_csv(path: Path) -> pd.DataFrame | None:
+def _as_float(v) -> float | None:
+    """A JSON number as a float; None for anything else (text, lists, true, an integer beyond
+    float's range)."""
+    if not isinstance(v, int | float) or isinstance(v, bool):
+        return None
     try:
-        return pd.read_csv(path)
+        return float(v)
+    except OverflowError:
+        return None
+
+
+#: the fields of run.json the report and reproduce use, when present: (type, what it holds)
+RUN_FIELDS = {"config": (dict, "an object"), "provenance": (dict, "an object"),
+              "computed": (dict, "an object of counts"), "stage_seconds": (dict, "an object of seconds"),
+              "cached_stages": (list, "a list of stage names")}
+
+
+def read_run(path: Path) -> dict:
+    """``run.json``, its typed fields checked (one line naming the field when one is wrong)."""
+    run = read_json(path)
+    for key, (kind, what) in RUN_FIELDS.items():
+        if key in run and not isinstance(run[key], kind):
+            raise DataError(f"{path}: {key!r} is {reprlib.repr(run[key])}; expected {what}")
+    for stage, n in run.get("computed", {}).items():
+        if not (isinstance(n, int) and not isinstance(n, bool) and n >= 0):
+            raise DataError(f"{path}: computed {reprlib.repr(stage)} is {reprlib.repr(n)}; expected a count "
+                            "(an integer >= 0)")
+    for stage, secs in run.get("stage_seconds", {}).items():
+        if _as_float(secs) is None:
+            raise DataError(f"{path}: stage_seconds {reprlib.repr(stage)} is {reprlib.repr(secs)}; expected "
+                            "a number of seconds")
+    for stage in run.get("cached_stages", []):
+        if not isinstance(stage, str):
+            raise DataError(f"{path}: cached_stages holds {reprlib.repr(stage)}; expected stage names")
+    return run
+
+
+ACCURACY_AT_P = "pcpg/accuracy/p"  # metric names pcpg/accuracy/p<p>: the p is read from the name
+
+
+def read_metrics(path: Path) -> dict[str, float | None]:
+    """``metrics.json``: metric name to a number (null for a metric that could not be computed)."""
+    metrics = {}
+    for key, value in read_json(path).items():
+        metrics[key] = None if value is None else _as_float(value)
+        if value is not None and metrics[key] is None:
+            raise DataError(f"{path}: metric {reprlib.repr(key)} is {reprlib.repr(value)}; expected a number "
+                            "(or null)")
+        if key.startswith(ACCURACY_AT_P) and key.count("/") == 2:
+            try:
+                float(key.removeprefix(ACCURACY_AT_P))
+            except ValueError:
+                raise DataError(f"{path}: metric {reprlib.repr(key)}: the text after {ACCURACY_AT_P!r} should "
+                                "be a number (the p)") from None
+    return metrics
+
+
+@dataclass(frozen=True)
+class TableSpec:
+    """What the report's code relies on in one kind of summary table."""
+
+    columns: tuple[str, ...] = ()  # required, any type
+    numbers: tuple[str, ...] = ()  # required, numbers (an empty cell is allowed: a missing value)
+    number_prefix: str = ""  # more numeric columns: every ``<prefix><digits>`` (R1, R2, ...)
+    unique: tuple[str, ...] = ()  # columns that together name one row
+
+
+#: tables the report computes with (by file stem); any other table is only shown, cell by cell
+TABLE_SPECS = {
+    "accuracy": TableSpec(("method",), ("p", "mean", "std"), unique=("method", "p")),
+    "rollout_length": TableSpec(("method",), ("p", "mean")),
+    "corruption_accuracy": TableSpec(numbers=("c", "mean", "std")),
+    "corruption_reward": TableSpec(numbers=("c",), number_prefix="R"),
+}
+#: matrices written with their row labels as the first, unnamed column (any such table is one)
+MATRICES = ("cross_accuracy", "cross_accuracy_std", "correlation", "correlation_std")
+
+
+def is_matrix_column(name) -> bool:
+    return str(name).startswith("Unnamed") or str(name) == "index"
+
+
+def _cell_repr(v) -> str:
+    return reprlib.repr(v.item() if hasattr(v, "item") else v)  # 1.0, not np.float64(1.0)
+
+
+def _cell_number(v) -> float | None:
+    """A table cell as a float (an empty cell is NaN); None for text, true/false or an integer
+    beyond float's range."""
+    if pd.api.types.is_bool(v):
+        return None
+    try:
+        return float(v)
+    except (TypeError, ValueError, OverflowError):
+        return None
+
+
+def _check_numbers(df: pd.DataFrame, col: str, path: Path) -> None:
+    values = df[col].map(_cell_number)
+    bad = values.isna() & df[col].notna()
+    if bad.any():
+        i = int(bad.to_numpy().argmax())
+        raise DataError(f"{path}: column {reprlib.repr(str(col))}, line {i + 2}: {_cell_repr(df[col].iloc[i])} "
+                        "is not a number")
+    df[col] = values.astype(float)
+
+
+def _check_unique(df: pd.DataFrame, cols: list, path: Path) -> None:
+    repeated = df.duplicated(subset=cols)
+    if repeated.any():
+        i = int(repeated.to_numpy().argmax())
+        row = ", ".join(f"{'label' if is_matrix_column(c) else c} {_cell_repr(df[c].iloc[i])}" for c in cols)
+        raise DataError(f"{path}: line {i + 2} repeats the row for {row}; each may appear once")
+
+
+def check_table(df: pd.DataFrame, path: Path) -> pd.DataFrame:
+    """``df`` (read from ``path``) checked against what the report computes with; one line naming
+    the file, column and line of the first problem."""
+    cols = [str(c) for c in df.columns]
+    if path.stem in MATRICES or (cols and is_matrix_column(cols[0])):
+        if len(cols) < 2:
+            raise DataError(f"{path}: a matrix needs row labels and at least one column; found {reprlib.repr(cols)}")
+        _check_unique(df, [df.columns[0]], path)
+        for col in df.columns[1:]:
+            _check_numbers(df, col, path)
+        return df
+    spec = TABLE_SPECS.get(path.stem, TableSpec())
+    missing = [c for c in spec.columns + spec.numbers if c not in cols]
+    if missing:
+        raise DataError(f"{path}: no column {missing[0]!r} (found {reprlib.repr(cols)}); this table needs "
+                        f"{', '.join(spec.columns + spec.numbers)}")
+    prefixed = [c for c in cols if spec.number_prefix and c.startswith(spec.number_prefix)
+                and c.removeprefix(spec.number_prefix).isdigit()]
+    for col in [*spec.numbers, *prefixed]:
+        _check_numbers(df, col, path)
+    if spec.unique:
+        _check_unique(df, list(spec.unique), path)
+    return df
+
+
+def read_csv(path: Path) -> pd.DataFrame | None:
+    """A summary table, checked by :func:`check_table`; None when the file has no columns at all."""
+    try:
+        df = pd.read_csv(path)
     except pd.errors.EmptyDataError:
         return None  # an empty table (e.g. no rollouts for this setting) has nothing to show
     except (OSError, ValueError, pd.errors.ParserError) as e:
-        raise DataError(f"{path}: unreadable table ({e})") from None
+        raise DataError(f"{path}: unreadable table ({' '.join(str(e).split())[:300]})") from None
+    return check_table(df, path)
 
 
 def figure_of(path: Path, root: Path, alt: str) -> Figure | None:
@@ -157,15 +300,16 @@ def table_of(df: pd.DataFrame, name: str, file: str = "", std: pd.DataFrame | No
     """A page table: real headers, ``X`` and ``X_std`` (or ``mean``/``std``) merged as mean ± std."""
     df = df.copy()
     first = str(df.columns[0])
-    if first.startswith("Unnamed") or first == "index":  # a matrix written with its index
+    if is_matrix_column(first):  # a matrix written with its index
         df = df.set_index(first)
-        if std is not None and str(std.columns[0]).startswith("Unnamed"):
+        if std is not None and is_matrix_column(std.columns[0]):
             std = std.set_index(std.columns[0])
         rows = []
         for label, row in df.iterrows():
             cells = [f"π {label}"]
             for col in df.columns:
-                s = std.loc[label, col] if std is not None and col in std.columns else None
+                known = std is not None and col in std.columns and label in std.index
+                s = std.loc[label, col] if known else None
                 cells.append(_pm(float(row[col]), None if s is None else float(s)))
             rows.append(cells)
         return Table(name, ["model π_k \\ subset"] + [f"H {c}" for c in df.columns], rows[:MAX_ROWS],

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import TextIO
 
 from pcpg_dist.errors import ConfigError, DataError
-from pcpg_dist.report_data import read_json
+from pcpg_dist.report_data import read_metrics, read_run
 
 RTOL = 1e-6  # default relative tolerance: float32 sums in another order stay well inside it
 ATOL = 1e-9
@@ -116,7 +116,7 @@ def code_notes(run: dict, cfg) -> list[str]:
     from pcpg_dist.provenance import git_commit, versions
 
     notes = []
-    prov = run.get("provenance") if isinstance(run.get("provenance"), dict) else {}
+    prov = run.get("provenance", {})  # an object: read_run checked it
     logged_commit, now = prov.get("git_commit", "unknown"), git_commit()
     if logged_commit != now:
         notes.append(f"code: logged at commit {logged_commit}, reproducing at {now}; differences may "
@@ -143,8 +143,8 @@ def reproduce(summary: Path, workdir: Path | None = None, rtol: float = RTOL, at
     from pcpg_dist.runner import run_experiment
 
     summary = Path(summary)
-    run = read_json(summary / "run.json")
-    logged = read_json(summary / "metrics.json")
+    run = read_run(summary / "run.json")
+    logged = read_metrics(summary / "metrics.json")
     cfg = recorded_config(run, summary / "run.json")
     notes = code_notes(run, cfg)
     out = _fresh(workdir, cfg.name)
@@ -185,7 +185,8 @@ def cli_reproduce(args) -> int:
     downloads = Path(tempfile.gettempdir()) / "pcpg-reproduce-logged"  # used for MLflow downloads only
     summary, _ = resolve_summary(args.run, args.tracking_uri, downloads)
     # everything a user can get wrong is checked before Ray and torch start
-    cfg = recorded_config(read_json(summary / "run.json"), summary / "run.json")
+    cfg = recorded_config(read_run(summary / "run.json"), summary / "run.json")
+    read_metrics(summary / "metrics.json")
     workdir = _fresh(Path(args.workdir) if args.workdir else None, cfg.name)
     init_ray(args.ray_address)
     rep = reproduce(summary, workdir, args.rtol, args.atol, show_progress=not args.quiet)

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pcpg_dist
-from pcpg_dist.errors import ServiceError
+from pcpg_dist.errors import DataError, ServiceError
 from pcpg_dist.provenance import git_commit, uv_lock_hash
 
 # Progress bars of artifact transfers would interleave with ours in the terminal, and the fluent
@@ -213,6 +213,15 @@ def _artifact_root(uri: str) -> str | None:
     """On SQLite the artifacts go to ``mlruns/`` beside the database, as an absolute URI."""
     db = _sqlite_path(uri)
     return (db.parent / "mlruns").resolve().as_uri() if db is not None else None
+
+
+def check_store_holds(target: str, uri: str) -> None:
+    """Looking ``target`` up must not create a store: a ``sqlite:///`` file that does not exist
+    holds no run (opening it would leave a 1 MB empty ``mlflow.db`` behind)."""
+    db = _sqlite_path(uri)
+    if db is not None and not db.is_file():
+        raise DataError(f"{target!r} is neither a run's output folder nor an MLflow run: no such folder, and "
+                        f"no MLflow store at {uri}")
 
 
 def check_reachable(uri: str, timeout: float = 8.0) -> None:

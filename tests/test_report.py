@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import base64
 import json
+import math
 import re
 import shutil
 from pathlib import Path
@@ -283,3 +284,85 @@ def test_a_domain_without_rollouts_or_labels_renders(summary, tmp_path):
     assert 'id="E1-corruption"' not in html and 'href="#E1-corruption"' not in html
     anchors = set(re.findall(r'id="([^"]+)"', html))
     assert set(re.findall(r'href="#([^"]+)"', html)) <= anchors and "E1-cross" in anchors
+
+
+# ----------------------------------------------------------------------------- bad summaries
+ACCURACY_HEAD = "method,p,mean,std,seeds\n"
+TAMPERED = {  # case: (file in the summary, its new text, what the one error line must say)
+    "accuracy_repeated_row": ("E1/accuracy.csv", ACCURACY_HEAD + "pcpg,1.0,0.5,0,1\npcpg,1.0,0.6,0,1\n",
+                              "accuracy.csv: line 3 repeats the row for method 'pcpg', p 1.0"),
+    "accuracy_without_std": ("E1/accuracy.csv", "method,p,mean,seeds\npcpg,1.0,0.5,1\n",
+                             "accuracy.csv: no column 'std'"),
+    "accuracy_p_text": ("E1/accuracy.csv", ACCURACY_HEAD + "pcpg,abc,0.5,0,1\n",
+                        "accuracy.csv: column 'p', line 2: 'abc' is not a number"),
+    "cross_accuracy_text": ("E1/cross_accuracy.csv", ",k0,k1\nk0,abc,0.5\nk1,0.1,0.2\n",
+                            "cross_accuracy.csv: column 'k0', line 2: 'abc' is not a number"),
+    "computed_text": ("run.json", {"computed": {"data": "x"}}, "run.json: computed 'data' is 'x'"),
+    "computed_overflow": ("run.json", {"computed": {"data": math.inf}}, "run.json: computed 'data' is inf"),
+    "stage_seconds_list": ("run.json", {"stage_seconds": [1, 2]}, "run.json: 'stage_seconds' is [1, 2]"),
+    "metric_text": ("metrics.json", {"pcpg/accuracy/p1": "x"}, "metrics.json: metric 'pcpg/accuracy/p1' is 'x'"),
+    "metric_list": ("metrics.json", {"pcpg/accuracy/p1": [1]}, "metrics.json: metric 'pcpg/accuracy/p1' is [1]"),
+    "metric_p_text": ("metrics.json", {"pcpg/accuracy/pabc": 0.5}, "metrics.json: metric 'pcpg/accuracy/pabc'"),
+    "run_json_nested": ("run.json", "[" * 100_000 + "]" * 100_000, "run.json: unreadable (maximum recursion"),
+}
+
+
+def tamper(summary: Path, tmp: Path, file: str, content) -> Path:
+    """A copy of ``summary`` with ``file`` replaced (text as is; a dict merged into the JSON file)."""
+    folder = tmp / "tampered" / "summary"
+    shutil.copytree(summary, folder)
+    path = folder / file
+    if isinstance(content, dict):  # JSON has no infinity: a number beyond float's range reads as one
+        content = json.dumps(json.loads(path.read_text()) | content).replace("Infinity", "1e400")
+    path.write_text(content)
+    return folder
+
+
+@pytest.mark.parametrize("case", sorted(TAMPERED))
+def test_tampered_summary_files_are_one_line_data_errors(case, tmp_path, capsys):
+    """A tampered table or JSON file in the summary: exit 2, one line naming the file and what is
+    wrong, and no report folder (was a pandas, int() or json traceback, exit 1)."""
+    from pcpg_dist.cli import main
+    from pcpg_dist.errors import DataError
+
+    file, content, says = TAMPERED[case]
+    folder = tamper(DATA, tmp_path, file, content)
+    out = tmp_path / "out"
+    assert main(["report", str(folder.parent), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"pcpg: error: {folder / file}: "), err
+    assert says in err[0]
+    assert not out.exists()
+    with pytest.raises(DataError, match=re.escape(says)):  # the library raises it too
+        build(folder)
+
+
+def test_report_out_inside_the_summary_is_refused(summary, tmp_path, capsys):
+    """`--out RUN/summary` (or below it) would make the next report read its figures/ as an
+    environment: refused, one line naming --out, nothing written into the summary."""
+    from pcpg_dist.cli import main
+
+    folder = tmp_path / "run" / "summary"
+    shutil.copytree(summary, folder)
+    before = sorted(p.relative_to(folder) for p in folder.rglob("*"))
+    for out in (folder, folder / "report", folder / "E1" / ".." / "x"):
+        assert main(["report", str(folder.parent), "--out", str(out)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith(f"pcpg: error: --out {out}: inside the run's summary folder")
+    assert sorted(p.relative_to(folder) for p in folder.rglob("*")) == before
+    assert main(["report", str(folder.parent)]) == 0  # the default, RUN/report, is outside it
+    assert (folder.parent / "report" / "report.html").is_file()
+
+
+def test_report_of_a_mistyped_run_creates_no_mlflow_store(tmp_path, monkeypatch, capsys):
+    """Not a folder, and no sqlite store in the current folder: one line, and no mlflow.db made
+    (opening the default store created a 1 MB file)."""
+    from pcpg_dist.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
+    assert main(["report", "nosuchrun"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"pcpg: error: 'nosuchrun' is neither a run's output folder nor an MLflow run: no such "
+                   f"folder, and no MLflow store at sqlite:///{tmp_path.resolve() / 'mlflow.db'}"]
+    assert list(tmp_path.iterdir()) == []

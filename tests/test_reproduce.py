@@ -88,3 +88,38 @@ def test_bad_arguments_are_one_line_errors(tmp_path, capsys):
     assert main(["reproduce", str(tmp_path / "run"), "--rtol", "-1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and "not empty" in err[0] and "--rtol -1.0" in err[1]
+
+
+@pytest.mark.parametrize("file, text, says", [
+    ("run.json", "[" * 100_000 + "]" * 100_000, "run.json: unreadable (maximum recursion"),
+    ("run.json", json.dumps({"config": TINY, "computed": {"data": "x"}}), "run.json: computed 'data' is 'x'"),
+    ("metrics.json", '{"pcpg/accuracy/p1": "x"}', "metrics.json: metric 'pcpg/accuracy/p1' is 'x'"),
+    ("metrics.json", '{"pcpg/accuracy/p1": [1]}', "metrics.json: metric 'pcpg/accuracy/p1' is [1]"),
+])
+def test_tampered_run_files_are_one_line_before_anything_runs(file, text, says, tmp_path, capsys):
+    """A tampered run.json or metrics.json: exit 2, one line naming the file, before the rerun's
+    folder is made (a bad metrics.json used to surface only after the whole sweep, or as a
+    RecursionError traceback)."""
+    from pcpg_dist.cli import main
+
+    summary = tmp_path / "run" / "summary"
+    summary.mkdir(parents=True)
+    (summary / "run.json").write_text(json.dumps({"config": TINY}))
+    (summary / "metrics.json").write_text("{}")
+    (summary / file).write_text(text)
+    workdir = tmp_path / "rerun"
+    assert main(["reproduce", str(tmp_path / "run"), "--workdir", str(workdir)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"pcpg: error: {summary / file}: ") and says in err[0], err
+    assert not workdir.exists()
+
+
+def test_reproduce_of_a_mistyped_run_creates_no_mlflow_store(tmp_path, monkeypatch, capsys):
+    from pcpg_dist.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
+    assert main(["reproduce", "nosuchrun"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "'nosuchrun' is neither a run's output folder nor an MLflow run" in err[0]
+    assert list(tmp_path.iterdir()) == []
