@@ -182,12 +182,13 @@ def _cmd_tune(args: argparse.Namespace) -> None:
     from pcpg_dist.config.overrides import load_config_with
     from pcpg_dist.progress import out as console  # results: stdout
     from pcpg_dist.ray_utils import init_ray
-    from pcpg_dist.tuning import run_study
+    from pcpg_dist.tuning import open_storage, run_study, tune_settings
 
     cfg = load_config_with(args.config, args.overrides)
+    storage = open_storage(args.optuna_storage, tune_settings(cfg, args.n_trials))  # before Ray starts
     _check_tracking(args)
     init_ray(args.ray_address)
-    res = run_study(cfg, storage_url=args.optuna_storage, workdir=Path(args.workdir),
+    res = run_study(cfg, storage_url=storage, workdir=Path(args.workdir),
                     tracking_uri=args.tracking_uri, track=not args.no_tracking,
                     show_progress=not args.quiet, n_trials=args.n_trials, study_name=args.study_name,
                     out=Path(args.out) if args.out else None)

@@ -24,17 +24,22 @@ Why this shape:
 from __future__ import annotations
 
 import contextlib
+import itertools
+import json
 import math
+import reprlib
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Generator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from optuna.storages.journal import JournalFileBackend
+from optuna.storages.journal._storage import JournalOperation
 
-from pcpg_dist.config.stages import PARAMS, TARGETS, TuneConfig  # noqa: F401 - re-exported
+from pcpg_dist.config.stages import MAX_COUNT, PARAMS, TARGETS, TuneConfig  # noqa: F401 - re-exported
 from pcpg_dist.errors import ConfigError, DataError, ServiceError
 
 if TYPE_CHECKING:
@@ -170,6 +175,94 @@ class Storage:
         return self.url
 
 
+_JOURNAL_OPS = frozenset(int(op) for op in JournalOperation)  # Optuna's replay asserts on any other
+_REPR = reprlib.Repr()
+_REPR.maxstring = _REPR.maxother = 80
+
+
+def _short(value: Any) -> str:
+    """A value from a file or the command line, cut to keep its message one short line."""
+    return _REPR.repr(value)
+
+
+def _log_problem(log: Any) -> str | None:
+    """What makes one parsed journal line something other than an Optuna journal operation."""
+    if not isinstance(log, dict):
+        return f"{_short(log)} is not a JSON object"
+    op = log.get("op_code")
+    if type(op) is not int or op not in _JOURNAL_OPS:
+        return f"op_code {_short(op)} is not one of Optuna's journal operations (0..{max(_JOURNAL_OPS)})"
+    return None
+
+
+def _line_problem(line: bytes) -> str:
+    """Why a journal line cannot be read (it is shown in the error, cut to one short line)."""
+    if not line.endswith(b"\n"):
+        return "cut off, no newline at its end (a driver stopped while writing it? delete that line to go on)"
+    try:
+        log = json.loads(line)
+    except json.JSONDecodeError as e:
+        return f"not JSON ({e.msg}): {_short(line.decode(errors='replace').rstrip())}"
+    except (ValueError, RecursionError) as e:  # not UTF-8; nested too deep
+        return f"not JSON ({type(e).__name__}): {_short(line)}"
+    return _log_problem(log) or f"{_short(log)}"
+
+
+class CheckedJournalBackend(JournalFileBackend):
+    """Optuna's journal file, refusing a file that is not a journal before anything is written.
+
+    Optuna replays any file it is given: another file's lines end in a traceback deep in the
+    replay (``KeyError``, ``TypeError``, an ``assert``), and a last line that does not parse is
+    skipped as "being written", after which the journal's own lines are appended to the file.
+    Each line is checked as Optuna reads it (a large journal is not read twice); ``line`` is the
+    number of the last line handed to Optuna.
+    """
+
+    def __init__(self, file_path: str) -> None:
+        super().__init__(file_path)
+        self.line = 0
+
+    def read_logs(self, log_number_from: int) -> Generator[dict[str, Any], None, None]:
+        self.line = log_number_from
+        logs = super().read_logs(log_number_from)
+        while True:
+            try:
+                log = next(logs)
+            except StopIteration:
+                return
+            except (ValueError, RecursionError):
+                # Optuna raises for a line that is not JSON when it reaches the line after it
+                # (RecursionError: on the line itself); either way the next line is the bad one
+                raise self.not_a_journal(self.line + 1) from None
+            self.line += 1
+            problem = _log_problem(log)
+            if problem is not None:
+                raise self.not_a_journal(self.line, problem)
+            yield log
+
+    def check_read_to_end(self) -> None:
+        """Refuse a last line that Optuna skipped (not JSON, or cut off): the next append would
+        join it and ruin the file."""
+        lines, last = 0, b"\n"
+        with open(self._file_path, "rb") as f:
+            for chunk in iter(lambda: f.read(1 << 20), b""):
+                lines, last = lines + chunk.count(b"\n"), chunk[-1:]
+        if last != b"\n":  # a last line without its newline
+            lines += 1
+        if lines > self.line:
+            raise self.not_a_journal(self.line + 1)
+
+    def not_a_journal(self, number: int, problem: str | None = None) -> DataError:
+        """The one-line error for line ``number`` (1-based); without ``problem``, the line is read
+        again to say what is wrong with it."""
+        if problem is None:
+            with open(self._file_path, "rb") as f:
+                line = next(itertools.islice(f, number - 1, None), b"")
+            problem = _line_problem(line)
+        return DataError(f"cannot open the Optuna journal {self._file_path}: not an Optuna journal "
+                         f"(line {number}: {problem}); give a new file or another --optuna-storage")
+
+
 def rdb_url(url: str) -> str:
     """``postgresql://`` names the psycopg2 driver explicitly: SQLAlchemy 2.1 would pick psycopg 3,
     which is not installed (the project ships psycopg2-binary)."""
@@ -177,10 +270,14 @@ def rdb_url(url: str) -> str:
 
 
 def open_storage(url: str | None, tune: TuneConfig) -> Storage:
-    """A URL with ``://`` is an RDB (PostgreSQL for teams); anything else is a journal file path."""
+    """A URL with ``://`` is an RDB (PostgreSQL for teams); anything else is a journal file path.
+
+    A journal path must be a new file or an Optuna journal: any other file is refused, untouched
+    (:class:`CheckedJournalBackend`).
+    """
     import optuna
     from optuna.storages import RDBStorage, RetryHeartbeatStaleTrialCallback
-    from optuna.storages.journal import JournalFileBackend, JournalStorage
+    from optuna.storages.journal import JournalStorage
 
     url = url or str(Path.cwd() / DEFAULT_STORAGE)
     optuna.logging.set_verbosity(optuna.logging.WARNING)
@@ -189,11 +286,21 @@ def open_storage(url: str | None, tune: TuneConfig) -> Storage:
     warnings.filterwarnings("ignore", message="Heartbeat of storage is supposed to be used with Study.optimize")
     if "://" not in url:
         path = Path(url).resolve()
+        if path.exists() and not path.is_file():  # /dev/null, a folder, a pipe
+            raise ConfigError(f"cannot open the Optuna journal {path}: not a regular file; give a journal "
+                              f"file path or an RDB URL (postgresql://user@host:5432/db)")
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
-            return Storage(str(path), JournalStorage(JournalFileBackend(str(path))), heartbeat=False)
+            backend = CheckedJournalBackend(str(path))
+            try:
+                journal = JournalStorage(backend)  # replays the whole file
+            except (KeyError, TypeError, ValueError, AssertionError) as e:
+                # a line of the right shape whose fields Optuna's replay cannot use
+                raise backend.not_a_journal(backend.line, f"Optuna cannot replay it: {_short(e)}") from None
+            backend.check_read_to_end()
         except OSError as e:
             raise ServiceError(f"cannot open the Optuna journal {path}: {e.strerror}") from None
+        return Storage(str(path), journal, heartbeat=False)
     url = rdb_url(url)
     try:
         rdb = RDBStorage(url, engine_kwargs={"pool_pre_ping": True}, heartbeat_interval=tune.heartbeat_interval,
@@ -269,13 +376,33 @@ def _error_text(exc: BaseException) -> str:
     return text[:500]
 
 
-def run_study(cfg: ExperimentConfig, storage_url: str | None = None, workdir: Path = Path("runs"),
+def tune_settings(cfg: ExperimentConfig, n_trials: int | None = None) -> TuneConfig:
+    """The config's tuning section with ``n_trials`` (``--n-trials``) in its place, checked as the
+    config's own value is (a copy of a model is not validated again)."""
+    if n_trials is None:
+        return cfg.tuning
+    if type(n_trials) is not int or not 1 <= n_trials <= MAX_COUNT:
+        raise ConfigError(f"--n-trials must be at least 1 (and at most {MAX_COUNT}), got {_short(n_trials)}")
+    return cfg.tuning.model_copy(update={"n_trials": n_trials})
+
+
+def _objective_key_of(storage: Storage, name: str) -> str | None:
+    """The objective key recorded by study ``name``; None if there is no such study (yet)."""
+    try:
+        study_id = storage.storage.get_study_id_from_name(name)
+    except KeyError:
+        return None
+    return storage.storage.get_study_user_attrs(study_id).get("pcpg.objective_key")
+
+
+def run_study(cfg: ExperimentConfig, storage_url: str | Storage | None = None, workdir: Path = Path("runs"),
               tracking_uri: str | None = None, track: bool = True, show_progress: bool = True,
               n_trials: int | None = None, study_name: str | None = None, out: Path | None = None,
               trial_fn: TrialFn = trial_task) -> TuneResult:
     """Create or resume the study, run trials on Ray until it holds ``n_trials`` finished ones,
     and write the best parameters as a config `pcpg run` accepts. Ray must be initialised.
 
+    ``storage_url``: a journal path or RDB URL, or a storage :func:`open_storage` opened already.
     ``trial_fn(datasets, cfg, tune, params, threads) -> {"value", "pruned", "metrics"}`` is the
     Ray task of one trial (a parameter so tests can make trials fail).
     """
@@ -288,32 +415,33 @@ def run_study(cfg: ExperimentConfig, storage_url: str | None = None, workdir: Pa
     from pcpg_dist.progress import progress_bar
     from pcpg_dist.runner import load_units
 
-    tune = cfg.tuning
-    if n_trials is not None:
-        tune = tune.model_copy(update={"n_trials": n_trials})
+    tune = tune_settings(cfg, n_trials)
     name = study_name or tune.study_name or f"{cfg.name}-tune"
-    storage = open_storage(storage_url, tune)
+    storage = storage_url if isinstance(storage_url, Storage) else open_storage(storage_url, tune)
     key = objective_key(cfg, tune)
-    sampler = optuna.samplers.TPESampler(seed=tune.sampler_seed, n_startup_trials=tune.n_startup_trials)
-    study = optuna.create_study(study_name=name, storage=storage.storage, sampler=sampler,
-                                direction="maximize", load_if_exists=True)
-    known = study.user_attrs.get("pcpg.objective_key")
-    if known is None:
-        study.set_user_attr("pcpg.objective_key", key)
-        study.set_user_attr("pcpg.config_name", cfg.name)
-    elif known != key:
+    known = _objective_key_of(storage, name)
+    if known is not None and known != key:
         raise ConfigError(f"study {name!r} in {storage.shown} was run with other data, search space or "
                           f"objective settings; pass --study-name NEW to start another study")
     out = Path(out) if out else Path(workdir).resolve() / cfg.name / "tuning"
+    the_units, _ = load_units(cfg, Cache(Path(workdir).resolve() / cfg.name / "cache"), show_progress)
+    datasets = {u.name: u for u in the_units}
+    envs = trial_environments(cfg, tune, list(datasets))
+
+    # every check of the user's input is behind us: only now is the study created and marked, so
+    # a mistake never leaves a study that refuses the corrected command
+    sampler = optuna.samplers.TPESampler(seed=tune.sampler_seed, n_startup_trials=tune.n_startup_trials)
+    study = optuna.create_study(study_name=name, storage=storage.storage, sampler=sampler,
+                                direction="maximize", load_if_exists=True)
+    if known is None:
+        study.set_user_attr("pcpg.objective_key", key)
+        study.set_user_attr("pcpg.config_name", cfg.name)
     stale = fail_stale(study, storage, tune, mine=set())
     queued = {tuple(sorted(t.params.items())) for t in study.get_trials(deepcopy=False)}
     for params in tune.enqueue:
         if tuple(sorted(params.items())) not in queued:
             study.enqueue_trial(params)
 
-    the_units, _ = load_units(cfg, Cache(Path(workdir).resolve() / cfg.name / "cache"), show_progress)
-    datasets = {u.name: u for u in the_units}
-    envs = trial_environments(cfg, tune, list(datasets))
     data_ref = ray.put({e: datasets[e] for e in envs})
     threads = cfg.runner.cpus_per_task
     remote = ray.remote(num_cpus=threads, max_retries=tune.max_retry)(trial_fn)

@@ -12,17 +12,20 @@ import numpy as np
 import pytest
 import yaml
 
+from pcpg_dist.cli import main
 from pcpg_dist.config import load_config, parse_config
-from pcpg_dist.errors import ConfigError
+from pcpg_dist.errors import ConfigError, DataError
 from pcpg_dist.tuning import (
     PARAMS,
     TuneConfig,
     apply_params,
     best_config_data,
+    open_storage,
     rdb_url,
     run_study,
     suggest,
     trial_task,
+    tune_settings,
 )
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -64,6 +67,30 @@ def flaky_trial(datasets, cfg, tune, params, threads):
     if params["k"] == 3:
         raise RuntimeError("boom: k=3 is broken on purpose")
     return trial_task(datasets, cfg, tune, params, threads)
+
+
+def instant_trial(datasets, cfg, tune, params, threads):
+    """A trial that trains nothing: for tests about the study around the trials."""
+    return {"value": 0.5, "pruned": None, "metrics": {}}
+
+
+def real_journal(path: Path) -> bytes:
+    """A journal written by Optuna itself: a study, a user attribute, a finished trial."""
+    import optuna
+    from optuna.storages.journal import JournalFileBackend, JournalStorage
+
+    study = optuna.create_study(study_name="s", storage=JournalStorage(JournalFileBackend(str(path))))
+    study.set_user_attr("pcpg.objective_key", "abc")
+    study.optimize(lambda t: t.suggest_int("k", 2, 4), n_trials=1)
+    return path.read_bytes()
+
+
+def tune_cli(tmp_path: Path, capsys, *args: str) -> tuple[int, str]:
+    """`pcpg tune` on the tiny config; its exit code and stderr."""
+    path = tmp_path / "tiny.yaml"
+    path.write_text(yaml.safe_dump(TINY))
+    code = main(["tune", str(path), "--no-tracking", "--workdir", str(tmp_path / "work"), "--quiet", *args])
+    return code, capsys.readouterr().err
 
 
 # ------------------------------------------------------------------------------ fast
@@ -114,6 +141,77 @@ def test_best_config_is_loadable_elsewhere(tmp_path):
     assert back.clustering.k == 3 and back.bc.hidden_size == 16
     assert back.gridworld.layout_dir == cfg.gridworld.layout_dir
     assert back.pbtg == cfg.pbtg and back.ranking == cfg.ranking
+
+
+# Optuna's replay of a file that is not its journal ended in a 37-line traceback (KeyError,
+# TypeError, an assert), and a single line that is not JSON was skipped and then appended to.
+@pytest.mark.parametrize("text, line, words", [
+    (b"name: tiny\nseed: 0\n", 1, "not JSON (Expecting value): 'name: tiny'"),
+    (b'{"a": 1}\n', 1, "op_code None is not one of Optuna's journal operations (0..10)"),
+    (b"[1,2]\n", 1, "[1, 2] is not a JSON object"),
+    (b'{"op_code": 99, "worker_id": "x"}\n', 1, "op_code 99 is not one of Optuna's journal operations"),
+    (b'{"op_code": 0}\n', 1, "Optuna cannot replay it: KeyError('study_name')"),
+    (b"hello", 1, "cut off, no newline at its end"),
+    (b"\xff\xfe" * 50 + b"\n", 1, "not JSON (UnicodeDecodeError)"),
+    (b"[" * 100_000 + b"\n", 1, "not JSON (RecursionError)"),
+    ("journal", 2, "not JSON (Expecting value): 'oops'"),  # a bad line inside a real journal
+    ("journal+cut", 6, "cut off, no newline at its end"),  # a driver stopped mid-append
+])
+def test_a_storage_file_that_is_not_an_optuna_journal_is_refused_untouched(tmp_path, capsys, text, line, words):
+    target = tmp_path / "victim.log"
+    if text == "journal":
+        lines = real_journal(tmp_path / "real.log").splitlines(keepends=True)
+        text = b"".join([lines[0], b"oops\n", *lines[1:]])
+    elif text == "journal+cut":
+        text = real_journal(tmp_path / "real.log") + b'{"op_code": 4, "wor'
+        assert text.count(b"\n") == 5
+    target.write_bytes(text)
+    with pytest.raises(DataError, match=r"not an Optuna journal \(line ") as raised:
+        open_storage(str(target), TuneConfig())
+    assert f"(line {line}: " in str(raised.value) and words in str(raised.value)
+    assert len(str(raised.value)) < 400
+
+    code, err = tune_cli(tmp_path, capsys, "--optuna-storage", str(target))
+    assert code == 2 and err.count("\n") == 1 and "Traceback" not in err
+    assert err.startswith(f"pcpg: error: cannot open the Optuna journal {target}: not an Optuna journal "
+                          f"(line {line}: ")
+    assert target.read_bytes() == text  # untouched: nothing appended
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["victim.log", "tiny.yaml"]
+                                                                + ["real.log"] * (line > 1))
+
+
+def test_a_real_journal_opens_and_keeps_its_study(tmp_path):
+    journal = tmp_path / "j.log"
+    real_journal(journal)
+    storage = open_storage(str(journal), TuneConfig())
+    (study,) = storage.storage.get_all_studies()
+    assert study.study_name == "s" and study.user_attrs == {"pcpg.objective_key": "abc"}
+    assert len(storage.storage.get_all_trials(study._study_id)) == 1
+    # an empty or missing file is a new journal
+    assert open_storage(str(tmp_path / "new" / "j.log"), TuneConfig()).storage.get_all_studies() == []
+
+
+@pytest.mark.parametrize("where", ["/dev/null", "folder"])
+def test_a_storage_path_that_is_not_a_regular_file_is_refused(tmp_path, capsys, where):
+    path = Path(where) if where.startswith("/") else tmp_path
+    code, err = tune_cli(tmp_path, capsys, "--optuna-storage", str(path))
+    assert code == 2 and err.count("\n") == 1
+    assert err == (f"pcpg: error: cannot open the Optuna journal {path}: not a regular file; give a journal "
+                   f"file path or an RDB URL (postgresql://user@host:5432/db)\n")
+    assert not (tmp_path / "work").exists()
+
+
+@pytest.mark.parametrize("n", ["-3", "0", "10000000000"])
+def test_n_trials_below_one_is_one_line_before_anything_starts(tmp_path, capsys, n):
+    journal = tmp_path / "j.log"
+    code, err = tune_cli(tmp_path, capsys, "--optuna-storage", str(journal), "--n-trials", n)
+    assert code == 2
+    assert err == f"pcpg: error: --n-trials must be at least 1 (and at most 10000000), got {n}\n"
+    assert not journal.exists() and not (tmp_path / "work").exists()
+    cfg = config(tmp_path)
+    with pytest.raises(ConfigError, match="--n-trials must be at least 1"):
+        tune_settings(cfg, int(n))
+    assert tune_settings(cfg, 5).n_trials == 5 and tune_settings(cfg, None) == cfg.tuning
 
 
 # ------------------------------------------------------------------------------ studies on Ray
@@ -272,3 +370,23 @@ def test_repeated_parameters_are_computed_once(ray_session, tmp_path, workdir):
     table = pd.read_csv(tmp_path / "out" / "trials.csv")
     assert res.n_trials == {"COMPLETE": 3}
     assert table["value"].nunique() == 1 and table["user_attrs_trial_seconds"].nunique() == 1
+
+
+@pytest.mark.slow
+def test_a_mistake_found_after_loading_the_data_leaves_no_study_behind(ray_session, tmp_path, workdir):
+    """`tuning.environments: [E9]` is found only once the data is loaded; the study used to be created
+    and marked by then, so the corrected command was refused as "run with other data"."""
+    import optuna
+    import ray.cloudpickle
+    from optuna.storages.journal import JournalFileBackend, JournalStorage
+
+    ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
+    name, journal = unique("typo"), tmp_path / "journal.log"
+    with pytest.raises(ConfigError, match=r"tuning.environments: \['E9'\] not in the data's environments \['E1'\]"):
+        run_study(config(tmp_path, environments=["E9"]), storage_url=str(journal), workdir=workdir, track=False,
+                  show_progress=False, study_name=name, out=tmp_path / "out")
+    assert optuna.get_all_study_names(JournalStorage(JournalFileBackend(str(journal)))) == []
+    assert not (tmp_path / "out").exists()
+    res = run_study(config(tmp_path), storage_url=str(journal), workdir=workdir, track=False,
+                    show_progress=False, study_name=name, out=tmp_path / "out", trial_fn=instant_trial)
+    assert res.n_trials == {"COMPLETE": 2} and res.best_value == 0.5
