@@ -219,6 +219,79 @@ def test_discrete_start_maps_logged_actions(rng):
     check_compatible(make_env(CORRIDOR, {}), 5, 3)
 
 
+# ------------------------------------------------------------------ an env that fails when it runs
+class Fragile(Corridor):
+    """The corridor, but ``fail_in`` ("reset" or "step", from the ``at_step``-th step on) raises a
+    two-line error, as a missing renderer would; only action +1 (logged 2) is valid, by the mask."""
+
+    def __init__(self, fail_in: str = "never", at_step: int = 0):
+        self.fail_in, self.at_step = fail_in, at_step
+
+    def reset(self, *, seed=None, options=None):
+        if self.fail_in == "reset":
+            raise RuntimeError("no display found\nsecond line of the env's error")
+        self.steps = 0
+        obs, _ = super().reset(seed=seed)
+        return obs, {"action_mask": np.array([0, 0, 1], np.int8)}
+
+    def step(self, action):
+        if action != 1:
+            raise ValueError(f"Fragile got action {action}, which its mask forbids")
+        if self.fail_in == "step" and self.steps >= self.at_step:
+            raise RuntimeError("no display found\nsecond line of the env's error")
+        self.steps += 1
+        obs, reward, done, truncated, _ = super().step(action)
+        return obs, reward, done, truncated, {"action_mask": np.array([0, 0, 1], np.int8)}
+
+
+FRAGILE = "pcpg-test/Fragile-v0"
+if FRAGILE not in gymnasium.registry:
+    gymnasium.register(FRAGILE, entry_point=Fragile, max_episode_steps=50)
+
+
+def _corridor_config(tmp_path, kwargs: dict):
+    import pandas as pd
+    import yaml
+
+    rows = [{"trajectory": i, "t": t, **{f"s{j}": float(j == t) for j in range(5)}, "action": 2 if t < 4 else -1}
+            for i in range(4) for t in range(5)]
+    pd.DataFrame(rows).to_parquet(tmp_path / "corridor.parquet", index=False)
+    path = tmp_path / "cfg.yaml"
+    path.write_text(yaml.safe_dump({
+        "name": "corridor", "domain": "trajectories", "seeds": [0],
+        "trajectories": {"path": "corridor.parquet", "gymnasium_env": FRAGILE, "gymnasium_kwargs": kwargs}}))
+    return path
+
+
+@pytest.mark.parametrize("fail_in", ["reset", "step"])
+def test_kwargs_that_fail_only_when_the_env_runs_fail_at_config_load(fail_in, tmp_path, capsys):
+    """(Was: `render_mode: human` without pygame failed in the rollouts, after data, clustering and
+    training, with an 83-line Ray traceback.)"""
+    from pcpg_dist.cli import main
+    from pcpg_dist.config import load_config
+
+    load_config(_corridor_config(tmp_path, {"fail_in": "step", "at_step": 1}))  # one reset, one masked step
+    cfg = _corridor_config(tmp_path, {"fail_in": fail_in})
+    code = main(["run", str(cfg), "--no-tracking", "--quiet", "--workdir", str(tmp_path / "runs")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1, err
+    assert err.startswith(f"pcpg: error: {cfg}: key 'trajectories.gymnasium_kwargs': gymnasium.make("
+                          f"'{FRAGILE}', **{{'fail_in': '{fail_in}'}}) fails on its first reset() and step(): "
+                          f"RuntimeError: no display found"), err
+    assert "second line" not in err and not (tmp_path / "runs").exists()
+
+
+def test_an_env_error_during_rollouts_is_one_config_error_naming_the_env(rng):
+    def forward(states, valid, rng):
+        return np.full(len(states), 2, np.int64)
+
+    with pytest.raises(ConfigError) as err:
+        rollout(FRAGILE, {"fail_in": "step", "at_step": 2}, forward, 2, rng, max_steps=10)
+    assert _one_line(err) == (f"key 'trajectories.gymnasium_kwargs': gymnasium.make('{FRAGILE}', **{{'at_step': 2, "
+                              f"'fail_in': 'step'}}) failed in a rollout (episode 0, step 2, step()): "
+                              f"RuntimeError: no display found")
+
+
 # ------------------------------------------------------------------ (f) learning end to end
 def test_bc_agent_trained_on_lake_logs_reaches_the_goal(lake_policy, rng):
     from pcpg_dist.bc import BCConfig, train_cells

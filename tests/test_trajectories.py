@@ -12,6 +12,8 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
 import yaml
 
@@ -163,6 +165,87 @@ def test_cli_on_a_bad_file_exits_2_and_writes_nothing(tmp_path, capsys) -> None:
     assert code == 2 and len(err.splitlines()) == 1 and "Traceback" not in err, err
     assert f"{path}: column 'action', row 1: action -5 is not allowed" in err
     assert not (tmp_path / "runs").exists()  # nothing written
+
+
+def arrow_table(**columns) -> pa.Table:
+    """``tiny_table()`` as an Arrow table, with columns replaced or added (a column of None drops it)."""
+    table = pa.Table.from_pandas(tiny_table(), preserve_index=False)
+    for name, values in columns.items():
+        i = table.schema.get_field_index(name)
+        table = table.remove_column(i) if i >= 0 else table
+        if values is not None:
+            table = table.append_column(name, values if isinstance(values, pa.Array) else pa.array(values))
+    return table
+
+
+def load_arrow(table: pa.Table, tmp_path: Path, name: str):
+    pq.write_table(table, tmp_path / name)
+    return datasets_from_table(read_step_table(tmp_path / name))
+
+
+ROWS = 30  # tiny_table(): 6 trajectories of 5 rows
+BAD_TYPES = {  # what pyarrow cannot cast (was a traceback), and values that change on the cast
+    "env of lists": ({"env": [[1]] * ROWS}, "column 'env' has type list<element: int64>; expected strings or integers"),
+    "env of structs": ({"env": [{"a": 1}] * ROWS}, "column 'env' has type struct<a: int64>; expected strings"),
+    "trajectory of lists": ({"trajectory": [[i // 5] for i in range(ROWS)]},
+                            "column 'trajectory' has type list<element: int64>; expected integers or strings"),
+    "env not UTF-8": ({"env": pa.array([b"\xff"] * ROWS)}, "column 'env', row 0: b'\\xff' is not UTF-8 text"),
+    "valid null in row 0": ({"valid": pa.array([None] + [[True] * 3] * (ROWS - 1), pa.list_(pa.bool_()))},
+                            "column 'valid', row 0: is empty (null); every row needs a list of booleans"),
+    "s01 for s1": ({"s01": np.zeros(ROWS), "s1": None}, "column 's01' has a leading zero; state columns are "
+                                                        "named s0, s1, ... s{d-1} without leading zeros (rename it s1)"),
+    "uint64 action": ({"action": pa.array(np.where(np.arange(ROWS) == 4, 2**64 - 1, 0).astype(np.uint64))},
+                      "column 'action', row 4: 18446744073709551615 does not fit a 64-bit signed integer"),
+    "uint64 t": ({"t": pa.array(np.where(np.arange(ROWS) == 1, 2**64 - 1, 0).astype(np.uint64))},
+                 "column 't', row 1: 18446744073709551615 does not fit a 64-bit signed integer"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_TYPES))
+def test_column_types_and_uint64_values_are_one_line_naming_the_column(case, tmp_path, capsys) -> None:
+    columns, needle = BAD_TYPES[case]
+    path = tmp_path / "bad.parquet"
+    pq.write_table(arrow_table(**columns), path)
+    with pytest.raises(DataError) as e:
+        datasets_from_table(read_step_table(path))
+    assert str(e.value).startswith(f"{path}: {needle}"), str(e.value)
+    code = main(["generate", str(write_config(tmp_path, path)), "--out", str(tmp_path / "out"), "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and err.startswith("pcpg: error: ") and len(err.splitlines()) == 1 and needle in err, err
+    assert not (tmp_path / "out").exists()
+
+
+def test_trajectory_ids_that_are_bytes_need_not_be_utf8(tmp_path) -> None:
+    """Ids are only compared, so bytes are ids as they are (was an ArrowInvalid on a cast to text)."""
+    ids = pa.array([b"\xff" + bytes([i // 5]) for i in range(ROWS)])
+    (as_bytes,) = load_arrow(arrow_table(trajectory=ids), tmp_path, "bytes.parquet").values()
+    (as_ints,) = load(tiny_table(), tmp_path).values()
+    np.testing.assert_array_equal(as_bytes.states, as_ints.states)
+    np.testing.assert_array_equal(as_bytes.actions, as_ints.actions)
+
+
+def test_a_folder_names_the_file_that_differs_and_a_files_own_row(tmp_path, capsys) -> None:
+    folder = tmp_path / "logs"
+    folder.mkdir()
+    first, second = tiny_table(seed=1), tiny_table(seed=2)
+    second["trajectory"] += 100
+    first.to_parquet(folder / "a.parquet", index=False)
+    for edit, needle in (
+        (lambda df: df.drop(columns="reward"), "b.parquet: has no column 'reward', which a.parquet has"),
+        (lambda df: df.assign(s2=0.0), "b.parquet: column 's2' is not in a.parquet"),
+        (lambda df: df.assign(s1="x"), "b.parquet: column 's1' has type large_string, but double in a.parquet"),
+        (lambda df: df.assign(action=df.action.where(df.index != 3, -5)),  # row 33 of the whole table
+         "b.parquet: column 'action', row 3: action -5 is not allowed"),
+    ):
+        edit(second).to_parquet(folder / "b.parquet", index=False)
+        with pytest.raises(DataError) as e:
+            datasets_from_table(read_step_table(folder))
+        assert str(e.value).startswith(f"{folder / needle}"), str(e.value)
+    code = main(["generate", str(write_config(tmp_path, folder)), "--out", str(tmp_path / "out"), "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and err == f"pcpg: error: {folder / 'b.parquet'}: column 'action', row 3: action -5 is not " \
+                                "allowed (0..n-1; -1 only on a trajectory's last row)", err
+    assert not (tmp_path / "out").exists()
 
 
 def test_action_outside_its_valid_mask(tmp_path) -> None:

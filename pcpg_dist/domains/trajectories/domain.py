@@ -42,6 +42,20 @@ class TrajectoriesDomain(Domain):
     def _skill_column(settings) -> str | None:
         return None if settings.score in BUILTIN_SCORES else settings.score
 
+    def check_config(self, cfg) -> None:
+        """The settings' own checks, then the Gymnasium env made, reset and stepped once, so that an
+        unknown id or kwargs that only fail when the env runs stop the run at config load."""
+        super().check_config(cfg)
+        s = cfg.trajectories
+        if s.gymnasium_env is not None:
+            from pcpg_dist.domains.trajectories.gym_rollout import check_runs, make_env
+
+            env = make_env(s.gymnasium_env, dict(s.gymnasium_kwargs))
+            try:
+                check_runs(env, s.gymnasium_env, dict(s.gymnasium_kwargs))
+            finally:
+                env.close()
+
     def data_key(self, cfg) -> list[Any]:
         from pcpg_dist.dataset import sha256_file
         from pcpg_dist.domains.trajectories.table import parquet_files

@@ -17,6 +17,7 @@ Gymnasium is imported inside the functions: this module is imported when a confi
 from __future__ import annotations
 
 import re
+import reprlib
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any, Literal
 
@@ -49,8 +50,24 @@ def env_name(env_id: str) -> str:
 
 
 def _one_line(e: BaseException) -> str:
-    text = " ".join(str(e).split())
+    """The error's type and the first line of its message, cut to 300 characters."""
+    text = next((line.strip() for line in str(e).splitlines() if line.strip()), "")
+    text = text if len(text) <= 300 else text[:300] + "..."
     return f"{type(e).__name__}: {text}" if text else type(e).__name__
+
+
+_SHORT = reprlib.Repr()
+_SHORT.maxstring, _SHORT.maxother, _SHORT.maxdict = 80, 80, 10
+
+
+def _call(env_id: str, kwargs: Mapping[str, Any]) -> str:
+    """How the env is made, for messages (long kwargs cut)."""
+    return f"gymnasium.make({env_id!r}, **{_SHORT.repr(dict(kwargs))})"
+
+
+def _env_key(kwargs: Mapping[str, Any]) -> str:
+    """The key to blame when the env fails: its kwargs where some are given, else the id."""
+    return KWARGS_KEY if kwargs else ENV_KEY
 
 
 def make_env(env_id: str, kwargs: Mapping[str, Any]) -> gymnasium.Env:
@@ -67,8 +84,8 @@ def make_env(env_id: str, kwargs: Mapping[str, Any]) -> gymnasium.Env:
     except Exception as e:  # whatever the env's constructor rejects is user input
         # ids like "module:Env-v0" import a module first; a missing one is the env key's fault
         missing = isinstance(e, ImportError | gymnasium.error.DependencyNotInstalled)
-        key = KWARGS_KEY if kwargs and not missing else ENV_KEY
-        raise ConfigError(f"key '{key}': gymnasium.make({env_id!r}, **{dict(kwargs)!r}) failed: "
+        key = ENV_KEY if missing else _env_key(kwargs)
+        raise ConfigError(f"key '{key}': {_call(env_id, kwargs)} failed: "
                           f"{_one_line(e)}") from None
     if not isinstance(env.action_space, spaces.Discrete):
         space = env.action_space
@@ -76,6 +93,19 @@ def make_env(env_id: str, kwargs: Mapping[str, Any]) -> gymnasium.Env:
         raise ConfigError(f"key '{ENV_KEY}': {env_id} has action space {space}; only Discrete action "
                           f"spaces can be rolled out (logged actions are integers 0..n-1)")
     return env
+
+
+def check_runs(env: gymnasium.Env, env_id: str, kwargs: Mapping[str, Any]) -> None:
+    """One ``reset()`` and one ``step()`` with a valid action, at config load: kwargs that fail only
+    when the env runs (``render_mode: human`` without pygame, ...) are named before any work starts."""
+    try:
+        _, info = env.reset(seed=0)
+        mask = np.asarray(info.get("action_mask", ()), bool).reshape(-1)
+        first = int(np.argmax(mask)) if mask.any() else 0
+        env.step(int(env.action_space.start) + first)
+    except Exception as e:  # noqa: BLE001 - the user's env code: any error it raises is theirs to fix
+        raise ConfigError(f"key '{_env_key(kwargs)}': {_call(env_id, kwargs)} fails on its first reset() "
+                          f"and step(): {_one_line(e)}") from None
 
 
 def check_compatible(env: gymnasium.Env, state_dim: int, n_actions: int) -> None:
@@ -115,6 +145,16 @@ def _mask(env_id: str, info: Mapping[str, Any], n_actions: int) -> np.ndarray:
     return mask
 
 
+def _run_env(env_id: str, kwargs: Mapping[str, Any], episode: int, t: int, call, *args, **kw):
+    """``call(*args, **kw)`` on the user's env; an error it raises becomes one ConfigError line
+    naming the env (in a Ray task, rather than a traceback of the worker)."""
+    try:
+        return call(*args, **kw)
+    except Exception as e:  # noqa: BLE001 - the user's env code: any error it raises is theirs to fix
+        raise ConfigError(f"key '{_env_key(kwargs)}': {_call(env_id, kwargs)} failed in a rollout (episode "
+                          f"{episode}, step {t}, {call.__name__}()): {_one_line(e)}") from None
+
+
 def rollout(
     env_id: str, kwargs: Mapping[str, Any], policy: Policy, n_episodes: int,
     rng: np.random.Generator, max_steps: int, action_names: tuple[str, ...] = (),
@@ -151,7 +191,7 @@ def rollout(
         success = np.zeros(n_episodes, bool)
         for i, env in enumerate(envs):
             env.action_space.seed(seeds[i])
-            obs, info = env.reset(seed=seeds[i])
+            obs, info = _run_env(env_id, kwargs, i, 0, env.reset, seed=seeds[i])
             states[i].append(np.asarray(spaces.flatten(obs_space, obs), np.float32))
             valid[i].append(_mask(env_id, info, n))
         alive = np.ones(n_episodes, bool)
@@ -180,7 +220,7 @@ def rollout(
                                  f"{np.nonzero(masks[j])[0].tolist()} of 0..{n - 1})")
             for j, i in enumerate(live):
                 a = int(acts[j])
-                obs, reward, terminated, truncated, info = envs[i].step(start + a)
+                obs, reward, terminated, truncated, info = _run_env(env_id, kwargs, i, t, envs[i].step, start + a)
                 states[i].append(np.asarray(spaces.flatten(obs_space, obs), np.float32))
                 valid[i].append(_mask(env_id, info, n))
                 actions[i].append(a)

@@ -18,6 +18,7 @@ order); nothing is written before the whole table has passed.
 from __future__ import annotations
 
 import re
+import reprlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -32,18 +33,41 @@ from pcpg_dist.errors import DataError
 DOMAIN = "trajectories"
 REQUIRED = ("trajectory", "t", "action")
 RESERVED = {"trajectory", "t", "action", "reward", "valid", "env", "style", "success"}
-STATE = re.compile(r"^s(\d+)$")
+STATE = re.compile(r"^s(0|[1-9]\d*)$")  # s0, s1, ...; "s01" is not s1
+STATE_LIKE = re.compile(r"^s\d+$")
 MAX_FILES = 10_000
 MAX_ENVS = 10_000  # each env is an evaluation unit with its own clustering and models
 
 
 @dataclass(frozen=True)
 class StepTable:
-    """A step table as read from disk, with where it came from (for messages)."""
+    """A step table as read from disk, with where it came from (for messages).
+
+    ``parts`` lists, for a folder, each file and its number of rows (in the table's order), so
+    that a row of the combined table can be named as a file and its own row."""
 
     table: pa.Table
     source: str
     default_env: str
+    parts: tuple[tuple[str, int], ...] = ()
+
+
+@dataclass(frozen=True)
+class _Where:
+    """The source named in messages; rows of a folder's combined table map back to file and row."""
+
+    source: str
+    parts: tuple[tuple[str, int], ...] = ()
+
+    def __str__(self) -> str:
+        return self.source
+
+    def locate(self, row: int) -> tuple[str, int]:
+        for file, n in self.parts:
+            if row < n:
+                return file, row
+            row -= n
+        return self.source, row
 
 
 def safe_env_name(text: str) -> str:
@@ -66,93 +90,181 @@ def parquet_files(path: Path) -> list[Path]:
     return [path]
 
 
+def _unreadable(f: Path, e: Exception) -> DataError:
+    return DataError(f"{f}: not a readable Parquet file ({str(e).splitlines()[0][:200]})")
+
+
+def _check_same_columns(first: Path, schema: pa.Schema, f: Path, other: pa.Schema) -> None:
+    """A folder's file ``f`` has the columns of its first file, of types that combine."""
+    types, other_types = dict(zip(schema.names, schema.types, strict=True)), dict(zip(other.names, other.types, strict=True))
+    same = "; every file of a folder needs the same columns"
+    for name in schema.names:
+        if name not in other_types:
+            raise DataError(f"{f}: has no column '{name}', which {first.name} has{same}")
+    for name in other.names:
+        if name not in types:
+            raise DataError(f"{f}: column '{name}' is not in {first.name}{same}")
+        a, b = types[name], other_types[name]
+        if a != b:
+            try:
+                pa.unify_schemas([pa.schema([(name, a)]), pa.schema([(name, b)])], promote_options="permissive")
+            except pa.ArrowException:
+                raise DataError(f"{f}: column '{name}' has type {b}, but {a} in {first.name}{same} "
+                                f"of compatible types") from None
+
+
 def read_step_table(path: str | Path) -> StepTable:
-    """Read a Parquet file or a folder of them (their schemas must agree)."""
+    """Read a Parquet file or a folder of them (each file's columns must be the first file's)."""
     path = Path(path)
     files = parquet_files(path)
     check_parquet_memory(files, str(path))
+    schemas = []
+    for f in files:  # footers only: a file that differs is named before any data is read
+        try:
+            schemas.append(pq.read_schema(f))
+        except (pa.ArrowException, OSError) as e:
+            raise _unreadable(f, e) from None
+        _check_same_columns(files[0], schemas[0], f, schemas[-1])
     tables = []
     for f in files:
         try:
             tables.append(pq.read_table(f))
         except (pa.ArrowException, OSError) as e:
-            raise DataError(f"{f}: not a readable Parquet file ({str(e).splitlines()[0][:200]})") from None
+            raise _unreadable(f, e) from None
     try:
         table = pa.concat_tables(tables, promote_options="permissive") if len(tables) > 1 else tables[0]
     except pa.ArrowException as e:
         raise DataError(f"{path}: the Parquet files' columns do not agree ({str(e).splitlines()[0][:200]})") from None
-    return StepTable(table, str(path), safe_env_name(path.stem if path.is_file() else path.name))
+    parts = tuple((str(f), t.num_rows) for f, t in zip(files, tables, strict=True)) if len(files) > 1 else ()
+    return StepTable(table, str(path), safe_env_name(path.stem if path.is_file() else path.name), parts)
 
 
-def _fail(source: str, column: str, row: int, what: str) -> DataError:
-    return DataError(f"{source}: column '{column}', row {row}: {what}")
+def _fail(where: _Where, column: str, row: int, what: str) -> DataError:
+    file, row = where.locate(row)
+    return DataError(f"{file}: column '{column}', row {row}: {what}")
 
 
-def _integers(table: pa.Table, name: str, source: str) -> np.ndarray:
-    """An integer column as int64 (integral floats accepted); nulls, fractions and NaN rejected."""
-    col = table.column(name)
+def _first_null(col: pa.ChunkedArray) -> int:
+    return int(np.flatnonzero(col.is_null().to_numpy(zero_copy_only=False))[0])
+
+
+# ------------------------------------------------------------------ column types, before any cast
+def _is_number(t: pa.DataType) -> bool:
+    return pa.types.is_integer(t) or pa.types.is_floating(t) or pa.types.is_boolean(t)
+
+
+def _is_integral(t: pa.DataType) -> bool:
+    return pa.types.is_integer(t) or pa.types.is_floating(t)
+
+
+def _is_text(t: pa.DataType) -> bool:
+    return (pa.types.is_string(t) or pa.types.is_large_string(t) or pa.types.is_binary(t)
+            or pa.types.is_large_binary(t))
+
+
+def _is_bool_list(t: pa.DataType) -> bool:
+    return ((pa.types.is_list(t) or pa.types.is_large_list(t) or pa.types.is_fixed_size_list(t))
+            and pa.types.is_boolean(t.value_type))
+
+
+def _plain(t: pa.DataType) -> pa.DataType:
+    return t.value_type if pa.types.is_dictionary(t) else t
+
+
+#: what each reserved column may hold: (in words, test of its Arrow type)
+COLUMN_TYPES = {
+    "trajectory": ("integers or strings", lambda t: _is_integral(_plain(t)) or _is_text(_plain(t))),
+    "t": ("integers", _is_integral),
+    "action": ("integers", _is_integral),
+    "style": ("integers", _is_integral),
+    "env": ("strings or integers", lambda t: pa.types.is_integer(_plain(t)) or _is_text(_plain(t))),
+    "valid": ("a list of booleans per row", _is_bool_list),
+    "reward": ("numbers", _is_number),
+    "success": ("booleans or numbers", _is_number),
+}
+
+
+def check_column_types(schema: pa.Schema, s_cols: list[str], skill_column: str | None, source: str) -> None:
+    """Every column pcpg reads has a type it can read (a column of nulls passes: its rows are named
+    later); a DataError naming the column and the allowed types otherwise."""
+    wanted = dict(COLUMN_TYPES)
+    wanted.update({c: ("numbers", _is_number) for c in [*s_cols, *([skill_column] if skill_column else [])]})
+    for name, t in zip(schema.names, schema.types, strict=True):
+        if name in wanted and not pa.types.is_null(t) and not wanted[name][1](t):
+            raise DataError(f"{source}: column '{name}' has type {t}; expected {wanted[name][0]}")
+
+
+def _integers(col: pa.ChunkedArray, name: str, where: _Where) -> np.ndarray:
+    """An integer column as int64 (integral floats accepted); nulls, fractions, NaN and values that
+    int64 cannot hold rejected."""
     if col.null_count:
-        row = int(np.flatnonzero(col.is_null().to_numpy(zero_copy_only=False))[0])
-        raise _fail(source, name, row, "is empty (null); every row needs a value")
+        raise _fail(where, name, _first_null(col), "is empty (null); every row needs a value")
     if pa.types.is_integer(col.type):
-        return col.to_numpy().astype(np.int64)
+        x = col.to_numpy()
+        if x.dtype == np.uint64 and (x > np.iinfo(np.int64).max).any():
+            row = int(np.flatnonzero(x > np.iinfo(np.int64).max)[0])
+            raise _fail(where, name, row, f"{int(x[row])} does not fit a 64-bit signed integer")
+        return x.astype(np.int64)
     if pa.types.is_floating(col.type):
         x = col.to_numpy()
         bad = ~np.isfinite(x) | (x != np.round(x)) | (np.abs(x) > 2**53)
         if bad.any():
             row = int(np.flatnonzero(bad)[0])
-            raise _fail(source, name, row, f"{float(x[row])} is not an integer")
+            raise _fail(where, name, row, f"{float(x[row])} is not an integer")
         return x.astype(np.int64)
-    raise DataError(f"{source}: column '{name}' has type {col.type}; expected integers")
+    raise DataError(f"{where}: column '{name}' has type {col.type}; expected integers")
 
 
-def _numeric(table: pa.Table, name: str, source: str) -> pa.ChunkedArray:
+def _numeric(table: pa.Table, name: str, where: _Where) -> pa.ChunkedArray:
     """A column that must hold numbers (or booleans) in every row."""
     col = table.column(name)
-    if not (pa.types.is_integer(col.type) or pa.types.is_floating(col.type) or pa.types.is_boolean(col.type)):
-        raise DataError(f"{source}: column '{name}' has type {col.type}; expected numbers")
     if col.null_count:
-        row = int(np.flatnonzero(col.is_null().to_numpy(zero_copy_only=False))[0])
-        raise _fail(source, name, row, "is empty (null); every row needs a value")
+        raise _fail(where, name, _first_null(col), "is empty (null); every row needs a value")
+    if not _is_number(col.type):
+        raise DataError(f"{where}: column '{name}' has type {col.type}; expected numbers")
     return col
 
 
-def _floats(table: pa.Table, name: str, source: str) -> np.ndarray:
-    x = _numeric(table, name, source).to_numpy(zero_copy_only=False).astype(np.float64)
+def _floats(table: pa.Table, name: str, where: _Where) -> np.ndarray:
+    x = _numeric(table, name, where).to_numpy(zero_copy_only=False).astype(np.float64)
     if not np.isfinite(x).all():
         row = int(np.flatnonzero(~np.isfinite(x))[0])
-        raise _fail(source, name, row, f"{x[row]} is not a finite number")
+        raise _fail(where, name, row, f"{x[row]} is not a finite number")
     return x
 
 
-def _state_matrix(table: pa.Table, s_cols: list[str], source: str) -> np.ndarray:
+def _state_matrix(table: pa.Table, s_cols: list[str], where: _Where) -> np.ndarray:
     """The state columns as one float32 matrix; nulls, NaN, infinities and overflow rejected."""
     states = np.empty((table.num_rows, len(s_cols)), np.float32)
     for j, c in enumerate(s_cols):
-        col = _numeric(table, c, source)
+        col = _numeric(table, c, where)
         with np.errstate(over="ignore", invalid="ignore"):
             states[:, j] = col.to_numpy(zero_copy_only=False)  # float64 beyond float32 becomes inf
     bad = ~np.isfinite(states)
     if bad.any():
         row, j = (int(v[0]) for v in np.nonzero(bad))
         raw = table.column(s_cols[j])[row].as_py()
-        raise _fail(source, s_cols[j], row, f"{raw} is not a finite 32-bit float")
+        raise _fail(where, s_cols[j], row, f"{raw} is not a finite 32-bit float")
     return states
 
 
 def _per_trajectory(values: np.ndarray, starts: np.ndarray, order: np.ndarray, name: str,
-                    source: str) -> np.ndarray:
+                    where: _Where) -> np.ndarray:
     """A column that must be constant within each trajectory, one value per trajectory."""
     v = values[order]
     first = np.repeat(v[starts], np.diff(np.r_[starts, len(v)]))
     differs = v != first
     if differs.any():
         row = int(order[np.flatnonzero(differs)[0]])
-        raise _fail(source, name, row, "changes within a trajectory; it must be one value per trajectory")
+        raise _fail(where, name, row, "changes within a trajectory; it must be one value per trajectory")
     return v[starts]
 
 
 def state_columns(names: list[str], source: str) -> list[str]:
+    odd = next((c for c in names if STATE_LIKE.match(c) and not STATE.match(c)), None)
+    if odd is not None:
+        raise DataError(f"{source}: column '{odd}' has a leading zero; state columns are named s0, s1, ... "
+                        f"s{{d-1}} without leading zeros (rename it s{int(odd[1:])})")
     idx = sorted(int(m.group(1)) for c in names if (m := STATE.match(c)))
     if not idx:
         raise DataError(f"{source}: no state columns; expected numeric columns s0, s1, ... s{{d-1}}")
@@ -162,10 +274,19 @@ def state_columns(names: list[str], source: str) -> list[str]:
     return [f"s{j}" for j in idx]
 
 
+def _codes(col: pa.ChunkedArray) -> tuple[np.ndarray, list]:
+    """Each row's index into the column's distinct values, and those values."""
+    if pa.types.is_dictionary(col.type):
+        col = col.cast(col.type.value_type)
+    enc = pc.dictionary_encode(col).combine_chunks()
+    return enc.indices.to_numpy(zero_copy_only=False).astype(np.int64), enc.dictionary.to_pylist()
+
+
 def datasets_from_table(step: StepTable, n_actions: int | None = None,
                         skill_column: str | None = None) -> dict[str, Dataset]:
     """Validate a step table and cut it into one Dataset per ``env`` value (see the module doc)."""
     table, source = step.table, step.source
+    where = _Where(source, step.parts)
     names = table.column_names
     for col in REQUIRED:
         if col not in names:
@@ -178,37 +299,42 @@ def datasets_from_table(step: StepTable, n_actions: int | None = None,
     rows = table.num_rows
     if rows == 0:
         raise DataError(f"{source}: the table has no rows")
+    check_column_types(table.schema, s_cols, skill_column, source)
 
     # trajectory ids (int or string) -> codes; env values -> units
     traj_col = table.column("trajectory")
     if traj_col.null_count:
-        row = int(np.flatnonzero(traj_col.is_null().to_numpy(zero_copy_only=False))[0])
-        raise _fail(source, "trajectory", row, "is empty (null)")
-    if pa.types.is_integer(traj_col.type) or pa.types.is_floating(traj_col.type):
-        traj_raw = _integers(table, "trajectory", source)
-    else:
-        enc = pc.dictionary_encode(traj_col.cast(pa.string())).combine_chunks()
-        rank = np.argsort(np.argsort(np.asarray(enc.dictionary.to_pylist(), dtype=object)))
-        traj_raw = rank[enc.indices.to_numpy()].astype(np.int64)  # ids numbered in sorted order
+        raise _fail(where, "trajectory", _first_null(traj_col), "is empty (null)")
+    if _is_integral(traj_col.type):
+        traj_raw = _integers(traj_col, "trajectory", where)
+    else:  # strings, bytes (compared as bytes: they need not be UTF-8) or a dictionary of them
+        code, ids = _codes(traj_col)
+        rank = np.argsort(np.argsort(np.asarray(ids, dtype=object)))
+        traj_raw = rank[code].astype(np.int64)  # ids numbered in sorted order
     if "env" in names:
         env_col = table.column("env")
         if env_col.null_count:
-            row = int(np.flatnonzero(env_col.is_null().to_numpy(zero_copy_only=False))[0])
-            raise _fail(source, "env", row, "is empty (null)")
-        enc = pc.dictionary_encode(env_col.cast(pa.string())).combine_chunks()
-        env_code = enc.indices.to_numpy().astype(np.int64)
-        if len(enc.dictionary) > MAX_ENVS:
-            raise DataError(f"{source}: column 'env' has {len(enc.dictionary)} distinct values; each is an "
+            raise _fail(where, "env", _first_null(env_col), "is empty (null)")
+        env_code, env_values = _codes(env_col)
+        if len(env_values) > MAX_ENVS:
+            raise DataError(f"{source}: column 'env' has {len(env_values)} distinct values; each is an "
                             f"evaluation unit, at most {MAX_ENVS} are allowed (is it a per-trajectory id?)")
-        env_names = [safe_env_name(v) for v in enc.dictionary.to_pylist()]
+        for i, v in enumerate(env_values):
+            if isinstance(v, bytes):
+                try:
+                    env_values[i] = v.decode()
+                except UnicodeDecodeError:
+                    raise _fail(where, "env", int(np.argmax(env_code == i)),
+                                f"{reprlib.repr(v)} is not UTF-8 text") from None
+        env_names = [safe_env_name(v) for v in env_values]
         if len(set(env_names)) != len(env_names):
             raise DataError(f"{source}: column 'env' has values that differ only in characters other than "
-                            f"letters, digits, '_', '.', '+', '-' ({env_names}); rename them")
+                            f"letters, digits, '_', '.', '+', '-' ({reprlib.repr(env_names)}); rename them")
     else:
         env_code, env_names = np.zeros(rows, np.int64), [step.default_env]
 
-    t = _integers(table, "t", source)
-    actions = _integers(table, "action", source)
+    t = _integers(table.column("t"), "t", where)
+    actions = _integers(table.column("action"), "action", where)
     # group rows by (env, trajectory), keeping file order inside a trajectory
     order = np.lexsort((np.arange(rows), traj_raw, env_code))
     key_env, key_traj = env_code[order], traj_raw[order]
@@ -219,7 +345,7 @@ def datasets_from_table(step: StepTable, n_actions: int | None = None,
     step_ok = np.r_[True, np.diff(t_sorted) > 0] | new
     if not step_ok.all():
         row = int(order[np.flatnonzero(~step_ok)[0]])
-        raise _fail(source, "t", row, f"t = {t[row]} does not increase within trajectory {traj_raw[row]} "
+        raise _fail(where, "t", row, f"t = {t[row]} does not increase within trajectory {traj_raw[row]} "
                                       f"(each step's t must be larger than the previous step's)")
 
     # actions: 0..n-1, -1 allowed only on a trajectory's last row
@@ -229,19 +355,20 @@ def datasets_from_table(step: StepTable, n_actions: int | None = None,
     neg = (a_sorted < 0) & ~(last & (a_sorted == -1))
     if neg.any():
         row = int(order[np.flatnonzero(neg)[0]])
-        raise _fail(source, "action", row, f"action {actions[row]} is not allowed (0..n-1; -1 only on a "
+        raise _fail(where, "action", row, f"action {actions[row]} is not allowed (0..n-1; -1 only on a "
                                            f"trajectory's last row)")
     valid = None
     if "valid" in names:
         vcol = table.column("valid")
-        vtype = vcol.type
-        if not (pa.types.is_list(vtype) or pa.types.is_large_list(vtype) or pa.types.is_fixed_size_list(vtype)):
-            raise DataError(f"{source}: column 'valid' has type {vtype}; expected a list of booleans per row")
-        first_len = (vtype.list_size if pa.types.is_fixed_size_list(vtype)
-                     else int(pc.list_value_length(vcol.combine_chunks()[0:1]).to_numpy(zero_copy_only=False)[0] or 0))
-        width = n_actions if n_actions is not None else first_len
+        if vcol.null_count:
+            raise _fail(where, "valid", _first_null(vcol), "is empty (null); every row needs a list of booleans")
+        sizes = pc.list_value_length(vcol).to_numpy(zero_copy_only=False)
+        width = n_actions if n_actions is not None else int(sizes[0])
         if not 1 <= width <= MAX_ACTIONS:
-            raise _fail(source, "valid", 0, f"{width} entries; a valid list needs 1..{MAX_ACTIONS}")
+            raise _fail(where, "valid", 0, f"{width} entries; a valid list needs 1..{MAX_ACTIONS}")
+        if (sizes != width).any():
+            row = int(np.flatnonzero(sizes != width)[0])
+            raise _fail(where, "valid", row, f"{int(sizes[row])} entries, expected {width} (one per action)")
         valid = bool_lists(vcol, width, source)
         n = width
     else:
@@ -251,7 +378,7 @@ def datasets_from_table(step: StepTable, n_actions: int | None = None,
     too_big = a_sorted >= n
     if too_big.any():
         row = int(order[np.flatnonzero(too_big)[0]])
-        raise _fail(source, "action", row, f"action {actions[row]} is outside 0..{n - 1}"
+        raise _fail(where, "action", row, f"action {actions[row]} is outside 0..{n - 1}"
                     + (" (the length of the valid lists)" if valid is not None else " (trajectories.n_actions)"))
     if valid is not None:
         taken = a_sorted >= 0
@@ -259,20 +386,20 @@ def datasets_from_table(step: StepTable, n_actions: int | None = None,
         ok[taken] = valid[order[taken], a_sorted[taken]]
         if not ok.all():
             row = int(order[np.flatnonzero(~ok)[0]])
-            raise _fail(source, "action", row, f"action {actions[row]} is not in the row's valid mask")
+            raise _fail(where, "action", row, f"action {actions[row]} is not in the row's valid mask")
 
     # states, rewards, per-trajectory columns
-    states = _state_matrix(table, s_cols, source)
-    rewards = _floats(table, "reward", source) if "reward" in names else np.zeros(rows)
-    styles = (_per_trajectory(_integers(table, "style", source), starts, order, "style", source)
+    states = _state_matrix(table, s_cols, where)
+    rewards = _floats(table, "reward", where) if "reward" in names else np.zeros(rows)
+    styles = (_per_trajectory(_integers(table.column("style"), "style", where), starts, order, "style", where)
               if "style" in names else np.full(len(starts), -1, np.int64))
     if ((styles < -1) | (styles >= MAX_STYLES)).any():
         bad = int(np.flatnonzero((styles < -1) | (styles >= MAX_STYLES))[0])
-        raise _fail(source, "style", int(order[starts[bad]]), f"style {styles[bad]}; styles are 0, 1, 2, ... "
+        raise _fail(where, "style", int(order[starts[bad]]), f"style {styles[bad]}; styles are 0, 1, 2, ... "
                                                              f"(below {MAX_STYLES}), or -1 for unknown")
-    success = (_per_trajectory(_floats(table, "success", source) != 0, starts, order, "success", source)
+    success = (_per_trajectory(_floats(table, "success", where) != 0, starts, order, "success", where)
                if "success" in names else np.ones(len(starts), bool))
-    skill = (_per_trajectory(_floats(table, skill_column, source), starts, order, skill_column, source)
+    skill = (_per_trajectory(_floats(table, skill_column, where), starts, order, skill_column, where)
              if skill_column is not None else None)
 
     # closing rows: a trajectory whose last row has an action ends on a repeat of its last state
