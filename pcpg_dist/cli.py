@@ -29,9 +29,9 @@ def _cmd_generate(args: argparse.Namespace) -> None:
 def _check_tracking(args: argparse.Namespace) -> None:
     """Fail in seconds on a dead MLflow server, before Ray and torch start."""
     if not args.no_tracking:
-        from pcpg_dist.tracking import check_reachable, default_tracking_uri
+        from pcpg_dist.tracking import check_tracking_uri, default_tracking_uri
 
-        check_reachable(args.tracking_uri or default_tracking_uri())
+        check_tracking_uri(args.tracking_uri or default_tracking_uri())
 
 
 def _cmd_run(args: argparse.Namespace) -> None:

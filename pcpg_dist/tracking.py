@@ -224,7 +224,7 @@ def check_store_holds(target: str, uri: str) -> None:
                         f"no MLflow store at {uri}")
 
 
-def check_reachable(uri: str, timeout: float = 8.0) -> None:
+def check_tracking_uri(uri: str, timeout: float = 8.0) -> None:
     """Fail fast (within ``timeout`` s), on one line naming the URI, when pcpg cannot use a tracking
     URI: a server that is down, a scheme MLflow does not store runs in, a folder store (MLflow 3
     refuses them), or a ``sqlite:///`` path that is not an MLflow database (pcpg would otherwise
@@ -557,7 +557,7 @@ def open_experiment(name: str, uri: str | None):
     from mlflow.exceptions import MlflowException
 
     uri = uri or default_tracking_uri()
-    check_reachable(uri)
+    check_tracking_uri(uri)
     prepare_store(uri)
     client = _client(uri)
     exp = _retry(client.get_experiment_by_name, name)
@@ -646,7 +646,7 @@ class Tracker:
         """
         if parent_run_id:
             uri = uri or default_tracking_uri()
-            check_reachable(uri)
+            check_tracking_uri(uri)
             prepare_store(uri)
             client = _client(uri)
             exp_id = _retry(client.get_run, parent_run_id).info.experiment_id
