@@ -24,20 +24,16 @@ Why this shape:
 from __future__ import annotations
 
 import contextlib
-import itertools
-import json
 import math
 import reprlib
 import time
 import warnings
-from collections.abc import Callable, Generator
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from optuna.storages.journal import JournalFileBackend
-from optuna.storages.journal._storage import JournalOperation
 
 from pcpg_dist.config.stages import MAX_COUNT, PARAMS, TARGETS, TuneConfig  # noqa: F401 - re-exported
 from pcpg_dist.errors import ConfigError, DataError, ServiceError
@@ -175,94 +171,6 @@ class Storage:
         return self.url
 
 
-_JOURNAL_OPS = frozenset(int(op) for op in JournalOperation)  # Optuna's replay asserts on any other
-_REPR = reprlib.Repr()
-_REPR.maxstring = _REPR.maxother = 80
-
-
-def _short(value: Any) -> str:
-    """A value from a file or the command line, cut to keep its message one short line."""
-    return _REPR.repr(value)
-
-
-def _log_problem(log: Any) -> str | None:
-    """What makes one parsed journal line something other than an Optuna journal operation."""
-    if not isinstance(log, dict):
-        return f"{_short(log)} is not a JSON object"
-    op = log.get("op_code")
-    if type(op) is not int or op not in _JOURNAL_OPS:
-        return f"op_code {_short(op)} is not one of Optuna's journal operations (0..{max(_JOURNAL_OPS)})"
-    return None
-
-
-def _line_problem(line: bytes) -> str:
-    """Why a journal line cannot be read (it is shown in the error, cut to one short line)."""
-    if not line.endswith(b"\n"):
-        return "cut off, no newline at its end (a driver stopped while writing it? delete that line to go on)"
-    try:
-        log = json.loads(line)
-    except json.JSONDecodeError as e:
-        return f"not JSON ({e.msg}): {_short(line.decode(errors='replace').rstrip())}"
-    except (ValueError, RecursionError) as e:  # not UTF-8; nested too deep
-        return f"not JSON ({type(e).__name__}): {_short(line)}"
-    return _log_problem(log) or f"{_short(log)}"
-
-
-class CheckedJournalBackend(JournalFileBackend):
-    """Optuna's journal file, refusing a file that is not a journal before anything is written.
-
-    Optuna replays any file it is given: another file's lines end in a traceback deep in the
-    replay (``KeyError``, ``TypeError``, an ``assert``), and a last line that does not parse is
-    skipped as "being written", after which the journal's own lines are appended to the file.
-    Each line is checked as Optuna reads it (a large journal is not read twice); ``line`` is the
-    number of the last line handed to Optuna.
-    """
-
-    def __init__(self, file_path: str) -> None:
-        super().__init__(file_path)
-        self.line = 0
-
-    def read_logs(self, log_number_from: int) -> Generator[dict[str, Any], None, None]:
-        self.line = log_number_from
-        logs = super().read_logs(log_number_from)
-        while True:
-            try:
-                log = next(logs)
-            except StopIteration:
-                return
-            except (ValueError, RecursionError):
-                # Optuna raises for a line that is not JSON when it reaches the line after it
-                # (RecursionError: on the line itself); either way the next line is the bad one
-                raise self.not_a_journal(self.line + 1) from None
-            self.line += 1
-            problem = _log_problem(log)
-            if problem is not None:
-                raise self.not_a_journal(self.line, problem)
-            yield log
-
-    def check_read_to_end(self) -> None:
-        """Refuse a last line that Optuna skipped (not JSON, or cut off): the next append would
-        join it and ruin the file."""
-        lines, last = 0, b"\n"
-        with open(self._file_path, "rb") as f:
-            for chunk in iter(lambda: f.read(1 << 20), b""):
-                lines, last = lines + chunk.count(b"\n"), chunk[-1:]
-        if last != b"\n":  # a last line without its newline
-            lines += 1
-        if lines > self.line:
-            raise self.not_a_journal(self.line + 1)
-
-    def not_a_journal(self, number: int, problem: str | None = None) -> DataError:
-        """The one-line error for line ``number`` (1-based); without ``problem``, the line is read
-        again to say what is wrong with it."""
-        if problem is None:
-            with open(self._file_path, "rb") as f:
-                line = next(itertools.islice(f, number - 1, None), b"")
-            problem = _line_problem(line)
-        return DataError(f"cannot open the Optuna journal {self._file_path}: not an Optuna journal "
-                         f"(line {number}: {problem}); give a new file or another --optuna-storage")
-
-
 def rdb_url(url: str) -> str:
     """``postgresql://`` names the psycopg2 driver explicitly: SQLAlchemy 2.1 would pick psycopg 3,
     which is not installed (the project ships psycopg2-binary)."""
@@ -278,6 +186,8 @@ def open_storage(url: str | None, tune: TuneConfig) -> Storage:
     import optuna
     from optuna.storages import RDBStorage, RetryHeartbeatStaleTrialCallback
     from optuna.storages.journal import JournalStorage
+
+    from pcpg_dist.optuna_journal import CheckedJournalBackend, short
 
     url = url or str(Path.cwd() / DEFAULT_STORAGE)
     optuna.logging.set_verbosity(optuna.logging.WARNING)
@@ -296,7 +206,7 @@ def open_storage(url: str | None, tune: TuneConfig) -> Storage:
                 journal = JournalStorage(backend)  # replays the whole file
             except (KeyError, TypeError, ValueError, AssertionError) as e:
                 # a line of the right shape whose fields Optuna's replay cannot use
-                raise backend.not_a_journal(backend.line, f"Optuna cannot replay it: {_short(e)}") from None
+                raise backend.not_a_journal(backend.line, f"Optuna cannot replay it: {short(e)}") from None
             backend.check_read_to_end()
         except OSError as e:
             raise ServiceError(f"cannot open the Optuna journal {path}: {e.strerror}") from None
@@ -382,7 +292,7 @@ def tune_settings(cfg: ExperimentConfig, n_trials: int | None = None) -> TuneCon
     if n_trials is None:
         return cfg.tuning
     if type(n_trials) is not int or not 1 <= n_trials <= MAX_COUNT:
-        raise ConfigError(f"--n-trials must be at least 1 (and at most {MAX_COUNT}), got {_short(n_trials)}")
+        raise ConfigError(f"--n-trials must be at least 1 (and at most {MAX_COUNT}), got {reprlib.repr(n_trials)}")
     return cfg.tuning.model_copy(update={"n_trials": n_trials})
 
 

@@ -269,6 +269,12 @@ def read_yaml(path: Path, what: str = "config") -> Any:
         raise ConfigError(f"{path}, line {line}: not UTF-8 text (byte {e.start}); save the file as UTF-8") from None
     if "\x00" in text:
         raise ConfigError(f"{path}: contains a NUL character; a {what} is a text file")
+    return load_yaml_text(text, str(path))
+
+
+def load_yaml_text(text: str, path: str) -> Any:
+    """YAML text as a config file's is read (YAML 1.2 numbers, bounded expansion and depth);
+    ``path`` names the text in a ConfigError."""
     try:
         loader = _BoundedLoader(text)  # its reader rejects control characters at once
     except yaml.YAMLError as e:
@@ -277,7 +283,7 @@ def read_yaml(path: Path, what: str = "config") -> Any:
         node = loader.get_single_node()
         if node is None:
             return None
-        _expanded_size(node, str(path))
+        _expanded_size(node, path)
         return loader.construct_document(node)
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)

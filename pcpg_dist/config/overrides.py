@@ -28,7 +28,6 @@ import reprlib
 from pathlib import Path
 from typing import Any
 
-import yaml
 from pydantic import BaseModel
 
 from pcpg_dist.errors import ConfigError
@@ -83,16 +82,17 @@ def check_key(key: str, domain: str | None) -> None:
 def parse_value(text: str) -> Any:
     """A command-line value as a config file's YAML reads it: ``1e-3`` a number, ``1:30`` text (YAML
     1.1 would read them as text and as the base-60 integer 90)."""
-    from pcpg_dist.config.experiment import _BoundedLoader
+    from pcpg_dist.config.experiment import load_yaml_text
 
     text = text.strip()
     if _NUMBER.match(text):
         return int(text) if re.fullmatch(r"[+-]?\d+", text) else float(text)
-    try:
-        value = yaml.load(text, Loader=_BoundedLoader) if len(text) <= 10_000 else text
-    except yaml.YAMLError:
+    if len(text) > 10_000:
         return text
-    return value
+    try:
+        return load_yaml_text(text, "command-line value")
+    except ConfigError:  # not YAML (or an alias bomb): the text itself, which the key's check judges
+        return text
 
 
 def split_assignment(item: str) -> tuple[str, str]:
