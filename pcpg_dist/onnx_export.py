@@ -150,19 +150,11 @@ def resolve_agents(target: str, tracking_uri: str | None, workdir: Path) -> Path
     if path.exists():
         raise DataError(f"{path}: no trained agents here (expected {path}/agents/<env>/*.pt, "
                         f"written by pcpg run)")
-    from pcpg_dist.tracking import (
-        check_store_holds,
-        check_tracking_uri,
-        default_tracking_uri,
-        find_sweep_run,
-    )
-
-    uri = tracking_uri or default_tracking_uri()
-    check_store_holds(target, uri)
-    check_tracking_uri(uri)
     from mlflow.exceptions import MlflowException
 
-    run = find_sweep_run(target, uri)
+    from pcpg_dist.tracking import find_sweep_run
+
+    run, uri = find_sweep_run(target, tracking_uri)
     run_id = run.data.tags.get("mlflow.parentRunId", run.info.run_id)  # an environment's child run
     import mlflow.artifacts
 

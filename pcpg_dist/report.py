@@ -301,17 +301,10 @@ def resolve_summary(target: str, tracking_uri: str | None, workdir: Path) -> tup
         return path, None
     if (path / "summary" / "run.json").is_file():
         return path / "summary", None
-    from pcpg_dist.tracking import (
-        check_store_holds,
-        check_tracking_uri,
-        default_tracking_uri,
-        find_sweep_run,
-    )
+    from pcpg_dist.tracking import find_sweep_run
 
-    uri = tracking_uri or default_tracking_uri()
-    check_store_holds(target, uri)
-    check_tracking_uri(uri)
-    run_id = find_sweep_run(target, uri).info.run_id
+    run, uri = find_sweep_run(target, tracking_uri)
+    run_id = run.info.run_id
     local = Path(workdir) / ".report-cache" / run_id
     import mlflow.artifacts
 

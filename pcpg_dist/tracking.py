@@ -532,13 +532,18 @@ def ui_link(uri: str, run_id: str, ui: str = "http://127.0.0.1:5000") -> str:
 
 
 # --------------------------------------------------------------------------- experiments and runs
-def find_sweep_run(target: str, uri: str):
-    """An MLflow run id, or an experiment name (its newest pcpg parent run), as the MLflow run."""
+def find_sweep_run(target: str, uri: str | None = None):
+    """``(run, uri)``: an MLflow run id, or an experiment name (its newest pcpg parent run), as the
+    MLflow run, at ``uri`` (default: :func:`default_tracking_uri`). The URI is checked first, and
+    a ``sqlite:///`` store that does not exist is reported, never created."""
     from mlflow.exceptions import MlflowException
 
+    uri = uri or default_tracking_uri()
+    check_store_holds(target, uri)
+    check_tracking_uri(uri)
     client = _client(uri)
     try:
-        return client.get_run(target)
+        return client.get_run(target), uri
     except MlflowException:
         exp = client.get_experiment_by_name(target)
         if exp is None:
@@ -548,7 +553,7 @@ def find_sweep_run(target: str, uri: str):
                       order_by=["attributes.start_time DESC"], max_results=1)
         if not runs:
             raise ServiceError(f"experiment {target!r} at {uri} has no pcpg sweep yet") from None
-        return runs[0]
+        return runs[0], uri
 
 
 def open_experiment(name: str, uri: str | None):
