@@ -83,6 +83,10 @@ class Clustering:
     metrics: dict[str, float]  # label-free only: silhouette, size fractions, losses
     model: ClusterModel | None
     fit_seconds: float
+    #: (n_traj,) how many nats more likely each trajectory is under its own cluster than under the
+    #: next best; from the clusterers with a likelihood (greedy_mix, bag_auto on discrete states,
+    #: policy_mix), None from the others. Step B's ``ranking.style_margin`` reads it.
+    margins: np.ndarray | None = None
 
     @property
     def sizes(self) -> np.ndarray:
@@ -287,7 +291,7 @@ def _fit_bag(dataset, states: np.ndarray, offsets: np.ndarray, cfg: ClusterConfi
     metrics["distinct_trajectories"] = float(len(first))
     k = min(cfg.k, len(first))
     km = KMeans(n_clusters=k, n_init=cfg.kmeans_n_init, random_state=seed).fit(xu, sample_weight=w)
-    greedy = None
+    greedy = margins = None
     if cfg.method == "bag_mop" and len(vocab.sa_keys):
         labels = _mixture_of_policies(xu, w, vocab, km.labels_, k)[inv]
     elif cfg.method in ("greedy_mix", "bag_auto"):
@@ -299,6 +303,7 @@ def _fit_bag(dataset, states: np.ndarray, offsets: np.ndarray, cfg: ClusterConfi
             for r in range(3) for kk in (k, k + 1, k + 2) if kk <= len(first) and (r, kk) != (0, k)]
         fit = greedy_mix.fit(steps, starts, cfg.k, seed=seed)
         labels, greedy = fit.labels, (fit.votes, fit.log_share, fit.noise)
+        margins = _margins(greedy_mix.fit_scores(steps, fit), labels)
         metrics.update({"em_rounds": float(fit.sweeps), "greedy_mix_moved": fit.moved,
                         "greedy_mix_noise": fit.noise, "greedy_mix_noise_start": fit.noise_start,
                         "greedy_mix_start_clusters": float(fit.start_clusters),
@@ -314,7 +319,19 @@ def _fit_bag(dataset, states: np.ndarray, offsets: np.ndarray, cfg: ClusterConfi
     d = states.shape[1]
     model = ClusterModel(cfg.method, cfg.model_dump(), d, np.zeros(d), np.ones(d), centroids, None,
                          tuple(dataset.feature_names), None, vocab, greedy=greedy)
-    return labels.astype(np.int64), x, model
+    return labels.astype(np.int64), x, model, margins
+
+
+def _margins(scores: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """(n,) each row's score at its label minus its best score elsewhere (n, k scores); a lone
+    cluster has no other: the largest float (finite, so the margins survive JSON)."""
+    n = len(labels)
+    if scores.shape[1] < 2:
+        return np.full(n, np.finfo(np.float64).max)
+    own = scores[np.arange(n), labels]
+    other = scores.copy()
+    other[np.arange(n), labels] = -np.inf
+    return own - other.max(axis=1)
 
 
 def monotone_features(states: np.ndarray, offsets: np.ndarray) -> np.ndarray:
@@ -416,9 +433,9 @@ def cluster(dataset, cfg: ClusterConfig, seed: int) -> Clustering:
         cfg = cfg.model_copy(update={"method": "lstm_dec"})
         metrics["auto_fell_back_to_lstm"] = 1.0
     config = cfg.model_dump()
-    labels = None
+    labels = margins = None
     if cfg.method in BAG_METHODS:
-        labels, latents, model = _fit_bag(dataset, states, offsets, cfg, seed, metrics)
+        labels, latents, model, margins = _fit_bag(dataset, states, offsets, cfg, seed, metrics)
     elif cfg.method == "visits_kmeans":
         vocab = state_vocabulary(states)
         latents = visit_features(states, offsets, vocab)
@@ -434,6 +451,9 @@ def cluster(dataset, cfg: ClusterConfig, seed: int) -> Clustering:
                              np.eye(cfg.k, dtype=np.float32), None, tuple(dataset.feature_names),
                              policy=policy)
         latents = model.features(dataset)
+        with torch.no_grad():
+            margins = _margins(trajectory_scores(policy, policy_inputs(dataset, states, mean, std),
+                                                 n).T.double().numpy(), labels)
     elif cfg.method == "summary_kmeans":
         feats = summary_features(states, offsets)
         mean, std = fit_normaliser(feats)
@@ -465,6 +485,7 @@ def cluster(dataset, cfg: ClusterConfig, seed: int) -> Clustering:
         metrics=metrics,
         model=model,
         fit_seconds=time.perf_counter() - start,
+        margins=margins,
     )
 
 

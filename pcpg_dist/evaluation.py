@@ -38,6 +38,7 @@ from pcpg_dist.ranking import (
     corrupt_labels,
     corruption_rng,
     fmt,
+    ranked_last,
     score_dataset,
     threshold,
     threshold_all,
@@ -131,8 +132,11 @@ def evaluate(
     dataset: Dataset, labels: np.ndarray, test_idx: np.ndarray, trained: TrainedCells,
     rank_cfg: RankConfig, cfg: EvalConfig, out_dir: str | Path | None = None,
     hooks: DomainHooks | None = None, score: ScoreFn | None = None, k: int | None = None,
+    margins: np.ndarray | None = None,
 ) -> EvalResult:
-    """Tables, metrics and figures of one environment's ensemble; written to ``out_dir``."""
+    """Tables, metrics and figures of one environment's ensemble; written to ``out_dir``.
+    ``margins``: the clustering's, for ``rank_cfg.style_margin`` (the test subsets are ranked as
+    the training subsets were)."""
     hooks = hooks or DomainHooks()
     labels = np.asarray(labels, np.int64)
     if labels.shape != (dataset.n_trajectories,):
@@ -146,11 +150,14 @@ def evaluate(
     seeds = sorted({s.seed for s in trained.specs})
     ps = [float(p) for p in rank_cfg.ps]
     scores = score_dataset(dataset, rank_cfg, score)
+    last = ranked_last(margins, rank_cfg, dataset)
     ids = dataset.trajectory_ids
-    h_test = threshold(labels, test_idx, scores, ids, ps, k)
+    h_test = threshold(labels, test_idx, scores, ids, ps, k, last)
     scorer = Scorer(dataset, test_idx, trained)
     tables: dict[str, pd.DataFrame] = {}
     metrics: dict[str, float] = {}
+    if last is not None:
+        metrics["ranking/ranked_last"] = float(last.mean())
 
     def put(name: str, values: list[float]) -> None:
         mean, std = _mean_std(values)
@@ -248,7 +255,7 @@ def evaluate(
 
     # ---- Fig. 6 from the data: mean length of the training subsets each agent imitates. The only
     # Fig. 6 a domain without a simulator (Mario) can have; beside rollouts it shows what they copy.
-    h_train = threshold(labels, train_idx, scores, ids, ps, k)
+    h_train = threshold(labels, train_idx, scores, ids, ps, k, last)
     nc_train = threshold_all(train_idx, scores, ids, ps)
     def length_row(method: str, c: int, p: float, idx: np.ndarray) -> dict:
         kept = dataset.lengths[idx]
@@ -271,7 +278,7 @@ def evaluate(
 
     # ---- Fig. 9 / Table 5: corruption study
     if any(kind == "corrupt" for kind, *_ in cells):
-        _corruption(dataset, labels, k, seeds, cells, scorer, train_idx, test_idx, scores,
+        _corruption(dataset, labels, k, seeds, cells, scorer, train_idx, test_idx, scores, last,
                     rank_cfg, cfg, hooks, tables, metrics, put)
 
     figures: dict[str, Path] = {}
@@ -349,12 +356,12 @@ def _rollouts(dataset, labels, k, seeds, ps, cells, trained, cfg, hooks, tables,
     tables["reward_distance"] = pd.DataFrame(dist_rows)
 
 
-def _corruption(dataset, labels, k, seeds, cells, scorer, train_idx, test_idx, scores, rank_cfg,
-                cfg, hooks, tables, metrics, put) -> None:
+def _corruption(dataset, labels, k, seeds, cells, scorer, train_idx, test_idx, scores, last,
+                rank_cfg, cfg, hooks, tables, metrics, put) -> None:
     ids = dataset.trajectory_ids
     levels = sorted({c for kind, _, _, _, c in cells if kind == "corrupt"})
     ps = sorted({p for kind, _, p, _, _ in cells if kind == "corrupt"})
-    h_true = threshold(labels, test_idx, scores, ids, ps, k)
+    h_true = threshold(labels, test_idx, scores, ids, ps, k, last)
     acc_rows, reward_rows = [], []
     # one return per true style's reward (k clusters may be more or fewer than the styles)
     n_rewards = int(dataset.styles.max()) + 1 if len(dataset.styles) and dataset.styles.max() >= 0 else k
@@ -365,8 +372,8 @@ def _corruption(dataset, labels, k, seeds, cells, scorer, train_idx, test_idx, s
         for seed in seeds:
             bad = corrupt_labels(labels, level, k, corruption_rng(rank_cfg.corruption_seed, seed, level),
                                  rank_cfg.corruption_mode)
-            h_bad = threshold(bad, test_idx, scores, ids, ps, k)
-            h_train = threshold(bad, train_idx, scores, ids, ps, k)
+            h_bad = threshold(bad, test_idx, scores, ids, ps, k, last)
+            h_train = threshold(bad, train_idx, scores, ids, ps, k, last)
             pairs = [(cells[("corrupt", c, p, seed, level)], h_bad[(c, p)], h_true[(c, p)])
                      for c in range(k) for p in ps if ("corrupt", c, p, seed, level) in cells]
             acc.append(scorer.pooled([(i, h) for i, h, _ in pairs]))

@@ -436,17 +436,31 @@ def fit(steps: Steps, starts: list[np.ndarray], k: int, max_sweeps: int = 100,
                         sweeps, float((out != first_start).mean()), ll, split_merges)
 
 
-def scores(steps: Steps, weights: sparse.csr_matrix, v: np.ndarray, log_share: np.ndarray) -> np.ndarray:
-    """(n, k) gain in collapsed log-likelihood from adding each trajectory to each cluster's votes."""
+def scores(steps: Steps, weights: sparse.csr_matrix, v: np.ndarray, log_share: np.ndarray,
+           own: np.ndarray | None = None) -> np.ndarray:
+    """(n, k) gain in collapsed log-likelihood from adding each trajectory to each cluster's votes.
+
+    ``own``: each trajectory's cluster in the fit that made ``v``; its own cluster is then scored
+    without its votes, as the ascent scores a move (so it never votes for itself).
+    """
     indptr, state, d = _per_state(weights, steps.n_actions)
     traj = np.repeat(np.arange(weights.shape[0]), np.diff(indptr))
     valid = steps.valid[state]
     out = np.zeros((weights.shape[0], v.shape[0]))
     for c in range(v.shape[0]):
         base = v[c][state]
+        if own is not None:
+            base = base - np.where((own[traj] == c)[:, None], d, 0.0)
         out[:, c] = np.bincount(traj, _marginal(base + d, valid) - _marginal(base, valid),
                                 minlength=weights.shape[0])
     return out + log_share[None, :]
+
+
+def fit_scores(steps: Steps, fit: GreedyMixFit) -> np.ndarray:
+    """(n, k) each trajectory's :func:`scores` under the fitted clusters, its own cluster's votes
+    without it. The fit's label is the row maximum for nearly every trajectory (the ascent stopped
+    where none moves, at the noise level it ran at; these scores are at the fitted level)."""
+    return scores(steps, _weights(steps, fit.noise), fit.votes, fit.log_share, fit.labels)
 
 
 def predict(steps: Steps, v: np.ndarray, log_share: np.ndarray, eps: float) -> np.ndarray:

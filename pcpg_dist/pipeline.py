@@ -24,6 +24,7 @@ class UnitClustering:
     labels: np.ndarray
     metrics: dict[str, float]
     model: Any = None
+    margins: np.ndarray | None = None  # nats to the next best cluster (``ranking.style_margin``)
 
 
 @dataclass
@@ -57,30 +58,33 @@ def cluster_unit(unit: Unit, cluster_cfg, seed: int, ceiling: bool = True) -> Un
             metrics["clustering/ceiling"] = top
             metrics["clustering/gap_to_ceiling"] = top - metrics["clustering/accuracy"]
     metrics["clustering/fit_seconds"] = result.fit_seconds
-    return UnitClustering(np.asarray(result.labels, np.int64), metrics, result.model)
+    return UnitClustering(np.asarray(result.labels, np.int64), metrics, result.model, result.margins)
 
 
-def plan_unit(unit: Unit, labels: np.ndarray, cfg, *, rank_cfg=None, seeds=None, corruption: bool = True):
+def plan_unit(unit: Unit, labels: np.ndarray, cfg, *, rank_cfg=None, seeds=None, corruption: bool = True,
+              margins: np.ndarray | None = None):
     """Step B: every training cell of the unit (PCPG, No Clustering, corrupted labels), ranked by
-    the domain's skill score. Corruption cells need true styles to mean anything."""
+    the domain's skill score (and the clustering's ``margins`` with ``ranking.style_margin``).
+    Corruption cells need true styles to mean anything."""
     from pcpg_dist.ranking import plan_cells
 
     rank_cfg = rank_cfg or cfg.ranking
     corrupt = cfg.evaluation.corruption_levels if corruption and has_styles(unit) else ()
     return plan_cells(unit.dataset, labels, unit.train_idx, rank_cfg, cfg.seeds if seeds is None else seeds,
                       k=cfg.clustering.k, score=cfg.domain_object.score(cfg), corruption_levels=corrupt,
-                      corruption_ps=cfg.evaluation.corruption_ps)
+                      corruption_ps=cfg.evaluation.corruption_ps, margins=margins)
 
 
 def evaluate_unit(unit: Unit, labels: np.ndarray, trained, cfg, out_dir: str | Path | None = None, *,
-                  rank_cfg=None, eval_cfg=None, rollouts: bool = True, extras: bool = True) -> dict[str, float]:
+                  rank_cfg=None, eval_cfg=None, rollouts: bool = True, extras: bool = True,
+                  margins: np.ndarray | None = None) -> dict[str, float]:
     """Accuracy tables, cross accuracy, rollouts and the domain's extras; finite metrics only."""
     from pcpg_dist.evaluation import evaluate
 
     domain = cfg.domain_object
     result = evaluate(unit.dataset, labels, unit.test_idx, trained, rank_cfg or cfg.ranking,
                       eval_cfg or cfg.evaluation, out_dir=out_dir, hooks=domain.hooks(cfg, unit.name) if rollouts else None,
-                      score=domain.score(cfg), k=cfg.clustering.k)
+                      score=domain.score(cfg), k=cfg.clustering.k, margins=margins)
     metrics = {k: float(v) for k, v in result.metrics.items() if np.isfinite(v)}
     if extras and out_dir is not None:
         metrics.update(domain.extras(cfg, unit, labels, trained, Path(out_dir)))
@@ -92,6 +96,6 @@ def run_unit(unit: Unit, cfg, out_dir: str | Path | None = None) -> UnitResult:
     from pcpg_dist.bc import train_plan
 
     clustering = cluster_unit(unit, cfg.clustering, cfg.seed)
-    trained = train_plan(plan_unit(unit, clustering.labels, cfg), cfg.bc)
-    metrics = evaluate_unit(unit, clustering.labels, trained, cfg, out_dir)
+    trained = train_plan(plan_unit(unit, clustering.labels, cfg, margins=clustering.margins), cfg.bc)
+    metrics = evaluate_unit(unit, clustering.labels, trained, cfg, out_dir, margins=clustering.margins)
     return UnitResult(clustering, {**clustering.metrics, **metrics})

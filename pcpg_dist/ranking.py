@@ -61,19 +61,38 @@ def n_kept(n: int, p: float) -> int:
     return max(1, min(n, math.ceil(p * n - 1e-9)))
 
 
-def top_p(indices: np.ndarray, scores: np.ndarray, p: float, ids: np.ndarray) -> np.ndarray:
+def top_p(indices: np.ndarray, scores: np.ndarray, p: float, ids: np.ndarray,
+          last: np.ndarray | None = None) -> np.ndarray:
     """The top ``p`` fraction of ``indices`` by ``scores[indices]``, ties broken by smaller id.
 
-    ``scores`` and ``ids`` are indexed by trajectory position (0..n-1). Returns the kept positions,
-    sorted ascending, so downstream arrays do not depend on the ranking order.
+    ``scores``, ``ids`` and ``last`` are indexed by trajectory position (0..n-1); trajectories
+    where ``last`` is true rank after all others (:func:`ranked_last`). Returns the kept
+    positions, sorted ascending, so downstream arrays do not depend on the ranking order.
     """
     indices = np.asarray(indices, dtype=np.int64)
     if not 0.0 < p <= 1.0:
         raise DataError(f"p must lie in (0, 1], got {p}")
     if indices.size == 0:
         return indices
-    order = np.lexsort((ids[indices], -scores[indices]))  # last key is primary
+    keys = (ids[indices], -scores[indices]) + (() if last is None else (last[indices],))
+    order = np.lexsort(keys)  # last key is primary
     return np.sort(indices[order[: n_kept(len(indices), p)]])
+
+
+def ranked_last(margins: np.ndarray | None, cfg: RankConfig, dataset: Dataset) -> np.ndarray | None:
+    """The style-aware part of Step B (``ranking.style_margin``; None = the paper's ranking): which
+    trajectories rank after the rest of their cluster because their cluster is less than
+    ``style_margin`` nats more likely than the next best (``margins`` from the clustering)."""
+    if cfg.style_margin <= 0:
+        return None
+    if margins is None:
+        raise DataError(f"ranking.style_margin: the clustering of {dataset.domain}-{dataset.env} gave "
+                        "no likelihood margins (bag_auto falls back to lstm_dec on continuous states): "
+                        "use clustering.method policy_mix, or set ranking.style_margin to 0")
+    margins = np.asarray(margins, dtype=np.float64)
+    if margins.shape != (dataset.n_trajectories,):
+        raise DataError(f"style margins must have shape ({dataset.n_trajectories},), got {margins.shape}")
+    return margins < cfg.style_margin
 
 
 def score_dataset(dataset: Dataset, cfg: RankConfig, score: ScoreFn | None = None) -> np.ndarray:
@@ -89,16 +108,17 @@ def score_dataset(dataset: Dataset, cfg: RankConfig, score: ScoreFn | None = Non
 
 def threshold(
     labels: np.ndarray, indices: np.ndarray, scores: np.ndarray, ids: np.ndarray,
-    ps: Sequence[float], k: int | None = None,
+    ps: Sequence[float], k: int | None = None, last: np.ndarray | None = None,
 ) -> dict[tuple[int, float], np.ndarray]:
-    """H_{k,p}: for every cluster label k (0..k-1) and p, the top p of ``indices`` with that label."""
+    """H_{k,p}: for every cluster label k (0..k-1) and p, the top p of ``indices`` with that label
+    (``last``: see :func:`top_p`)."""
     labels = np.asarray(labels, dtype=np.int64)
     k = int(labels.max()) + 1 if k is None else k
     out = {}
     for c in range(k):
         members = indices[labels[indices] == c]
         for p in ps:
-            out[(c, float(p))] = top_p(members, scores, p, ids)
+            out[(c, float(p))] = top_p(members, scores, p, ids, last)
     return out
 
 
@@ -240,13 +260,16 @@ def plan_cells(
     seeds: Sequence[int], *, k: int | None = None, score: ScoreFn | None = None,
     baseline: bool = True, corruption_levels: Sequence[float] = (),
     corruption_ps: Sequence[float] = (1.0,), dedupe: bool = True, prefix: str = "",
+    margins: np.ndarray | None = None,
 ) -> list[Cell]:
     """Every training cell of one environment: PCPG (k, p, seed), No Clustering (p, seed), and
     with ``corruption_levels`` the corrupted-label cells (c, k, p, seed).
 
     ``labels`` gives a cluster 0..k-1 per trajectory (e.g. ``dataset.styles``); only the
     trajectories at ``train_idx`` are used. Seeds change the models' initialisation (and the
-    corruption draw), never the data split.
+    corruption draw), never the data split. ``margins``: the clustering's, for
+    ``cfg.style_margin`` (:func:`ranked_last`; it applies to PCPG and corrupted cells, whose c = 0
+    is PCPG, not to No Clustering, which has no clusters).
     """
     labels = np.asarray(labels, dtype=np.int64)
     if labels.shape != (dataset.n_trajectories,):
@@ -256,6 +279,7 @@ def plan_cells(
     k = int(labels.max()) + 1 if k is None else int(k)
     train_idx = np.asarray(train_idx, dtype=np.int64)
     scores = score_dataset(dataset, cfg, score)
+    last = ranked_last(margins, cfg, dataset)
     ids = dataset.trajectory_ids
     row_traj = dataset.row_trajectory
     steps = dataset.step_rows
@@ -299,7 +323,7 @@ def plan_cells(
         return Cell(spec, s, v, a, w, mean, std, n_trajectories=len(idx))
 
     cells = []
-    subsets = threshold(labels, train_idx, scores, ids, cfg.ps, k)
+    subsets = threshold(labels, train_idx, scores, ids, cfg.ps, k, last)
     # A cluster with no training trajectory (k above the number of styles, a tiny split) gets no
     # agent; the evaluation scores its test trajectories with No Clustering's agent of that p.
     for seed in seeds:
@@ -312,7 +336,7 @@ def plan_cells(
         for level in corruption_levels:
             bad = corrupt_labels(labels, level, k, corruption_rng(cfg.corruption_seed, seed, level),
                                  cfg.corruption_mode)
-            for (c, p), idx in threshold(bad, train_idx, scores, ids, corruption_ps, k).items():
+            for (c, p), idx in threshold(bad, train_idx, scores, ids, corruption_ps, k, last).items():
                 key = f"{prefix}corrupt{fmt(level)}-k{c}-p{fmt(p)}-s{seed}"
                 if idx.size:
                     cells.append(make(CellSpec(key, "corrupt", c, p, seed, float(level)), idx))

@@ -39,6 +39,7 @@ from pcpg_dist.parallel import set_threads
 from pcpg_dist.ray_utils import run_tasks
 
 CODE_VERSION = "2"  # bump when a stage's numbers or files change for the same config (2: bool valid masks)
+CLUSTER_VERSION = "2"  # bump when only Step A's files change (2: result.json holds the margins)
 STAGES = ("generate", "cluster", "train", "evaluate")
 # fields of a config that cannot change its evaluation units (dataset, split, what Step A sees)
 NOT_IN_UNITS = {"name", "clustering", "bc", "evaluation", "runner", "tuning", "seeds", "sweep"}
@@ -114,7 +115,8 @@ def cluster_task(unit: Unit, cluster_cfg, seed: int, threads: int) -> dict:
         with tempfile.TemporaryDirectory() as tmp:
             result.model.save(Path(tmp))
             model = files_of(tmp)
-    return {"labels": result.labels.tolist(), "metrics": result.metrics, "model": model}
+    margins = None if result.margins is None else result.margins.tolist()
+    return {"labels": result.labels.tolist(), "margins": margins, "metrics": result.metrics, "model": model}
 
 
 def train_task(cells: list, bc_cfg, threads: int, init: list | None = None):
@@ -126,13 +128,14 @@ def train_task(cells: list, bc_cfg, threads: int, init: list | None = None):
     return train_cells(cells, bc_cfg, init)
 
 
-def evaluate_task(unit: Unit, labels: np.ndarray, trained, cfg: ExperimentConfig, threads: int) -> dict:
+def evaluate_task(unit: Unit, labels: np.ndarray, trained, cfg: ExperimentConfig, threads: int,
+                  margins: np.ndarray | None = None) -> dict:
     """Evaluate one unit (a Ray task): its metrics and its tables and figures as bytes."""
     from pcpg_dist.pipeline import evaluate_unit
 
     set_threads(threads)
     with tempfile.TemporaryDirectory() as tmp:
-        metrics = evaluate_unit(unit, labels, trained, cfg, tmp)
+        metrics = evaluate_unit(unit, labels, trained, cfg, tmp, margins=margins)
         files = files_of(tmp)
     files["metrics.json"] = json.dumps(metrics, indent=1, sort_keys=True).encode()
     return {"metrics": metrics, "files": files}
@@ -282,13 +285,13 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
         jobs: dict[str, tuple] = {}
         for p in points:
             for e, u in p.units.items():
-                p.ckeys[e] = k = content_key(CODE_VERSION, p.dkey, e, p.cfg.clustering, p.cfg.seed,
-                                             u.cluster_input_note)
+                p.ckeys[e] = k = content_key(CODE_VERSION, CLUSTER_VERSION, p.dkey, e, p.cfg.clustering,
+                                             p.cfg.seed, u.cluster_input_note)
                 if k not in jobs and cache.done("cluster", k) is None:
                     jobs[k] = (p.refs[e], p.cfg.clustering, p.cfg.seed, p.cfg.runner.cpus_per_task)
 
         def save_cluster(key: str, res: dict) -> None:
-            files = {"result.json": json.dumps({"labels": res["labels"], "metrics": res["metrics"]}).encode(),
+            files = {"result.json": json.dumps({k: res[k] for k in ("labels", "margins", "metrics")}).encode(),
                      **{f"model/{n}": b for n, b in res["model"].items()}}
             cache.store("cluster", key, files, {"stage": "cluster"})
 
@@ -305,8 +308,8 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
         for p in points:
             cfg = p.cfg
             for e, u in p.units.items():
-                first, rest = split_for_init(
-                    plan_unit(u, np.asarray(clusters[p.ckeys[e]]["labels"], np.int64), cfg), cfg.bc)
+                labels, margins = _clusters_of(clusters[p.ckeys[e]])
+                first, rest = split_for_init(plan_unit(u, labels, cfg, margins=margins), cfg.bc)
                 _add_groups(p, e, first, cache, jobs, cfg.bc, [])
                 if rest:
                     later.append((p, e, rest, [k for ge, k, _ in p.groups if ge == e]))
@@ -339,8 +342,8 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
                 if k not in jobs and cache.done("evaluate", k) is None:
                     trained = TrainedCells.concat([TrainedCells.load(cache.path("train", t) / "cells")
                                                    for t in tkeys])
-                    labels = np.asarray(clusters[p.ckeys[e]]["labels"], np.int64)
-                    jobs[k] = (p.refs[e], labels, trained, p.cfg, p.cfg.runner.cpus_per_task)
+                    labels, margins = _clusters_of(clusters[p.ckeys[e]])
+                    jobs[k] = (p.refs[e], labels, trained, p.cfg, p.cfg.runner.cpus_per_task, margins)
 
         def save_eval(key: str, res: dict) -> None:
             cache.store("evaluate", key, res["files"], {"stage": "evaluate"})
@@ -357,6 +360,13 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
             if p.tracker is not None:
                 p.tracker.fail()
         raise
+
+
+def _clusters_of(result: dict) -> tuple[np.ndarray, np.ndarray | None]:
+    """A cached clustering's labels and margins (None from a clusterer without a likelihood)."""
+    margins = result.get("margins")
+    return (np.asarray(result["labels"], np.int64),
+            None if margins is None else np.asarray(margins, np.float64))
 
 
 def _add_groups(p: Point, unit: str, cells: list, cache: Cache, jobs: dict[str, tuple], bc_cfg,

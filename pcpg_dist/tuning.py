@@ -123,10 +123,11 @@ def score_trial(datasets: dict[str, Unit], cfg: ExperimentConfig, tune: TuneConf
             return {"value": None, "metrics": metrics,
                     "pruned": f"{env}: smallest cluster holds {int(sizes.min())} of {len(train_idx)} training "
                               f"trajectories (< min_cluster_fraction {tune.min_cluster_fraction})"}
-        cells = plan_unit(unit, labels, trial_cfg, rank_cfg=rank, seeds=seeds, corruption=False)
+        cells = plan_unit(unit, labels, trial_cfg, rank_cfg=rank, seeds=seeds, corruption=False,
+                          margins=clustering.margins)
         trained = train_plan(cells, trial_cfg.bc)
         ev = evaluate_unit(unit, labels, trained, trial_cfg, rank_cfg=rank, eval_cfg=eval_cfg,
-                           rollouts=False, extras=False)
+                           rollouts=False, extras=False, margins=clustering.margins)
         acc = float(np.mean([ev[f"pcpg/accuracy/p{fmt(p)}"] for p in rank.ps]))
         base = float(np.mean([ev[f"baseline/accuracy/p{fmt(p)}"] for p in rank.ps]))
         metrics.update({f"{env}/pcpg_accuracy": acc, f"{env}/no_clustering_accuracy": base})

@@ -52,6 +52,10 @@ def test_layout_dir_is_relative_to_the_config_file(tmp_path):
     ({"ranking": {"test_fraction": 0}}, "key 'ranking.test_fraction': value 0 is not allowed"),
     ({"clustering": {"k": 1}}, "exp.yaml: clustering.k = 1 leaves no other cluster to corrupt labels into: "
      "set evaluation.corruption_levels to [0.0]"),
+    ({"ranking": {"style_margin": 1.0}, "clustering": {"method": "lstm_dec"}},
+     "exp.yaml: ranking.style_margin needs a clusterer with a likelihood (clustering.method greedy_mix, "
+     "bag_auto, policy_mix); lstm_dec gives none"),
+    ({"ranking": {"style_margin": -1}}, "key 'ranking.style_margin': value -1 is not allowed"),
 ])
 def test_bad_values_give_one_line(tmp_path, patch, needle):
     data = {**BASE, **patch}

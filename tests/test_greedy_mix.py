@@ -160,3 +160,27 @@ def test_fewer_distinct_trajectories_than_clusters(tmp_path, e4):
         assert len(set(block)) == 1
     res.model.save(tmp_path / "m")
     np.testing.assert_array_equal(load_model(tmp_path / "m").predict(ds), res.labels)
+
+
+def test_margins_are_large_for_clear_styles_and_small_for_trajectories_that_fit_two():
+    """The clustering's margins (nats from a trajectory's cluster to the next best; what
+    ranking.style_margin reads): the fit's labels are their argmax, trajectories that follow one
+    style's greedy actions are far from every other cluster, and a trajectory that only visits
+    states where two styles act alike is near both."""
+    from pcpg_dist.clustering import _margins
+
+    steps, styles = synthetic_steps(4, per_style=80)
+    fit = greedy_mix.fit(steps, [styles], 3)
+    sc = greedy_mix.fit_scores(steps, fit)
+    assert (sc.argmax(1) == fit.labels).mean() >= 0.99
+    m = _margins(sc, fit.labels)
+    assert np.median(m) > 10.0
+    # one more trajectory: 6 steps in states where styles 0 and 1 share the greedy action
+    v = fit.votes.argmax(2)  # (k, S) each cluster's greedy action
+    c0, c1 = (np.argmax(np.bincount(fit.labels[styles == s], minlength=3)) for s in (0, 1))
+    shared = np.flatnonzero(v[c0] == v[c1])[:6]
+    assert len(shared) >= 3
+    one = greedy_mix.Steps.build(shared, v[c0][shared], np.ones((len(shared), 4), bool),
+                                 np.zeros(len(shared), np.int64), 1, steps.n_states, 4)
+    both = greedy_mix.scores(one, greedy_mix._weights(one, fit.noise), fit.votes, fit.log_share)[0]
+    assert abs(both[c0] - both[c1]) < 1.0 < min(both[c0], both[c1]) - both.min()

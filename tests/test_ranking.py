@@ -153,3 +153,41 @@ def test_custom_score_is_used(toy):
     assert longest[0].weights.sum() > shortest[0].weights.sum()
     with pytest.raises(DataError, match="shape"):
         plan_cells(toy, toy.styles, tr, RankConfig(), [0], score=lambda ds: np.ones(3))
+
+
+def test_style_margin_ranks_ambiguous_trajectories_last_in_training_and_test_alike(toy):
+    """ranking.style_margin: a trajectory whose cluster is barely more likely than the next best
+    ranks after every other of its cluster (then by skill, then by id); 0 is the paper's ranking."""
+    from pcpg_dist.ranking import ranked_last
+
+    scores = np.array([0.9, 0.8, 0.7, 0.6, 0.5])
+    ids = np.arange(5)
+    last = np.array([True, False, True, False, False])
+    idx = np.arange(5)
+    assert top_p(idx, scores, 0.4, ids, last).tolist() == [1, 3]  # not the two best: ranked last
+    assert top_p(idx, scores, 0.8, ids, last).tolist() == [0, 1, 3, 4]  # then the better of the two
+    assert top_p(idx, scores, 0.4, ids).tolist() == [0, 1]
+
+    n = toy.n_trajectories
+    margins = np.linspace(0.0, 5.0, n)
+    assert ranked_last(margins, RankConfig(), toy) is None  # the paper's Step B by default
+    np.testing.assert_array_equal(ranked_last(margins, RankConfig(style_margin=1.0), toy), margins < 1.0)
+    tr, te = split_trajectories(n, 0.2, 0)
+    cfg = RankConfig(ps=(0.25,), style_margin=1.0)
+    plain = plan_cells(toy, toy.styles, tr, cfg.model_copy(update={"style_margin": 0.0}), [0], baseline=False,
+                       margins=margins)
+    aware = plan_cells(toy, toy.styles, tr, cfg, [0], baseline=False, margins=margins)
+    assert [c.n_trajectories for c in aware] == [c.n_trajectories for c in plain]  # same ceil(p n)
+    args = (toy.styles, tr, performance(toy), toy.trajectory_ids, [0.25])
+    ambiguous_kept = []
+    for c in range(int(toy.styles.max()) + 1):
+        kept = threshold(*args, last=margins < 1.0)[(c, 0.25)]
+        members = tr[toy.styles[tr] == c]
+        assert (margins[members] >= 1.0).sum() >= len(kept)  # enough confident ones...
+        assert (margins[kept] >= 1.0).all()  # ...so no ambiguous one is kept
+        ambiguous_kept.append((margins[threshold(*args)[(c, 0.25)]] < 1.0).sum())
+    assert sum(ambiguous_kept) > 0  # the paper's ranking keeps some
+    with pytest.raises(DataError, match="style_margin.*no likelihood margins"):
+        plan_cells(toy, toy.styles, tr, cfg, [0])
+    with pytest.raises(DataError, match="shape"):
+        plan_cells(toy, toy.styles, tr, cfg, [0], margins=np.zeros(3))

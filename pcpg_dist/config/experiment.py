@@ -27,6 +27,7 @@ from pcpg_dist.config.domains import (
     safe_name,
 )
 from pcpg_dist.config.stages import (
+    LIKELIHOOD_METHODS,
     BCConfig,
     ClusterConfig,
     EvalConfig,
@@ -85,6 +86,15 @@ class ExperimentConfig(StrictModel):
         if self.clustering.k < 2 and any(c > 0 for c in self.evaluation.corruption_levels):
             raise ValueError("clustering.k = 1 leaves no other cluster to corrupt labels into: set "
                              "evaluation.corruption_levels to [0.0], or clustering.k to 2 or more")
+        return self
+
+    @model_validator(mode="after")
+    def _style_margin_needs_a_likelihood(self) -> ExperimentConfig:
+        """A style margin is a likelihood ratio: only the clusterers with a likelihood give one."""
+        if self.ranking.style_margin > 0 and self.clustering.method not in LIKELIHOOD_METHODS:
+            raise ValueError(f"ranking.style_margin needs a clusterer with a likelihood "
+                             f"(clustering.method {', '.join(LIKELIHOOD_METHODS)}); "
+                             f"{self.clustering.method} gives none: set ranking.style_margin to 0")
         return self
 
     @field_validator("name")

@@ -61,6 +61,13 @@ class RankConfig(StrictModel):
         "How a corrupted label is drawn: 'wrong' = uniformly among the k-1 other labels (c = 1: "
         "every label wrong); 'random' = uniformly among all k labels (c = 1: a random "
         "clustering, the No Clustering situation with 1/k of the data)."))
+    style_margin: float = Field(0.0, ge=0.0, le=1e6, description=(
+        "Style-aware Step B (not in the paper; 0 = the paper's ranking): a trajectory whose "
+        "cluster is less than this many nats more likely than the next best ranks after every "
+        "other trajectory of its cluster, in the training and test subsets alike, so the top p "
+        "holds the cluster's skilled players of its style, not short trajectories that fit "
+        "several styles. Needs a clusterer with a likelihood (greedy_mix, bag_auto on discrete "
+        "states, policy_mix); 1 is the measured choice (docs/results.md)."))
 
     @field_validator("ps")
     @classmethod
@@ -71,6 +78,10 @@ class RankConfig(StrictModel):
         if len(set(ps)) != len(ps):
             raise ValueError(f"ps has repeated values: {ps}")
         return ps
+
+
+#: the clusterers that score each trajectory against every cluster (``ranking.style_margin``)
+LIKELIHOOD_METHODS = ("greedy_mix", "bag_auto", "policy_mix")
 
 
 class ClusterConfig(StrictModel):
