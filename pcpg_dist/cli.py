@@ -142,6 +142,8 @@ def _cmd_cluster(args: argparse.Namespace) -> None:
     for env, res in zip(envs, results, strict=True):
         write_files(folders[env] / "model", res["model"])
         (folders[env] / "labels.json").write_text(json.dumps(res["labels"]))
+        if res["margins"] is not None:  # nats to the next-best cluster (a likelihood clusterer)
+            (folders[env] / "margins.json").write_text(json.dumps(res["margins"]))
         (folders[env] / "metrics.json").write_text(json.dumps(res["metrics"], indent=1))
         shown = ", ".join(f"{k.split('/')[1]} {v:.3f}" for k, v in res["metrics"].items()
                           if k.split("/")[1] in ("ari", "nmi", "accuracy", "silhouette", "fit_seconds"))
@@ -274,7 +276,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("cluster", help="Step A only: cluster each environment's trajectories by play-style")
     p.add_argument("config", help="experiment YAML (its clustering section)")
     overrides(p)
-    p.add_argument("--out", required=True, help="output folder: <env>/model, labels.json, metrics.json")
+    p.add_argument("--out", required=True, help="output folder: <env>/model, labels.json, metrics.json "
+                   "(and margins.json from greedy_mix, bag_auto, policy_mix)")
     p.add_argument("--data", default=None, help="dataset folder from `pcpg generate` (default: generate)")
     common(p)
     p.set_defaults(func=_cmd_cluster)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import gc
+import json
 import subprocess
 import sys
 import time
@@ -155,3 +156,21 @@ def test_a_ray_address_where_nothing_answers_is_one_line_at_once(tmp_path):
         err = out.stderr.strip().splitlines()
         assert out.returncode == 2 and len(err) == 1 and says in err[0], (address, out.stderr[-2000:])
         assert not (tmp_path / "data").exists()
+
+
+@pytest.mark.slow
+def test_cluster_command_writes_labels_and_margins_per_environment(ray_session, tmp_path):
+    cfg = {"name": "c", "seed": 0, "gridworld": {"layout_dir": str(ROOT / "experiments" / "gridworlds"),
+                                                 "environments": ["E1"]},
+           "pbtg": {"episodes": 3000, "trajectories_per_style": 60, "dataset_per_style": 40}}
+    (tmp_path / "c.yaml").write_text(yaml.safe_dump(cfg))
+    assert main(["--quiet", "cluster", str(tmp_path / "c.yaml"), "--out", str(tmp_path / "out")]) == 0
+    labels = json.loads((tmp_path / "out" / "E1" / "labels.json").read_text())
+    margins = json.loads((tmp_path / "out" / "E1" / "margins.json").read_text())
+    assert len(labels) == len(margins) == 160 and set(labels) <= {0, 1, 2, 3}
+    assert min(margins) > -1.0 and sorted(margins)[80] > 1.0  # the label is (nearly) the argmax
+    # a clusterer without a likelihood has no margins to write
+    assert main(["--quiet", "cluster", str(tmp_path / "c.yaml"), "clustering.method=bag_kmeans",
+                 "--out", str(tmp_path / "km")]) == 0
+    assert (tmp_path / "km" / "E1" / "labels.json").is_file()
+    assert not (tmp_path / "km" / "E1" / "margins.json").exists()
