@@ -197,6 +197,12 @@ def _fit_lstm(
 
 
 # --------------------------------------------------------------------- bag clusterers
+def falls_back_to_lstm(dataset) -> bool:
+    """Whether ``bag_auto`` clusters ``dataset`` with lstm_dec (continuous states) rather than
+    greedy_mix."""
+    return _mostly_distinct_states(checked_sequences(dataset)[0])
+
+
 def _mostly_distinct_states(states: np.ndarray) -> bool:
     """Whether more than half the state rows are distinct (continuous states: bags are useless)."""
     from pcpg_dist.cluster_models import row_ids

@@ -24,6 +24,7 @@ Why this shape:
 from __future__ import annotations
 
 import contextlib
+import logging
 import math
 import reprlib
 import time
@@ -56,6 +57,27 @@ def suggest(trial: Any, tune: TuneConfig) -> dict[str, int]:
     return {"k": integer("k", *tune.k_range), "lstm_hidden": choice("lstm_hidden", tune.lstm_hidden_sizes),
             "latent": choice("latent", tune.latent_sizes),
             "bc_layers": integer("bc_layers", *tune.bc_layers_range), "bc_width": choice("bc_width", tune.bc_widths)}
+
+
+#: the clustering methods each network-size parameter acts on (the others ignore it), and the
+#: tuning field that lists its values
+USED_BY = {"lstm_hidden": ("lstm_dec", "lstm_kmeans", "policy_mix"), "latent": ("lstm_dec", "lstm_kmeans")}
+SIZE_FIELDS = {"lstm_hidden": "lstm_hidden_sizes", "latent": "latent_sizes"}
+
+
+def searched_space(cfg: ExperimentConfig, tune: TuneConfig, units: list[Unit]) -> tuple[TuneConfig, list[str]]:
+    """``tune`` with the sizes the clusterer ignores fixed at the config's own values (a trial
+    would otherwise spend the study's budget on a dimension that changes nothing), and their names.
+    ``bag_auto`` is resolved on the data: greedy_mix on discrete states, lstm_dec on continuous."""
+    from pcpg_dist.clustering import falls_back_to_lstm
+
+    method = cfg.clustering.method
+    if method == "bag_auto":
+        method = "lstm_dec" if any(falls_back_to_lstm(u.clustered) for u in units) else "greedy_mix"
+    unused = [p for p, methods in USED_BY.items()
+              if method not in methods and len(getattr(tune, SIZE_FIELDS[p])) > 1]
+    fixed = {SIZE_FIELDS[p]: (getattr(cfg.clustering, TARGETS[p][1]),) for p in unused}
+    return tune.model_copy(update=fixed), unused
 
 
 def apply_params(cfg: ExperimentConfig, params: dict[str, int]) -> ExperimentConfig:
@@ -338,6 +360,11 @@ def run_study(cfg: ExperimentConfig, storage_url: str | Storage | None = None, w
     the_units, _ = load_units(cfg, Cache(Path(workdir).resolve() / cfg.name / "cache"), show_progress)
     datasets = {u.name: u for u in the_units}
     envs = trial_environments(cfg, tune, list(datasets))
+    tune, unused = searched_space(cfg, tune, [datasets[e] for e in envs])
+    if any(SIZE_FIELDS[p] in cfg.tuning.model_fields_set for p in unused):  # asked for, not only a default
+        logging.getLogger(__name__).warning(
+            "tuning: clustering.method %s does not use %s on this data: not searched (kept at the "
+            "config's values)", cfg.clustering.method, ", ".join(unused))
 
     # every check of the user's input is behind us: only now is the study created and marked, so
     # a mistake never leaves a study that refuses the corrected command

@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import sys
 import uuid
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -127,6 +128,30 @@ def test_suggest_fixes_single_value_dimensions_and_apply_sets_the_config(tmp_pat
     one = apply_params(cfg, {"k": 1, "lstm_hidden": 8, "latent": 4, "bc_layers": 2, "bc_width": 16})
     assert one.clustering.k == 1 and one.evaluation.corruption_levels == (0.0,)
     assert cfg.evaluation.corruption_levels != (0.0,)
+
+
+def test_sizes_the_clusterer_ignores_are_not_searched(tmp_path):
+    """greedy_mix (bag_auto on discrete states) has no LSTM: tuning its sizes would spend trials
+    on a dimension that changes nothing. policy_mix uses clustering.hidden_size, not latent_size;
+    bag_auto on continuous states is lstm_dec and uses both."""
+    from bc_toy import make_dataset
+
+    from pcpg_dist.domains.base import Unit
+    from pcpg_dist.tuning import searched_space
+
+    discrete = make_dataset(40, seed=0)  # grid positions: few distinct states
+    continuous = replace(discrete, states=np.random.default_rng(0).normal(size=discrete.states.shape)
+                         .astype(np.float32))
+    grid, cont = (Unit("u", d, np.arange(4)) for d in (discrete, continuous))
+    cfg = config(tmp_path, lstm_hidden_sizes=[8, 16], latent_sizes=[4, 8])
+    for method, unit, unused in [("bag_auto", grid, ["lstm_hidden", "latent"]), ("bag_auto", cont, []),
+                                 ("greedy_mix", grid, ["lstm_hidden", "latent"]),
+                                 ("policy_mix", grid, ["latent"]), ("lstm_dec", grid, [])]:
+        c = cfg.model_copy(update={"clustering": cfg.clustering.model_copy(update={"method": method})})
+        tune, fixed = searched_space(c, c.tuning, [unit])
+        assert fixed == unused, method
+        assert len(tune.lstm_hidden_sizes) == (1 if "lstm_hidden" in unused else 2)
+        assert tune.latent_sizes == ((c.clustering.latent_size,) if "latent" in unused else (4, 8))
 
 
 def test_best_config_is_loadable_elsewhere(tmp_path):
