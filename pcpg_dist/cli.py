@@ -63,11 +63,11 @@ def _cmd_run(args: argparse.Namespace) -> None:
 
 def _cmd_sweep(args: argparse.Namespace) -> None:
     """A grid over config axes, every point together on Ray; shared stages run once."""
+    from pcpg_dist.config.overrides import split_sweep_items
     from pcpg_dist.ray_utils import init_ray
     from pcpg_dist.sweep import run_sweep
 
-    axes = [a for a in args.axes if "," in a.partition("=")[2] or _is_range(a.partition("=")[2])]
-    fixed = [a for a in args.axes if a not in axes]
+    axes, fixed = split_sweep_items(args.axes)
     _check_tracking(args)
     init_ray(args.ray_address)
     res = run_sweep(args.config, axes, fixed, workdir=Path(args.workdir), tracking_uri=args.tracking_uri,
@@ -79,15 +79,6 @@ def _cmd_sweep(args: argparse.Namespace) -> None:
     print(f"report: {res.out_dir / 'report.html'}  ({len(res.figures)} figures)")
     if res.parent_run_id:
         print(f"MLflow sweep run: {res.parent_run_id}")
-
-
-def _is_range(value: str) -> bool:
-    from pcpg_dist.config.overrides import parse_range
-
-    try:
-        return parse_range(value) is not None
-    except PcpgError:
-        return True
 
 
 def _cmd_report(args: argparse.Namespace) -> None:

@@ -14,7 +14,13 @@ import pytest
 import yaml
 
 from pcpg_dist.cli import main
-from pcpg_dist.config.overrides import load_config_with, parse_range, parse_value, sweep_points
+from pcpg_dist.config.overrides import (
+    load_config_with,
+    parse_range,
+    parse_value,
+    split_sweep_items,
+    sweep_points,
+)
 from pcpg_dist.errors import ConfigError
 from pcpg_dist.sweep import point_slug, run_sweep
 
@@ -96,6 +102,21 @@ def test_sweep_mistakes_are_refused_before_anything_is_built(capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "'clustering.k' is both a sweep axis and a single value" in err[0], err
     assert parse_value("1:30") == "1:30"  # YAML 1.1 read it as 90, silently
+
+
+def test_a_bracketed_list_is_one_value_so_a_fixed_override(capsys):
+    """`ranking.ps=[1.0,0.5]` is one value (a list), fixed like `pcpg run` sets it; it was read as
+    a one-valued axis (a ranking.ps column, folder names and 10 figures against it)."""
+    items = ["bc.hidden_size=5,8", "ranking.ps=[1.0,0.5]", "evaluation.figures=false", "clustering.k=2:4:1",
+             "evaluation.corruption_levels=[0.0],[0.0,1.0]", "bc.lr=1:0:1"]
+    axes, fixed = split_sweep_items(items)
+    assert axes == ["bc.hidden_size=5,8", "clustering.k=2:4:1", "evaluation.corruption_levels=[0.0],[0.0,1.0]",
+                    "bc.lr=1:0:1"]  # a malformed range stays an axis: its check names the mistake
+    assert fixed == ["ranking.ps=[1.0,0.5]", "evaluation.figures=false"]
+    # on the command line: the list is a single value, so an axis over the same key clashes with it
+    assert main(["sweep", str(QUICK), "ranking.ps=[1.0,0.5]", "ranking.ps=0.5,0.1", "--no-tracking"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "'ranking.ps' is both a sweep axis and a single value" in err[0], err
 
 
 def test_a_yaml_range_is_a_range_not_a_base60_number(tmp_path):

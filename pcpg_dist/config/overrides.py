@@ -216,6 +216,22 @@ def _split_commas(text: str) -> list[str]:
     return [v for v in (s.strip() for s in out) if v]
 
 
+def split_sweep_items(items: list[str]) -> tuple[list[str], list[str]]:
+    """``pcpg sweep``'s ``KEY=...`` items as (axes, fixed overrides). An axis has two or more values
+    (``v1,v2``: commas inside brackets belong to a value) or is a ``start:stop:step`` range; any other
+    item is one value, a fixed override, so ``ranking.ps=[1.0,0.5]`` sets one list as ``pcpg run``
+    would."""
+    axes, fixed = [], []
+    for item in items:
+        value = item.partition("=")[2]
+        try:
+            is_range = parse_range(value.strip()) is not None
+        except ConfigError:  # a malformed range: an axis, whose check names the mistake
+            is_range = True
+        (axes if is_range or len(_split_commas(value)) > 1 else fixed).append(item)
+    return axes, fixed
+
+
 def sweep_points(section: Any, cli_axes: list[str], domain: str | None) -> tuple[dict[str, list], list[dict[str, Any]]]:
     """The axes (key -> values) and the points (one override mapping each) of a sweep."""
     grid: dict[str, list] = {}
