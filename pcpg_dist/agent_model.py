@@ -1,4 +1,4 @@
-"""The trained agents of a sweep as one MLflow pyfunc model (models-from-code: nothing pickled).
+"""The trained agents of a run as one MLflow pyfunc model (models-from-code: nothing pickled).
 
 ``mlflow.pyfunc.load_model(f"runs:/{run_id}/agents").predict(df)`` (or ``mlflow models serve``)
 returns one action per row of ``df``; the columns (docs/agents.md):

@@ -96,7 +96,7 @@ def _cmd_report(args: argparse.Namespace) -> None:
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> None:
-    """Rerun a logged sweep in a fresh folder; exit 1 when some metric differs."""
+    """Rerun a logged run in a fresh folder; exit 1 when some metric differs."""
     from pcpg_dist.reproduce import cli_reproduce
 
     code = cli_reproduce(args)
@@ -279,18 +279,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default=None, help="CSV of (trajectory, predicted_style)")
     p.set_defaults(func=_cmd_classify)
 
-    p = sub.add_parser("report", help="write the reproducibility report of a sweep (HTML + Markdown)")
-    p.add_argument("target", help="MLflow run id, experiment name, or a run's output folder (runs/NAME)")
+    p = sub.add_parser("report", help="write the reproducibility report of a run (HTML + Markdown)")
+    p.add_argument("target", help="a run's output folder (runs/NAME), an MLflow run id, or an experiment name "
+                                  "(its newest top-level run: a `pcpg run`, not one point of a sweep)")
     p.add_argument("--out", default=None, help="folder for report.html/report.md (default: beside the summary)")
     p.add_argument("--workdir", default="runs", help="where downloaded artifacts are kept")
     p.add_argument("--pdf", action="store_true", help="also print report.pdf with a headless Chromium")
     p.add_argument("--tracking-uri", default=None, help="MLflow tracking URI (default: as for run)")
     p.set_defaults(func=_cmd_report)
 
-    p = sub.add_parser("reproduce", help="rerun a logged sweep from its recorded config and seeds in a fresh "
+    p = sub.add_parser("reproduce", help="rerun a logged run from its recorded config and seeds in a fresh "
                                          "folder; compare every metric with the logged one (exit 1 if any differs)")
     p.add_argument("run", metavar="RUN", help="a run's output folder (runs/NAME), an MLflow run id, or an "
-                                              "experiment name (as for report)")
+                                              "experiment name (its newest top-level run, as for report)")
     p.add_argument("--workdir", default=None, help="fresh (new or empty) folder for the rerun "
                    "(default: a new temporary folder, printed at the end)")
     p.add_argument("--rtol", type=float, default=1e-6, help="relative tolerance (default: 1e-6)")
@@ -323,7 +324,8 @@ def build_parser() -> argparse.ArgumentParser:
     formats = p.add_subparsers(dest="what", required=True, metavar="FORMAT")
     e = formats.add_parser("onnx", help="one ONNX model per environment + a JSON table of its cells "
                                         "(docs/agents.md)")
-    e.add_argument("run", help="a run's output folder (runs/NAME), an MLflow run id, or an experiment name")
+    e.add_argument("run", help="a run's output folder (runs/NAME), an MLflow run id, or an experiment name "
+                               "(its newest top-level run, as for report)")
     e.add_argument("--out", required=True, help="folder for agents_<env>.onnx and agents_<env>.json")
     e.add_argument("--workdir", default=None, help="keep the agents downloaded from MLflow here "
                    "(default: a temporary folder)")

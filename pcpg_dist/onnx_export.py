@@ -141,7 +141,8 @@ def _number(x) -> bool:
 
 
 def resolve_agents(target: str, tracking_uri: str | None, workdir: Path) -> Path:
-    """The agents folder of RUN: a run's output folder, an MLflow run id or an experiment name."""
+    """The agents folder of RUN: a run's output folder, an MLflow run id or an experiment name
+    (its newest top-level run)."""
     path = Path(target)
     if (path / "agents").is_dir():
         return path / "agents"
@@ -152,9 +153,9 @@ def resolve_agents(target: str, tracking_uri: str | None, workdir: Path) -> Path
                         f"written by pcpg run)")
     from mlflow.exceptions import MlflowException
 
-    from pcpg_dist.tracking import find_sweep_run
+    from pcpg_dist.tracking import find_run
 
-    run, uri = find_sweep_run(target, tracking_uri)
+    run, uri = find_run(target, tracking_uri)
     run_id = run.data.tags.get("mlflow.parentRunId", run.info.run_id)  # an environment's child run
     import mlflow.artifacts
 

@@ -1,4 +1,4 @@
-"""`pcpg report`: one self-contained HTML page (and a Markdown twin) for one sweep.
+"""`pcpg report`: one self-contained HTML page (and a Markdown twin) for one run.
 
 The page is rendered from data, never from text that data could turn into markup: the tables
 (CSV) and figures (PNG) found *inside* the run's ``summary`` folder, ``metrics.json`` and
@@ -295,15 +295,16 @@ def export_pdf(html_path: Path, pdf_path: Path | None = None, timeout: float = 1
 
 
 def resolve_summary(target: str, tracking_uri: str | None, workdir: Path) -> tuple[Path, str | None]:
-    """A summary folder for a local path, an MLflow run id, or an experiment name (latest sweep)."""
+    """A summary folder for a local path, an MLflow run id, or an experiment name (its newest
+    top-level run, :func:`pcpg_dist.tracking.find_run`)."""
     path = Path(target)
     if (path / "run.json").is_file():
         return path, None
     if (path / "summary" / "run.json").is_file():
         return path / "summary", None
-    from pcpg_dist.tracking import find_sweep_run
+    from pcpg_dist.tracking import find_run
 
-    run, uri = find_sweep_run(target, tracking_uri)
+    run, uri = find_run(target, tracking_uri)
     run_id = run.info.run_id
     local = Path(workdir) / ".report-cache" / run_id
     import mlflow.artifacts

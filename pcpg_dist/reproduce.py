@@ -1,4 +1,4 @@
-"""`pcpg reproduce RUN`: rerun a logged sweep from its record and say, metric by metric, whether
+"""`pcpg reproduce RUN`: rerun a logged run from its record and say, metric by metric, whether
 the numbers come out the same.
 
 RUN is what `pcpg report` takes (a run's output folder, an MLflow run id or an experiment name).
@@ -139,7 +139,7 @@ def code_notes(run: dict, cfg) -> list[str]:
 
 def reproduce(summary: Path, workdir: Path | None = None, rtol: float = RTOL, atol: float = ATOL,
               show_progress: bool = False) -> Reproduction:
-    """Rerun the sweep recorded in ``summary`` (Ray initialised by the caller) and compare."""
+    """Rerun the run recorded in ``summary`` (Ray initialised by the caller) and compare."""
     from pcpg_dist.runner import run_experiment
 
     summary = Path(summary)

@@ -532,10 +532,11 @@ def ui_link(uri: str, run_id: str, ui: str = "http://127.0.0.1:5000") -> str:
 
 
 # --------------------------------------------------------------------------- experiments and runs
-def find_sweep_run(target: str, uri: str | None = None):
-    """``(run, uri)``: an MLflow run id, or an experiment name (its newest pcpg parent run), as the
-    MLflow run, at ``uri`` (default: :func:`default_tracking_uri`). The URI is checked first, and
-    a ``sqlite:///`` store that does not exist is reported, never created."""
+def find_run(target: str, uri: str | None = None):
+    """``(run, uri)``: ``target`` as an MLflow run id, or as an experiment name its newest top-level
+    pcpg run (the run of a `pcpg run` or of a `pcpg sweep`; never one point of a sweep nor an
+    environment's run), at ``uri`` (default: :func:`default_tracking_uri`). The URI is checked
+    first, and a ``sqlite:///`` store that does not exist is reported, never created."""
     from mlflow.exceptions import MlflowException
 
     uri = uri or default_tracking_uri()
@@ -549,11 +550,29 @@ def find_sweep_run(target: str, uri: str | None = None):
         if exp is None:
             raise ServiceError(f"{target!r} is neither a run's output folder, an MLflow run id nor an "
                                f"experiment name at {uri}") from None
-        runs = _retry(client.search_runs, [exp.experiment_id], filter_string=f"tags.`{ROLE}` = 'parent'",
-                      order_by=["attributes.start_time DESC"], max_results=1)
-        if not runs:
-            raise ServiceError(f"experiment {target!r} at {uri} has no pcpg sweep yet") from None
-        return runs[0], uri
+        run = newest_top_level_run(client, exp.experiment_id)
+        if run is None:
+            raise ServiceError(f"experiment {target!r} at {uri} has no pcpg run or sweep yet") from None
+        return run, uri
+
+
+def newest_top_level_run(client, exp_id: str):
+    """The experiment's newest live run of a `pcpg run` (role ``parent`` with no parent run: a
+    sweep's points carry the sweep as theirs) or of a `pcpg sweep` (role ``sweep``); ``None`` if
+    it has neither. MLflow's search has no "tag is unset", so a page of a sweep's points is skipped."""
+    newest = None
+    for role in ("parent", "sweep"):
+        token, found = None, None
+        while found is None:
+            page = _retry(client.search_runs, [exp_id], filter_string=f"tags.`{ROLE}` = '{role}'",
+                          order_by=["attributes.start_time DESC"], max_results=200, page_token=token)
+            found = next((r for r in page if PARENT not in r.data.tags), None)
+            token = page.token
+            if not token:
+                break
+        if found is not None and (newest is None or (found.info.start_time or 0) > (newest.info.start_time or 0)):
+            newest = found
+    return newest
 
 
 def open_experiment(name: str, uri: str | None):

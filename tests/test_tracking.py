@@ -24,6 +24,7 @@ from pcpg_dist.tracking import (
     MAX_PARENT_METRICS,
     SweepTracker,
     Tracker,
+    find_run,
     log_environment,
     open_experiment,
 )
@@ -319,6 +320,36 @@ def test_sweep_run_is_found_again_and_points_nest_under_it(cfg, tmp_path):
     assert [a.path for a in client.list_artifacts(sweep.parent_id)] == ["summary.csv"]
     other.fail()
     assert client.get_run(other.parent_id).info.status == "KILLED"
+
+
+def test_an_experiment_name_is_its_newest_top_level_run_never_a_sweeps_point(cfg, tmp_path):
+    """`pcpg report quick` / `reproduce` / `export onnx`: the newest `pcpg run` or `pcpg sweep` of the
+    experiment; a sweep's points (role parent, under the sweep run) were picked as the newest."""
+    import time
+
+    from mlflow import MlflowClient
+
+    from pcpg_dist.config import parse_config
+
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    solo = Tracker.start(cfg, uri, tmp_path / "solo")
+    assert find_run(cfg.name, uri)[0].info.run_id == solo.parent_id
+    time.sleep(0.01)
+    sweep = SweepTracker.start(cfg.name, "key1", {"bc.lr": [0.01, 0.001]}, "lr on quick", uri)
+    time.sleep(0.01)
+    point = Tracker.start(cfg, uri, tmp_path / "p0", parent_run_id=sweep.parent_id, params={"bc.lr": "0.01"})
+    client = MlflowClient(uri)
+    assert client.get_run(point.parent_id).info.start_time > client.get_run(sweep.parent_id).info.start_time
+    run, found_at = find_run(cfg.name, uri)
+    assert run.info.run_id == sweep.parent_id and found_at == uri
+    time.sleep(0.01)
+    other = parse_config({**cfg.model_dump(mode="json"), "seed": cfg.seed + 1}, source="quick, seed + 1")
+    newer = Tracker.start(other, uri, tmp_path / "newer")
+    assert find_run(cfg.name, uri)[0].info.run_id == newer.parent_id
+    assert find_run(point.parent_id, uri)[0].info.run_id == point.parent_id  # a run id is that run
+    with pytest.raises(ServiceError, match="has no pcpg run or sweep yet"):
+        client.create_experiment("empty")
+        find_run("empty", uri)
 
 
 # --------------------------------------------------------------------------- the terminal
