@@ -83,12 +83,19 @@ def _cmd_sweep(args: argparse.Namespace) -> None:
 
 def _cmd_report(args: argparse.Namespace) -> None:
     from pcpg_dist.progress import out as console  # results: stdout
-    from pcpg_dist.report import render, resolve_summary
+    from pcpg_dist.report import render, resolve
 
-    summary, run_id = resolve_summary(args.target, args.tracking_uri, Path(args.workdir))
-    out = Path(args.out) if args.out else summary.parent / "report"
-    html_path, md_path = render(summary, out, reproduce_target=run_id)
-    console.print(f"report: {html_path}\nmarkdown: {md_path}")
+    source = resolve(args.target, args.tracking_uri, Path(args.workdir))
+    if source.kind == "sweep":  # a sweep's page: its points and figures (HTML only)
+        from pcpg_dist.sweep import render_sweep_report
+
+        out = Path(args.out) if args.out else source.folder
+        html_path = render_sweep_report(source.folder, out)
+        console.print(f"sweep report: {html_path}")
+    else:
+        out = Path(args.out) if args.out else source.folder.parent / "report"
+        html_path, md_path = render(source.folder, out, reproduce_target=source.run_id)
+        console.print(f"report: {html_path}\nmarkdown: {md_path}")
     if args.pdf:
         from pcpg_dist.report import export_pdf
 
@@ -279,10 +286,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default=None, help="CSV of (trajectory, predicted_style)")
     p.set_defaults(func=_cmd_classify)
 
-    p = sub.add_parser("report", help="write the reproducibility report of a run (HTML + Markdown)")
-    p.add_argument("target", help="a run's output folder (runs/NAME), an MLflow run id, or an experiment name "
-                                  "(its newest top-level run: a `pcpg run`, not one point of a sweep)")
-    p.add_argument("--out", default=None, help="folder for report.html/report.md (default: beside the summary)")
+    p = sub.add_parser("report", help="write the reproducibility report of a run (HTML + Markdown) or "
+                                      "the page of a sweep (HTML)")
+    p.add_argument("target", help="a run's output folder (runs/NAME), a sweep's folder (runs/NAME/sweep), an "
+                                  "MLflow run id (a run, a sweep or a sweep's point), or an experiment name "
+                                  "(its newest top-level run: a `pcpg run` or a `pcpg sweep`, never one point)")
+    p.add_argument("--out", default=None, help="folder for report.html/report.md (default: RUN/report; for a sweep, "
+                                                   "its own folder)")
     p.add_argument("--workdir", default="runs", help="where downloaded artifacts are kept")
     p.add_argument("--pdf", action="store_true", help="also print report.pdf with a headless Chromium")
     p.add_argument("--tracking-uri", default=None, help="MLflow tracking URI (default: as for run)")
@@ -290,8 +300,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("reproduce", help="rerun a logged run from its recorded config and seeds in a fresh "
                                          "folder; compare every metric with the logged one (exit 1 if any differs)")
-    p.add_argument("run", metavar="RUN", help="a run's output folder (runs/NAME), an MLflow run id, or an "
-                                              "experiment name (its newest top-level run, as for report)")
+    p.add_argument("run", metavar="RUN", help="one run: its output folder (runs/NAME, or a sweep's point: "
+                                              "runs/NAME/sweep/points/POINT), an MLflow run id, or an experiment "
+                                              "name (its newest top-level run, as for report); not a whole sweep")
     p.add_argument("--workdir", default=None, help="fresh (new or empty) folder for the rerun "
                    "(default: a new temporary folder, printed at the end)")
     p.add_argument("--rtol", type=float, default=1e-6, help="relative tolerance (default: 1e-6)")

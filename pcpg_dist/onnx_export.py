@@ -143,9 +143,12 @@ def _number(x) -> bool:
 def resolve_agents(target: str, tracking_uri: str | None, workdir: Path) -> Path:
     """The agents folder of RUN: a run's output folder, an MLflow run id or an experiment name
     (its newest top-level run)."""
+    from pcpg_dist.report import sweep_refusal
+
     path = Path(target)
     if (path / "agents").is_dir():
         return path / "agents"
+    sweep_refusal(target, tracking_uri, "pcpg export onnx")  # a whole sweep has no one set of agents
     if path.is_dir() and any(path.glob("*/*.pt")):
         return path
     if path.exists():

@@ -294,21 +294,88 @@ def export_pdf(html_path: Path, pdf_path: Path | None = None, timeout: float = 1
     return pdf_path
 
 
-def resolve_summary(target: str, tracking_uri: str | None, workdir: Path) -> tuple[Path, str | None]:
-    """A summary folder for a local path, an MLflow run id, or an experiment name (its newest
-    top-level run, :func:`pcpg_dist.tracking.find_run`)."""
+@dataclass(frozen=True)
+class Source:
+    """What `pcpg report` renders: a run's ``summary`` folder, or a sweep's folder (``sweep.json``,
+    ``summary.csv``, figures), and the MLflow run id it came from (``None`` for a local folder)."""
+
+    kind: str  # "run" or "sweep"
+    folder: Path
+    run_id: str | None = None
+
+
+def is_sweep_folder(path: Path) -> bool:
+    """A `pcpg sweep` output folder (``<workdir>/<name>/sweep``), also one written before sweep.json."""
+    return (path / "sweep.json").is_file() or ((path / "summary.csv").is_file() and (path / "points").is_dir())
+
+
+def resolve(target: str, tracking_uri: str | None, workdir: Path) -> Source:
+    """A local run folder (``runs/NAME`` or its ``summary``), a sweep folder (``runs/NAME/sweep``), an
+    MLflow run id (a run, a sweep or one point of a sweep) or an experiment name (its newest
+    top-level run: a `pcpg run` or a `pcpg sweep`); MLflow artifacts are downloaded under
+    ``workdir/.report-cache/<run id>``."""
     path = Path(target)
     if (path / "run.json").is_file():
-        return path, None
+        return Source("run", path)
     if (path / "summary" / "run.json").is_file():
-        return path / "summary", None
+        return Source("run", path / "summary")
+    if is_sweep_folder(path):
+        return Source("sweep", path)
     from pcpg_dist.tracking import find_run
 
     run, uri = find_run(target, tracking_uri)
     run_id = run.info.run_id
     local = Path(workdir) / ".report-cache" / run_id
-    import mlflow.artifacts
 
-    got = mlflow.artifacts.download_artifacts(run_id=run_id, artifact_path="summary", dst_path=str(local),
-                                              tracking_uri=uri)
-    return Path(got), run_id
+    if run.data.tags.get("pcpg.role") == "sweep":  # the sweep's files lie at its run's root
+        got = _download(run_id, None, local / "sweep", uri)
+        return Source("sweep", Path(got), run_id)
+    return Source("run", Path(_download(run_id, "summary", local, uri)), run_id)
+
+
+def _download(run_id: str, artifact_path: str | None, dst: Path, uri: str) -> str:
+    import mlflow.artifacts
+    from mlflow.exceptions import MlflowException
+
+    from pcpg_dist.errors import ServiceError
+
+    dst.mkdir(parents=True, exist_ok=True)
+    try:
+        return mlflow.artifacts.download_artifacts(run_id=run_id, artifact_path=artifact_path, dst_path=str(dst),
+                                                   tracking_uri=uri)
+    except (MlflowException, OSError) as e:
+        first = (str(e).strip().splitlines() or [type(e).__name__])[0][:200]
+        what = f"no {artifact_path!r} artifacts" if artifact_path else "no artifacts"
+        raise ServiceError(f"MLflow run {run_id} at {uri} has {what} to report ({first}); is it a pcpg run "
+                           "that finished?") from None
+
+
+def sweep_refusal(target: str, tracking_uri: str | None, command: str) -> None:
+    """Raise a one-line :class:`ConfigError` when ``target`` is a whole sweep (its folder, or its MLflow
+    run): ``command`` works on one run, so name one of the sweep's points instead."""
+    path = Path(target)
+    if not (path / "run.json").is_file() and not (path / "summary" / "run.json").is_file() and is_sweep_folder(path):
+        points = sorted(p.name for p in (path / "points").iterdir() if p.is_dir()) if (path / "points").is_dir() else []
+        example = f", e.g. {path / 'points' / points[0]}" if points else ""
+        raise ConfigError(f"{target} is the folder of a whole pcpg sweep; {command} takes one run: give one of "
+                          f"its points' folders ({path / 'points'}/<point>{example}) or a point's MLflow run id")
+    if path.exists():
+        return
+    from pcpg_dist.tracking import find_run, sweep_points_of
+
+    run, uri = find_run(target, tracking_uri)
+    if run.data.tags.get("pcpg.role") != "sweep":
+        return
+    points = sweep_points_of(run.info.run_id, uri)
+    example = f", e.g. {points[0].info.run_id} ({points[0].info.run_name})" if points else ""
+    raise ConfigError(f"{target} is the MLflow run of a whole pcpg sweep ({run.info.run_name}); {command} takes "
+                      f"one run: give one of the sweep's point runs{example} or a point's folder "
+                      "(<workdir>/<name>/sweep/points/<point>)")
+
+
+def resolve_summary(target: str, tracking_uri: str | None, workdir: Path,
+                    command: str = "pcpg reproduce") -> tuple[Path, str | None]:
+    """The ``summary`` folder of one run (see :func:`resolve`); a whole sweep is refused in one line."""
+    sweep_refusal(target, tracking_uri, command)
+    source = resolve(target, tracking_uri, workdir)
+    return source.folder, source.run_id

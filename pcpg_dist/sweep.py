@@ -8,9 +8,16 @@ clustering; points that differ only in evaluation settings reuse the trained age
 
 Outputs under ``<workdir>/<name>/sweep/``: ``points/<point>/`` (each point's summary, report and
 agents, as `pcpg run` writes them), ``summary.csv`` (one row per point: its axes, the headline
-metrics and their std over seeds), one PNG per headline metric against each axis, and
-``report.html``. MLflow: one parent run per sweep, one child per point (its overrides as params,
-its headline metrics), the environments under each point as in `pcpg run`.
+metrics and their std over seeds), one PNG per headline metric against each axis, ``sweep.json``
+(the axes, the fixed overrides, the figures) and ``report.html``. MLflow: one parent run per
+sweep, one child per point (its overrides as params, its headline metrics), the environments under
+each point as in `pcpg run`.
+
+A point's folder is named by its axis values and a hash of everything that makes its config
+differ from the file (axes, fixed overrides, the validated config's hash), so two sweeps of one
+config never share a point folder and every sweep finds its own finished points again. ``points/``
+keeps the points of every sweep run there; the files beside it describe the last sweep only (a
+figure the last sweep did not draw is removed).
 
 Rerunning the same command is idempotent: finished points are read back, not rerun or relogged;
 adding a value to an axis runs only the new points.
@@ -20,6 +27,7 @@ from __future__ import annotations
 
 import base64
 import hashlib
+import io
 import json
 import math
 import re
@@ -31,9 +39,11 @@ from typing import Any
 
 from pcpg_dist.config.overrides import apply_overrides, parse_overrides, read_raw, sweep_points
 from pcpg_dist.dataset import atomic_write_bytes
-from pcpg_dist.errors import ConfigError
+from pcpg_dist.errors import ConfigError, DataError
 
 STD = "/std"
+SWEEP_JSON = "sweep.json"  # the sweep-level record beside summary.csv: axes, fixed overrides, figures
+SWEEP_FORMAT = 1
 
 
 @dataclass
@@ -75,10 +85,12 @@ def headline(metrics: dict[str, float]) -> dict[str, float]:
     return out
 
 
-def point_slug(overrides: dict[str, Any]) -> str:
-    """A stable folder name for a point: its overrides, readable and made safe, plus a short hash."""
-    text = "_".join(f"{k}={json.dumps(v) if isinstance(v, list | dict) else v}" for k, v in overrides.items())
-    digest = hashlib.sha256(json.dumps(overrides, sort_keys=True, default=str).encode()).hexdigest()[:8]
+def point_slug(axes: dict[str, Any], fixed: dict[str, Any] | None = None, config_hash: str = "") -> str:
+    """A stable folder name for a point: its axis values, readable and made safe, plus a short hash
+    of everything that sets its config apart (axes, fixed overrides, the config's own hash)."""
+    text = "_".join(f"{k}={json.dumps(v) if isinstance(v, list | dict) else v}" for k, v in axes.items())
+    identity = [axes, fixed or {}, config_hash] if fixed or config_hash else axes
+    digest = hashlib.sha256(json.dumps(identity, sort_keys=True, default=str).encode()).hexdigest()[:8]
     safe = re.sub(r"[^A-Za-z0-9._=-]+", "-", text)[:80].strip("-.") or "point"
     return f"{safe}-{digest}"
 
@@ -117,14 +129,29 @@ def _run_finished(uri: str | None, run_id: Any) -> bool:
     return info.status == "FINISHED" and info.lifecycle_stage == "active"
 
 
-def run_sweep(config: str | Path, axes_args: list[str], overrides: list[str] | None = None,
-              workdir: Path = Path("runs"), tracking_uri: str | None = None, track: bool = True,
-              show_progress: bool = True, command: str = "") -> SweepResult:
-    """Run (or resume) a sweep over ``axes_args`` (``KEY=v1,v2``) and the file's ``sweep:`` section."""
-    from pcpg_dist.config.experiment import parse_config
-    from pcpg_dist.runner import Point, run_points
+@dataclass
+class SweepPlan:
+    """A sweep before it runs: its base config, axes, fixed overrides and points (folders included)."""
 
-    t0 = time.perf_counter()
+    base: Any  # ExperimentConfig of the file with the fixed overrides
+    axes: dict[str, list]
+    fixed: dict[str, Any]
+    combos: list[dict[str, Any]]
+    points: list  # runner.Point, one per combo
+    root: Path  # <workdir>/<name>
+    description: str
+
+    @property
+    def out(self) -> Path:
+        return self.root / "sweep"
+
+
+def plan_sweep(config: str | Path, axes_args: list[str], overrides: list[str] | None = None,
+               workdir: Path = Path("runs"), command: str = "") -> SweepPlan:
+    """Validate the sweep (every point's config) and name its points' folders; nothing runs."""
+    from pcpg_dist.config.experiment import parse_config
+    from pcpg_dist.runner import Point
+
     config = Path(config)
     raw, section = read_raw(config)
     fixed = parse_overrides(overrides or [])
@@ -135,16 +162,29 @@ def run_sweep(config: str | Path, axes_args: list[str], overrides: list[str] | N
         raise ConfigError(f"{both[0]!r} is both a sweep axis and a single value ({both[0]}={reprlib.repr(fixed[both[0]])}); "
                           f"give it once")
     root = Path(workdir).resolve() / base.name
-    out = root / "sweep"
     points = []
     for combo in combos:
         cfg = parse_config(apply_overrides(raw, combo), source=f"{config} with {_describe(combo)}",
                            base_dir=config.parent)
-        points.append(Point(cfg, out / "points" / point_slug(combo), params={k: _fmt(v) for k, v in combo.items()},
+        points.append(Point(cfg, root / "sweep" / "points" / point_slug(combo, fixed, cfg.hash()),
+                            params={k: _fmt(v) for k, v in combo.items()},
                             command=f"{command} [point {_describe(combo)}]" if command else ""))
-
     description = (f"Sweep of {base.name} ({config.name}) over {', '.join(axes)}: {len(points)} points "
-                   f"({' x '.join(str(len(v)) for v in axes.values())})")
+                   f"({' x '.join(str(len(v)) for v in axes.values())})"
+                   + (f"; fixed: {_describe(fixed)}" if fixed else ""))
+    return SweepPlan(base, axes, fixed, combos, points, root, description)
+
+
+def run_sweep(config: str | Path, axes_args: list[str], overrides: list[str] | None = None,
+              workdir: Path = Path("runs"), tracking_uri: str | None = None, track: bool = True,
+              show_progress: bool = True, command: str = "") -> SweepResult:
+    """Run (or resume) a sweep over ``axes_args`` (``KEY=v1,v2``) and the file's ``sweep:`` section."""
+    from pcpg_dist.runner import run_points
+
+    t0 = time.perf_counter()
+    plan = plan_sweep(config, axes_args, overrides, workdir, command)
+    base, axes, combos, points, root, out = plan.base, plan.axes, plan.combos, plan.points, plan.root, plan.out
+    description = plan.description
     tracker = None
     if track:
         from pcpg_dist.tracking import SweepTracker
@@ -165,19 +205,38 @@ def run_sweep(config: str | Path, axes_args: list[str], overrides: list[str] | N
             m = metrics_of.get(id(p)) or done[id(p)] or {}
             rows.append({**{k: _fmt(v) if isinstance(v, list | dict) else v for k, v in combo.items()},
                          "point": p.out.name, **headline(m)})
-        csv_path = _write_table(out, axes, rows)
-        figures = draw_sweep(out, axes, rows)
-        report = write_report(out, description, axes, rows, figures)
+        files = write_sweep_files(out, plan, rows)
+        figures = [f for f in files if f.suffix == ".png"]
         if tracker is not None:
             best = {f"best/{k}": max(r[k] for r in rows if k in r) for k in ("clustering/accuracy",)
                     if any(k in r for r in rows)}
-            tracker.finish(best, [csv_path, report, *figures])
+            tracker.finish(best, files)
     except BaseException:
         if tracker is not None:
             tracker.fail()
         raise
     return SweepResult(out, axes, rows, figures, time.perf_counter() - t0, ran=len(todo), computed=computed,
                        parent_run_id=tracker.parent_id if tracker else None)
+
+
+def write_sweep_files(out: Path, plan: SweepPlan, rows: list[dict[str, Any]]) -> list[Path]:
+    """The sweep-level files of ``plan`` in ``out``: figures, ``summary.csv``, ``sweep.json`` and
+    ``report.html`` (rendered from those files, as `pcpg report` renders it again), each written
+    atomically; then every other PNG beside them (an earlier sweep's figure) is removed, so the
+    folder describes exactly this sweep. Returns the files written."""
+    out.mkdir(parents=True, exist_ok=True)
+    figures = draw_sweep(out, plan.axes, rows)
+    csv_path = _write_table(out, plan.axes, rows)
+    record = {"format": SWEEP_FORMAT, "name": plan.base.name, "description": plan.description,
+              "axes": plan.axes, "fixed": plan.fixed, "points": len(rows), "figures": [f.name for f in figures]}
+    meta = out / SWEEP_JSON
+    atomic_write_bytes(meta, json.dumps(record, indent=1, default=str).encode())
+    report = render_sweep_report(out, out)
+    keep = {f.name for f in figures}
+    for stale in out.glob("*.png"):
+        if stale.name not in keep and (stale.is_file() or stale.is_symlink()):
+            stale.unlink(missing_ok=True)
+    return [csv_path, meta, report, *figures]
 
 
 def _describe(combo: dict[str, Any]) -> str:
@@ -237,8 +296,10 @@ def draw_sweep(out: Path, axes: dict[str, list], rows: list[dict[str, Any]]) -> 
             ax.set_title(f"{metric} vs {axis}", fontsize=10)
             fig.tight_layout()
             path = out / f"{re.sub(r'[^A-Za-z0-9._-]+', '_', metric)}__vs__{re.sub(r'[^A-Za-z0-9._-]+', '_', axis)}.png"
-            fig.savefig(path)
+            png = io.BytesIO()
+            fig.savefig(png, format="png")
             plt.close(fig)
+            atomic_write_bytes(path, png.getvalue())
             paths.append(path)
     return paths
 
@@ -257,20 +318,87 @@ td,th{border:1px solid #ccc;padding:.2rem .4rem;text-align:right}th{background:#
 """
 
 
-def write_report(out: Path, description: str, axes: dict[str, list], rows: list[dict[str, Any]],
-                 figures: list[Path]) -> Path:
-    """A self-contained HTML page: the table of points and every figure (rendered from data)."""
+def read_sweep_record(folder: Path) -> dict[str, Any]:
+    """``sweep.json`` of a sweep folder, its fields checked (one line naming the file and field)."""
+    from pcpg_dist.report_data import read_json
+
+    path = Path(folder) / SWEEP_JSON
+    if not path.is_file():
+        report = Path(folder) / "report.html"
+        older = f"; its report, as that sweep wrote it, is {report}" if report.is_file() else ""
+        raise DataError(f"{folder}: no {SWEEP_JSON}, so not a sweep folder written by this pcpg{older} (rerunning the "
+                        "same pcpg sweep command writes it; finished units come from the cache)")
+    record = read_json(path)
+    checks = {"name": str, "description": str, "axes": dict, "fixed": dict, "figures": list}
+    for key, kind in checks.items():
+        if not isinstance(record.get(key), kind):
+            raise DataError(f"{path}: {key!r} is {reprlib.repr(record.get(key))}; expected {kind.__name__}")
+    for axis, values in record["axes"].items():
+        if not isinstance(values, list):
+            raise DataError(f"{path}: axis {reprlib.repr(axis)} holds {reprlib.repr(values)}; expected a list")
+    for name in record["figures"]:  # plain file names beside sweep.json: a figure never comes from elsewhere
+        if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._=-]*\.png", name):
+            raise DataError(f"{path}: figure {reprlib.repr(name)} is not a PNG file name of this folder")
+    return record
+
+
+def _read_rows(path: Path, axes: dict[str, list]) -> list[dict[str, Any]]:
+    """summary.csv's rows: axis values as written, every metric a float (blank: not measured)."""
+    import csv
+
+    try:
+        with open(path, newline="") as f:
+            table = list(csv.DictReader(f))
+    except (OSError, UnicodeDecodeError, csv.Error) as e:
+        raise DataError(f"{path}: unreadable ({e})") from None
+    rows = []
+    for i, raw in enumerate(table, start=2):
+        row: dict[str, Any] = {}
+        for col, value in raw.items():
+            if col is None or value is None:
+                raise DataError(f"{path}: line {i} has more or fewer cells than the header")
+            if col in axes or col == "point" or value == "":
+                row[col] = value
+                continue
+            try:
+                row[col] = float(value)
+            except ValueError:
+                raise DataError(f"{path}: line {i}, {col!r} is {reprlib.repr(value)}; expected a number") from None
+        rows.append(row)
+    return rows
+
+
+def render_sweep_report(folder: Path, out_dir: Path) -> Path:
+    """``report.html`` of the sweep in ``folder`` (its ``sweep.json``, ``summary.csv`` and figures),
+    written to ``out_dir``: a self-contained page, the table of points and every figure. Only the
+    regular files named in ``sweep.json`` beside it are read (no symlink, no other folder)."""
     import jinja2
 
+    from pcpg_dist.report_data import MAX_IMAGE_BYTES, inside
+
+    folder, out_dir = Path(folder), Path(out_dir)
+    record = read_sweep_record(folder)
+    axes = record["axes"]
+    table = folder / "summary.csv"
+    if not inside(table, folder):
+        raise DataError(f"{folder}: no summary.csv (a regular file) beside {SWEEP_JSON}")
+    rows = _read_rows(table, axes)
     columns = [*axes, *[k for k in dict.fromkeys(k for r in rows for k in r) if k not in axes and k != "point"]]
 
     def cell(v: Any) -> str:
         return f"{v:.4g}" if isinstance(v, float) else _fmt(v)
 
     shown = [{c: cell(r.get(c, "")) for c in columns} for r in rows]
-    figs = [{"name": f.name, "data": base64.b64encode(f.read_bytes()).decode()} for f in figures]
+    figs = []
+    for name in record["figures"]:
+        path = folder / name
+        if not inside(path, folder) or path.stat().st_size > MAX_IMAGE_BYTES:
+            raise DataError(f"{folder}: figure {name} named in {SWEEP_JSON} is not a regular PNG file there "
+                            f"(at most {MAX_IMAGE_BYTES} bytes)")
+        figs.append({"name": name, "data": base64.b64encode(path.read_bytes()).decode()})
     html = jinja2.Environment(autoescape=True).from_string(_REPORT).render(
-        title=f"Sweep: {out.parent.name}", description=description, columns=columns, rows=shown, figures=figs)
-    path = out / "report.html"
+        title=f"Sweep: {record['name']}", description=record["description"], columns=columns, rows=shown,
+        figures=figs)
+    path = out_dir / "report.html"
     atomic_write_bytes(path, html.encode())
     return path

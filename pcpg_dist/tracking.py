@@ -575,6 +575,13 @@ def newest_top_level_run(client, exp_id: str):
     return newest
 
 
+def sweep_points_of(sweep_run_id: str, uri: str) -> list:
+    """The live point runs of a sweep run, oldest first (each a `pcpg run` of one point)."""
+    client = _client(uri)
+    exp_id = _retry(client.get_run, sweep_run_id).info.experiment_id
+    return _runs_with(client, exp_id, {ROLE: "parent", PARENT: sweep_run_id})
+
+
 def open_experiment(name: str, uri: str | None):
     """Check the server, prepare the store, get or create the experiment (tagged for the classic
     runs table); returns (uri, client, experiment id)."""

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import csv
+import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -22,7 +24,7 @@ from pcpg_dist.config.overrides import (
     sweep_points,
 )
 from pcpg_dist.errors import ConfigError
-from pcpg_dist.sweep import point_slug, run_sweep
+from pcpg_dist.sweep import SWEEP_JSON, plan_sweep, point_slug, run_sweep, write_sweep_files
 
 ROOT = Path(__file__).resolve().parent.parent
 QUICK = ROOT / "experiments" / "quick.yaml"
@@ -139,6 +141,90 @@ def test_point_folders_are_stable_and_safe():
     assert "/" not in point_slug({"gridworld.layout_dir": "../../etc"})
 
 
+def test_a_points_folder_is_set_by_its_axes_and_fixed_overrides(tmp_path):
+    """Two sweeps of one config with other fixed overrides never share a point folder (the second
+    overwrote the first's points); the same sweep, or one value more on an axis, finds them again."""
+    cfg = tmp_path / "tiny.yaml"
+    cfg.write_text(yaml.safe_dump(TINY))
+
+    def folders(axes, fixed=()):
+        return [p.out for p in plan_sweep(cfg, axes, list(fixed), workdir=tmp_path / "runs").points]
+
+    a = folders(["bc.hidden_size=8,16"])
+    b = folders(["bc.hidden_size=8,16"], ["evaluation.rollouts_per_policy=3"])
+    c = folders(["bc.hidden_size=8,16"], ["ranking.ps=[1.0,0.25]"])
+    assert len(set(a) | set(b) | set(c)) == 6
+    assert folders(["bc.hidden_size=8,16"]) == a and set(a) <= set(folders(["bc.hidden_size=8,16,32"]))
+    for p in a + b + c:  # short, safe, named by the axis values only (a fixed value is in the hash)
+        assert p.parent == tmp_path.resolve() / "runs" / "sweeptiny" / "sweep" / "points"
+        assert re.fullmatch(r"bc\.hidden_size=(8|16)-[0-9a-f]{8}", p.name), p.name
+    plan = plan_sweep(cfg, ["bc.hidden_size=8,16"], ["ranking.ps=[1.0,0.25]"], workdir=tmp_path / "runs")
+    assert plan.axes == {"bc.hidden_size": [8, 16]} and plan.fixed == {"ranking.ps": [1.0, 0.25]}
+    assert all(list(p.cfg.ranking.ps) == [1.0, 0.25] for p in plan.points)
+    assert "fixed: ranking.ps=[1.0, 0.25]" in plan.description
+
+
+def fake_rows(plan) -> list[dict]:
+    """Headline rows as run_sweep makes them, without running the points."""
+    rows = []
+    for i, (combo, point) in enumerate(zip(plan.combos, plan.points, strict=True)):
+        rows.append({**combo, "point": point.out.name, "clustering/accuracy": 0.9 - 0.01 * i,
+                     "clustering/accuracy/std": 0.01, "pcpg/accuracy/p1": 0.8 + 0.01 * i,
+                     "pcpg/accuracy/p1/std": 0.02, "baseline/accuracy/p1": 0.7, "pcpg_lead/p1": 0.1 + 0.01 * i})
+    return rows
+
+
+def test_sweep_files_describe_only_the_last_sweep_and_render_again(tmp_path, capsys):
+    """An earlier sweep's figures are removed (33 PNGs beside a report of 13); `pcpg report` of the
+    sweep folder renders the very page the sweep wrote (it said "no such folder")."""
+    first = plan_sweep(QUICK, ["bc.hidden_size=8,16", "bc.epochs=100,200"], [], workdir=tmp_path / "runs")
+    write_sweep_files(first.out, first, fake_rows(first))
+    assert len(list(first.out.glob("*__vs__bc.epochs.png"))) == 4
+    second = plan_sweep(QUICK, ["clustering.k=3,4"], ["bc.epochs=100"], workdir=tmp_path / "runs")
+    files = write_sweep_files(second.out, second, fake_rows(second))
+    assert second.out == first.out
+    pngs = sorted(p.name for p in second.out.glob("*.png"))
+    assert pngs == sorted(f.name for f in files if f.suffix == ".png") and len(pngs) == 4
+    assert all(n.endswith("__vs__clustering.k.png") for n in pngs)
+    record = json.loads((second.out / SWEEP_JSON).read_text())
+    assert record["axes"] == {"clustering.k": [3, 4]} and record["fixed"] == {"bc.epochs": 100}
+    assert sorted(record["figures"]) == pngs
+    html = (second.out / "report.html").read_text()
+    assert html.count("data:image/png;base64,") == 4 and "clustering.k" in html and "bc.hidden_size" not in html
+
+    assert main(["report", str(second.out), "--out", str(tmp_path / "again")]) == 0
+    assert (tmp_path / "again" / "report.html").read_text() == html
+    assert capsys.readouterr().out.strip() == f"sweep report: {tmp_path / 'again' / 'report.html'}"
+    # a whole sweep is not one run: reproduce and export say what they take, in one line
+    for cmd in (["reproduce", str(second.out)], ["export", "onnx", str(second.out), "--out", str(tmp_path / "x")]):
+        assert main(cmd) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "is the folder of a whole pcpg sweep" in err[0] and "points" in err[0], err
+    assert not (tmp_path / "x").exists()
+
+
+def test_report_of_a_sweeps_mlflow_run_and_reproduce_names_a_point(tmp_path, capsys):
+    """The run id `pcpg sweep` prints ("MLflow sweep run: ID"): report rendered the sweep's page from
+    its logged files (it crashed: no 'summary' artifacts); reproduce names one of its point runs."""
+    from pcpg_dist.tracking import SweepTracker, Tracker
+
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    plan = plan_sweep(QUICK, ["bc.hidden_size=8,16"], ["ranking.ps=[1.0,0.5]"], workdir=tmp_path / "runs")
+    files = write_sweep_files(plan.out, plan, fake_rows(plan))
+    sweep = SweepTracker.start(plan.base.name, "key", plan.axes, plan.description, uri)
+    point = Tracker.start(plan.points[0].cfg, uri, plan.points[0].out, parent_run_id=sweep.parent_id,
+                          params=plan.points[0].params)
+    sweep.finish({}, files)
+    for target in (sweep.parent_id, "quick"):  # the experiment's newest top-level run is the sweep
+        assert main(["report", target, "--tracking-uri", uri, "--workdir", str(tmp_path / "dl"),
+                     "--out", str(tmp_path / target)]) == 0, capsys.readouterr().err
+        assert (tmp_path / target / "report.html").read_text() == (plan.out / "report.html").read_text()
+    capsys.readouterr()
+    assert main(["reproduce", sweep.parent_id, "--tracking-uri", uri]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "is the MLflow run of a whole pcpg sweep" in err[0] and point.parent_id in err[0], err
+
+
 # --------------------------------------------------------------------------- end to end
 def read_rows(path: Path) -> list[dict[str, str]]:
     with open(path) as f:
@@ -239,3 +325,18 @@ def test_sweep_killed_at_any_moment_resumes_to_identical_tables(tmp_path, tiny_y
     points = [r for r in runs if r.data.tags.get("mlflow.parentRunId") == roots[0].info.run_id
               and r.info.status == "FINISHED"]
     assert len(points) == 4
+
+
+@pytest.mark.slow
+def test_another_sweeps_fixed_override_leaves_this_sweeps_points_done(tiny_yaml, uninterrupted):
+    """A sweep with a fixed override wrote into the first sweep's point folders (same axis values),
+    so rerunning the first recomputed them ("2 run now"); the folder kept the other's figures."""
+    first, uri, tmp_path, rows = uninterrupted
+    other = run_sweep(tiny_yaml, ["bc.epochs=100,200"], ["evaluation.rollouts_per_policy=3"],
+                      workdir=tmp_path / "runs", tracking_uri=uri, show_progress=False)
+    assert other.ran == 4 and other.computed["train_groups"] == 0  # only the evaluation differs
+    assert not {r["point"] for r in other.rows} & {r["point"] for r in rows}
+    again = run_sweep(tiny_yaml, ["bc.epochs=100,200"], workdir=tmp_path / "runs", tracking_uri=uri,
+                      show_progress=False)
+    assert again.ran == 0 and read_rows(again.out_dir / "summary.csv") == rows
+    assert sorted(again.out_dir.glob("*.png")) == sorted(again.figures)
