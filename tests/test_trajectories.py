@@ -21,7 +21,7 @@ from pcpg_dist.cli import main
 from pcpg_dist.config import load_config
 from pcpg_dist.domains.trajectories.example_logs import frozenlake_logs
 from pcpg_dist.domains.trajectories.table import datasets_from_table, read_step_table
-from pcpg_dist.errors import DataError
+from pcpg_dist.errors import ConfigError, DataError
 from pcpg_dist.pipeline import run_unit
 
 
@@ -337,3 +337,11 @@ def test_a_local_minari_dataset_runs_like_a_parquet_log(tmp_path, monkeypatch) -
     (unit,) = cfg.domain_object.units(cfg, {ds.env: ds})
     m = run_unit(unit, cfg).metrics
     assert m["clustering/accuracy"] > 0.9 and m["pcpg/accuracy/p1"] > m["random/accuracy"] + 0.2
+
+
+@pytest.mark.parametrize("dataset_id", ["/usr", "../../../usr", "/", "a/../b-v0", " "])
+def test_a_minari_path_that_is_not_an_id_is_refused_at_load_before_any_folder_is_read(tmp_path, dataset_id):
+    """`minari:/usr` used to hash every file under /usr (43 s for 6 GB) before the id was checked."""
+    with pytest.raises(ConfigError) as e:
+        load_config(write_config(tmp_path, f"minari:{dataset_id}"))
+    assert "is not a Minari dataset id" in str(e.value) and "\n" not in str(e.value)

@@ -26,6 +26,20 @@ Goal = Literal["no_death", "any", "won_level"]
 EventEncoding = Literal["onehot", "id"]
 
 
+#: a Minari dataset id, ``[namespace/]name[-vN]`` (Minari's own grammar; a namespace may hold '/'):
+#: never a path
+MINARI_ID = re.compile(r"^(?:(?P<namespace>[-_\w][-_\w/]*[-_\w]+)/)?(?P<name>[-_\w]+?)(?:-v(?P<version>\d+))?$")
+
+
+def minari_id_problem(dataset_id: object, need_version: bool = False) -> str | None:
+    """Why ``dataset_id`` is not a Minari dataset id (None if it is one)."""
+    match = MINARI_ID.fullmatch(dataset_id) if isinstance(dataset_id, str) else None
+    if match is None or ".." in dataset_id or (need_version and match["version"] is None):
+        return (f"{str(dataset_id)[:120]!r} is not a Minari dataset id (expected namespace/name-vN, e.g. "
+                f"pcpg/mygame-v0: letters, digits, '_', '-', '/')")
+    return None
+
+
 def safe_name(value: str, what: str) -> str:
     """Names become folder and run names: no path separators, no '..', nothing absolute."""
     if len(value) > MAX_NAME:
@@ -234,8 +248,9 @@ class TrajectoriesConfig(StrictModel):
             raise ValueError("domain 'trajectories' needs trajectories.path (a Parquet file, a folder of "
                              "Parquet files or minari:DATASET_ID)")
         if self.path.startswith("minari:"):
-            if not self.path.removeprefix("minari:").strip():
-                raise ValueError("trajectories.path 'minari:' needs a dataset id after the colon")
+            problem = minari_id_problem(self.path.removeprefix("minari:"))
+            if problem:  # checked here, before anything reads the folder the id would name
+                raise ValueError(f"trajectories.path: {problem}")
             return
         if not Path(self.path).exists():
             raise ValueError(f"trajectories.path {self.path} not found")

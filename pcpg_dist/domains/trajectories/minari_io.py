@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
+from pcpg_dist.config.domains import MINARI_ID, minari_id_problem
 from pcpg_dist.dataset import MANIFEST, Dataset, load_datasets
 from pcpg_dist.errors import DataError
 
@@ -35,8 +36,6 @@ ENV_VAR = "MINARI_DATASETS_PATH"
 STYLE_KEY = "style"
 VALID_KEYS = ("valid", "action_mask")
 DATA_FORMAT = "arrow"  # installed with minari[arrow]; hdf5 would need h5py
-# Minari's own id grammar: (namespace/)name(-vN); a namespace may hold '/'.
-MINARI_ID = re.compile(r"^(?:(?P<namespace>[-_\w][-_\w/]*[-_\w]+)/)?(?P<name>[-_\w]+?)(?:-v(?P<version>\d+))?$")
 
 
 def env_name(dataset_id: str) -> str:
@@ -47,10 +46,9 @@ def env_name(dataset_id: str) -> str:
 
 
 def _check_id(dataset_id: str, need_version: bool = False) -> None:
-    match = MINARI_ID.fullmatch(dataset_id) if isinstance(dataset_id, str) else None
-    if match is None or ".." in dataset_id or (need_version and match["version"] is None):
-        raise DataError(f"{str(dataset_id)[:120]!r} is not a Minari dataset id (expected "
-                        f"namespace/name-vN, e.g. pcpg/mygame-v0: letters, digits, '_', '-', '/')")
+    problem = minari_id_problem(dataset_id, need_version)
+    if problem:
+        raise DataError(problem)
 
 
 @contextlib.contextmanager
