@@ -232,10 +232,19 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--verbose", action="store_true", help="also informational logs (pcpg, MLflow)")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
+    def add_parser(where, name: str, **kw) -> argparse.ArgumentParser:
+        """A (sub)command that also takes -q/--quiet and --verbose after its name, like `pcpg -q`."""
+        p = where.add_parser(name, **kw)
+        # SUPPRESS: absent after the command, the value given before it (or False) stands
+        p.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
+                       help="errors only: no progress bars, no warnings (results still on stdout)")
+        p.add_argument("--verbose", action="store_true", default=argparse.SUPPRESS,
+                       help="also informational logs (pcpg, MLflow)")
+        return p
+
     def common(p: argparse.ArgumentParser) -> None:
         p.add_argument("--ray-address", default=None,
                        help="join this Ray cluster (default: $RAY_ADDRESS, else Ray in-process)")
-        p.add_argument("--quiet", action="store_true", help="no progress bars")
 
     def overrides(p: argparse.ArgumentParser) -> None:
         p.add_argument("overrides", nargs="*", metavar="KEY=VALUE",
@@ -247,14 +256,14 @@ def build_parser() -> argparse.ArgumentParser:
                        help="MLflow tracking URI (default: $MLFLOW_TRACKING_URI, else sqlite:///mlflow.db)")
         p.add_argument("--no-tracking", action="store_true", help="do not log to MLflow")
 
-    p = sub.add_parser("generate", help="generate the datasets of a config (PBTG on Ray)")
+    p = add_parser(sub, "generate", help="generate the datasets of a config (PBTG on Ray)")
     p.add_argument("config", help="experiment YAML")
     overrides(p)
     p.add_argument("--out", required=True, help="output folder (Parquet files + manifest.json)")
     common(p)
     p.set_defaults(func=_cmd_generate)
 
-    p = sub.add_parser("run", help="run a whole experiment: generate, cluster, rank, train, evaluate, log")
+    p = add_parser(sub, "run", help="run a whole experiment: generate, cluster, rank, train, evaluate, log")
     p.add_argument("config", help="experiment YAML")
     overrides(p)
     p.add_argument("--workdir", default="runs", help="outputs and the resumable cache (default: runs/)")
@@ -262,7 +271,7 @@ def build_parser() -> argparse.ArgumentParser:
     common(p)
     p.set_defaults(func=_cmd_run)
 
-    p = sub.add_parser("sweep", help="run a grid over config axes: KEY=v1,v2,... (or a start:stop:step range)")
+    p = add_parser(sub, "sweep", help="run a grid over config axes: KEY=v1,v2,... (or a start:stop:step range)")
     p.add_argument("config", help="experiment YAML (its optional sweep: section adds grid/zip axes)")
     p.add_argument("axes", nargs="*", metavar="KEY=VALUES",
                    help="an axis (KEY=v1,v2,... or KEY=start:stop:step) or a fixed override (KEY=value)")
@@ -271,7 +280,7 @@ def build_parser() -> argparse.ArgumentParser:
     common(p)
     p.set_defaults(func=_cmd_sweep)
 
-    p = sub.add_parser("cluster", help="Step A only: cluster each environment's trajectories by play-style")
+    p = add_parser(sub, "cluster", help="Step A only: cluster each environment's trajectories by play-style")
     p.add_argument("config", help="experiment YAML (its clustering section)")
     overrides(p)
     p.add_argument("--out", required=True, help="output folder: <env>/model, labels.json, metrics.json "
@@ -280,14 +289,14 @@ def build_parser() -> argparse.ArgumentParser:
     common(p)
     p.set_defaults(func=_cmd_cluster)
 
-    p = sub.add_parser("classify", help="assign play-styles to trajectories with a fitted clustering model")
+    p = add_parser(sub, "classify", help="assign play-styles to trajectories with a fitted clustering model")
     p.add_argument("model", help="model folder written by `pcpg cluster` (<out>/<env>/model)")
     p.add_argument("dataset", help="a dataset Parquet file")
     p.add_argument("--out", default=None, help="CSV of (trajectory, predicted_style)")
     p.set_defaults(func=_cmd_classify)
 
-    p = sub.add_parser("report", help="write the reproducibility report of a run (HTML + Markdown) or "
-                                      "the page of a sweep (HTML)")
+    p = add_parser(sub, "report", help="write the reproducibility report of a run (HTML + Markdown) or "
+                                       "the page of a sweep (HTML)")
     p.add_argument("target", help="a run's output folder (runs/NAME), a sweep's folder (runs/NAME/sweep), an "
                                   "MLflow run id (a run, a sweep or a sweep's point), or an experiment name "
                                   "(its newest top-level run: a `pcpg run` or a `pcpg sweep`, never one point)")
@@ -298,7 +307,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tracking-uri", default=None, help="MLflow tracking URI (default: as for run)")
     p.set_defaults(func=_cmd_report)
 
-    p = sub.add_parser("reproduce", help="rerun a logged run from its recorded config and seeds in a fresh "
+    p = add_parser(sub, "reproduce", help="rerun a logged run from its recorded config and seeds in a fresh "
                                          "folder; compare every metric with the logged one (exit 1 if any differs)")
     p.add_argument("run", metavar="RUN", help="one run: its output folder (runs/NAME, or a sweep's point: "
                                               "runs/NAME/sweep/points/POINT), an MLflow run id, or an experiment "
@@ -311,7 +320,7 @@ def build_parser() -> argparse.ArgumentParser:
     common(p)
     p.set_defaults(func=_cmd_reproduce)
 
-    p = sub.add_parser("tune", help="tune k and the network sizes with Optuna (trials on Ray)")
+    p = add_parser(sub, "tune", help="tune k and the network sizes with Optuna (trials on Ray)")
     p.add_argument("config", help="experiment YAML (its tuning section: search space, objective)")
     overrides(p)
     p.add_argument("--optuna-storage", default=None,
@@ -327,13 +336,13 @@ def build_parser() -> argparse.ArgumentParser:
     common(p)
     p.set_defaults(func=_cmd_tune)
 
-    p = sub.add_parser("domains", help="list the registered domains (built-ins and installed plugins)")
+    p = add_parser(sub, "domains", help="list the registered domains (built-ins and installed plugins)")
     p.set_defaults(func=_cmd_domains)
 
-    p = sub.add_parser("export", help="export trained agents for use outside pcpg (ONNX)")
+    p = add_parser(sub, "export", help="export trained agents for use outside pcpg (ONNX)")
     p.set_defaults(func=_cmd_export)
     formats = p.add_subparsers(dest="what", required=True, metavar="FORMAT")
-    e = formats.add_parser("onnx", help="one ONNX model per environment + a JSON table of its cells "
+    e = add_parser(formats, "onnx", help="one ONNX model per environment + a JSON table of its cells "
                                         "(docs/agents.md)")
     e.add_argument("run", help="a run's output folder (runs/NAME), an MLflow run id, or an experiment name "
                                "(its newest top-level run, as for report)")
@@ -341,7 +350,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--workdir", default=None, help="keep the agents downloaded from MLflow here "
                    "(default: a temporary folder)")
     e.add_argument("--tracking-uri", default=None, help="MLflow tracking URI (default: as for run)")
-    e = formats.add_parser("minari", help="a pcpg dataset (or a run's cached data) as Minari datasets, "
+    e = add_parser(formats, "minari", help="a pcpg dataset (or a run's cached data) as Minari datasets, "
                                           "one per environment")
     e.add_argument("source", metavar="RUN_OR_DATA",
                    help="a pcpg dataset folder (with manifest.json) or a run's output folder (runs/NAME)")
@@ -352,7 +361,8 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """The parsed command line; ``quiet`` and ``verbose`` hold whether given before or after the command."""
     parser = build_parser()
     args, extra = parser.parse_known_args(argv)
     # KEY=VALUE items after an option (`pcpg run c.yaml --quiet bc.lr=0.1`) belong to the command
@@ -361,7 +371,12 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"unrecognized arguments: {' '.join(extra)}")
     if extra:
         setattr(args, target, [*getattr(args, target), *extra])
-    args.quiet = args.global_quiet or getattr(args, "quiet", False)  # `pcpg -q run` or `pcpg run --quiet`
+    args.quiet = args.global_quiet or getattr(args, "quiet", False)  # `pcpg -q run` or `pcpg run -q`
+    return args
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
     from pcpg_dist.progress import setup_output
 
     setup_output(quiet=args.quiet, verbose=args.verbose,

@@ -174,3 +174,45 @@ def test_cluster_command_writes_labels_and_margins_per_environment(ray_session, 
                  "--out", str(tmp_path / "km")]) == 0
     assert (tmp_path / "km" / "E1" / "labels.json").is_file()
     assert not (tmp_path / "km" / "E1" / "margins.json").exists()
+
+
+# every command and how to call it; the test below fails when a new command is missing here
+COMMANDS = {
+    "generate": ["generate", "c.yaml", "--out", "o"],
+    "run": ["run", "c.yaml"],
+    "sweep": ["sweep", "c.yaml", "bc.lr=0.1,0.2"],
+    "cluster": ["cluster", "c.yaml", "--out", "o"],
+    "classify": ["classify", "model", "d.parquet"],
+    "report": ["report", "runs/x"],
+    "reproduce": ["reproduce", "runs/x"],
+    "tune": ["tune", "c.yaml"],
+    "domains": ["domains"],
+    "export onnx": ["export", "onnx", "runs/x", "--out", "o"],
+    "export minari": ["export", "minari", "runs/x", "--out", "o"],
+}
+
+
+def test_quiet_and_verbose_are_taken_before_or_after_every_command():
+    """docs/user-guide.md "The terminal": `pcpg -q COMMAND`, or -q/--quiet after the command."""
+    from pcpg_dist.cli import build_parser, parse_args
+
+    sub = next(a for a in build_parser()._actions if a.dest == "command")
+    formats = next(a for a in sub.choices["export"]._actions if a.dest == "what")
+    assert set(COMMANDS) == {c for c in sub.choices if c != "export"} | {f"export {f}" for f in formats.choices}
+    for name, argv in COMMANDS.items():
+        plain = parse_args(argv)
+        assert not plain.quiet and not plain.verbose, name
+        for flags in (["-q"], ["--quiet"]):
+            assert parse_args([*flags, *argv]).quiet, (name, flags)
+            assert parse_args([*argv, *flags]).quiet, (name, flags)
+        assert parse_args(["--verbose", *argv]).verbose, name
+        after = parse_args([*argv, "--verbose"])
+        assert after.verbose and not after.quiet, name
+    # options after the command do not eat a sweep's axes or a run's overrides
+    args = parse_args(["sweep", "c.yaml", "-q", "bc.lr=0.1,0.2"])
+    assert args.quiet and args.axes == ["bc.lr=0.1,0.2"]
+
+
+def test_domains_quiet_after_the_command_lists_the_domains(capsys):
+    assert main(["domains", "-q"]) == 0
+    assert "gridworld" in capsys.readouterr().out
