@@ -159,7 +159,8 @@ def _cmd_classify(args: argparse.Namespace) -> None:
     model = load_model(Path(args.model))
     ds = load_dataset(Path(args.dataset))
     pred = model.predict(ds)
-    out = Path(args.out) if args.out else Path(args.dataset).with_suffix(".styles.csv")
+    # by default into the current folder: the dataset's folder may be a signed `pcpg generate` output
+    out = Path(args.out) if args.out else Path(Path(args.dataset).stem + ".styles.csv")
     table = pd.DataFrame({"trajectory": ds.trajectory_ids, "predicted_style": pred})
     atomic_write_bytes(out, table.to_csv(index=False).encode())
     console.print(f"{ds.n_trajectories} trajectories -> {out}; cluster sizes "
@@ -292,7 +293,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = add_parser(sub, "classify", help="assign play-styles to trajectories with a fitted clustering model")
     p.add_argument("model", help="model folder written by `pcpg cluster` (<out>/<env>/model)")
     p.add_argument("dataset", help="a dataset Parquet file")
-    p.add_argument("--out", default=None, help="CSV of (trajectory, predicted_style)")
+    p.add_argument("--out", default=None, help="CSV of (trajectory, predicted_style) "
+                   "(default: ./DATASET_STEM.styles.csv in the current folder)")
     p.set_defaults(func=_cmd_classify)
 
     p = add_parser(sub, "report", help="write the reproducibility report of a run (HTML + Markdown) or "

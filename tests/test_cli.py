@@ -109,7 +109,7 @@ def test_domains_lists_the_builtins(capsys):
     assert all(ln.split()[1] == "built-in" for ln in lines[:4])
 
 
-def test_classify_writes_the_models_labels_and_warns_on_another_layout(tmp_path, capsys):
+def test_classify_writes_the_models_labels_and_warns_on_another_layout(tmp_path, capsys, monkeypatch):
     import pandas as pd
 
     from pcpg_dist.clustering import ClusterConfig, cluster
@@ -144,6 +144,16 @@ def test_classify_writes_the_models_labels_and_warns_on_another_layout(tmp_path,
     out, err = capsys.readouterr()
     assert f"{share:.0%} of the rows are in states the model was not fitted on" in out
     assert "elsewhere.parquet" in err and "same layout or game" in err
+
+    # without --out: <dataset stem>.styles.csv in the current folder, never beside the dataset
+    data, here = tmp_path / "data", tmp_path / "here"
+    data.mkdir(), here.mkdir()
+    write_parquet(fresh, data / "fresh.parquet")
+    monkeypatch.chdir(here)
+    assert main(["classify", str(tmp_path / "model"), str(data / "fresh.parquet")]) == 0
+    assert sorted(p.name for p in data.iterdir()) == ["fresh.parquet"]
+    pd.testing.assert_frame_equal(pd.read_csv(here / "fresh.styles.csv"), table)
+    assert "-> fresh.styles.csv" in capsys.readouterr().out
 
 
 def test_a_ray_address_where_nothing_answers_is_one_line_at_once(tmp_path):
