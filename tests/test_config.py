@@ -41,7 +41,7 @@ def test_layout_dir_is_relative_to_the_config_file(tmp_path):
 
 
 @pytest.mark.parametrize("patch, needle", [
-    ({"bogus": 1}, "unknown key 'bogus'"),
+    ({"bogus": 1}, "unknown top-level key 'bogus' — not a section or setting of a config (check the spelling)"),
     ({"pbtg": {"episodes": -5}}, "key 'pbtg.episodes': value -5 is not allowed — Input should be greater than or equal to 1"),
     ({"pbtg": {"noise_max": "lots"}}, "key 'pbtg.noise_max': value 'lots'"),
     ({"seeds": [1, 1]}, "key 'seeds'"),
@@ -63,6 +63,25 @@ def test_bad_values_give_one_line(tmp_path, patch, needle):
         load_config(write(tmp_path, data))
     msg = str(e.value)
     assert needle in msg and "\n" not in msg and "exp.yaml" in msg
+
+
+@pytest.mark.parametrize("patch, says", [
+    ({"clustering": {"kk": 3}}, "unknown key 'clustering.kk' — not a setting of section 'clustering'; "
+                                "did you mean 'clustering.k'?"),
+    ({"bcc": {"lr": 0.1}}, "unknown top-level key 'bcc' — not a section or setting of a config; did you mean 'bc'?"),
+    ({"sed": 3}, "unknown top-level key 'sed' — not a section or setting of a config; did you mean 'seed'?"),
+    ({"gridworld": {"environments": ["E1"], "envs": 1}}, "unknown key 'gridworld.envs' — not a setting of section "
+                                                         "'gridworld'; did you mean 'gridworld.environments'?"),
+])
+def test_a_misspelt_key_in_the_file_names_the_closest_like_an_override(tmp_path, patch, says):
+    from pcpg_dist.config.overrides import load_config_with
+
+    with pytest.raises(ConfigError) as e:
+        load_config(write(tmp_path, {**BASE, **patch}))
+    assert str(e.value) == f"{tmp_path / 'exp.yaml'}: {says}"
+    if "clustering" in patch:  # the same typo on the command line names the same key
+        with pytest.raises(ConfigError, match="did you mean 'clustering.k'"):
+            load_config_with(write(tmp_path, BASE), ["clustering.kk=3"])
 
 
 def test_yaml_syntax_error_names_the_line(tmp_path):
@@ -204,7 +223,7 @@ def test_yaml_alias_bomb_is_one_line_fast_and_small(tmp_path):
     (b"name: x\n" + b"#" * (2 << 20), "a config file may hold at most 1048576 bytes"),
     (b"name: x\x00\n", "contains a NUL character"),
     (b"name: x\x04\n", "bad.yaml: not valid YAML (unacceptable character #x0004"),  # found by tests/test_fuzz.py
-    (b'name: x\n"a\\nb": 1\n', r"unknown key 'a\nb'"),
+    (b'name: x\n"a\\nb": 1\n', r"unknown top-level key 'a\nb'"),
 ])
 def test_unreadable_config_files_are_one_line(tmp_path, content, needle):
     path = tmp_path / "bad.yaml"

@@ -104,7 +104,7 @@ def test_unknown_domain_lists_the_plugin(corridor_site, capsys, tmp_path):
 
 @pytest.mark.parametrize(("section", "key", "says"), [
     ({"length": 3}, "corridor.length", "greater than or equal to 10"),
-    ({"lenght": 12}, "corridor.lenght", "not a setting of this section"),
+    ({"lenght": 12}, "corridor.lenght", "not a setting of section 'corridor'; did you mean 'corridor.length'?"),
     ({"noise_max": "lots"}, "corridor.noise_max", "valid number"),
     ({"length": 12, "max_steps": 5}, "corridor", "shorter than the explorer's route (17 steps"),
 ])

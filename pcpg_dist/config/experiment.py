@@ -172,14 +172,16 @@ def one_line(text: str, limit: int = 3 * MAX_SHOWN) -> str:
     return text if len(text) <= limit else text[:limit] + "..."
 
 
-def _describe(error: dict) -> str:
+def _describe(error: dict, domain: str | None = None) -> str:
     key = one_line(".".join(str(p) for p in error["loc"]), MAX_SHOWN) or "(top level)"
     shown = "missing" if error["type"] == "missing" else _shown(error.get("input"))
     msg = error["msg"].removeprefix("Value error, ").replace("\n", " ")
     if len(msg) > 2 * MAX_SHOWN:
         msg = msg[: 2 * MAX_SHOWN] + "..."
     if error["type"] == "extra_forbidden":
-        return f"unknown key '{key}' — not a setting of this section (check the spelling)"
+        from pcpg_dist.config.overrides import unknown_key_message
+
+        return unknown_key_message(key, domain)
     if isinstance(error.get("input"), dict) and error["type"] == "value_error":
         # a check across keys: the message names them
         return f"section '{key}': {msg}" if error["loc"] else msg
@@ -195,7 +197,8 @@ def parse_config(data: Any, source: str = "<config>", base_dir: Path | None = No
     except ValidationError as e:
         errors = e.errors(include_url=False)
         more = f" (and {len(errors) - 1} more problem(s))" if len(errors) > 1 else ""
-        raise ConfigError(one_line(f"{source}: {_describe(errors[0])}{more}")) from None
+        domain = data.get("domain") if isinstance(data.get("domain"), str) else None
+        raise ConfigError(one_line(f"{source}: {_describe(errors[0], domain)}{more}")) from None
     try:  # the chosen domain's own settings and checks (files exist, a plugin's section, ...)
         cfg.domain_object.check_config(cfg)
     except (PcpgError, ValueError) as e:

@@ -66,6 +66,24 @@ def valid_keys(domain: str | None = None) -> list[str]:
     return keys
 
 
+def closest_key(key: str, domain: str | None) -> str | None:
+    """The valid key nearest to a misspelt ``key`` (a section name for a misspelt section), or None."""
+    keys = valid_keys(domain)
+    depth = key.count(".")
+    sections = {k.rsplit(".", k.count(".") - depth)[0] for k in keys if k.count(".") > depth}
+    close = difflib.get_close_matches(key, [*keys, *sorted(sections)], n=1, cutoff=0.5)
+    return close[0] if close else None
+
+
+def unknown_key_message(key: str, domain: str | None) -> str:
+    """What a config file (or a plugin's section) says of a key that is no setting: the closest one."""
+    close = closest_key(key, domain)
+    hint = f"; did you mean {close!r}?" if close else " (check the spelling)"
+    if "." not in key:
+        return f"unknown top-level key '{key[:120]}' — not a section or setting of a config{hint}"
+    return f"unknown key '{key[:120]}' — not a setting of section '{key.rsplit('.', 1)[0][:120]}'{hint}"
+
+
 def check_key(key: str, domain: str | None) -> None:
     """Raise a one-line :class:`ConfigError` naming the closest valid key when ``key`` is unknown."""
     keys = valid_keys(domain)
@@ -74,8 +92,8 @@ def check_key(key: str, domain: str | None) -> None:
     if any(k.startswith(key + ".") for k in keys):
         raise ConfigError(f"override {key!r} names a whole section; set one of its keys, e.g. "
                           f"{next(k for k in keys if k.startswith(key + '.'))}=...")
-    close = difflib.get_close_matches(key, keys, n=1, cutoff=0.5)
-    hint = f"; did you mean {close[0]!r}?" if close else "; `pcpg run --help` shows the sections"
+    close = closest_key(key, domain)
+    hint = f"; did you mean {close!r}?" if close else "; `pcpg run --help` shows the sections"
     raise ConfigError(f"unknown config key {key[:120]!r}{hint}")
 
 

@@ -119,8 +119,9 @@ class Domain:
                 key = ".".join(str(p) for p in (self.name, *err["loc"]))
                 shown = "missing" if err["type"] == "missing" else repr(err.get("input"))[:200]
                 if err["type"] == "extra_forbidden":
-                    raise ConfigError(f"unknown key '{key}' — not a setting of this section (check the "
-                                      f"spelling)") from None
+                    from pcpg_dist.config.overrides import unknown_key_message
+
+                    raise ConfigError(unknown_key_message(key, self.name)) from None
                 raise ConfigError(f"key '{key}': value {shown} is not allowed — "
                                   f"{err['msg'].removeprefix('Value error, ')}") from None
         return None
