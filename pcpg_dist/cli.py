@@ -341,7 +341,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = add_parser(sub, "domains", help="list the registered domains (built-ins and installed plugins)")
     p.set_defaults(func=_cmd_domains)
 
-    p = add_parser(sub, "export", help="export trained agents for use outside pcpg (ONNX)")
+    p = add_parser(sub, "export", help="export for use outside pcpg: trained agents as ONNX, datasets as Minari")
     p.set_defaults(func=_cmd_export)
     formats = p.add_subparsers(dest="what", required=True, metavar="FORMAT")
     e = add_parser(formats, "onnx", help="one ONNX model per environment + a JSON table of its cells "

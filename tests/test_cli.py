@@ -226,3 +226,11 @@ def test_quiet_and_verbose_are_taken_before_or_after_every_command():
 def test_domains_quiet_after_the_command_lists_the_domains(capsys):
     assert main(["domains", "-q"]) == 0
     assert "gridworld" in capsys.readouterr().out
+
+
+def test_help_names_both_export_formats(capsys):
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    shown = " ".join(capsys.readouterr().out.split())  # the help wraps lines
+    export = shown.split(" export ", 1)[1].split(" options: ")[0]
+    assert "ONNX" in export and "Minari" in export
