@@ -57,3 +57,12 @@ def test_relative_links_and_anchors_resolve(page):
         elif anchor and dest.suffix == ".md" and anchor not in anchors(dest):
             broken.append(f"{target}: no heading with that anchor in {dest.name}")
     assert not broken, f"{page.name}: " + "; ".join(broken)
+
+
+def test_the_user_guide_lists_every_config_section():
+    from pcpg_dist.config import ExperimentConfig
+
+    text = (ROOT / "docs" / "user-guide.md").read_text()
+    table = text.split("| section | what it controls |", 1)[1].split("\n\n", 1)[0]
+    listed = {k for row in table.splitlines()[2:] for k in re.findall(r"`(\w+)`", row.split("|")[1])}
+    assert set(ExperimentConfig.model_fields) <= listed, set(ExperimentConfig.model_fields) - listed
