@@ -304,7 +304,8 @@ def build_parser() -> argparse.ArgumentParser:
                                   "(its newest top-level run: a `pcpg run` or a `pcpg sweep`, never one point)")
     p.add_argument("--out", default=None, help="folder for report.html/report.md (default: RUN/report; for a sweep, "
                                                    "its own folder)")
-    p.add_argument("--workdir", default="runs", help="where downloaded artifacts are kept")
+    p.add_argument("--workdir", default="runs", help="where a run's summary downloaded from MLflow is kept: "
+                   "WORKDIR/.report-cache/RUN_ID (default: runs/; unused for a local folder)")
     p.add_argument("--pdf", action="store_true", help="also print report.pdf with a headless Chromium")
     p.add_argument("--tracking-uri", default=None, help="MLflow tracking URI (default: as for run)")
     p.set_defaults(func=_cmd_report)
