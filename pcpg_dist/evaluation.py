@@ -324,11 +324,13 @@ def _rollouts(dataset, labels, k, seeds, ps, cells, trained, cfg, hooks, tables,
     tables["rollouts"] = runs
     length = runs.groupby(["method", "k", "p"])["length"].agg(["mean", "std"]).reset_index()
     tables["rollout_length"] = length
+    tables["rollout_success"] = runs.groupby(["method", "k", "p"])["success"].agg(["mean", "std"]).reset_index()
     if "return" in runs:
         tables["rollout_return"] = runs.groupby(["method", "k", "p"])["return"].agg(["mean", "std"]).reset_index()
     for (method, c, p), grp in runs.groupby(["method", "k", "p"]):
         who = f"k{c}" if method == "pcpg" else "nc"
         put(f"rollout/length/{who}/p{fmt(p)}", list(grp["length"]))
+        put(f"rollout/success/{who}/p{fmt(p)}", list(grp["success"]))  # share of rollouts that succeed
         if "return" in grp:
             put(f"rollout/return/{who}/p{fmt(p)}", list(grp["return"]))
     if hooks.returns is None or hooks.optimal_return is None:

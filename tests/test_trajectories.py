@@ -286,6 +286,29 @@ def test_logs_without_styles_still_run(tmp_path) -> None:
     assert m["pcpg/accuracy/p1"] > m["random/accuracy"] + 0.2
 
 
+def test_gymnasium_rollouts_report_each_agents_success_rate(tmp_path) -> None:
+    """docs/bring-your-own-data.md "Gymnasium rollouts": per agent the mean return, the length and
+    the success rate. On FrozenLake with `terminated_positive_reward` an episode succeeds exactly
+    when it earns the goal's reward of 1, so each agent's success rate equals its mean return."""
+    path = tmp_path / "lake.parquet"
+    frozenlake_logs(per_style=25, seed=3).to_parquet(path, index=False)
+    cfg = load_config(write_config(
+        tmp_path, path, bc={"epochs": 150, "hidden_size": 8},
+        trajectories={"path": str(path), "score": "return", "gymnasium_env": "FrozenLake-v1",
+                      "gymnasium_kwargs": {"map_name": "8x8", "is_slippery": False},
+                      "gymnasium_success": "terminated_positive_reward"},
+        evaluation={"corruption_levels": [], "figures": False, "rollouts_per_policy": 5, "max_steps": 100}))
+    (unit,) = cfg.domain_object.units(cfg, cfg.domain_object.generate(cfg, show_progress=False))
+    m = run_unit(unit, cfg, out_dir=tmp_path / "eval").metrics
+    agents = [f"{who}/p{p}" for who in ("k0", "k1", "k2", "k3", "nc") for p in ("1", "0.5")]
+    for agent in agents:
+        assert m[f"rollout/success/{agent}"] == pytest.approx(m[f"rollout/return/{agent}"]), agent
+    assert 0 < np.mean([m[f"rollout/success/{a}"] for a in agents]) <= 1  # some agents reach the goal
+    table = pd.read_csv(tmp_path / "eval" / "rollout_success.csv")
+    assert len(table) == len(agents)
+    assert sorted(table["mean"]) == pytest.approx(sorted(m[f"rollout/success/{a}"] for a in agents))
+
+
 @pytest.mark.slow
 def test_own_logs_end_to_end_with_gymnasium_rollouts(ray_session, tmp_path) -> None:
     """Four clear styles on FrozenLake 8x8, never used to choose anything: clustering within 3
