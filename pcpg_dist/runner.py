@@ -40,6 +40,7 @@ from pcpg_dist.ray_utils import run_tasks
 
 CODE_VERSION = "2"  # bump when a stage's numbers or files change for the same config (2: bool valid masks)
 CLUSTER_VERSION = "2"  # bump when only Step A's files change (2: result.json holds the margins)
+EVAL_VERSION = "2"  # bump when only the evaluation's metrics or tables change (2: rollout/success/...)
 STAGES = ("generate", "cluster", "train", "evaluate")
 # fields of a config that cannot change its evaluation units (dataset, split, what Step A sees)
 NOT_IN_UNITS = {"name", "clustering", "bc", "evaluation", "runner", "tuning", "seeds", "sweep"}
@@ -338,7 +339,7 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
         for p in points:
             for e in p.units:
                 tkeys = [k for ge, k, _ in p.groups if ge == e]
-                p.ekeys[e] = k = content_key(CODE_VERSION, tkeys, p.cfg.evaluation, p.cfg.ranking)
+                p.ekeys[e] = k = content_key(CODE_VERSION, EVAL_VERSION, tkeys, p.cfg.evaluation, p.cfg.ranking)
                 if k not in jobs and cache.done("evaluate", k) is None:
                     trained = TrainedCells.concat([TrainedCells.load(cache.path("train", t) / "cells")
                                                    for t in tkeys])
