@@ -194,11 +194,19 @@ def _cmd_tune(args: argparse.Namespace) -> None:
                     show_progress=not args.quiet, n_trials=args.n_trials, study_name=args.study_name,
                     out=Path(args.out) if args.out else None)
     shown = ", ".join(f"{k}={v}" for k, v in res.best_params.items())
-    console.print(f"study {res.study_name}: trials {res.n_trials}; best score {res.best_value:.4f} with {shown}")
+    console.print(f"study {res.study_name}: trials: {trial_counts(res.n_trials)}; best score "
+                  f"{res.best_value:.4f} with {shown}")
     if res.failed_stale:
         console.print(f"failed and re-queued stale trials {res.failed_stale} (their driver had stopped)")
     console.print(f"best config: {res.best_config}  (run it: pcpg run {res.best_config})")
     console.print(f"dashboard: uv run optuna-dashboard {res.storage} --host 127.0.0.1")
+
+
+def trial_counts(counts: dict[str, int]) -> str:
+    """``{'PRUNED': 2, 'COMPLETE': 1}`` (trials per Optuna state) as ``1 complete, 2 pruned``."""
+    order = ["COMPLETE", "PRUNED", "FAIL", "RUNNING", "WAITING"]
+    states = sorted(counts, key=lambda s: (order.index(s) if s in order else len(order), s))
+    return ", ".join(f"{counts[s]} {'failed' if s == 'FAIL' else s.lower()}" for s in states if counts[s]) or "none"
 
 
 def _cmd_export(args: argparse.Namespace) -> None:

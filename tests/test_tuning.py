@@ -415,3 +415,19 @@ def test_a_mistake_found_after_loading_the_data_leaves_no_study_behind(ray_sessi
     res = run_study(config(tmp_path), storage_url=str(journal), workdir=workdir, track=False,
                     show_progress=False, study_name=name, out=tmp_path / "out", trial_fn=instant_trial)
     assert res.n_trials == {"COMPLETE": 2} and res.best_value == 0.5
+
+
+def test_the_trial_count_line_reads_as_words():
+    """`pcpg tune` printed the raw dict: `trials {'PRUNED': 2, 'COMPLETE': 1}`."""
+    import optuna
+    from optuna.trial import TrialState
+
+    from pcpg_dist.cli import trial_counts
+    from pcpg_dist.tuning import _state_counts
+
+    study = optuna.create_study(direction="maximize")
+    for state in (TrialState.PRUNED, TrialState.COMPLETE, TrialState.PRUNED, TrialState.FAIL):
+        trial = study.ask()
+        study.tell(trial, 0.5 if state == TrialState.COMPLETE else None, state=state)
+    assert trial_counts(_state_counts(study)) == "1 complete, 2 pruned, 1 failed"
+    assert trial_counts({}) == "none"
