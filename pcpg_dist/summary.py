@@ -136,4 +136,13 @@ def print_summary(result, console) -> None:
     extra += [f"{k}={m[k]:.2f}" for k in sorted(m) if k.startswith("reward_distance/style") and k.count("/") == 1]
     if extra:
         console.print("  ".join(extra))
-    console.print("time per stage: " + ", ".join(f"{k} {v:.1f}s" for k, v in result.stage_seconds.items()))
+    console.print(stage_times(result))
+
+
+def stage_times(result) -> str:
+    """``time per stage: ...`` for the stages this run computed; the ones served from the cache are
+    named as such (their recorded seconds are those of the run that computed them)."""
+    cached = list(getattr(result, "cached_stages", []) or [])
+    ran = ", ".join(f"{k} {v:.1f}s" for k, v in result.stage_seconds.items() if k not in cached)
+    line = f"time per stage: {ran or 'none'}"
+    return f"{line}; from the cache: {', '.join(cached)}" if cached else line

@@ -178,3 +178,26 @@ def test_agents_start_from_no_clustering(first_run, tiny_cfg):
         for a, b in zip(trained.cell_params(i), trained.cell_params(nc[(s.p, s.seed)]), strict=True):
             assert np.array_equal(a, b), s.key
     assert result.metrics["pcpg/accuracy/p1"] == pytest.approx(result.metrics["baseline/accuracy/p1"])
+
+
+def test_the_summary_says_which_stages_came_from_the_cache(tmp_path):
+    """A rerun served from the cache printed the computing run's `generate 7.0s, cluster 14.2s`."""
+    import io
+
+    from rich.console import Console
+
+    from pcpg_dist.runner import RunResult
+    from pcpg_dist.summary import print_summary
+
+    def printed(**kw) -> str:
+        out = io.StringIO()
+        print_summary(RunResult(out_dir=tmp_path, metrics={}, clustering={}, **kw), Console(file=out, width=200))
+        return out.getvalue().splitlines()[-1]
+
+    times = {"generate": 7.0, "cluster": 14.2, "train": 30.5, "evaluate": 2.0, "summary": 0.4, "tracking": 0.2}
+    assert printed(stage_seconds=times, cached_stages=["generate", "cluster", "train", "evaluate"]) == \
+        "time per stage: summary 0.4s, tracking 0.2s; from the cache: generate, cluster, train, evaluate"
+    assert printed(stage_seconds=times, cached_stages=["generate"]) == \
+        "time per stage: cluster 14.2s, train 30.5s, evaluate 2.0s, summary 0.4s, tracking 0.2s; from the cache: generate"
+    assert printed(stage_seconds=times, cached_stages=[]) == \
+        "time per stage: generate 7.0s, cluster 14.2s, train 30.5s, evaluate 2.0s, summary 0.4s, tracking 0.2s"
