@@ -352,9 +352,16 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
         computed["evaluations"] = _run_stage("Evaluation", evaluate_task, jobs, threads, save_eval, show_progress)
         times["evaluate"] = time.perf_counter() - t0
 
+        from pcpg_dist.progress import progress_bar
+
+        # one bar for every point's environments (a bar per point repeated the same line)
+        unlogged = {id(p): [e for e in p.units if not p.tracker.env_logged(e, p.ekeys[e])]
+                    if p.tracker is not None else [] for p in points}
+        total = sum(len(v) for v in unlogged.values())
         results = []
-        for p in points:
-            results.append(_finish_point(p, cache, clusters, dict(times), computed, show_progress))
+        with progress_bar("MLflow child runs", total=total, enabled=show_progress and bool(total)) as advance:
+            for p in points:
+                results.append(_finish_point(p, cache, clusters, dict(times), computed, unlogged[id(p)], advance))
         return results
     except BaseException:
         for p in points:
@@ -388,8 +395,9 @@ def _add_groups(p: Point, unit: str, cells: list, cache: Cache, jobs: dict[str, 
 
 
 def _finish_point(p: Point, cache: Cache, clusters: dict, times: dict[str, float], computed: dict[str, int],
-                  show_progress: bool) -> RunResult:
-    """Across one point's environments: summary tables, figures, report, then its MLflow runs."""
+                  unlogged: list[str], advance: Callable[..., None]) -> RunResult:
+    """Across one point's environments: summary tables, figures, report, then its MLflow runs
+    (child runs for the ``unlogged`` environments, ``advance()`` after each)."""
     from pcpg_dist.provenance import provenance
     from pcpg_dist.report import render
     from pcpg_dist.summary import write_summary
@@ -427,16 +435,13 @@ def _finish_point(p: Point, cache: Cache, clusters: dict, times: dict[str, float
     if p.tracker is not None:
         # Last, so that every local result above is kept when the server is down; a rerun
         # logs only the environments without a FINISHED child run, recomputing nothing.
-        from pcpg_dist.progress import progress_bar
         from pcpg_dist.tracking import log_environment
 
         t0 = time.perf_counter()
-        unlogged = [e for e in envs if not p.tracker.env_logged(e, p.ekeys[e])]
-        with progress_bar("MLflow child runs", total=len(unlogged), enabled=show_progress and bool(unlogged)) as advance:
-            for e in unlogged:
-                log_environment(p.tracker.child_info(e, p.ekeys[e], cluster_metrics[e]), e, str(eval_dirs[e]),
-                                per_env[e], [str(m.with_suffix(".pt")) for m in models[e]])
-                advance()
+        for e in unlogged:
+            log_environment(p.tracker.child_info(e, p.ekeys[e], cluster_metrics[e]), e, str(eval_dirs[e]),
+                            per_env[e], [str(m.with_suffix(".pt")) for m in models[e]])
+            advance()
         p.tracker.finish(result, agents_dir=agents, report_dir=out / "report")
         result.stage_seconds["tracking"] = time.perf_counter() - t0
     return result
