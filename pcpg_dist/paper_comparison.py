@@ -20,6 +20,7 @@ PROTOCOL: tuple[tuple[str, object, tuple[str, ...] | None], ...] = (
     ("seeds", 4, None),  # compared by count: the paper reports 4 seeds
     ("ranking.ps", [1.0, 0.75, 0.5, 0.25, 0.1], None),
     ("ranking.beta", 0.1, None),
+    ("ranking.style_margin", 0.0, None),
     ("clustering.method", "lstm_dec", None),
     ("bc.hidden_layers", 3, None),
     ("bc.hidden_size", 5, None),
@@ -31,6 +32,9 @@ PROTOCOL: tuple[tuple[str, object, tuple[str, ...] | None], ...] = (
     ("pbtg.trajectories_per_style", 8000, ("gridworld",)),
     ("pbtg.dataset_per_style", 1000, ("gridworld",)),
 )
+
+#: what a protocol setting added after runs were logged means when a recorded config lacks it
+ABSENT_MEANS = {"ranking.style_margin": 0.0}
 
 # ----------------------------------------------------------------------------- content
 def paper_numbers(domain: str | None) -> dict[str, str]:
@@ -61,6 +65,8 @@ def protocol_differences(cfg: dict) -> list[tuple[str, str, str]]:
         if domains is not None and domain not in domains:
             continue
         ours = _get(cfg, key)
+        if ours is None:
+            ours = ABSENT_MEANS.get(key)
         if key == "seeds":
             if len(ours or []) != paper:
                 out.append((key, f"{len(ours or [])} seeds", f"{paper} seeds"))

@@ -188,6 +188,9 @@ def test_banner_names_every_setting_that_differs_from_the_paper(page, summary, t
     assert build(paper).differences == []
     html = render(paper, tmp_path / "paper")[0].read_text()
     assert "The paper's protocol" in html and "Not the paper" not in html
+    aware = build(edit_run(summary, tmp_path / "aware", config__ranking__style_margin=1.0))  # not in the paper
+    assert [d[0] for d in aware.differences if d[0] not in [e[0] for e in build(summary).differences]] == [
+        "ranking.style_margin"]
     other = edit_run(summary, tmp_path / "o", config__domain="trajectories")
     page_other = build(other)
     assert not page_other.in_paper and all("not in the paper" in r.paper for r in page_other.paper)
