@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -459,8 +460,100 @@ class ClusterModel:
         return directory
 
 
+TORCH_UNREADABLE = "not a pcpg model file (torch could not read its tensors)"
+#: dtypes a saved tensor may have: real floats for values, integers for keys
+_FLOATS, _INTS = (torch.float32, torch.float64), (torch.int64, torch.int32)
+MAX_K = 1000  # as ClusterConfig.k and tuning.k_range allow
+
+
+def first_line(error: BaseException, limit: int = 200) -> str:
+    """The first line of an exception's text, control characters escaped, cut to ``limit``."""
+    lines = str(error).strip().splitlines()
+    text = "".join(c if c.isprintable() else repr(c)[1:-1] for c in (lines[0] if lines else "")[:limit])
+    text = text if len(text) <= limit else text[:limit] + "..."
+    return text or type(error).__name__
+
+
+def read_tensors(path: Path, what: str = "") -> dict[str, torch.Tensor]:
+    """The named tensors of a file written by ``torch.save``: read with ``weights_only=True``
+    (nothing is unpickled) and torch's warnings silenced; any other content is a one-line
+    ``DataError`` that never repeats torch's advice to load with ``weights_only=False``."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            obj = torch.load(path, weights_only=True, map_location="cpu")
+    except OSError as e:
+        raise DataError(f"{path}: {what}cannot read it ({first_line(e)})") from None
+    except Exception:  # noqa: BLE001 - UnpicklingError, EOFError, RuntimeError, ...: not our format
+        raise DataError(f"{path}: {what}{TORCH_UNREADABLE}") from None
+    if not isinstance(obj, dict) or not all(isinstance(k, str) and isinstance(v, torch.Tensor)
+                                            for k, v in obj.items()):
+        raise DataError(f"{path}: {what}not a pcpg model file (it holds a {type(obj).__name__}, "
+                        f"not named tensors)")
+    return obj
+
+
+def _dtype(dtype: torch.dtype) -> str:
+    return str(dtype).removeprefix("torch.")
+
+
+class _Weights:
+    """Checks the tensors of one ``cluster_model.pt`` against what its method needs."""
+
+    def __init__(self, path: Path, method: str, tensors: dict[str, torch.Tensor]) -> None:
+        self.path, self.method, self.tensors = path, method, tensors
+
+    def fail(self, text: str) -> DataError:
+        return DataError(f"{self.path}: {text}")
+
+    def get(self, name: str, shape: tuple[int | None, ...], dtypes=_FLOATS,
+            finite: bool = True) -> torch.Tensor:
+        """``name``, present, of one of ``dtypes`` and of ``shape`` (None: any size there)."""
+        t = self.tensors.get(name)
+        if t is None:
+            raise self.fail(f"no tensor '{name}', which a {self.method} model needs")
+        if t.dtype not in dtypes:
+            raise self.fail(f"{name} has dtype {_dtype(t.dtype)}; a {self.method} model stores "
+                            + " or ".join(_dtype(d) for d in dtypes))
+        if t.ndim != len(shape) or any(w is not None and w != n for w, n in zip(shape, t.shape, strict=True)):
+            want = ", ".join("any" if w is None else str(w) for w in shape)
+            want = f"({want},)" if len(shape) == 1 else f"({want})"
+            raise self.fail(f"{name} has shape {tuple(t.shape)}; a {self.method} model needs {want}")
+        if finite and t.is_floating_point() and not bool(torch.isfinite(t).all()):
+            raise self.fail(f"{name} has non-finite values (NaN or inf); all must be finite")
+        return t
+
+    def module(self, make, prefix: str, sizes: str) -> nn.Module:
+        """``make()`` loaded with the ``prefix``-named tensors, once they are checked against the
+        shapes its state dict has (they follow from ``sizes``, the JSON's settings named in the
+        message). The shapes come from a ``meta``-device copy, so a JSON asking for a huge network
+        allocates nothing before it is refused."""
+        sd = _shapes(make)
+        for name, shape in sd.items():
+            try:
+                self.get(prefix + name, shape)
+            except DataError as e:  # the sizes come from the JSON: say so
+                raise DataError(f"{e} (from {sizes} in {CONFIG_FILE})") from None
+        module = make()
+        module.load_state_dict({n: self.tensors[prefix + n].to(torch.float32) for n in sd})
+        return module
+
+
+def _shapes(make) -> dict[str, tuple[int, ...]]:
+    """Names and shapes of the state dict of the module ``make()`` builds, with no memory."""
+    with torch.device("meta"):
+        return {n: tuple(t.shape) for n, t in make().state_dict().items()}
+
+
 def load_model(directory: str | Path) -> ClusterModel:
-    """Read a model written by :meth:`ClusterModel.save` (tensors only: ``weights_only=True``)."""
+    """Read a model written by :meth:`ClusterModel.save` (tensors only: ``weights_only=True``).
+
+    Every tensor is checked against ``cluster_model.json`` before anything is built: the method's
+    tensors and no others, their dtypes, shapes (k centroids of the method's feature width),
+    finite values and ranges (std > 0, state-action keys within the bag), so a tampered or
+    mismatched file is a one-line :class:`DataError` naming the file and field, never a traceback
+    or a model that silently gives other labels.
+    """
     directory = Path(directory)
     cfg_path, w_path = directory / CONFIG_FILE, directory / WEIGHTS_FILE
     for p in (cfg_path, w_path):
@@ -472,11 +565,13 @@ def load_model(directory: str | Path) -> ClusterModel:
         if cfg_path.stat().st_size > 1 << 20:
             raise ValueError("larger than 1 MB")
         meta = json.loads(cfg_path.read_text(encoding="utf-8"))
-        method, config, state_dim = meta["method"], meta["config"], int(meta["state_dim"])
+        method, config, state_dim, k = meta["method"], meta["config"], meta["state_dim"], meta["k"]
         if not isinstance(config, dict) or not isinstance(method, str):
             raise TypeError("'method' must be a name and 'config' a mapping")
-        if not 1 <= state_dim <= 1_000_000:
-            raise ValueError(f"state_dim {state_dim} outside 1..1000000")
+        if type(state_dim) is not int or not 1 <= state_dim <= 1_000_000:
+            raise ValueError(f"state_dim {state_dim!r}; expected an integer in 1..1000000")
+        if type(k) is not int or not 1 <= k <= MAX_K:
+            raise ValueError(f"k {k!r}; expected an integer in 1..{MAX_K}")
         names = meta.get("feature_names") or []
         if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
             raise TypeError("'feature_names' must be a list of names")
@@ -485,7 +580,7 @@ def load_model(directory: str | Path) -> ClusterModel:
 
         known = {k: v for k, v in config.items() if k in ClusterConfig.model_fields}
         try:
-            ClusterConfig.model_validate(known)
+            settings = ClusterConfig.model_validate(known)
         except ValidationError as e:
             first = e.errors(include_url=False)[0]
             raise ValueError(f"config.{'.'.join(map(str, first['loc']))}: {first['msg']}") from None
@@ -493,65 +588,99 @@ def load_model(directory: str | Path) -> ClusterModel:
         raise DataError(f"{cfg_path}: unreadable cluster model config ({' '.join(str(e).split())[:200]})") from None
     if meta.get("format_version") != FORMAT_VERSION:
         raise DataError(
-            f"{cfg_path}: format_version {meta.get('format_version')}, expected {FORMAT_VERSION}"
+            f"{cfg_path}: format_version {meta.get('format_version')!r}, expected {FORMAT_VERSION}"
         )
-    try:
-        tensors = torch.load(w_path, weights_only=True, map_location="cpu")
-        mean, std, centroids = (tensors[k].numpy() for k in ("mean", "std", "centroids"))
-    except Exception as e:  # noqa: BLE001 - incl. torch's UnpicklingError for a tampered or corrupt file
-        raise DataError(f"{w_path}: unreadable cluster model weights ({e})") from None
-    ae = None
-    if method in ("lstm_dec", "lstm_kmeans"):
-        try:
-            ae = SequenceAutoencoder(
-                state_dim,
-                int(config["hidden_size"]),
-                int(config["latent_size"]),
-                str(config.get("pooling", "last")),
-            )
-            ae.load_state_dict({k[3:]: v for k, v in tensors.items() if k.startswith("ae.")})
-        except (KeyError, RuntimeError) as e:
-            raise DataError(f"{w_path}: weights do not fit a {method} model ({e})") from None
-    policy = None
-    if method == "policy_mix":
-        n_actions = meta.get("n_actions")
-        if not isinstance(n_actions, int) or not 1 <= n_actions <= 1_000_000:
-            raise DataError(f"{cfg_path}: policy_mix model needs 'n_actions', an integer in 1..1000000")
-        if centroids.ndim != 2 or centroids.shape[0] != centroids.shape[1]:
-            raise DataError(f"{w_path}: weights do not fit a policy_mix model (centroids must be k x k)")
-        try:
-            policy = PolicyMixture(state_dim, int(config["hidden_size"]), int(centroids.shape[0]), n_actions)
-            policy.load_state_dict({k[3:]: v for k, v in tensors.items() if k.startswith("pm.")})
-        except (KeyError, RuntimeError) as e:
-            raise DataError(f"{w_path}: weights do not fit a policy_mix model ({e})") from None
-    elif method not in ("lstm_dec", "lstm_kmeans", "summary_kmeans", "visits_kmeans", *BAG_METHODS):
-        raise DataError(f"{cfg_path}: unknown clustering method '{method}'")
-    bag = None
-    if method in BAG_METHODS:
-        from pcpg_dist.cluster_features import BagVocabulary
+    known_methods = ("lstm_dec", "lstm_kmeans", "summary_kmeans", "visits_kmeans", "policy_mix", *BAG_METHODS)
+    if method not in known_methods:
+        raise DataError(f"{cfg_path}: unknown clustering method {method!r}")
+    key = "n_actions" if method == "policy_mix" else "bag_n_actions" if method in BAG_METHODS else None
+    if key is not None and (type(meta.get(key)) is not int or not 1 <= meta[key] <= 1_000_000):
+        raise DataError(f"{cfg_path}: {key} {meta.get(key)!r}; a {method} model needs an integer "
+                        f"in 1..1000000")
+    tensors = read_tensors(w_path)
+    w = _Weights(w_path, method, tensors)
+    d = state_dim
 
-        bs, keys = tensors.get("bag_states"), tensors.get("bag_sa_keys")
-        if (bs is None or keys is None or bs.ndim != 2 or bs.shape[1] != state_dim
-                or not isinstance(meta.get("bag_n_actions"), int)):
-            raise DataError(f"{w_path}: weights do not fit a {method} model")
-        bag = BagVocabulary(bs.numpy(), keys.numpy().astype(np.int64), int(meta["bag_n_actions"]))
-        if centroids.shape[1] != bag.width:
-            raise DataError(f"{w_path}: weights do not fit a {method} model")
-    greedy = None
+    # the method's modules fix the names and shapes of their tensors
+    make_ae = make_policy = None
+    if method in ("lstm_dec", "lstm_kmeans"):
+        def make_ae():
+            return SequenceAutoencoder(d, settings.hidden_size, settings.latent_size, settings.pooling)
+    if method == "policy_mix":
+        def make_policy():
+            return PolicyMixture(d, settings.hidden_size, k, meta["n_actions"])
+    extra = {"visits_kmeans": {"vocabulary"}}.get(method, set())
+    if method in BAG_METHODS:
+        extra = {"bag_states", "bag_sa_keys"}
     if method in GREEDY_METHODS:
-        gv, gs, ge = (tensors.get(f"greedy_{x}") for x in ("votes", "log_share", "noise"))
-        if (gv is None or gs is None or ge is None or tuple(ge.shape) != (1,)
-                or not 0.0 < float(ge[0]) < 1.0 or gv.ndim != 3 or gv.shape[0] != centroids.shape[0]
-                or gv.shape[1] != len(bag.states) or gv.shape[2] != bag.n_actions
-                or tuple(gs.shape) != (gv.shape[0],)
-                or not (torch.isfinite(gv).all() and torch.isfinite(gs).all())):
-            raise DataError(f"{w_path}: weights do not fit a {method} model (greedy votes)")
+        extra |= {"greedy_votes", "greedy_log_share", "greedy_noise"}
+    if make_ae is not None:
+        extra = {"ae." + n for n in _shapes(make_ae)}
+    if make_policy is not None:
+        extra = {"pm." + n for n in _shapes(make_policy)}
+    foreign = sorted(set(tensors) - {"mean", "std", "centroids"} - extra)
+    if foreign:
+        raise w.fail(f"holds tensor '{foreign[0]}', which a {method} model (the method in "
+                     f"{CONFIG_FILE}) does not have")
+
+    # feature width: where the centroids live
+    width = None
+    if method == "summary_kmeans":
+        width = 1 + 2 * d
+    elif make_ae is not None:
+        width = settings.latent_size
+    elif make_policy is not None:
+        width = k
+    vocab = bag = greedy = None
+    if method == "visits_kmeans":
+        vocab = w.get("vocabulary", (None, d))
+        if not 1 <= vocab.shape[0] <= MAX_VOCAB:
+            raise w.fail(f"vocabulary has {vocab.shape[0]} states; a visits_kmeans model has 1..{MAX_VOCAB}")
+        width = vocab.shape[0]
+    if method in BAG_METHODS:
+        from pcpg_dist.cluster_features import MAX_STATES, BagVocabulary
+
+        n_actions = meta["bag_n_actions"]
+        bs = w.get("bag_states", (None, d))
+        if not 1 <= bs.shape[0] <= MAX_STATES:
+            raise w.fail(f"bag_states has {bs.shape[0]} states; a {method} model has 1..{MAX_STATES}")
+        keys = w.get("bag_sa_keys", (None,), _INTS).numpy().astype(np.int64)
+        top = bs.shape[0] * n_actions
+        if keys.size and (keys.min() < 0 or keys.max() >= top):
+            bad = int(keys.min() if keys.min() < 0 else keys.max())
+            raise w.fail(f"bag_sa_keys holds {bad}, outside 0..{top - 1} (bag_states x bag_n_actions "
+                         f"{n_actions} in {CONFIG_FILE})")
+        if (np.diff(keys) <= 0).any():
+            raise w.fail("bag_sa_keys must be strictly increasing")
+        bag = BagVocabulary(np.ascontiguousarray(bs.numpy(), np.float32), keys, n_actions)
+        width = bag.width
+    if method in GREEDY_METHODS:
+        gv = w.get("greedy_votes", (k, len(bag.states), bag.n_actions))
+        gs = w.get("greedy_log_share", (k,))
+        ge = w.get("greedy_noise", (1,))
+        if bool((gv < 0).any()):
+            raise w.fail("greedy_votes has negative values; votes are counts, 0 or more")
+        if not 0.0 < float(ge[0]) < 1.0:
+            raise w.fail(f"greedy_noise is {float(ge[0])}; it lies strictly between 0 and 1")
         greedy = (gv.numpy(), gs.numpy(), float(ge[0]))
-    vocab = tensors.get("vocabulary")
-    if method == "visits_kmeans" and (vocab is None or vocab.ndim != 2 or vocab.shape[1] != state_dim
-                                      or centroids.shape[1] != vocab.shape[0]):
-        raise DataError(f"{w_path}: weights do not fit a visits_kmeans model")
+
+    feat = 1 + 2 * d if method == "summary_kmeans" else d
+    mean = w.get("mean", (feat,)).numpy()
+    std = w.get("std", (feat,)).numpy()
+    if not (std > 0).all():
+        raise w.fail(f"std has a value of {float(std.min())}; standard deviations are above 0")
+    c = tensors.get("centroids")
+    if c is not None and c.ndim == 2 and c.shape[0] != k:
+        raise DataError(f"{cfg_path}: k {k}, but {WEIGHTS_FILE} holds {c.shape[0]} centroids")
+    centroids = w.get("centroids", (k, width)).numpy()
+    if make_policy is not None and not np.array_equal(centroids, np.eye(k)):
+        raise w.fail("centroids of a policy_mix model are the k x k identity")
+    ae = policy = None
+    if make_ae is not None:
+        ae = w.module(make_ae, "ae.", "state_dim, config.hidden_size, config.latent_size and config.pooling")
+    if make_policy is not None:
+        policy = w.module(make_policy, "pm.", "state_dim, config.hidden_size, k and n_actions")
     return ClusterModel(
         method, config, state_dim, mean, std, centroids, ae, tuple(meta.get("feature_names") or ()),
-        vocab.numpy() if vocab is not None else None, bag, policy, greedy,
+        None if vocab is None else vocab.numpy(), bag, policy, greedy,
     )

@@ -164,7 +164,7 @@ def test_load_model_errors_are_data_errors(tmp_path, fitted):
         load_model(tmp_path / "nothing")
     fitted.model.save(tmp_path / "m")
     (tmp_path / "m" / "cluster_model.pt").write_bytes(b"not a torch file")
-    with pytest.raises(DataError, match="unreadable"):
+    with pytest.raises(DataError, match="not a pcpg model file"):
         load_model(tmp_path / "m")
 
 
@@ -246,3 +246,143 @@ def test_bag_auto_falls_back_to_the_lstm_on_continuous_states(walks):
     res = cluster(walks, ClusterConfig(method="bag_auto", **FAST), seed=0)
     assert res.metrics["auto_fell_back_to_lstm"] == 1.0 and res.model.autoencoder is not None
     assert clustering_metrics(walks.styles, res.labels)["accuracy"] >= 0.95
+
+
+# ------------------------------------------------------------------------- tampered model files
+TAMPER_METHODS = ("summary_kmeans", "lstm_kmeans", "visits_kmeans", "bag_kmeans", "greedy_mix",
+                  "policy_mix")
+
+
+@pytest.fixture(scope="module")
+def saved_models(tmp_path_factory):
+    """One small real model of each saved layout, and a dataset file to classify with them."""
+    from pcpg_dist.dataset import write_parquet
+
+    rng = np.random.default_rng(5)
+    trajs = []
+    for s in range(40):  # integer walks: discrete states, as the visit and bag methods need
+        t = int(rng.integers(4, 9))
+        moves = DRIFTS[(s % 4 + (rng.random(t - 1) < 0.2)) % 4].astype(int)
+        states = np.vstack([np.zeros(2, int), np.cumsum(moves, axis=0)]).astype(float)
+        trajs.append({**_traj(states), "actions": (s % 4 + np.zeros(t - 1, np.int64)) % 4})
+    ds = Dataset.from_trajectories("toy", "ints", 4, trajs, [s % 4 for s in range(40)], [True] * 40)
+    root = tmp_path_factory.mktemp("models")
+    small = dict(k=2, hidden_size=8, latent_size=3, pretrain_epochs=2, dec_epochs=0, batch_size=16,
+                 kmeans_n_init=1, em_iterations=1, policy_steps=2)
+    for method in TAMPER_METHODS:
+        cluster(ds, ClusterConfig(method=method, **small), seed=0).model.save(root / method)
+    write_parquet(ds, root / "data.parquet")
+    return root
+
+
+def _set(name, fn):
+    def edit(t, meta):
+        t[name] = fn(t[name])
+    return edit
+
+
+def _meta(**changes):
+    return lambda t, meta: meta.update(changes)
+
+
+def _relabel(method):
+    return lambda t, meta: meta.update(method=method, config={**meta["config"], "method": method})
+
+
+def _garbage(path):
+    path.write_bytes(b"\x80\x04garbage" * 50)
+
+
+# (model, edit of (tensors, meta) or of the .pt path, file named, field named)
+TAMPERED = {
+    "summary mean short": ("summary_kmeans", _set("mean", lambda x: x[:2]), "pt", "mean has shape (2,)"),
+    "lstm std short": ("lstm_kmeans", _set("std", lambda x: x[:1]), "pt", "std has shape (1,)"),
+    "policy_mix mean short": ("policy_mix", _set("mean", lambda x: x[:1]), "pt", "mean has shape"),
+    "summary centroids wide": ("summary_kmeans", _set("centroids", lambda x: torch.zeros(2, x.shape[1] + 3)),
+                               "pt", "centroids has shape (2, 8)"),
+    "lstm centroids wide": ("lstm_kmeans", _set("centroids", lambda x: torch.zeros(2, 6)), "pt",
+                            "centroids has shape (2, 6)"),
+    "summary no centroids": ("summary_kmeans", _set("centroids", lambda x: x[:0]), "json",
+                             "k 2, but cluster_model.pt holds 0 centroids"),
+    "visits centroids 1-D": ("visits_kmeans", _set("centroids", lambda x: x[0]), "pt", "centroids has shape"),
+    "bag centroids 1-D": ("bag_kmeans", _set("centroids", lambda x: x[0]), "pt", "centroids has shape"),
+    "visits empty vocabulary": ("visits_kmeans", lambda t, m: t.update(vocabulary=t["vocabulary"][:0],
+                                                                      centroids=t["centroids"][:, :0]),
+                                "pt", "vocabulary has 0 states"),
+    "lstm labelled summary": ("lstm_kmeans", _relabel("summary_kmeans"), "pt", "holds tensor 'ae."),
+    "visits labelled summary": ("visits_kmeans", _relabel("summary_kmeans"), "pt", "holds tensor 'vocabulary'"),
+    "summary labelled visits": ("summary_kmeans", _relabel("visits_kmeans"), "pt", "no tensor 'vocabulary'"),
+    "summary std zero": ("summary_kmeans", _set("std", torch.zeros_like), "pt", "std has a value of 0.0"),
+    "lstm std NaN": ("lstm_kmeans", _set("std", lambda x: torch.full_like(x, float("nan"))), "pt",
+                     "std has non-finite values"),
+    "bag centroids NaN": ("bag_kmeans", _set("centroids", lambda x: torch.full_like(x, float("nan"))), "pt",
+                          "centroids has non-finite values"),
+    "summary centroids complex": ("summary_kmeans", _set("centroids", lambda x: x.to(torch.complex64)), "pt",
+                                  "centroids has dtype complex64"),
+    "visits centroids int": ("visits_kmeans", _set("centroids", lambda x: x.to(torch.int64)), "pt",
+                             "centroids has dtype int64"),
+    "k 99": ("summary_kmeans", _meta(k=99), "json", "k 99, but cluster_model.pt holds 2 centroids"),
+    "k true": ("summary_kmeans", _meta(k=True), "json", "k True"),
+    "bag_n_actions 0": ("bag_kmeans", _meta(bag_n_actions=0), "json", "bag_n_actions 0"),
+    "bag_n_actions -3": ("bag_kmeans", _meta(bag_n_actions=-3), "json", "bag_n_actions -3"),
+    "bag_n_actions 1e15": ("bag_kmeans", _meta(bag_n_actions=10**15), "json", "bag_n_actions 1000000000000000"),
+    "bag_sa_keys negative": ("bag_kmeans", _set("bag_sa_keys", lambda x: -x - 5), "pt", "bag_sa_keys holds -"),
+    "bag_sa_keys huge": ("greedy_mix", _set("bag_sa_keys", lambda x: x + 10**12), "pt", "bag_sa_keys holds 1000"),
+    "bag_sa_keys unsorted": ("bag_kmeans", _set("bag_sa_keys", lambda x: x.flip(0)), "pt", "strictly increasing"),
+    "bag_states NaN": ("bag_kmeans", _set("bag_states", lambda x: torch.full_like(x, float("nan"))), "pt",
+                       "bag_states has non-finite values"),
+    "bag_states float16": ("greedy_mix", _set("bag_states", lambda x: x.half()), "pt", "bag_states has dtype float16"),
+    "greedy votes negative": ("greedy_mix", _set("greedy_votes", lambda x: -x - 1), "pt",
+                              "greedy_votes has negative values"),
+    "state_dim 4.7": ("summary_kmeans", _meta(state_dim=4.7), "json", "state_dim 4.7"),
+    "state_dim '4'": ("summary_kmeans", _meta(state_dim="4"), "json", "state_dim '4'"),
+    "policy_mix n_actions 5": ("policy_mix", _meta(n_actions=5), "pt", "pm.heads.weight has shape"),
+    "policy_mix centroids": ("policy_mix", _set("centroids", lambda x: x.flip(0)), "pt", "k x k identity"),
+    "format_version '1'": ("summary_kmeans", _meta(format_version="1"), "json", "format_version '1', expected 1"),
+    "garbage .pt": ("summary_kmeans", _garbage, "pt", "not a pcpg model file (torch could not read its tensors)"),
+}
+
+
+@pytest.mark.parametrize("case", list(TAMPERED))
+def test_tampered_cluster_model_is_one_line_naming_file_and_field(tmp_path, capsys, saved_models, case):
+    """Tensors of the wrong shape, dtype or range, and JSON that disagrees with them: one line
+    naming the file and the field, from load_model and `pcpg classify` alike (were tracebacks, or
+    exit 0 with other labels)."""
+    import shutil
+    import warnings
+
+    from pcpg_dist.cli import main
+
+    method, edit, where, needle = TAMPERED[case]
+    d = tmp_path / "m"
+    shutil.copytree(saved_models / method, d)
+    pt, js = d / "cluster_model.pt", d / "cluster_model.json"
+    if edit is _garbage:
+        edit(pt)
+    else:
+        tensors, meta = torch.load(pt, weights_only=True), json.loads(js.read_text())
+        edit(tensors, meta)
+        torch.save(tensors, pt)
+        js.write_text(json.dumps(meta))
+    named = pt if where == "pt" else js
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with pytest.raises(DataError) as info:
+            load_model(d)
+    assert str(info.value).startswith(f"{named}: ") and needle in str(info.value)
+    assert "\n" not in str(info.value) and len(str(info.value)) < 400 and not caught
+    assert "weights_only" not in str(info.value)
+    capsys.readouterr()
+    code = main(["-q", "classify", str(d), str(saved_models / "data.parquet"), "--out", str(tmp_path / "o.csv")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and err == [f"pcpg: error: {info.value}"]
+    assert not (tmp_path / "o.csv").exists()
+
+
+def test_untampered_models_still_load_and_classify(saved_models):
+    from pcpg_dist.dataset import read_parquet
+
+    for method in TAMPER_METHODS:
+        model = load_model(saved_models / method)
+        ds = read_parquet(saved_models / "data.parquet")
+        assert model.k == 2 and model.predict(ds).shape == (ds.n_trajectories,)
