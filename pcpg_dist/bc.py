@@ -160,18 +160,21 @@ class TrainedCells:
 
     @staticmethod
     def load(path: str | Path) -> TrainedCells:
+        from pcpg_dist.cluster_models import first_line, read_tensors
+
         path = Path(path).with_suffix("")
+        # torch's own text for a file it cannot read spans lines and advises weights_only=False
+        tensors = read_tensors(path.with_suffix(".pt"), "unreadable model files: ")
         try:
             meta = json.loads(path.with_suffix(".json").read_text())
-            tensors = torch.load(path.with_suffix(".pt"), weights_only=True, map_location="cpu")
             specs = tuple(CellSpec(**s) for s in meta["specs"])
             arrays = {n: t.numpy() for n, t in tensors.items()}
             n_layers = len(meta["sizes"]) - 1
             params = {f"{w}{i}": arrays[f"{w}{i}"] for i in range(n_layers) for w in "Wb"}
             return TrainedCells(specs, tuple(meta["sizes"]), meta["activation"], params,
                                 arrays["mean"], arrays["std"], arrays["final_loss"])
-        except Exception as e:  # noqa: BLE001 - torch's UnpicklingError for a tampered file, too
-            raise DataError(f"{path}: unreadable model files ({type(e).__name__}: {e})") from None
+        except Exception as e:  # noqa: BLE001 - a JSON or tensors that do not fit each other
+            raise DataError(f"{path}: unreadable model files ({type(e).__name__}: {first_line(e)})") from None
 
 
 def _check_valid(valid: np.ndarray, rows: int, n_actions: int) -> np.ndarray:

@@ -162,6 +162,24 @@ def test_save_load_roundtrip_and_concat(toy, tmp_path):
         TrainedCells.load(tmp_path / "missing")
 
 
+@pytest.mark.parametrize("content", [b"\x80\x04garbage" * 50, b"garbage" * 100, b""])
+def test_an_unreadable_model_file_is_one_line_without_torch_advice(toy, tmp_path, content):
+    """torch's text for a file it cannot read is 8 lines with a UserWarning, and advises
+    weights_only=False (arbitrary code execution): now one line naming the file, no warning."""
+    import warnings
+
+    _, _, cells = toy
+    path = train_cells(cells[:1], BCConfig(epochs=2)).save(tmp_path / "cells")
+    path.write_bytes(content)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with pytest.raises(DataError) as info:
+            TrainedCells.load(path)
+    text = str(info.value)
+    assert text == f"{path}: unreadable model files: not a pcpg model file (torch could not read its tensors)"
+    assert not caught
+
+
 def test_device_config():
     if not torch.cuda.is_available():
         with pytest.raises(ConfigError, match="no GPU"):

@@ -70,6 +70,26 @@ def test_bit_flip_and_truncation_detected(tmp_path):
         read_parquet(path)
 
 
+def test_corrupt_parquet_bytes_are_one_printable_line(tmp_path):
+    """Arrow's text for a corrupt page or footer spans lines and holds raw thrift bytes (`don't know
+    what type: \\x0f`): every 64-byte corruption of a dataset file is now one printable line."""
+    path = tmp_path / "toy-E1.parquet"
+    write_datasets(tmp_path, [small()], {})
+    raw = path.read_bytes()
+    escaped = 0
+    for offset in range(0, len(raw) - 64, 16):
+        flipped = bytearray(raw)
+        flipped[offset:offset + 64] = bytes(b ^ 0xFF for b in flipped[offset:offset + 64])
+        path.write_bytes(bytes(flipped))
+        try:
+            read_parquet(path)  # no manifest check here: some flips only change values
+        except DataError as e:
+            text = str(e)
+            assert text.startswith(f"{path}: ") and text.isprintable() and len(text) < 400, text
+            escaped += "\\x" in text
+    assert escaped  # the case that printed a control byte on its own line is among them
+
+
 @pytest.mark.parametrize("mutate, needle", [
     (lambda t: t.set_column(t.schema.get_field_index("action"), "action",
                             pa.array(t.column("action").to_numpy().astype("float64"))), "column 'action' has type double"),
