@@ -215,6 +215,43 @@ def test_yaml_alias_bomb_is_one_line_fast_and_small(tmp_path):
     assert peak < 20 << 20 and seconds < 10  # was 2 GB of error text and 14.5 GB of memory
 
 
+@pytest.mark.parametrize("text, where", [
+    # a second section dropped every key of the first: bc.epochs 5 became the default 2000
+    ("name: t\nbc:\n  epochs: 5\n  lr: 0.5\nclustering:\n  k: 3\nbc:\n  hidden_size: 7\n",
+     "line 7: key 'bc' appears twice (first on line 2)"),
+    ("name: t\nclustering:\n  k: 3\n  k: 5\n", "line 4: key 'k' appears twice (first on line 3)"),
+    ("name: t\nclustering: {k: 3, k: 5}\n", "line 2: key 'k' appears twice (first on line 2)"),
+    ("name: t\ngridworld:\n  gymnasium_kwargs: {a: 1, a: 2}\n", "line 3: key 'a' appears twice (first on line 3)"),
+])
+def test_a_key_given_twice_in_the_file_is_refused_naming_both_lines(tmp_path, text, where):
+    from pcpg_dist.config.overrides import load_config_with
+
+    path = tmp_path / "exp.yaml"
+    path.write_text(text)
+    for load in (load_config, load_config_with):
+        with pytest.raises(ConfigError) as e:
+            load(path)
+        assert str(e.value) == f"{path}, {where}; give each key once"
+
+
+def test_a_key_that_extends_a_merged_mapping_is_no_repeat():
+    text = "name: t\n_: &b {epochs: 5, lr: 0.5}\nbc:\n  <<: *b\n  lr: 0.1\n"
+    from pcpg_dist.config.experiment import load_yaml_text
+
+    assert load_yaml_text(text, "x.yaml")["bc"] == {"epochs": 5, "lr": 0.1}
+
+
+def test_an_override_given_twice_is_refused_not_the_last_taken(tmp_path):
+    from pcpg_dist.config.overrides import load_config_with
+
+    path = write(tmp_path, BASE)
+    assert load_config_with(path, ["bc.epochs=5", "bc.lr=0.1"]).bc.epochs == 5
+    with pytest.raises(ConfigError) as e:
+        load_config_with(path, ["bc.epochs=5", "bc.epochs=7"])
+    assert str(e.value) == ("override 'bc.epochs' is given twice on the command line ('bc.epochs=5' and "
+                            "'bc.epochs=7'); give it once as bc.epochs=VALUE")
+
+
 @pytest.mark.parametrize("content, needle", [
     (b"name: x\nseed: \xff\xfe\n", "bad.yaml, line 2: not UTF-8 text (byte 14)"),
     (b"a: &a [*a]\nname: x\n", "a YAML alias refers to a value that contains it"),

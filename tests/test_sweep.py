@@ -42,7 +42,7 @@ TINY = {
 
 # --------------------------------------------------------------------------- overrides
 def test_override_changes_the_setting_and_is_validated_like_the_file():
-    cfg = load_config_with(QUICK, ["bc.lr=0.003", "clustering.k=5", "ranking.ps=[1.0, 0.25]", "bc.lr=1e-3"])
+    cfg = load_config_with(QUICK, ["clustering.k=5", "ranking.ps=[1.0, 0.25]", "bc.lr=1e-3"])
     assert cfg.bc.lr == 0.001 and cfg.clustering.k == 5 and list(cfg.ranking.ps) == [1.0, 0.25]
     with pytest.raises(ConfigError, match="bc.lr"):
         load_config_with(QUICK, ["bc.lr=-1"])

@@ -211,7 +211,30 @@ class _BoundedLoader(yaml.SafeLoader):
     built: aliases are shared nodes there, so a file of a few lines cannot expand into gigabytes.
 
     Numbers are read as YAML 1.2 reads them: ``2:8:1`` is text (a sweep range), not YAML 1.1's
-    base-60 integer 7681, and ``1e-3`` is a number, not text."""
+    base-60 integer 7681, and ``1e-3`` is a number, not text.
+
+    A key given twice in one mapping is refused (PyYAML keeps the last one without a word, so a
+    second ``bc:`` section would drop every key of the first); a key that overrides one brought in
+    by a ``<<: *alias`` merge is YAML's way of extending a mapping and stays allowed."""
+
+    source = "<yaml>"  # names the text in a ConfigError
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict:
+        first_line: dict[Any, int] = {}
+        for key_node, _ in node.value:  # before SafeConstructor flattens the merge keys into the list
+            if not isinstance(key_node, yaml.ScalarNode) or key_node.tag == "tag:yaml.org,2002:merge":
+                continue
+            key = self.construct_object(key_node)
+            line = key_node.start_mark.line + 1
+            try:
+                first = first_line.get(key)
+            except TypeError:  # an unhashable key: SafeConstructor's own message names it
+                continue
+            if first is not None:
+                raise ConfigError(f"{self.source}, line {line}: key {reprlib.repr(key)} appears twice "
+                                  f"(first on line {first}); give each key once")
+            first_line[key] = line
+        return super().construct_mapping(node, deep=deep)
 
 
 _INT, _FLOAT = "tag:yaml.org,2002:int", "tag:yaml.org,2002:float"
@@ -290,6 +313,7 @@ def load_yaml_text(text: str, path: str) -> Any:
     ``path`` names the text in a ConfigError."""
     try:
         loader = _BoundedLoader(text)  # its reader rejects control characters at once
+        loader.source = path
     except yaml.YAMLError as e:
         raise ConfigError(one_line(f"{path}: not valid YAML ({e})".split("\n")[0])) from None
     try:

@@ -121,6 +121,21 @@ def split_assignment(item: str) -> tuple[str, str]:
     return key, value
 
 
+def split_assignments(items: list[str], what: str = "override", form: str = "{key}=VALUE") -> list[tuple[str, str]]:
+    """``KEY=VALUE`` items as (key, value) pairs, a key given twice refused: the last one would win
+    without a word. ``what`` and ``form`` say what an item is and how to give it once."""
+    first: dict[str, str] = {}
+    pairs = []
+    for item in items:
+        key, value = split_assignment(item)
+        if key in first:
+            raise ConfigError(f"{what} {key!r} is given twice on the command line ({reprlib.repr(first[key])} and "
+                              f"{reprlib.repr(item)}); give it once as {form.format(key=key)}")
+        first[key] = item
+        pairs.append((key, value))
+    return pairs
+
+
 def set_key(raw: dict, key: str, value: Any) -> None:
     node = raw
     parts = key.split(".")
@@ -145,7 +160,7 @@ def apply_overrides(raw: dict, overrides: dict[str, Any]) -> dict:
 
 
 def parse_overrides(items: list[str]) -> dict[str, Any]:
-    return {k: parse_value(v) for k, v in map(split_assignment, items)}
+    return {k: parse_value(v) for k, v in split_assignments(items)}
 
 
 def read_raw(path: str | Path) -> tuple[dict, dict | None]:
@@ -266,14 +281,8 @@ def sweep_points(section: Any, cli_axes: list[str], domain: str | None) -> tuple
                 target[str(key)] = axis_values(str(key), spec)
     if both := sorted(set(grid) & set(zipped)):
         raise ConfigError(f"sweep: {both[0]!r} is under both 'grid:' and 'zip:'; an axis goes under one of them")
-    on_cli: set[str] = set()
-    for item in cli_axes:  # an axis on the command line replaces the file's
-        key, value = split_assignment(item)
-        if key in on_cli:
-            raise ConfigError(f"sweep axis {key!r} is given twice on the command line; give it once as "
-                              f"{key}=v1,v2,...")
-        on_cli.add(key)
-        zipped.pop(key, None)
+    for key, value in split_assignments(cli_axes, "sweep axis", "{key}=v1,v2,..."):
+        zipped.pop(key, None)  # an axis on the command line replaces the file's
         grid[key] = axis_values(key, value)
     for key in [*grid, *zipped]:
         check_key(key, domain)
