@@ -286,6 +286,9 @@ def test_huge_values_are_cut_in_error_messages():
 @pytest.mark.parametrize("content, needle", [
     (b"..S.\n\xff.G.\n", "E1.txt, line 2: not UTF-8 text"),
     (b"." * (2 << 20), "at most 1048576 are allowed"),
+    # within the byte limit, but ~30 min of layout analysis before generation started
+    (b"S" + b"." * 998 + b"1\n" + (b"." * 1000 + b"\n") * 998 + b"2" + b"." * 998 + b"G\n",
+     "E1.txt: 1000 columns x 1000 rows; a layout may be at most 100x100 cells"),
 ])
 def test_layout_files_are_checked_at_load(tmp_path, content, needle):
     path = write(tmp_path, BASE)

@@ -135,6 +135,19 @@ def test_bad_layouts_name_the_problem(text, needle, tmp_path):
     assert needle in str(e.value)
 
 
+def test_layout_size_is_bounded_before_it_is_analysed():
+    """Analysis grows as side^3 (1.5 s at 100x100, 13 s at 200x200): a wider layout is refused at once."""
+    def layout(width: int) -> str:
+        return "S" + "." * (width - 2) + "G\n1" + "." * (width - 2) + "2\n" + "." * width
+
+    assert gw.parse_layout(layout(100), "wide.txt", check_styles=False).width == 100
+    with pytest.raises(LayoutError) as e:
+        gw.parse_layout(layout(101), "wide.txt")
+    assert str(e.value).startswith("wide.txt: 101 columns x 3 rows; a layout may be at most 100x100 cells")
+    with pytest.raises(LayoutError, match="wide.txt: 2 columns x 101 rows"):
+        gw.parse_layout("S1\n" + "..\n" * 99 + "G2\n", "wide.txt")
+
+
 def test_user_layout_with_coinciding_styles_warns(tmp_path):
     path = tmp_path / "line.txt"
     path.write_text("S12G\n....\n")  # every route passes both bonuses

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pcpg_dist.config.domains import layout_size_problem
 from pcpg_dist.dataset import Dataset
 from pcpg_dist.domains.base import Policy
 from pcpg_dist.errors import LayoutError
@@ -127,6 +128,8 @@ def parse_layout(text: str, name: str = "<layout>", check_styles: bool = True) -
         lines.pop()
     if not lines:
         raise LayoutError(f"{name}: empty layout")
+    if problem := layout_size_problem(text):
+        raise LayoutError(f"{name}: {problem}")
     width = len(lines[0])
     for i, ln in enumerate(lines, 1):
         if len(ln) != width:
