@@ -248,6 +248,50 @@ def test_a_folder_names_the_file_that_differs_and_a_files_own_row(tmp_path, caps
     assert not (tmp_path / "out").exists()
 
 
+def test_trajectory_ids_restarting_in_each_file_of_a_folder_name_both_files(tmp_path) -> None:
+    """Daily files whose ids restart at 0 were reported as `t = 0 does not increase within trajectory 0`."""
+    folder = tmp_path / "logs"
+    folder.mkdir()
+    tiny_table(seed=1).to_parquet(folder / "day1.parquet", index=False)
+    tiny_table(seed=2).to_parquet(folder / "day2.parquet", index=False)
+    with pytest.raises(DataError) as e:
+        datasets_from_table(read_step_table(folder))
+    assert str(e.value) == (f"{folder / 'day2.parquet'}: trajectory 0 appears both in {folder / 'day1.parquet'} and "
+                            f"in this file (its t restarts at 0 here after 4 there); trajectory ids must be unique "
+                            f"across a folder's files: give each file's trajectories distinct ids (e.g. prefixed by "
+                            f"the file's name)")
+    # a trajectory that goes on in the next file (t still increasing) is one trajectory, as before
+    whole = tiny_table(n_traj=2)
+    whole.iloc[:3].to_parquet(folder / "day1.parquet", index=False)
+    whole.iloc[3:].to_parquet(folder / "day2.parquet", index=False)
+    (ds,) = datasets_from_table(read_step_table(folder)).values()
+    assert ds.n_trajectories == 2 and ds.n_rows == len(whole)
+
+
+def test_a_path_that_is_not_a_regular_file_or_folder_says_so(tmp_path) -> None:
+    import os
+
+    fifo = tmp_path / "logs.parquet"
+    os.mkfifo(fifo)
+    for path in (fifo, Path("/dev/zero")):
+        with pytest.raises(DataError) as e:
+            read_step_table(path)
+        assert str(e.value) == (f"{path}: not a regular file or folder; trajectories.path names a Parquet file "
+                                f"or a folder of them")
+    with pytest.raises(DataError, match="no such file or folder"):
+        read_step_table(tmp_path / "none.parquet")
+
+
+def test_a_table_of_single_row_trajectories_says_no_trajectory_has_a_step(tmp_path) -> None:
+    """It said `0 actions; pcpg handles 1..1000000`."""
+    single = tiny_table(n_traj=5, steps=0)
+    with pytest.raises(DataError) as e:
+        load(single, tmp_path)
+    assert str(e.value) == (f"{tmp_path / 'logs.parquet'}: no trajectory has a step: each of the 5 trajectories is a "
+                            f"single row (action -1, its closing state); a trajectory needs rows with actions 0..n-1 "
+                            f"before its last")
+
+
 def test_action_outside_its_valid_mask(tmp_path) -> None:
     df = tiny_table()
     df["valid"] = [[True, True, True]] * len(df)

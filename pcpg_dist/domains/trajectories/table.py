@@ -86,6 +86,9 @@ def parquet_files(path: Path) -> list[Path]:
             raise DataError(f"{path}: {len(files)} Parquet files (at most {MAX_FILES}); merge them")
         return files
     if not path.is_file():
+        if path.exists():  # a FIFO, device or socket: reading it would block or never end
+            raise DataError(f"{path}: not a regular file or folder; trajectories.path names a Parquet file "
+                            f"or a folder of them")
         raise DataError(f"{path}: no such file or folder (key trajectories.path)")
     return [path]
 
@@ -344,8 +347,16 @@ def datasets_from_table(step: StepTable, n_actions: int | None = None,
     t_sorted = t[order]
     step_ok = np.r_[True, np.diff(t_sorted) > 0] | new
     if not step_ok.all():
-        row = int(order[np.flatnonzero(~step_ok)[0]])
-        raise _fail(where, "t", row, f"t = {t[row]} does not increase within trajectory {traj_raw[row]} "
+        at = int(np.flatnonzero(~step_ok)[0])
+        row, previous = int(order[at]), int(order[at - 1])  # the same trajectory's step before it
+        traj = traj_col[row].as_py() if not _is_integral(traj_col.type) else int(traj_raw[row])
+        file, prev_file = where.locate(row)[0], where.locate(previous)[0]
+        if file != prev_file:  # daily files whose ids restart at 0: not a t problem
+            raise DataError(f"{file}: trajectory {reprlib.repr(traj)} appears both in {prev_file} and in this "
+                            f"file (its t restarts at {t[row]} here after {t[previous]} there); trajectory ids "
+                            f"must be unique across a folder's files: give each file's trajectories distinct "
+                            f"ids (e.g. prefixed by the file's name)")
+        raise _fail(where, "t", row, f"t = {t[row]} does not increase within trajectory {reprlib.repr(traj)} "
                                       f"(each step's t must be larger than the previous step's)")
 
     # actions: 0..n-1, -1 allowed only on a trajectory's last row
@@ -357,6 +368,10 @@ def datasets_from_table(step: StepTable, n_actions: int | None = None,
         row = int(order[np.flatnonzero(neg)[0]])
         raise _fail(where, "action", row, f"action {actions[row]} is not allowed (0..n-1; -1 only on a "
                                            f"trajectory's last row)")
+    if (a_sorted == -1).all():  # only closing rows: no state is followed by an action
+        raise DataError(f"{source}: no trajectory has a step: each of the {len(starts)} trajectories is a "
+                        f"single row (action -1, its closing state); a trajectory needs rows with actions "
+                        f"0..n-1 before its last")
     valid = None
     if "valid" in names:
         vcol = table.column("valid")
