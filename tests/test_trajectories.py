@@ -292,6 +292,25 @@ def test_a_table_of_single_row_trajectories_says_no_trajectory_has_a_step(tmp_pa
                             f"before its last")
 
 
+def test_a_folder_refuses_a_link_leaving_it_and_reads_upper_case_parquet_names(tmp_path) -> None:
+    folder, outside = tmp_path / "logs", tmp_path / "elsewhere"
+    folder.mkdir()
+    outside.mkdir()
+    tiny_table(seed=1).to_parquet(folder / "a.parquet", index=False)
+    second = tiny_table(seed=2)
+    second["trajectory"] += 100
+    second.to_parquet(outside / "secret.parquet", index=False)
+    (folder / "b.parquet").symlink_to(outside / "secret.parquet")
+    with pytest.raises(DataError) as e:  # it was read as part of the folder
+        read_step_table(folder)
+    assert str(e.value) == (f"{folder / 'b.parquet'}: a link to {outside / 'secret.parquet'}, outside {folder}; "
+                            f"refusing to read it (copy the file into the folder)")
+    (folder / "b.parquet").unlink()
+    second.to_parquet(folder / "B.PARQUET", index=False)  # was skipped without a word
+    (ds,) = datasets_from_table(read_step_table(folder)).values()
+    assert ds.n_trajectories == 12
+
+
 def test_action_outside_its_valid_mask(tmp_path) -> None:
     df = tiny_table()
     df["valid"] = [[True, True, True]] * len(df)

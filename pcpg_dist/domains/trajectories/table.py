@@ -77,9 +77,17 @@ def safe_env_name(text: str) -> str:
 
 
 def parquet_files(path: Path) -> list[Path]:
-    """A Parquet file, or the ``*.parquet`` files of a folder in name order."""
+    """A Parquet file, or the ``*.parquet`` files of a folder in name order (``.PARQUET`` too: the
+    case of an extension says nothing about the content). A link in the folder to a file outside
+    it is refused, as a dataset manifest's is: the folder is what the config names."""
     if path.is_dir():
-        files = sorted(p for p in path.iterdir() if p.suffix == ".parquet" and p.is_file())
+        named = sorted(p for p in path.iterdir() if p.suffix.lower() == ".parquet")
+        root = path.resolve()
+        for p in named:
+            if p.is_symlink() and not p.resolve().is_relative_to(root):
+                raise DataError(f"{p}: a link to {p.resolve()}, outside {path}; refusing to read it "
+                                f"(copy the file into the folder)")
+        files = [p for p in named if p.is_file()]
         if not files:
             raise DataError(f"{path}: no .parquet files in this folder")
         if len(files) > MAX_FILES:
