@@ -241,6 +241,22 @@ def test_a_key_that_extends_a_merged_mapping_is_no_repeat():
     assert load_yaml_text(text, "x.yaml")["bc"] == {"epochs": 5, "lr": 0.1}
 
 
+@pytest.mark.parametrize("item, key", [("bc.epochs=true", "bc.epochs"), ("seed=true", "seed"),
+                                       ("clustering.k=false", "clustering.k"), ("bc.lr=true", "bc.lr"),
+                                       ("seeds=[0, true]", "seeds")])
+def test_true_or_false_is_no_number(tmp_path, item, key):
+    """Pydantic's lax mode read `bc.epochs=true` as 1 epoch."""
+    from pcpg_dist.config.overrides import load_config_with
+
+    path = write(tmp_path, BASE)
+    with pytest.raises(ConfigError) as e:
+        load_config_with(path, [item])
+    assert str(e.value).startswith(f"{path}: key '{key}': value ") and str(e.value).endswith(
+        "is not allowed — true/false is not a number; give a number")
+    cfg = load_config_with(path, ["bc.lr=1", "evaluation.corruption_levels=[0, 1]", "bc.betas=[0, 0.5]"])
+    assert cfg.bc.lr == 1.0 and cfg.evaluation.corruption_levels == (0.0, 1.0) and cfg.bc.betas == (0.0, 0.5)
+
+
 def test_an_override_given_twice_is_refused_not_the_last_taken(tmp_path):
     from pcpg_dist.config.overrides import load_config_with
 
