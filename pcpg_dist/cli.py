@@ -156,11 +156,12 @@ def _cmd_classify(args: argparse.Namespace) -> None:
     from pcpg_dist.dataset import atomic_write_bytes, load_dataset
     from pcpg_dist.progress import out as console  # results: stdout
 
+    # by default into the current folder: the dataset's folder may be a signed `pcpg generate` output
+    out = Path(args.out) if args.out else Path(Path(args.dataset).stem + ".styles.csv")
+    check_classify_out(out, Path(args.model), Path(args.dataset))
     model = load_model(Path(args.model))
     ds = load_dataset(Path(args.dataset))
     pred = model.predict(ds)
-    # by default into the current folder: the dataset's folder may be a signed `pcpg generate` output
-    out = Path(args.out) if args.out else Path(Path(args.dataset).stem + ".styles.csv")
     table = pd.DataFrame({"trajectory": ds.trajectory_ids, "predicted_style": pred})
     atomic_write_bytes(out, table.to_csv(index=False).encode())
     console.print(f"{ds.n_trajectories} trajectories -> {out}; cluster sizes "
@@ -176,6 +177,20 @@ def _cmd_classify(args: argparse.Namespace) -> None:
         m = clustering_metrics(ds.styles, pred)
         console.print("against the true styles: " + ", ".join(f"{k} {v:.3f}" for k, v in m.items()
                                                              if isinstance(v, float)))
+
+
+def check_classify_out(out: Path, model: Path, dataset: Path) -> None:
+    """The labels never overwrite the inputs: the dataset (or its manifest), a file of the model."""
+    from pcpg_dist.errors import ConfigError
+
+    out_at = out.resolve()
+    if out_at in (dataset.resolve(), dataset.resolve().parent / "manifest.json"):
+        raise ConfigError(f"--out {out}: that is the input dataset {dataset} (or its manifest); name another file")
+    if model.resolve() in out_at.parents:
+        raise ConfigError(f"--out {out}: inside the model folder {model}, whose files it would replace; "
+                          f"name a file outside it")
+    if out_at.exists() and not out_at.is_file() and not out_at.is_dir():
+        raise ConfigError(f"--out {out}: not a regular file (a FIFO, socket or device); name a regular file")
 
 
 def _cmd_tune(args: argparse.Namespace) -> None:

@@ -406,6 +406,9 @@ def _temp_beside(path: Path) -> tuple[int, str]:
     """A temporary file in ``path``'s folder; an error names ``path`` (not the temporary name)."""
     if path.is_dir():
         raise IsADirectoryError(errno.EISDIR, "it is a folder; name a file", str(path))
+    if path.exists() and not path.is_file():  # a FIFO or a device: the rename would replace it
+        raise OSError(errno.EINVAL, "it is not a regular file (a FIFO, socket or device); name a regular file",
+                      str(path))
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         return tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")

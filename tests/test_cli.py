@@ -234,3 +234,37 @@ def test_help_names_both_export_formats(capsys):
     shown = " ".join(capsys.readouterr().out.split())  # the help wraps lines
     export = shown.split(" export ", 1)[1].split(" options: ")[0]
     assert "ONNX" in export and "Minari" in export
+
+
+def test_classify_never_overwrites_its_inputs_or_a_special_file(tmp_path, capsys):
+    """`classify --out` on the dataset, the model's JSON, a FIFO or a copy of /dev/null replaced
+    them with the CSV (exit 0); now one line, exit 2, and every input is byte-for-byte as before."""
+    import os
+
+    from pcpg_dist.clustering import ClusterConfig, cluster
+    from pcpg_dist.config import PBTGConfig
+    from pcpg_dist.dataset import atomic_write_bytes, write_parquet
+    from pcpg_dist.domains.gridworld import random_layouts
+    from pcpg_dist.pbtg import assemble_dataset
+
+    pbtg = PBTGConfig(episodes=1000, trajectories_per_style=20, dataset_per_style=10)
+    (layout,) = random_layouts(1, 5)
+    ds = assemble_dataset([generate_pair(layout, r, pbtg, 0) for r in range(4)])
+    cluster(ds, ClusterConfig(k=4, method="visits_kmeans"), seed=0).model.save(tmp_path / "model")
+    data = tmp_path / "data.parquet"
+    write_parquet(ds, data)
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    inputs = {p: p.read_bytes() for p in [data, *(tmp_path / "model").iterdir()]}
+    for out, says in [(data, "is the input dataset"),
+                      (tmp_path / "model" / "cluster_model.json", "inside the model folder"),
+                      (fifo, "not a regular file")]:
+        assert main(["classify", str(tmp_path / "model"), str(data), "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert says in err and len(err.strip().splitlines()) == 1, err
+    assert {p: p.read_bytes() for p in inputs} == inputs and fifo.is_fifo()
+    # below the CLI too: an atomic write refuses to rename over a FIFO
+    with pytest.raises(OSError, match="not a regular file"):
+        atomic_write_bytes(fifo, b"x")
+    assert fifo.is_fifo() and sorted(p.name for p in tmp_path.iterdir()) == ["data.parquet", "fifo", "model"]
+    assert main(["classify", str(tmp_path / "model"), str(data), "--out", str(tmp_path / "ok.csv")]) == 0
