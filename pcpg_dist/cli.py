@@ -155,10 +155,12 @@ def _cmd_classify(args: argparse.Namespace) -> None:
     from pcpg_dist.clustering import clustering_metrics, load_model
     from pcpg_dist.dataset import atomic_write_bytes, load_dataset
     from pcpg_dist.progress import out as console  # results: stdout
+    from pcpg_dist.run_folders import check_outside_run
 
     # by default into the current folder: the dataset's folder may be a signed `pcpg generate` output
     out = Path(args.out) if args.out else Path(Path(args.dataset).stem + ".styles.csv")
     check_classify_out(out, Path(args.model), Path(args.dataset))
+    check_outside_run(out)
     model = load_model(Path(args.model))
     ds = load_dataset(Path(args.dataset))
     pred = model.predict(ds)

@@ -289,6 +289,9 @@ def export_onnx(ensembles: dict, out: Path) -> list[Path]:
 
 def cli_export_onnx(args: argparse.Namespace) -> None:
     """``pcpg export onnx RUN --out DIR``."""
+    from pcpg_dist.run_folders import check_outside_run
+
+    check_outside_run(Path(args.out))
     with tempfile.TemporaryDirectory() as tmp:
         workdir = Path(args.workdir) if args.workdir else Path(tmp)
         folder = resolve_agents(args.run, args.tracking_uri, workdir)

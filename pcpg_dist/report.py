@@ -45,6 +45,7 @@ from pcpg_dist.report_data import (
     read_run,
     table_of,
 )
+from pcpg_dist.run_folders import check_outside_run
 
 # ----------------------------------------------------------------------------- sections
 #: per-environment sections: (key, title, paper reference, figure, tables)
@@ -228,6 +229,7 @@ def check_out_dir(summary: Path, out_dir: Path) -> None:
         raise ConfigError(f"--out {out_dir}: inside the run's summary folder {summary}, where the next report "
                           f"would read its figures as an environment; choose a folder outside it "
                           f"(default: {Path(summary).parent / 'report'})")
+    check_outside_run(out_dir)
 
 
 def render(summary: Path, out_dir: Path, reproduce_target: str | None = None) -> tuple[Path, Path]:

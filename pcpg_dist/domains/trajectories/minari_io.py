@@ -420,6 +420,9 @@ def find_dataset_folder(path: Path) -> Path:
 
 def cli_export_minari(args: argparse.Namespace) -> None:
     """``pcpg export minari RUN_OR_DATA --out DIR [--dataset-id ID]``."""
+    from pcpg_dist.run_folders import check_outside_run
+
+    check_outside_run(Path(args.out))
     folder = find_dataset_folder(Path(args.source))
     datasets = load_datasets(folder)
     source = Path(args.source).resolve()
