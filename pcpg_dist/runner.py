@@ -21,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import json
+import shutil
 import tempfile
 import time
 from collections.abc import Callable
@@ -170,11 +171,7 @@ def _nbytes(x: Any, depth: int = 0) -> int:
 
 
 def _collect_agents(target: Path, models: dict[str, list[Path]]) -> Path:
-    """``target/<env>/<group>.pt|.json``: every trained cell of the run, for the pyfunc model."""
-    import shutil
-
-    if target.exists():
-        shutil.rmtree(target)
+    """``target/<env>/<group>.pt|.json`` (a new folder): every trained cell of the run, for the pyfunc model."""
     for env, paths in models.items():
         (target / env).mkdir(parents=True)
         for i, p in enumerate(paths):
@@ -394,6 +391,22 @@ def _add_groups(p: Point, unit: str, cells: list, cache: Cache, jobs: dict[str, 
                          None if base is None else init_from(chunk, base()))
 
 
+STAGING = ".finishing"  # RUN/.finishing: the next summary, agents and report while they are written
+
+
+def _swap_in(out: Path, staging: Path, names: tuple[str, ...]) -> None:
+    """Replace ``out/<name>`` by ``staging/<name>`` for each name, by renames. The old summary is
+    moved aside first, so between the renames there is no summary rather than a mixed one."""
+    old = staging / "old"
+    old.mkdir(exist_ok=True)
+    if "summary" in names and (out / "summary").exists():
+        (out / "summary").rename(old / "summary")
+    for name in names:
+        if (out / name).exists():
+            (out / name).rename(old / name)
+        (staging / name).rename(out / name)
+
+
 def _finish_point(p: Point, cache: Cache, clusters: dict, times: dict[str, float], computed: dict[str, int],
                   unlogged: list[str], advance: Callable[..., None]) -> RunResult:
     """Across one point's environments: summary tables, figures, report, then its MLflow runs
@@ -404,12 +417,18 @@ def _finish_point(p: Point, cache: Cache, clusters: dict, times: dict[str, float
 
     t0 = time.perf_counter()
     cfg, out, envs = p.cfg, p.out, list(p.units)
+    # Summary, agents and report are built in `staging` and swapped in by renames, the summary
+    # (run.json inside) last: a killed write leaves the old complete summary or none, never a mix.
+    staging = out / STAGING
+    if staging.exists():  # left by a run killed while finishing
+        shutil.rmtree(staging)
+    staging.mkdir(parents=True)
     per_env = {e: cache.read_json("evaluate", p.ekeys[e], "metrics.json") for e in envs}
     cluster_metrics = {e: clusters[p.ckeys[e]]["metrics"] for e in envs}
     eval_dirs = {e: cache.path("evaluate", p.ekeys[e]) for e in envs}
-    metrics = write_summary(cfg, out, eval_dirs, per_env, cluster_metrics)
+    metrics = write_summary(cfg, staging / "summary", eval_dirs, per_env, cluster_metrics)
     models = {e: [cache.path("train", k) / "cells" for ge, k, _ in p.groups if ge == e] for e in envs}
-    agents = _collect_agents(out / "agents", models)
+    _collect_agents(staging / "agents", models)
     times["summary"] = time.perf_counter() - t0
 
     # A stage served wholly from the cache keeps the timing of the run that computed it.
@@ -430,8 +449,13 @@ def _finish_point(p: Point, cache: Cache, clusters: dict, times: dict[str, float
                 "command": p.command or f"pcpg run <config of {cfg.name}>", "overrides": p.params,
                 "provenance": provenance(), "stage_seconds": times, "cached_stages": cached,
                 "parent_run_id": result.parent_run_id, "computed": computed, "code_version": CODE_VERSION}
-    atomic_write_bytes(out / "summary" / "run.json", json.dumps(run_info, indent=1, default=str).encode())
-    result.report = render(out / "summary", out / "report")[0]
+    atomic_write_bytes(staging / "summary" / "run.json", json.dumps(run_info, indent=1, default=str).encode())
+    _swap_in(out, staging, ("agents", "summary"))
+    render(out / "summary", staging / "report")
+    _swap_in(out, staging, ("report",))
+    shutil.rmtree(staging)
+    agents = out / "agents"
+    result.report = out / "report" / "report.html"
     if p.tracker is not None:
         # Last, so that every local result above is kept when the server is down; a rerun
         # logs only the environments without a FINISHED child run, recomputing nothing.

@@ -41,19 +41,13 @@ def accuracy_table(per_env: dict[str, dict[str, float]], ps: tuple[float, ...]) 
     return pd.DataFrame(rows)
 
 
-def write_summary(cfg, out: Path, eval_dirs: dict[str, Path], per_env: dict[str, dict[str, float]],
+def write_summary(cfg, summary: Path, eval_dirs: dict[str, Path], per_env: dict[str, dict[str, float]],
                   clusters: dict[str, dict[str, float]]) -> dict[str, float]:
-    """Write ``out/summary`` (metrics, tables, figures, per-environment folders); return metrics."""
-    summary = Path(out) / "summary"
-    if summary.exists():  # a rerun replaces every table; run.json (the runner's record) stays
-        for child in summary.iterdir():
-            if child.name == "run.json":
-                continue
-            if child.is_dir() and not child.is_symlink():
-                shutil.rmtree(child)
-            else:
-                child.unlink()
-    summary.mkdir(parents=True, exist_ok=True)
+    """Write a new ``summary`` folder (metrics, tables, figures, per-environment folders); return
+    metrics. The folder must not exist: the runner builds it aside and swaps it in when complete
+    (:func:`pcpg_dist.runner._finish_point`), so a killed write never mixes two runs' files."""
+    summary = Path(summary)
+    summary.mkdir(parents=True)
     metrics = summary_metrics(per_env, clusters)
     atomic_write_bytes(summary / "metrics.json", json.dumps(metrics, indent=1, sort_keys=True).encode())
     acc = accuracy_table(per_env, cfg.ranking.ps)

@@ -3,9 +3,17 @@ folders never read as valid when half-written."""
 
 from __future__ import annotations
 
+import contextlib
+import json
+import os
 import shutil
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
+import psutil
 import pytest
 import yaml
 
@@ -78,3 +86,70 @@ def test_outputs_inside_the_folders_a_run_rewrites_are_refused(small_run, tmp_pa
     assert main(["classify", str(model), str(data / "gridworld-E1.parquet")]) == 0
     assert main(["export", "onnx", str(run), "--out", str(run / "onnx")]) == 0
     assert (tmp_path / "gridworld-E1.styles.csv").is_file() and (run / "onnx" / "agents_E3.onnx").is_file()
+
+
+# `pcpg run` in a subprocess with Ray started first on 2 CPUs (as tests/test_faults.py does)
+LAUNCH = ("import sys; from pcpg_dist.ray_utils import init_ray; init_ray(num_cpus=2); "
+          "from pcpg_dist.cli import main; sys.exit(main(sys.argv[1:]))")
+
+
+def start_run(cfg: Path, workdir: Path, log: Path) -> subprocess.Popen:
+    env = {k: v for k, v in os.environ.items() if k not in ("RAY_ADDRESS", "MLFLOW_TRACKING_URI")}
+    env.update(RAY_AUTH_MODE="disabled", RAY_ENABLE_UV_RUN_RUNTIME_ENV="0", PYTHONUNBUFFERED="1")
+    return subprocess.Popen([sys.executable, "-c", LAUNCH, "run", str(cfg), "--workdir", str(workdir),
+                             "--no-tracking", "--quiet"], cwd=log.parent, env=env, stdout=log.open("w"),
+                            stderr=subprocess.STDOUT, start_new_session=True)
+
+
+def kill_tree(proc: subprocess.Popen, sig: int = signal.SIGKILL) -> int:
+    """Send ``sig`` to the driver, wait for it, then kill whatever of its Ray is left."""
+    try:
+        family = psutil.Process(proc.pid).children(recursive=True)
+    except psutil.NoSuchProcess:
+        family = []
+    proc.send_signal(sig)
+    code = proc.wait(timeout=60)
+    for p in family:
+        with contextlib.suppress(psutil.NoSuchProcess):
+            p.kill()
+    psutil.wait_procs(family, timeout=10)
+    return code
+
+
+@pytest.mark.slow
+def test_a_rerun_killed_while_writing_its_summary_never_leaves_a_mixed_summary(small_run, tmp_path, capsys):
+    """A rerun with bc.epochs 30 SIGKILLed once its new metrics.json existed left the new metrics
+    beside the old run.json (epochs 20), agents and report: `pcpg report` exited 0 with mixed
+    numbers and `pcpg reproduce` blamed reproducibility."""
+    run = copy_run(small_run, tmp_path)
+    old_metrics = json.loads((run / "summary" / "metrics.json").read_text())
+    cfg = write_config(tmp_path, bc={"epochs": 30})
+    t0 = time.time()
+    proc = start_run(cfg, tmp_path / "runs", tmp_path / "killed.log")
+
+    def new_metrics() -> bool:
+        return any(p.is_file() and p.stat().st_mtime > t0 for p in run.glob("*/summary/metrics.json")) or \
+            any(p.is_file() and p.stat().st_mtime > t0 for p in run.glob("summary/metrics.json"))
+
+    end = time.monotonic() + 400
+    try:
+        while not new_metrics() and proc.poll() is None and time.monotonic() < end:
+            time.sleep(0.02)
+    finally:
+        code = kill_tree(proc)
+    assert code == -signal.SIGKILL, f"the run ended ({code}) before it was killed:\n{(tmp_path / 'killed.log').read_text()}"
+
+    if (run / "summary" / "run.json").exists():  # the old summary, whole
+        info = json.loads((run / "summary" / "run.json").read_text())
+        assert info["config"]["bc"]["epochs"] == 20
+        assert json.loads((run / "summary" / "metrics.json").read_text()) == old_metrics
+        assert main(["report", str(run), "--out", str(tmp_path / "rep")]) == 0
+    else:  # no summary at all: one line, nothing mixed
+        assert main(["report", str(run), "--out", str(tmp_path / "rep")]) == 2
+        assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+    result = run_experiment(load_config(cfg), workdir=tmp_path / "runs", track=False, show_progress=False)
+    info = json.loads((run / "summary" / "run.json").read_text())
+    assert info["config"]["bc"]["epochs"] == 30 and result.metrics == json.loads(
+        (run / "summary" / "metrics.json").read_text())
+    assert sorted(p.name for p in run.iterdir()) == ["agents", "cache", "cache.lock", "report", "summary"]
