@@ -229,3 +229,28 @@ def test_cli_exports_a_dataset_folder_and_a_runs_cached_data(rng, tmp_path, mina
     assert main(["export", "minari", str(tmp_path / "runs"), "--out", str(minari_root)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "manifest.json" in err
+
+
+def test_an_interrupted_export_leaves_nothing_and_the_rerun_writes_it(rng, minari_root, monkeypatch):
+    """Ctrl-C during `pcpg export minari` left a half-written dataset that Minari loaded with 0
+    episodes, and the rerun that the interrupt message asked for refused: "already exists"."""
+    from pcpg_dist.domains.trajectories import minari_io
+
+    a, b = pcpg_dataset(rng, "a"), pcpg_dataset(rng, "b", lengths=(3, 4))
+    real, calls = minari_io._episode_buffers, []
+
+    def interrupted(ds):  # Ctrl-C while the second environment's episodes are written
+        calls.append(ds.env)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(ds)
+
+    monkeypatch.setattr(minari_io, "_episode_buffers", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        write_minari({"a": a, "b": b}, minari_root, "pcpg/int-v0")
+    assert list(minari_root.iterdir()) == []  # no dataset, no temporary
+    monkeypatch.setattr(minari_io, "_episode_buffers", real)
+    written = write_minari({"a": a, "b": b}, minari_root, "pcpg/int-v0")
+    assert sorted(written) == ["pcpg/int/a-v0", "pcpg/int/b-v0"]
+    assert minari.load_dataset("pcpg/int/b-v0").total_episodes == 2
+    assert sorted(p.name for p in minari_root.iterdir()) == ["pcpg"]

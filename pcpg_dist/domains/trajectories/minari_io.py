@@ -20,6 +20,8 @@ import contextlib
 import difflib
 import os
 import re
+import shutil
+import tempfile
 import warnings
 from collections.abc import Iterator
 from pathlib import Path
@@ -378,25 +380,38 @@ def write_minari(datasets: dict[str, Dataset], out_dir: Path, dataset_id: str,
             raise DataError(f"{out_dir / mid}: a Minari dataset {mid} already exists there (Minari never "
                             f"overwrites); pick another --dataset-id or version, or delete it")
     out_dir.mkdir(parents=True, exist_ok=True)
-    written = {}
-    with datasets_root(out_dir), warnings.catch_warnings():
-        # Minari warns for every unset author/code_permalink/eval_env field: noise for an export.
-        warnings.simplefilter("ignore", UserWarning)
-        for env, ds in datasets.items():
-            mid = ids[env]
-            text = description or (f"pcpg dataset {ds.domain}-{env}: {ds.n_trajectories} trajectories, "
-                                   f"state {ds.state_dim} features, {ds.n_actions} actions")
-            created = minari.create_dataset_from_buffers(
-                dataset_id=mid, buffer=[],
-                observation_space=spaces.Box(-np.inf, np.inf, (ds.state_dim,), np.float32),
-                action_space=spaces.Discrete(ds.n_actions), description=text,
-                data_format=DATA_FORMAT)
-            storage = _deferred_size(created.storage)
-            storage.update_episodes(_episode_buffers(ds))
-            storage.update_metadata({"dataset_size": type(created.storage).get_size(storage), "pcpg": {
-                "domain": ds.domain, "env": env, "feature_names": list(ds.feature_names),
-                "action_names": list(ds.action_names)}})
+    # Built under a temporary root inside out_dir and renamed into place when every one is complete:
+    # an interrupted export leaves no half dataset (Minari loaded one as valid, with 0 episodes, and
+    # refused the rerun because it "already exists").
+    build = Path(tempfile.mkdtemp(dir=out_dir, prefix=".pcpg-minari-", suffix=".tmp"))
+    try:
+        with datasets_root(build), warnings.catch_warnings():
+            # Minari warns for every unset author/code_permalink/eval_env field: noise for an export.
+            warnings.simplefilter("ignore", UserWarning)
+            for env, ds in datasets.items():
+                mid = ids[env]
+                text = description or (f"pcpg dataset {ds.domain}-{env}: {ds.n_trajectories} trajectories, "
+                                       f"state {ds.state_dim} features, {ds.n_actions} actions")
+                created = minari.create_dataset_from_buffers(
+                    dataset_id=mid, buffer=[],
+                    observation_space=spaces.Box(-np.inf, np.inf, (ds.state_dim,), np.float32),
+                    action_space=spaces.Discrete(ds.n_actions), description=text,
+                    data_format=DATA_FORMAT)
+                storage = _deferred_size(created.storage)
+                storage.update_episodes(_episode_buffers(ds))
+                storage.update_metadata({"dataset_size": type(created.storage).get_size(storage), "pcpg": {
+                    "domain": ds.domain, "env": env, "feature_names": list(ds.feature_names),
+                    "action_names": list(ds.action_names)}})
+        written = {}
+        for mid in ids.values():
+            (out_dir / mid).parent.mkdir(parents=True, exist_ok=True)
+            if (out_dir / mid).exists():  # made by another process meanwhile
+                raise DataError(f"{out_dir / mid}: a Minari dataset {mid} already exists there (Minari never "
+                                f"overwrites); pick another --dataset-id or version, or delete it")
+            (build / mid).rename(out_dir / mid)
             written[mid] = out_dir / mid
+    finally:
+        shutil.rmtree(build, ignore_errors=True)
     return written
 
 
