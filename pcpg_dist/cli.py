@@ -8,7 +8,7 @@ import os
 import sys
 from pathlib import Path
 
-from pcpg_dist.errors import PcpgError
+from pcpg_dist.errors import PcpgError, Terminated, catch_sigterm
 
 
 def _cmd_generate(args: argparse.Namespace) -> None:
@@ -410,6 +410,7 @@ def main(argv: list[str] | None = None) -> int:
     setup_output(quiet=args.quiet, verbose=args.verbose,
                  private_ray=not (getattr(args, "ray_address", None) or os.environ.get("RAY_ADDRESS")))
     try:
+        catch_sigterm()
         args.func(args)
     except PcpgError as e:
         print(f"pcpg: error: {e}", file=sys.stderr)
@@ -419,9 +420,13 @@ def main(argv: list[str] | None = None) -> int:
         where = f" {e.filename}" if getattr(e, "filename", None) else ""
         print(f"pcpg: error: cannot access{where}: {e.strerror or e}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("pcpg: interrupted; rerun the same command to resume", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as e:
+        from pcpg_dist import errors
+
+        terminated = isinstance(e, Terminated) or errors.sigterm_received
+        print(f"pcpg: interrupted{' (SIGTERM)' if terminated else ''}; rerun the same command to resume",
+              file=sys.stderr)
+        return 143 if terminated else 130
     return 0
 
 

@@ -30,3 +30,26 @@ class TrainingError(PcpgError):
 
 class ServiceError(PcpgError):
     """A tracking server, Ray cluster or study storage cannot be reached or used."""
+
+
+sigterm_received = False  # set by catch_sigterm's handler
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (``kill PID``, ``timeout``, a scheduler's stop), handled as Ctrl-C: every cleanup that
+    an interrupt runs (MLflow run marked KILLED, locks released) runs for it too."""
+
+
+def catch_sigterm() -> None:
+    """Turn SIGTERM into :class:`Terminated` in the main thread. Called again after ``ray.init``,
+    whose core worker installs a handler that aborts with a C++ stack dump (exit 134)."""
+    import signal
+    import threading
+
+    def on_sigterm(signum, frame):
+        global sigterm_received
+        sigterm_received = True  # Ray turns an exception raised in its calls into a plain KeyboardInterrupt
+        raise Terminated()
+
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, on_sigterm)

@@ -17,7 +17,7 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from pcpg_dist.errors import ConfigError, PcpgError, ServiceError
+from pcpg_dist.errors import ConfigError, PcpgError, ServiceError, catch_sigterm
 from pcpg_dist.parallel import available_cpus
 
 # Ray's `uv run` hook would start every worker through `uv run` in the driver's project folder: it
@@ -115,6 +115,7 @@ def init_ray(address: str | None = None, num_cpus: int | None = None) -> None:
             raise ServiceError("Ray did not start within its 30 s limit three times (is the machine "
                                "overloaded?); retry when it is less busy") from None
         raise
+    catch_sigterm()  # after ray.init: its core worker's handler would abort with a stack dump
 
 
 def _check_port(address: str, timeout: float = 5.0) -> None:

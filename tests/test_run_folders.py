@@ -153,3 +153,37 @@ def test_a_rerun_killed_while_writing_its_summary_never_leaves_a_mixed_summary(s
     assert info["config"]["bc"]["epochs"] == 30 and result.metrics == json.loads(
         (run / "summary" / "metrics.json").read_text())
     assert sorted(p.name for p in run.iterdir()) == ["agents", "cache", "cache.lock", "report", "summary"]
+
+
+@pytest.mark.slow
+def test_sigterm_is_one_line_exit_143_and_marks_the_mlflow_run_killed(ray_session, tmp_path):
+    """`kill PID` (or `timeout`) once Ray had started aborted with exit 134 and Ray's C++ stack dump
+    (`*** SIGTERM received ...`), no `pcpg:` line, and left the MLflow parent RUNNING."""
+    from mlflow import MlflowClient
+
+    cfg, uri = write_config(tmp_path), f"sqlite:///{tmp_path / 'mlflow.db'}"
+    env = {k: v for k, v in os.environ.items() if k not in ("RAY_ADDRESS", "MLFLOW_TRACKING_URI")}
+    env.update(RAY_AUTH_MODE="disabled", PYTHONUNBUFFERED="1")
+    log = tmp_path / "run.log"
+    MlflowClient(uri).search_experiments()  # the store's tables, made before two processes use it
+    proc = subprocess.Popen([sys.executable, "-m", "pcpg_dist.cli", "run", str(cfg), "--workdir",
+                             str(tmp_path / "runs"), "--tracking-uri", uri, "--quiet"], cwd=tmp_path, env=env,
+                            stdout=subprocess.DEVNULL, stderr=log.open("w"), start_new_session=True)
+    end = time.monotonic() + 400
+
+    def parent_runs() -> list:
+        if not list((tmp_path / "runs" / "small" / "cache" / "data").glob("*/done.json")):
+            return []
+        client = MlflowClient(uri)
+        return client.search_runs([e.experiment_id for e in client.search_experiments()])
+
+    try:  # Ray runs, the data is cached and the MLflow parent exists: Step A is under way
+        while proc.poll() is None and time.monotonic() < end and not parent_runs():
+            time.sleep(0.2)
+    finally:
+        code = kill_tree(proc, signal.SIGTERM)
+    err = log.read_text().strip().splitlines()
+    assert code == 143, (code, err[-12:])
+    assert err == ["pcpg: interrupted (SIGTERM); rerun the same command to resume"], err[-12:]
+    runs = parent_runs()
+    assert [r.info.status for r in runs] == ["KILLED"]
