@@ -117,7 +117,7 @@ def _cmd_cluster(args: argparse.Namespace) -> None:
 
     from pcpg_dist.cache import write_files
     from pcpg_dist.config.overrides import load_config_with
-    from pcpg_dist.dataset import confined, load_datasets
+    from pcpg_dist.dataset import atomic_write_bytes, confined, load_datasets
     from pcpg_dist.generate import generate_to
     from pcpg_dist.progress import out as console  # results: stdout
     from pcpg_dist.ray_utils import init_ray, run_tasks
@@ -139,10 +139,12 @@ def _cmd_cluster(args: argparse.Namespace) -> None:
                         "Step A: clustering", num_cpus=cfg.runner.cpus_per_task, show_progress=not args.quiet)
     for env, res in zip(envs, results, strict=True):
         write_files(folders[env] / "model", res["model"])
-        (folders[env] / "labels.json").write_text(json.dumps(res["labels"]))
+        atomic_write_bytes(folders[env] / "labels.json", json.dumps(res["labels"]).encode())
         if res["margins"] is not None:  # nats to the next-best cluster (a likelihood clusterer)
-            (folders[env] / "margins.json").write_text(json.dumps(res["margins"]))
-        (folders[env] / "metrics.json").write_text(json.dumps(res["metrics"], indent=1))
+            atomic_write_bytes(folders[env] / "margins.json", json.dumps(res["margins"]).encode())
+        else:  # never an earlier clustering's margins beside these labels
+            (folders[env] / "margins.json").unlink(missing_ok=True)
+        atomic_write_bytes(folders[env] / "metrics.json", json.dumps(res["metrics"], indent=1).encode())
         shown = ", ".join(f"{k.split('/')[1]} {v:.3f}" for k, v in res["metrics"].items()
                           if k.split("/")[1] in ("ari", "nmi", "accuracy", "silhouette", "fit_seconds"))
         console.print(f"{env}: {shown}  model: {folders[env] / 'model'}")

@@ -35,7 +35,6 @@ from pcpg_dist.cache import Cache, content_key, files_of
 from pcpg_dist.config import ExperimentConfig
 from pcpg_dist.dataset import Dataset, atomic_write_bytes, confined, load_datasets
 from pcpg_dist.domains.base import Unit
-from pcpg_dist.errors import PcpgError
 from pcpg_dist.parallel import set_threads
 from pcpg_dist.ray_utils import run_tasks
 
@@ -223,7 +222,7 @@ def run_points(points: list[Point], cache_root: Path, tracking_uri: str | None =
         lock.acquire()
     try:
         return _run_points(points, Cache(cache_root), tracking_uri, track, show_progress, sweep_parent_id)
-    except PcpgError:
+    except BaseException:  # bad input, an OSError, Ctrl-C: whatever it was, leave no empty folders
         if created and not cache_root.exists():  # failed before anything was cached
             Path(lock.lock_file).unlink(missing_ok=True)
             for d in created:

@@ -201,3 +201,17 @@ def test_the_summary_says_which_stages_came_from_the_cache(tmp_path):
         "time per stage: cluster 14.2s, train 30.5s, evaluate 2.0s, summary 0.4s, tracking 0.2s; from the cache: generate"
     assert printed(stage_seconds=times, cached_stages=[]) == \
         "time per stage: generate 7.0s, cluster 14.2s, train 30.5s, evaluate 2.0s, summary 0.4s, tracking 0.2s"
+
+
+def test_a_failure_that_is_not_bad_input_leaves_no_empty_run_folder(ray_session, tiny_cfg, tmp_path, monkeypatch):
+    """Before anything is cached, any failure (here the disk, an OSError; was: only pcpg's own
+    errors) removes the folders and the lock file the run created."""
+    import pcpg_dist.runner as runner
+
+    def disk_full(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(runner, "load_or_generate", disk_full)
+    with pytest.raises(OSError, match="No space"):
+        run_experiment(tiny_cfg, workdir=tmp_path / "runs", track=False, show_progress=False)
+    assert not (tmp_path / "runs").exists()
