@@ -287,6 +287,22 @@ def export_onnx(ensembles: dict, out: Path) -> list[Path]:
     return written
 
 
+def check_agents_match_summary(folder: Path, ensembles: dict) -> None:
+    """A run's agents folder must hold agents for exactly the environments its summary reports
+    (``summary/<env>/metrics.json``): an export of a run whose agents for one environment were
+    deleted or moved would otherwise pass for the whole run."""
+    summary = folder.parent / "summary"
+    if folder.name != "agents" or not (summary / "run.json").is_file():
+        return  # not a run's output folder (an MLflow download carries its own env list)
+    envs = {d.name for d in summary.iterdir() if (d / "metrics.json").is_file()}
+    missing, extra = sorted(envs - set(ensembles)), sorted(set(ensembles) - envs)
+    if missing or extra:
+        said = "; ".join(x for x in (f"no agents for {', '.join(missing)}" if missing else "",
+                                     f"agents for {', '.join(extra)}, which it does not report" if extra else "") if x)
+        raise DataError(f"{folder}: does not match the run's summary ({summary}): {said}; rerun pcpg run "
+                        f"for this run to write its agents again")
+
+
 def cli_export_onnx(args: argparse.Namespace) -> None:
     """``pcpg export onnx RUN --out DIR``."""
     from pcpg_dist.run_folders import check_outside_run
@@ -296,6 +312,7 @@ def cli_export_onnx(args: argparse.Namespace) -> None:
         workdir = Path(args.workdir) if args.workdir else Path(tmp)
         folder = resolve_agents(args.run, args.tracking_uri, workdir)
         ensembles = load_agents_folder(folder)
+        check_agents_match_summary(folder, ensembles)
         for path in export_onnx(ensembles, Path(args.out)):
             extra = ""
             if path.suffix == ".onnx":

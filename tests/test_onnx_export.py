@@ -158,6 +158,28 @@ def test_cli_exports_a_run_folder(tmp_path, grid, many, capsys, rng):
         np.testing.assert_array_equal(got, e2.predict(states, valid, i))
 
 
+def test_a_run_whose_agents_do_not_match_its_summary_is_refused(tmp_path, grid, many, capsys):
+    """An environment's agents deleted from a run folder (or agents of one it does not report)
+    used to export the rest with exit 0, as if it were the whole run."""
+    import shutil
+
+    run, _, _ = _run_folder(tmp_path, grid, many)
+    (run / "summary").mkdir()
+    (run / "summary" / "run.json").write_text("{}")
+    for env in ("E1", "E2"):
+        (run / "summary" / env).mkdir()
+        (run / "summary" / env / "metrics.json").write_text("{}")
+    assert main(["export", "onnx", str(run), "--out", str(tmp_path / "ok")]) == 0
+    capsys.readouterr()
+    shutil.rmtree(run / "agents" / "E2")
+    assert main(["export", "onnx", str(run), "--out", str(tmp_path / "o1")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "no agents for E2" in err and "\n" not in err and not (tmp_path / "o1").exists()
+    shutil.copytree(run / "agents" / "E1", run / "agents" / "E9")
+    assert main(["export", "onnx", str(run), "--out", str(tmp_path / "o2")]) == 2
+    assert "agents for E9, which it does not report" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("target", ["missing", "empty"])
 def test_cli_bad_run_is_one_line_exit_2(tmp_path, target):
     (tmp_path / "empty").mkdir()
