@@ -350,14 +350,15 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
 
         from pcpg_dist.progress import progress_bar
 
-        # one bar for every point's environments (a bar per point repeated the same line)
+        # every local result first (summary, agents, report), so all of it is kept when the
+        # tracking server is down; then the MLflow runs, one bar for every point's environments
+        results = [_finish_point(p, cache, clusters, dict(times), computed) for p in points]
         unlogged = {id(p): [e for e in p.units if not p.tracker.env_logged(e, p.ekeys[e])]
                     if p.tracker is not None else [] for p in points}
         total = sum(len(v) for v in unlogged.values())
-        results = []
         with progress_bar("MLflow child runs", total=total, enabled=show_progress and bool(total)) as advance:
-            for p in points:
-                results.append(_finish_point(p, cache, clusters, dict(times), computed, unlogged[id(p)], advance))
+            for p, result in zip(points, results, strict=True):
+                _log_point(p, cache, clusters, result, unlogged[id(p)], advance)
         return results
     except BaseException:
         for p in points:
@@ -406,10 +407,9 @@ def _swap_in(out: Path, staging: Path, names: tuple[str, ...]) -> None:
         (staging / name).rename(out / name)
 
 
-def _finish_point(p: Point, cache: Cache, clusters: dict, times: dict[str, float], computed: dict[str, int],
-                  unlogged: list[str], advance: Callable[..., None]) -> RunResult:
-    """Across one point's environments: summary tables, figures, report, then its MLflow runs
-    (child runs for the ``unlogged`` environments, ``advance()`` after each)."""
+def _finish_point(p: Point, cache: Cache, clusters: dict, times: dict[str, float],
+                  computed: dict[str, int]) -> RunResult:
+    """Across one point's environments: summary tables, figures, agents and report (local only)."""
     from pcpg_dist.provenance import provenance
     from pcpg_dist.report import render
     from pcpg_dist.summary import write_summary
@@ -453,18 +453,25 @@ def _finish_point(p: Point, cache: Cache, clusters: dict, times: dict[str, float
     render(out / "summary", staging / "report")
     _swap_in(out, staging, ("report",))
     shutil.rmtree(staging)
-    agents = out / "agents"
     result.report = out / "report" / "report.html"
-    if p.tracker is not None:
-        # Last, so that every local result above is kept when the server is down; a rerun
-        # logs only the environments without a FINISHED child run, recomputing nothing.
-        from pcpg_dist.tracking import log_environment
-
-        t0 = time.perf_counter()
-        for e in unlogged:
-            log_environment(p.tracker.child_info(e, p.ekeys[e], cluster_metrics[e]), e, str(eval_dirs[e]),
-                            per_env[e], [str(m.with_suffix(".pt")) for m in models[e]])
-            advance()
-        p.tracker.finish(result, agents_dir=agents, report_dir=out / "report")
-        result.stage_seconds["tracking"] = time.perf_counter() - t0
     return result
+
+
+def _log_point(p: Point, cache: Cache, clusters: dict, result: RunResult, unlogged: list[str],
+               advance: Callable[..., None]) -> None:
+    """One point's MLflow runs, after every local result is written: child runs for the
+    ``unlogged`` environments (``advance()`` after each), then the parent. A rerun logs only the
+    environments without a FINISHED child run, recomputing nothing."""
+    if p.tracker is None:
+        return
+    from pcpg_dist.tracking import log_environment
+
+    t0 = time.perf_counter()
+    for e in unlogged:
+        models = [cache.path("train", k) / "cells" for ge, k, _ in p.groups if ge == e]
+        log_environment(p.tracker.child_info(e, p.ekeys[e], clusters[p.ckeys[e]]["metrics"]), e,
+                        str(cache.path("evaluate", p.ekeys[e])), cache.read_json("evaluate", p.ekeys[e], "metrics.json"),
+                        [str(m.with_suffix(".pt")) for m in models])
+        advance()
+    p.tracker.finish(result, agents_dir=p.out / "agents", report_dir=p.out / "report")
+    result.stage_seconds["tracking"] = time.perf_counter() - t0
