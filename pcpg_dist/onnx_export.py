@@ -40,13 +40,16 @@ def load_agents_folder(folder: Path) -> dict:
 
     Two layouts: a run's output (``<env>/groupNNN.pt|.json``, written by ``pcpg run``) and the
     MLflow ``agents`` model's artifacts (``<env>.npz|.json``, see :mod:`pcpg_dist.agent_model`).
-    Every file is checked (:func:`check_cells`) and every env name must be a plain name, since it
-    becomes a file name: a DataError naming the file otherwise.
+    Every file is checked (:func:`check_cells`), against the run's ``index.json`` where there is
+    one, and every env name must be a plain name, since it becomes a file name: a DataError
+    naming the file otherwise.
     """
     from pcpg_dist.bc import TrainedCells
     from pcpg_dist.dataset import confined
+    from pcpg_dist.run_folders import check_agents_index
 
     folder = Path(folder)
+    check_agents_index(folder)  # a run's agents: the files it wrote, each under its environment
     out = {}
     for env_dir in sorted(p for p in folder.iterdir() if p.is_dir()):
         groups = sorted(env_dir.glob("*.pt"))

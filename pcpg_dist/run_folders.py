@@ -8,9 +8,10 @@ next run, and in ``cache/`` it also invalidates the unit it lands in.
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
-from pcpg_dist.errors import ConfigError
+from pcpg_dist.errors import ConfigError, DataError
 
 REWRITTEN = ("cache", "summary", "agents")
 
@@ -36,3 +37,40 @@ def check_outside_run(path: Path, option: str = "--out") -> None:
         raise ConfigError(f"{option} {path}: inside {folder}, which the next `pcpg run` of {folder.parent} "
                           f"rewrites (deleting files it did not write); choose a place outside the run's "
                           f"{', '.join(f'{n}/' for n in REWRITTEN)}")
+
+
+# --------------------------------------------------------------------------- the agents' index
+AGENTS_INDEX = "index.json"  # RUN/agents/index.json: which files `pcpg run` wrote for which environment
+
+
+def write_agents_index(agents: Path) -> None:
+    """Record the SHA-256 of every file of ``agents/<env>/``, per environment, so a file moved,
+    swapped or deleted between environments is found (the cells carry no environment name)."""
+    from pcpg_dist.dataset import atomic_write_bytes, sha256_file
+
+    envs = {env.name: {f.name: sha256_file(f) for f in sorted(env.iterdir()) if f.is_file()}
+            for env in sorted(agents.iterdir()) if env.is_dir()}
+    atomic_write_bytes(agents / AGENTS_INDEX, json.dumps({"format": 1, "environments": envs}, indent=1).encode())
+
+
+def check_agents_index(agents: Path) -> None:
+    """An agents folder with an index holds exactly the files it lists, each with its hash (one
+    line naming the first that differs). A folder without one (written before the index) passes."""
+    from pcpg_dist.dataset import sha256_file
+    from pcpg_dist.report_data import read_json
+
+    path = agents / AGENTS_INDEX
+    if not path.exists():
+        return
+    envs = read_json(path).get("environments")
+    if not isinstance(envs, dict) or not all(isinstance(f, dict) for f in envs.values()):
+        raise DataError(f"{path}: 'environments' must map each environment to its files' SHA-256")
+    found = {env.name: {f.name for f in env.iterdir() if f.is_file()} for env in agents.iterdir() if env.is_dir()}
+    for env in sorted(set(envs) | set(found)):
+        for name in sorted(set(envs.get(env, {})) | found.get(env, set())):
+            file = agents / env / name
+            want = envs.get(env, {}).get(name)
+            if want is None or not file.is_file() or sha256_file(file) != want:
+                said = ("missing" if want is not None and not file.is_file() else
+                        "not listed in " + AGENTS_INDEX if want is None else "not the file the run wrote here (its SHA-256 differs)")
+                raise DataError(f"{file}: {said}; the agents folder is not as pcpg run left it (rerun pcpg run)")

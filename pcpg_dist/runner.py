@@ -170,12 +170,16 @@ def _nbytes(x: Any, depth: int = 0) -> int:
 
 
 def _collect_agents(target: Path, models: dict[str, list[Path]]) -> Path:
-    """``target/<env>/<group>.pt|.json`` (a new folder): every trained cell of the run, for the pyfunc model."""
+    """``target/<env>/<group>.pt|.json`` (a new folder): every trained cell of the run, for the pyfunc
+    model, and ``target/index.json``, the hash of each file per environment."""
+    from pcpg_dist.run_folders import write_agents_index
+
     for env, paths in models.items():
         (target / env).mkdir(parents=True)
         for i, p in enumerate(paths):
             for suffix in (".pt", ".json"):
                 shutil.copyfile(p.with_suffix(suffix), target / env / f"group{i:03d}{suffix}")
+    write_agents_index(target)
     return target
 
 

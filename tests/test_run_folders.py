@@ -187,3 +187,19 @@ def test_sigterm_is_one_line_exit_143_and_marks_the_mlflow_run_killed(ray_sessio
     assert err == ["pcpg: interrupted (SIGTERM); rerun the same command to resume"], err[-12:]
     runs = parent_runs()
     assert [r.info.status for r in runs] == ["KILLED"]
+
+
+@pytest.mark.slow
+def test_agents_swapped_between_environments_are_refused_by_export(small_run, tmp_path, capsys):
+    """E1's and E3's agents have the same sizes and carry no environment name: a group file copied
+    from one environment over the other's used to export as the other's, exit 0. The run's
+    agents/index.json (each file's SHA-256 per environment) finds it."""
+    run = copy_run(small_run, tmp_path)
+    assert (run / "agents" / "index.json").is_file()
+    assert main(["export", "onnx", str(run), "--out", str(tmp_path / "ok")]) == 0
+    capsys.readouterr()
+    shutil.copyfile(run / "agents" / "E1" / "group000.pt", run / "agents" / "E3" / "group000.pt")
+    assert main(["export", "onnx", str(run), "--out", str(tmp_path / "swapped")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "E3/group000.pt: not the file the run wrote here" in err and "\n" not in err
+    assert not (tmp_path / "swapped").exists()
