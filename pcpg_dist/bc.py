@@ -25,7 +25,7 @@ import torch
 
 from pcpg_dist.config.stages import BCConfig
 from pcpg_dist.domains.base import Policy
-from pcpg_dist.errors import ConfigError, DataError, TrainingError
+from pcpg_dist.errors import ConfigError, DataError, TrainingError, first_line
 from pcpg_dist.ranking import Cell, CellSpec, dedupe_rows
 
 _NEG = -1e9  # added to invalid actions' logits: exp underflows to exactly 0, gradients stay finite
@@ -160,7 +160,7 @@ class TrainedCells:
 
     @staticmethod
     def load(path: str | Path) -> TrainedCells:
-        from pcpg_dist.cluster_models import first_line, read_tensors
+        from pcpg_dist.cluster_models import read_tensors
 
         path = Path(path).with_suffix("")
         # torch's own text for a file it cannot read spans lines and advises weights_only=False

@@ -32,7 +32,7 @@ from pydantic import ValidationError
 from torch import nn
 from torch.nn.utils.rnn import PackedSequence
 
-from pcpg_dist.errors import DataError
+from pcpg_dist.errors import DataError, first_line
 
 FORMAT_VERSION = 1
 CONFIG_FILE = "cluster_model.json"
@@ -464,14 +464,6 @@ TORCH_UNREADABLE = "not a pcpg model file (torch could not read its tensors)"
 #: dtypes a saved tensor may have: real floats for values, integers for keys
 _FLOATS, _INTS = (torch.float32, torch.float64), (torch.int64, torch.int32)
 MAX_K = 1000  # as ClusterConfig.k and tuning.k_range allow
-
-
-def first_line(error: BaseException, limit: int = 200) -> str:
-    """The first line of an exception's text, control characters escaped, cut to ``limit``."""
-    lines = str(error).strip().splitlines()
-    text = "".join(c if c.isprintable() else repr(c)[1:-1] for c in (lines[0] if lines else "")[:limit])
-    text = text if len(text) <= limit else text[:limit] + "..."
-    return text or type(error).__name__
 
 
 def read_tensors(path: Path, what: str = "") -> dict[str, torch.Tensor]:

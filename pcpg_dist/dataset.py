@@ -32,7 +32,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from pcpg_dist.errors import DataError
+from pcpg_dist.errors import DataError, first_line
 
 SCHEMA_VERSION = 2  # 2: `valid` is a list of booleans (was an int64 bitmask, capped at 63 actions)
 MANIFEST = "manifest.json"
@@ -461,7 +461,7 @@ def check_parquet_memory(files: Sequence[Path], source: str) -> None:
         try:
             meta = pq.read_metadata(f)
         except (pa.ArrowException, OSError) as e:
-            raise DataError(f"{f}: not a readable Parquet file ({_first_line(e)})") from None
+            raise DataError(f"{f}: not a readable Parquet file ({first_line(e)})") from None
         raw = sum(meta.row_group(i).total_byte_size for i in range(meta.num_row_groups))
         need += max(raw, meta.num_rows * max(meta.num_columns, 1) * 8) * DECODE_COPIES
         rows += meta.num_rows
@@ -469,12 +469,6 @@ def check_parquet_memory(files: Sequence[Path], source: str) -> None:
         raise DataError(f"{source}: {rows} rows need about {gib(need)} of memory to load, more than half of "
                         f"this machine's {gib(machine_memory())}; split the data into smaller files or "
                         f"environments, or use a machine with more memory")
-
-
-def _first_line(error: BaseException) -> str:
-    """Arrow's text on one line: its first line, control bytes (thrift's) escaped, 200 characters."""
-    lines = str(error).strip().splitlines() or [type(error).__name__]
-    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in lines[0][:200])
 
 
 def read_parquet(path: Path, expected_sha256: str | None = None) -> Dataset:
@@ -487,7 +481,7 @@ def read_parquet(path: Path, expected_sha256: str | None = None) -> Dataset:
     try:
         table = pq.read_table(path)
     except (pa.ArrowException, OSError) as e:
-        raise DataError(f"{path}: not a readable Parquet file ({_first_line(e)})") from None
+        raise DataError(f"{path}: not a readable Parquet file ({first_line(e)})") from None
     return Dataset.from_table(table, source=str(path))
 
 

@@ -7,6 +7,14 @@ raw traceback always means a bug in pcpg-dist, never a mistake in the user's inp
 from __future__ import annotations
 
 
+def first_line(error: BaseException, limit: int = 200) -> str:
+    """An exception's text for a one-line message: its first line, control characters escaped
+    (thrift's raw bytes in Arrow's errors), cut to ``limit``; the type's name if it has no text."""
+    lines = str(error).strip().splitlines()
+    text = "".join(c if c.isprintable() else repr(c)[1:-1] for c in (lines[0] if lines else "")[:limit])
+    return text or type(error).__name__
+
+
 class PcpgError(Exception):
     """Base of every error caused by user input (config, data, level files, services)."""
 

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pcpg_dist.errors import DataError, ServiceError
+from pcpg_dist.errors import DataError, ServiceError, first_line
 
 OPSET = 13  # Gather, MatMul, Where, ArgMax(select_last_index): all there; old enough for most runtimes
 IR_VERSION = 7  # the IR of opset 13, so older runtimes read the file too
@@ -170,8 +170,7 @@ def resolve_agents(target: str, tracking_uri: str | None, workdir: Path) -> Path
         got = mlflow.artifacts.download_artifacts(artifact_uri=f"runs:/{run_id}/agents",
                                                   dst_path=str(local), tracking_uri=uri)
     except (MlflowException, OSError) as e:
-        first = (str(e).strip().splitlines() or [type(e).__name__])[0][:200]
-        raise ServiceError(f"run {run_id} at {uri} has no agents model ({first})") from None
+        raise ServiceError(f"run {run_id} at {uri} has no agents model ({first_line(e)})") from None
     folder = Path(got) / "artifacts" / "agents"
     if not folder.is_dir():
         raise DataError(f"run {run_id}: the agents model has no artifacts/agents folder")

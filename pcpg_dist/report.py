@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from pcpg_dist.dataset import atomic_write_bytes
-from pcpg_dist.errors import ConfigError
+from pcpg_dist.errors import ConfigError, first_line
 from pcpg_dist.paper_comparison import (  # noqa: F401 - paper_numbers/PROTOCOL re-exported
     PAPER_DOMAINS,
     PROTOCOL,
@@ -346,7 +346,7 @@ def _download(run_id: str, artifact_path: str | None, dst: Path, uri: str) -> st
         return mlflow.artifacts.download_artifacts(run_id=run_id, artifact_path=artifact_path, dst_path=str(dst),
                                                    tracking_uri=uri)
     except (MlflowException, OSError) as e:
-        first = (str(e).strip().splitlines() or [type(e).__name__])[0][:200]
+        first = first_line(e)
         what = f"no {artifact_path!r} artifacts" if artifact_path else "no artifacts"
         raise ServiceError(f"MLflow run {run_id} at {uri} has {what} to report ({first}); is it a pcpg run "
                            "that finished?") from None

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pcpg_dist
-from pcpg_dist.errors import DataError, ServiceError
+from pcpg_dist.errors import DataError, ServiceError, first_line
 from pcpg_dist.provenance import git_commit, uv_lock_hash
 
 # Progress bars of artifact transfers would interleave with ours in the terminal, and the fluent
@@ -178,7 +178,7 @@ def prepare_store(uri: str) -> None:
 
 def _repair_sqlite_store(uri: str, db: Path, error: Exception) -> None:
     stamp = time.strftime("%Y%m%d-%H%M%S")
-    reason = (str(error).strip().splitlines() or [type(error).__name__])[0][:200]
+    reason = first_line(error)
     runs = _count_runs(db)
     _forget_engine(uri)
     if runs == 0:
@@ -204,7 +204,7 @@ def _repair_sqlite_store(uri: str, db: Path, error: Exception) -> None:
         log.warning("the MLflow store %s had an unfinished schema migration (%s); finished it (copy kept "
                     "at %s)", db, reason, backup.name)
     except Exception as e:  # noqa: BLE001 - whatever the migration raised, one line
-        again = (str(e).strip().splitlines() or [type(e).__name__])[0][:200]
+        again = first_line(e)
         raise ServiceError(f"the MLflow store {db} ({runs} runs) is damaged and could not be migrated ({again}); "
                            f"a copy is at {backup}: move {db.name} away to start a fresh store") from None
 
@@ -333,7 +333,7 @@ def _retry(fn, *args, attempts: int = 5, **kwargs):
                 raise
             if i == attempts - 1:
                 uri = getattr(getattr(fn, "__self__", None), "tracking_uri", "(unknown URI)")
-                first = (str(e).strip().splitlines() or [type(e).__name__])[0][:300]
+                first = first_line(e, 300)
                 raise ServiceError(f"MLflow tracking server {uri} failed ({first}); local results are kept: "
                                    f"rerun the same command once it is reachable to log them") from None
             time.sleep(min(2 ** i, 10))

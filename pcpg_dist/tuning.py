@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from pcpg_dist.config.stages import MAX_COUNT, PARAMS, TARGETS, TuneConfig  # noqa: F401 - re-exported
-from pcpg_dist.errors import ConfigError, DataError, ServiceError
+from pcpg_dist.errors import ConfigError, DataError, ServiceError, first_line
 
 if TYPE_CHECKING:
     from pcpg_dist.config import ExperimentConfig
@@ -241,7 +241,7 @@ def open_storage(url: str | None, tune: TuneConfig) -> Storage:
                          heartbeat_stale_trial_callback=RetryHeartbeatStaleTrialCallback(max_retry=tune.max_retry))
     except Exception as e:  # noqa: BLE001 - sqlalchemy/driver errors of many kinds
         shown = Storage(url, None, True).shown
-        raise ServiceError(f"cannot open the Optuna storage {shown}: {str(e).splitlines()[0]}") from None
+        raise ServiceError(f"cannot open the Optuna storage {shown}: {first_line(e)}") from None
     return Storage(url, rdb, heartbeat=True)
 
 

@@ -24,12 +24,12 @@ def minari_fingerprint(dataset_id: str) -> list[list]:
     import minari
 
     from pcpg_dist.dataset import sha256_file
-    from pcpg_dist.errors import DataError
+    from pcpg_dist.errors import DataError, first_line
 
     try:
         root = Path(minari.storage.get_dataset_path(dataset_id))
     except Exception as e:  # noqa: BLE001 - minari raises several kinds for a bad id
-        raise DataError(f"minari:{dataset_id}: {str(e).splitlines()[0][:200]}") from None
+        raise DataError(f"minari:{dataset_id}: {first_line(e)}") from None
     files = sorted(p for p in root.rglob("*") if p.is_file())
     return [[str(p.relative_to(root)), p.stat().st_size, sha256_file(p)] for p in files]
 

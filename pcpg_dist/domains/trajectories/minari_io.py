@@ -32,7 +32,7 @@ import pyarrow as pa
 
 from pcpg_dist.config.domains import MINARI_ID, minari_id_problem
 from pcpg_dist.dataset import MANIFEST, Dataset, load_datasets
-from pcpg_dist.errors import DataError
+from pcpg_dist.errors import DataError, first_line
 
 ENV_VAR = "MINARI_DATASETS_PATH"
 STYLE_KEY = "style"
@@ -151,8 +151,7 @@ def _load(dataset_id: str) -> Any:
     try:
         return minari.load_dataset(dataset_id, download=False)
     except (ValueError, KeyError, TypeError, OSError, ImportError, pa.ArrowException) as e:
-        first = str(e).splitlines()[0][:200] if str(e) else type(e).__name__
-        raise DataError(f"minari:{dataset_id}: not a readable Minari dataset at {path} ({first})") from None
+        raise DataError(f"minari:{dataset_id}: not a readable Minari dataset at {path} ({first_line(e)})") from None
 
 
 def _episodes(dataset: Any, dataset_id: str) -> Iterator[Any]:

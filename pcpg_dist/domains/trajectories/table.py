@@ -28,7 +28,7 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from pcpg_dist.dataset import MAX_ACTIONS, MAX_STYLES, Dataset, bool_lists, check_parquet_memory
-from pcpg_dist.errors import DataError
+from pcpg_dist.errors import DataError, first_line
 
 DOMAIN = "trajectories"
 REQUIRED = ("trajectory", "t", "action")
@@ -102,7 +102,7 @@ def parquet_files(path: Path) -> list[Path]:
 
 
 def _unreadable(f: Path, e: Exception) -> DataError:
-    return DataError(f"{f}: not a readable Parquet file ({str(e).splitlines()[0][:200]})")
+    return DataError(f"{f}: not a readable Parquet file ({first_line(e)})")
 
 
 def _check_same_columns(first: Path, schema: pa.Schema, f: Path, other: pa.Schema) -> None:
@@ -145,7 +145,7 @@ def read_step_table(path: str | Path) -> StepTable:
     try:
         table = pa.concat_tables(tables, promote_options="permissive") if len(tables) > 1 else tables[0]
     except pa.ArrowException as e:
-        raise DataError(f"{path}: the Parquet files' columns do not agree ({str(e).splitlines()[0][:200]})") from None
+        raise DataError(f"{path}: the Parquet files' columns do not agree ({first_line(e)})") from None
     parts = tuple((str(f), t.num_rows) for f, t in zip(files, tables, strict=True)) if len(files) > 1 else ()
     return StepTable(table, str(path), safe_env_name(path.stem if path.is_file() else path.name), parts)
 
