@@ -40,16 +40,16 @@ def load_agents_folder(folder: Path) -> dict:
 
     Two layouts: a run's output (``<env>/groupNNN.pt|.json``, written by ``pcpg run``) and the
     MLflow ``agents`` model's artifacts (``<env>.npz|.json``, see :mod:`pcpg_dist.agent_model`).
-    Every file is checked (:func:`check_cells`), against the run's ``index.json`` where there is
-    one, and every env name must be a plain name, since it becomes a file name: a DataError
+    Every file is checked (:func:`check_cells`), a run's against its ``index.json`` and summary
+    (:func:`~pcpg_dist.run_folders.check_run_agents`), and every env name must be a plain name, since it becomes a file name: a DataError
     naming the file otherwise.
     """
     from pcpg_dist.bc import TrainedCells
     from pcpg_dist.dataset import confined
-    from pcpg_dist.run_folders import check_agents_index
+    from pcpg_dist.run_folders import check_run_agents
 
     folder = Path(folder)
-    check_agents_index(folder)  # a run's agents: the files it wrote, each under its environment
+    check_run_agents(folder)  # a run's agents: the files it wrote, for the environments it reports
     out = {}
     for env_dir in sorted(p for p in folder.iterdir() if p.is_dir()):
         groups = sorted(env_dir.glob("*.pt"))
@@ -289,22 +289,6 @@ def export_onnx(ensembles: dict, out: Path) -> list[Path]:
     return written
 
 
-def check_agents_match_summary(folder: Path, ensembles: dict) -> None:
-    """A run's agents folder must hold agents for exactly the environments its summary reports
-    (``summary/<env>/metrics.json``): an export of a run whose agents for one environment were
-    deleted or moved would otherwise pass for the whole run."""
-    summary = folder.parent / "summary"
-    if folder.name != "agents" or not (summary / "run.json").is_file():
-        return  # not a run's output folder (an MLflow download carries its own env list)
-    envs = {d.name for d in summary.iterdir() if (d / "metrics.json").is_file()}
-    missing, extra = sorted(envs - set(ensembles)), sorted(set(ensembles) - envs)
-    if missing or extra:
-        said = "; ".join(x for x in (f"no agents for {', '.join(missing)}" if missing else "",
-                                     f"agents for {', '.join(extra)}, which it does not report" if extra else "") if x)
-        raise DataError(f"{folder}: does not match the run's summary ({summary}): {said}; rerun pcpg run "
-                        f"for this run to write its agents again")
-
-
 def cli_export_onnx(args: argparse.Namespace) -> None:
     """``pcpg export onnx RUN --out DIR``."""
     from pcpg_dist.run_folders import check_outside_run
@@ -314,7 +298,6 @@ def cli_export_onnx(args: argparse.Namespace) -> None:
         workdir = Path(args.workdir) if args.workdir else Path(tmp)
         folder = resolve_agents(args.run, args.tracking_uri, workdir)
         ensembles = load_agents_folder(folder)
-        check_agents_match_summary(folder, ensembles)
         for path in export_onnx(ensembles, Path(args.out)):
             extra = ""
             if path.suffix == ".onnx":

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from pcpg_dist.config.stages import RankConfig
 from pcpg_dist.report_data import PaperRow, fmt, inside, read_csv
 
 #: domains the paper has results for (others get no paper column and a banner saying so)
@@ -33,8 +34,8 @@ PROTOCOL: tuple[tuple[str, object, tuple[str, ...] | None], ...] = (
     ("pbtg.dataset_per_style", 1000, ("gridworld",)),
 )
 
-#: what a protocol setting added after runs were logged means when a recorded config lacks it
-ABSENT_MEANS = {"ranking.style_margin": 0.0}
+#: a protocol setting added after runs were logged: a recorded config without it ran with its default
+ABSENT_MEANS = {"ranking.style_margin": RankConfig.model_fields["style_margin"].default}
 
 # ----------------------------------------------------------------------------- content
 def paper_numbers(domain: str | None) -> dict[str, str]:

@@ -53,9 +53,26 @@ def write_agents_index(agents: Path) -> None:
     atomic_write_bytes(agents / AGENTS_INDEX, json.dumps({"format": 1, "environments": envs}, indent=1).encode())
 
 
-def check_agents_index(agents: Path) -> None:
-    """An agents folder with an index holds exactly the files it lists, each with its hash (one
-    line naming the first that differs). A folder without one (written before the index) passes."""
+def check_run_agents(agents: Path) -> None:
+    """A run's agents folder holds exactly what the run wrote (one line naming the first file or
+    environment that differs): the files its ``index.json`` lists, each with its hash (a folder
+    written before the index has none to check), for exactly the environments its summary reports
+    (``summary/<env>/metrics.json``). Any other agents folder (an MLflow download) passes."""
+    _check_agents_index(agents)
+    summary = agents.parent / "summary"
+    if agents.name != "agents" or not (summary / "run.json").is_file():
+        return
+    envs = {d.name for d in summary.iterdir() if (d / "metrics.json").is_file()}
+    found = {d.name for d in agents.iterdir() if d.is_dir() and any(d.glob("*.pt"))}
+    missing, extra = sorted(envs - found), sorted(found - envs)
+    if missing or extra:
+        said = "; ".join(x for x in (f"no agents for {', '.join(missing)}" if missing else "",
+                                     f"agents for {', '.join(extra)}, which it does not report" if extra else "") if x)
+        raise DataError(f"{agents}: does not match the run's summary ({summary}): {said}; rerun pcpg run "
+                        f"for this run to write its agents again")
+
+
+def _check_agents_index(agents: Path) -> None:
     from pcpg_dist.dataset import sha256_file
     from pcpg_dist.report_data import read_json
 

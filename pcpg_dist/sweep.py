@@ -89,7 +89,7 @@ def point_slug(axes: dict[str, Any], fixed: dict[str, Any] | None = None, config
     """A stable folder name for a point: its axis values, readable and made safe, plus a short hash
     of everything that sets its config apart (axes, fixed overrides, the config's own hash)."""
     text = "_".join(f"{k}={json.dumps(v) if isinstance(v, list | dict) else v}" for k, v in axes.items())
-    identity = [axes, fixed or {}, config_hash] if fixed or config_hash else axes
+    identity = [axes, fixed or {}, config_hash]
     digest = hashlib.sha256(json.dumps(identity, sort_keys=True, default=str).encode()).hexdigest()[:8]
     safe = re.sub(r"[^A-Za-z0-9._=-]+", "-", text)[:80].strip("-.") or "point"
     return f"{safe}-{digest}"
