@@ -50,7 +50,7 @@ def datasets(cache: Path, heldout: int, heldout_seed: int, groups: tuple[str, ..
     """(group, name, Dataset) for E1-E5 and the held-out layouts, generated once and cached."""
     layouts = []
     if "paper" in groups:
-        layouts += [("paper", gw.load_layout(ROOT / "experiments" / "gridworlds" / f"E{i}.txt")) for i in range(1, 6)]
+        layouts += [("paper", gw.load_layout(ROOT / "pcpg_dist" / "data" / "gridworld" / f"E{i}.txt")) for i in range(1, 6)]
     if "heldout" in groups:
         layouts += [("heldout", lt) for lt in gw.random_layouts(heldout, heldout_seed)]
     for group, lt in layouts:

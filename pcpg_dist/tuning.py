@@ -495,9 +495,10 @@ def _tell(study: Any, trial: Any, ref: Any) -> None:
 def best_config_data(cfg: ExperimentConfig, params: dict[str, int], where: Path) -> dict[str, Any]:
     """The config with the best parameters, as YAML data for a file in folder ``where``.
 
-    Named ``<name>_tuned`` (its own MLflow experiment and output folder), without the ``tuning``
-    section, and with every file or folder the config names (layouts, logs) relative to ``where``,
-    so the file can move with its tree.
+    Only what the study's config set, plus the tuned values: defaults stay defaults, so the file
+    reads like the one the user wrote. Same name, so ``pcpg run`` of it works in the study's run
+    folder and reuses the data the study cached there. No ``tuning`` section; every file or folder
+    the config names (layouts, logs) relative to ``where``, so the file can move with its tree.
     """
     import os
 
@@ -508,10 +509,14 @@ def best_config_data(cfg: ExperimentConfig, params: dict[str, int], where: Path)
             return os.path.relpath(value, where.resolve())
         return value
 
-    data = apply_params(cfg, params).model_dump(mode="json", exclude={"tuning"})
-    data = {k: portable(v) if isinstance(v, dict) else v for k, v in data.items()}
-    data["name"] = f"{cfg.name}_tuned"
-    return data
+    tuned = apply_params(cfg, params)
+    data = cfg.model_dump(mode="json", exclude={"tuning"}, exclude_unset=True)
+    for name in params:
+        section, key = TARGETS[name]
+        data.setdefault(section, {})[key] = getattr(getattr(tuned, section), key)
+    if tuned.evaluation.corruption_levels != cfg.evaluation.corruption_levels:  # k = 1: see apply_params
+        data.setdefault("evaluation", {})["corruption_levels"] = list(tuned.evaluation.corruption_levels)
+    return {k: portable(v) if isinstance(v, dict) else v for k, v in data.items()}
 
 
 def write_outputs(cfg: ExperimentConfig, study: Any, best_params: dict[str, int], out: Path) -> Path:
@@ -524,7 +529,8 @@ def write_outputs(cfg: ExperimentConfig, study: Any, best_params: dict[str, int]
     out.mkdir(parents=True, exist_ok=True)
     path = out / "best_config.yaml"
     header = (f"# Best parameters of Optuna study {study.study_name!r} ({', '.join(f'{k}={v}' for k, v in best_params.items())}),\n"
-              f"# score {study.best_value:.4f}. Run it with: pcpg run {path.name}\n")
+              f"# score {study.best_value:.4f}: the study's config with only these changed. `pcpg run` it with\n"
+              f"# the study's --workdir to reuse the data the study cached under the same name.\n")
     data = best_config_data(cfg, best_params, out)
     atomic_write_bytes(path, (header + yaml.safe_dump(data, sort_keys=False)).encode())
     load_config(path)  # what `pcpg run` will do: fail here, not later, if it is not loadable

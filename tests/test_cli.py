@@ -26,7 +26,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 def tiny_config(tmp_path: Path) -> Path:
     data = {"name": "tiny", "seed": 3, "seeds": [0],
-            "gridworld": {"layout_dir": str(ROOT / "experiments" / "gridworlds"), "environments": ["E1", "E3"]},
+            "gridworld": {"layout_dir": str(ROOT / "pcpg_dist" / "data" / "gridworld"), "environments": ["E1", "E3"]},
             "pbtg": {"episodes": 3000, "trajectories_per_style": 200, "dataset_per_style": 50}}
     path = tmp_path / "tiny.yaml"
     path.write_text(yaml.safe_dump(data))
@@ -170,7 +170,7 @@ def test_a_ray_address_where_nothing_answers_is_one_line_at_once(tmp_path):
 
 @pytest.mark.slow
 def test_cluster_command_writes_labels_and_margins_per_environment(ray_session, tmp_path):
-    cfg = {"name": "c", "seed": 0, "gridworld": {"layout_dir": str(ROOT / "experiments" / "gridworlds"),
+    cfg = {"name": "c", "seed": 0, "gridworld": {"layout_dir": str(ROOT / "pcpg_dist" / "data" / "gridworld"),
                                                  "environments": ["E1"]},
            "pbtg": {"episodes": 3000, "trajectories_per_style": 60, "dataset_per_style": 40}}
     (tmp_path / "c.yaml").write_text(yaml.safe_dump(cfg))

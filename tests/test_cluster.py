@@ -97,7 +97,7 @@ def cluster(tmp_path_factory):
     drv = tmp_path_factory.mktemp("driver")
     (drv / "layouts").mkdir()
     for env in ("E1", "E2"):
-        shutil.copyfile(ROOT / "experiments" / "gridworlds" / f"{env}.txt", drv / "layouts" / f"{env}.txt")
+        shutil.copyfile(ROOT / "pcpg_dist" / "data" / "gridworld" / f"{env}.txt", drv / "layouts" / f"{env}.txt")
     (drv / "tiny.yaml").write_text(yaml.safe_dump(TINY))
     port, dash = free_port(), free_port()
     # Each node's agent on its own free port: both nodes share this machine, and Ray's fixed default

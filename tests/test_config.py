@@ -8,6 +8,7 @@ import pytest
 import yaml
 
 from pcpg_dist.config import load_config, parse_config
+from pcpg_dist.config.domains import PAPER_LAYOUTS
 from pcpg_dist.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -17,13 +18,13 @@ EXPERIMENTS = ROOT / "experiments"
 def write(tmp_path: Path, data: dict) -> Path:
     (tmp_path / "gridworlds").mkdir(exist_ok=True)
     for env in ("E1", "E2"):
-        (tmp_path / "gridworlds" / f"{env}.txt").write_text((EXPERIMENTS / "gridworlds" / f"{env}.txt").read_text())
+        (tmp_path / "gridworlds" / f"{env}.txt").write_text((PAPER_LAYOUTS / f"{env}.txt").read_text())
     path = tmp_path / "exp.yaml"
     path.write_text(yaml.safe_dump(data))
     return path
 
 
-BASE = {"name": "t", "gridworld": {"environments": ["E1", "E2"]}}
+BASE = {"name": "t", "gridworld": {"layout_dir": "gridworlds", "environments": ["E1", "E2"]}}
 
 
 @pytest.mark.parametrize("name", sorted(p.name for p in EXPERIMENTS.glob("*.yaml")))
@@ -38,6 +39,21 @@ def test_layout_dir_is_relative_to_the_config_file(tmp_path):
     cfg = load_config(write(tmp_path, BASE))
     assert cfg.gridworld.layout_path("E1") == (tmp_path / "gridworlds" / "E1.txt").resolve()
     assert cfg.hash() == load_config(write(tmp_path, BASE)).hash()
+
+
+def test_a_config_anywhere_runs_the_paper_layouts_without_naming_a_folder(tmp_path, monkeypatch):
+    """The default layout_dir is the shipped E1-E5, whatever the config's or the shell's folder."""
+    elsewhere = tmp_path / "a" / "b"
+    elsewhere.mkdir(parents=True)
+    monkeypatch.chdir(tmp_path)
+    path = elsewhere / "mine.yaml"
+    path.write_text(yaml.safe_dump({"name": "mine", "gridworld": {"environments": ["E1", "E5"]}}))
+    cfg = load_config(path)
+    assert cfg.gridworld.layout_dir == PAPER_LAYOUTS
+    assert cfg.gridworld.layout_text("E5") == (PAPER_LAYOUTS / "E5.txt").read_text()
+    path.write_text(yaml.safe_dump({"name": "m", "gridworld": {"environments": ["E9"]}}))
+    with pytest.raises(ConfigError, match="E9"):
+        load_config(path)
 
 
 @pytest.mark.parametrize("patch, needle", [

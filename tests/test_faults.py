@@ -35,7 +35,7 @@ ROOT = Path(__file__).resolve().parent.parent
 NAME = "faults"
 FAULTS = {
     "name": NAME, "seed": 3, "seeds": [0],
-    "gridworld": {"layout_dir": str(ROOT / "experiments" / "gridworlds"), "environments": ["E1"]},
+    "gridworld": {"layout_dir": str(ROOT / "pcpg_dist" / "data" / "gridworld"), "environments": ["E1"]},
     "pbtg": {"episodes": 20000, "trajectories_per_style": 100, "dataset_per_style": 50},
     "clustering": {"k": 4, "pretrain_epochs": 4, "dec_epochs": 2},
     "ranking": {"ps": [1.0, 0.5]},

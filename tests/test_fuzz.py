@@ -247,7 +247,7 @@ def build_corpus(tmp: Path) -> list[Case]:
     rng = random.Random(SEED)
     base_dir = tmp / "base"
     (base_dir / "layouts").mkdir(parents=True)
-    layout = (ROOT / "experiments" / "gridworlds" / "E1.txt").read_bytes()
+    layout = (ROOT / "pcpg_dist" / "data" / "gridworld" / "E1.txt").read_bytes()
     (base_dir / "layouts" / "E1.txt").write_bytes(layout)
     pq.write_table(step_table(rng), base_dir / "steps.parquet")
     (base_dir / "play.log").write_text(mario_log())

@@ -67,7 +67,7 @@ def e4():
     from pcpg_dist.domains.gridworld import load_layout
     from pcpg_dist.pbtg import assemble_dataset, generate_pair
 
-    layout = load_layout(Path(__file__).resolve().parents[1] / "experiments" / "gridworlds" / "E4.txt")
+    layout = load_layout(Path(__file__).resolve().parents[1] / "pcpg_dist" / "data" / "gridworld" / "E4.txt")
     return assemble_dataset([generate_pair(layout, r, PBTGConfig(), 0) for r in range(4)])
 
 

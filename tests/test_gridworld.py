@@ -13,7 +13,7 @@ from pcpg_dist.domains.base import random_policy
 from pcpg_dist.domains.gridworld_env import GridWorldEnv
 from pcpg_dist.errors import LayoutError
 
-LAYOUTS = Path(__file__).resolve().parent.parent / "experiments" / "gridworlds"
+LAYOUTS = Path(__file__).resolve().parent.parent / "pcpg_dist" / "data" / "gridworld"
 ENVS = ["E1", "E2", "E3", "E4", "E5"]
 
 

@@ -16,7 +16,7 @@ from pcpg_dist.pbtg import (
     sample_trajectories,
 )
 
-LAYOUTS = Path(__file__).resolve().parent.parent / "experiments" / "gridworlds"
+LAYOUTS = Path(__file__).resolve().parent.parent / "pcpg_dist" / "data" / "gridworld"
 
 
 @pytest.mark.parametrize("env", ["E1", "E2", "E3", "E4", "E5"])

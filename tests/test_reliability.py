@@ -58,7 +58,7 @@ def test_random_layouts_fail_only_with_layout_error(rows):
     ({"bc": {"epochs": -1}}, "bc.epochs"),
 ])
 def test_issue_listed_bad_values_exit_2_and_start_nothing(tmp_path, capsys, patch, needle):
-    cfg = {"name": "bad", "gridworld": {"layout_dir": str(ROOT / "experiments" / "gridworlds")}, **patch}
+    cfg = {"name": "bad", "gridworld": {"layout_dir": str(ROOT / "pcpg_dist" / "data" / "gridworld")}, **patch}
     path = tmp_path / "bad.yaml"
     path.write_text(yaml.safe_dump(cfg))
     assert main(["run", str(path), "--workdir", str(tmp_path / "runs"), "--no-tracking"]) == 2
@@ -112,7 +112,7 @@ def test_unwritable_output_is_a_clear_error(tmp_path, capsys):
     blocker = tmp_path / "not-a-folder"
     blocker.write_text("x")
     cfg = tmp_path / "c.yaml"
-    cfg.write_text(yaml.safe_dump({"name": "w", "gridworld": {"layout_dir": str(ROOT / "experiments" / "gridworlds"),
+    cfg.write_text(yaml.safe_dump({"name": "w", "gridworld": {"layout_dir": str(ROOT / "pcpg_dist" / "data" / "gridworld"),
                                                              "environments": ["E1"]},
                                    "pbtg": {"episodes": 10, "trajectories_per_style": 5, "dataset_per_style": 5}}))
     code = main(["generate", str(cfg), "--out", str(blocker / "data"), "--quiet"])

@@ -25,7 +25,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 SMALL = {
     "name": "small", "seed": 0, "seeds": [0],
-    "gridworld": {"layout_dir": str(ROOT / "experiments" / "gridworlds"), "environments": ["E1", "E3"]},
+    "gridworld": {"layout_dir": str(ROOT / "pcpg_dist" / "data" / "gridworld"), "environments": ["E1", "E3"]},
     "pbtg": {"episodes": 2000, "trajectories_per_style": 100, "dataset_per_style": 50},
     "clustering": {"k": 4, "pretrain_epochs": 2, "dec_epochs": 1},
     "ranking": {"ps": [1.0, 0.5]},

@@ -16,7 +16,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 E3 = {
     "name": "e3", "seed": 0, "seeds": [0, 1],
-    "gridworld": {"layout_dir": str(ROOT / "experiments" / "gridworlds"), "environments": ["E3"]},
+    "gridworld": {"layout_dir": str(ROOT / "pcpg_dist" / "data" / "gridworld"), "environments": ["E3"]},
     "pbtg": {"episodes": 20000, "trajectories_per_style": 1000, "dataset_per_style": 250},
     "clustering": {"k": 4},
     "ranking": {"ps": [1.0, 0.1]},

@@ -31,7 +31,7 @@ QUICK = ROOT / "experiments" / "quick.yaml"
 
 TINY = {
     "name": "sweeptiny", "seed": 1, "seeds": [0, 1],
-    "gridworld": {"layout_dir": str(ROOT / "experiments" / "gridworlds"), "environments": ["E1"]},
+    "gridworld": {"layout_dir": str(ROOT / "pcpg_dist" / "data" / "gridworld"), "environments": ["E1"]},
     "pbtg": {"episodes": 20000, "trajectories_per_style": 120, "dataset_per_style": 60},
     "clustering": {"k": 4, "method": "lstm_dec", "pretrain_epochs": 4, "dec_epochs": 2},
     "ranking": {"ps": [1.0, 0.5]},

@@ -33,7 +33,7 @@ pytestmark = [pytest.mark.slow, pytest.mark.services]
 
 TEAM = {
     "name": "team_tiny", "seed": 1, "seeds": [0, 1],
-    "gridworld": {"layout_dir": str(ROOT / "experiments" / "gridworlds"), "environments": ["E1", "E3"]},
+    "gridworld": {"layout_dir": str(ROOT / "pcpg_dist" / "data" / "gridworld"), "environments": ["E1", "E3"]},
     "pbtg": {"episodes": 20000, "trajectories_per_style": 200, "dataset_per_style": 100},
     "clustering": {"k": 4, "pretrain_epochs": 6, "dec_epochs": 3},
     "ranking": {"ps": [1.0, 0.5]},

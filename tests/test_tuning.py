@@ -34,7 +34,7 @@ POSTGRES = "postgresql://postgres@127.0.0.1:5432/test"  # local server, trust au
 
 TINY = {
     "name": "tinytune", "seed": 3, "seeds": [0],
-    "gridworld": {"layout_dir": str(ROOT / "experiments" / "gridworlds"), "environments": ["E1"]},
+    "gridworld": {"layout_dir": str(ROOT / "pcpg_dist" / "data" / "gridworld"), "environments": ["E1"]},
     "pbtg": {"episodes": 5000, "trajectories_per_style": 60, "dataset_per_style": 30},
     "clustering": {"pretrain_epochs": 3, "dec_epochs": 2, "kmeans_n_init": 2},
     "ranking": {"ps": [1.0, 0.5]},
@@ -159,8 +159,11 @@ def test_best_config_is_loadable_elsewhere(tmp_path):
     where = tmp_path / "deep" / "out"
     where.mkdir(parents=True)
     data = best_config_data(cfg, {"k": 3, "bc_width": 16}, where)
-    assert "tuning" not in data and data["name"] == "tinytune_tuned"
+    assert "tuning" not in data and data["name"] == "tinytune"
     assert not Path(data["gridworld"]["layout_dir"]).is_absolute()
+    # only what the study's config set, and the tuned values: no other domain's defaults
+    assert set(data) == set(TINY) - {"tuning"}
+    assert data["clustering"] == {**TINY["clustering"], "k": 3} and data["bc"] == {**TINY["bc"], "hidden_size": 16}
     (where / "best.yaml").write_text(yaml.safe_dump(data))
     back = load_config(where / "best.yaml")
     assert back.clustering.k == 3 and back.bc.hidden_size == 16
@@ -256,7 +259,7 @@ def test_small_study_writes_best_config_and_mlflow_children(ray_session, tmp_pat
     assert sum(res.n_trials.values()) == 3
     best = load_config(res.best_config)
     assert best.clustering.k == res.best_params["k"] and best.bc.hidden_size == res.best_params["bc_width"]
-    assert best.name == "tinytune_tuned"
+    assert best.name == "tinytune"
     assert (tmp_path / "out" / "trials.csv").is_file() and (tmp_path / "out" / "score_vs_k.png").is_file()
 
     client = MlflowClient(uri)
@@ -275,6 +278,13 @@ def test_small_study_writes_best_config_and_mlflow_children(ray_session, tmp_pat
     # the score is the label-free objective: accuracy minus the per-cluster penalty
     assert m["score"] == pytest.approx(m["pcpg_accuracy"] - cfg.tuning.penalty * (k - 1))
     assert 0.3 < m["pcpg_accuracy"] <= 1.0 and "E1/ari" in m
+
+    # `pcpg run` of the best config in the study's folder reuses the data the study cached
+    from pcpg_dist.runner import run_experiment
+
+    ran = run_experiment(best, workdir=workdir, track=False, show_progress=False)
+    assert ran.out_dir == workdir.resolve() / "tinytune"
+    assert ran.computed["data"] == 0 and ran.computed["clustering"] == 1
 
 
 @pytest.mark.slow

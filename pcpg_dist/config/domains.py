@@ -22,6 +22,10 @@ LEVELS_TRAIN: tuple[str, ...] = ("test", "hard", "random_1", "random_2", "gene_1
 LEVELS_TEST: tuple[str, ...] = ("holmgard_1", "holmgard_2", "holmgard_4", "holmgard_6", "holmgard_9",
                                 "holmgard_10")
 
+#: The paper's five GridWorld layouts E1-E5 (shipped in pcpg_dist/data/gridworld): the default
+#: ``gridworld.layout_dir``, so a config anywhere runs them without naming a folder.
+PAPER_LAYOUTS = Path(__file__).resolve().parents[1] / "data" / "gridworld"
+
 Goal = Literal["no_death", "any", "won_level"]
 EventEncoding = Literal["onehot", "id"]
 
@@ -112,7 +116,8 @@ class GridWorldConfig(StrictModel):
     """Which GridWorld layouts to use: layout files, or ``random_layouts`` drawn by the generator."""
 
     layout_dir: Annotated[Path, Field(description="folder of layout files NAME.txt; relative paths are "
-                                                  "relative to the config file")] = Path("gridworlds")
+                                                  "relative to the config file; default: the paper's "
+                                                  "E1-E5, shipped with pcpg")] = PAPER_LAYOUTS
     environments: Annotated[list[str], Field(min_length=1, description="layout names (files "
                                              "layout_dir/NAME.txt)")] = ["E1", "E2", "E3", "E4", "E5"]
 

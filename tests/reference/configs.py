@@ -15,7 +15,7 @@ HERE = Path(__file__).resolve().parent
 
 GRIDWORLD = {
     "name": "ref_gridworld", "domain": "gridworld", "seed": 3, "seeds": [0, 1],
-    "gridworld": {"layout_dir": str(ROOT / "experiments" / "gridworlds"), "environments": ["E2"]},
+    "gridworld": {"layout_dir": str(ROOT / "pcpg_dist" / "data" / "gridworld"), "environments": ["E2"]},
     "pbtg": {"episodes": 8000, "trajectories_per_style": 120, "dataset_per_style": 60},
     "clustering": {"method": "lstm_dec", "k": 4, "pretrain_epochs": 4, "dec_epochs": 2},
     "ranking": {"ps": [1.0, 0.5]},
