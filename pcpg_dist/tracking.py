@@ -30,6 +30,7 @@ import math
 import os
 import re
 import shutil
+import socket
 import sqlite3
 import tempfile
 import time
@@ -224,7 +225,10 @@ def check_store_holds(target: str, uri: str) -> None:
                         f"no MLflow store at {uri}")
 
 
-def check_tracking_uri(uri: str, timeout: float = 8.0) -> None:
+HEALTH_TIMEOUT = 8.0  # s an MLflow server's /health may take before pcpg calls it hung
+
+
+def check_tracking_uri(uri: str, timeout: float = HEALTH_TIMEOUT) -> None:
     """Fail fast (within ``timeout`` s), on one line naming the URI, when pcpg cannot use a tracking
     URI: a server that is down, a scheme MLflow does not store runs in, a folder store (MLflow 3
     refuses them), or a ``sqlite:///`` path that is not an MLflow database (pcpg would otherwise
@@ -267,7 +271,6 @@ def _shown(uri: str) -> str:
 
 def _check_port(uri: str, timeout: float) -> None:
     """A database server's port answers (SQLAlchemy would retry for minutes, in 169 lines)."""
-    import socket
     import urllib.parse
 
     try:
@@ -331,13 +334,35 @@ def _retry(fn, *args, attempts: int = 5, **kwargs):
         except (MlflowException, OSError) as e:
             if getattr(e, "error_code", "") in ("INVALID_PARAMETER_VALUE", "RESOURCE_ALREADY_EXISTS"):
                 raise
-            if i == attempts - 1:
-                uri = getattr(getattr(fn, "__self__", None), "tracking_uri", "(unknown URI)")
+            uri = getattr(getattr(fn, "__self__", None), "tracking_uri", "(unknown URI)")
+            hung = _hangs(uri)
+            if i == attempts - 1 or hung:
                 first = first_line(e, 300)
-                raise ServiceError(f"MLflow tracking server {uri} failed ({first}); local results are kept: "
+                what = "accepts connections but does not answer" if hung else "failed"
+                raise ServiceError(f"MLflow tracking server {_shown(uri)} {what} ({first}); local results are kept: "
                                    f"rerun the same command once it is reachable to log them") from None
             time.sleep(min(2 ** i, 10))
     return None
+
+
+def _hangs(uri: str) -> bool:
+    """An HTTP server that takes a connection and leaves ``/health`` unanswered for HEALTH_TIMEOUT s.
+
+    Each MLflow call to such a server waits MLFLOW_HTTP_REQUEST_TIMEOUT (120 s) per try, so
+    retrying the call would cost minutes each time; a server that refuses connections (one
+    restarting) or answers is retried as before.
+    """
+    if not uri.lower().startswith(("http://", "https://")):
+        return False
+    try:
+        with urllib.request.urlopen(uri.rstrip("/") + "/health", timeout=HEALTH_TIMEOUT):
+            return False
+    except (TimeoutError, socket.timeout):
+        return True
+    except urllib.error.URLError as e:
+        return isinstance(e.reason, TimeoutError | socket.timeout)
+    except (OSError, ValueError):  # refused, reset, an HTTP error status: not hung
+        return False
 
 
 # --------------------------------------------------------------------------- logging helpers

@@ -7,7 +7,9 @@ what a run really logs; no Ray and no training here.
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
 import sqlite3
 import subprocess
 import sys
@@ -431,3 +433,78 @@ def test_a_tracking_uri_pcpg_cannot_use_is_one_line_and_nothing_of_the_users_is_
         assert "secret" not in err[0] and not work.exists()
     assert notes.read_text() == "my notes\n" and (folder / "kept.txt").read_text() == "kept\n"
     assert app.read_bytes() == app_bytes and sorted(p.name for p in tmp_path.iterdir()) == ["app.db", "data", "notes.txt"]
+
+
+class _Silent:
+    """A TCP server that accepts connections and never answers them (a hung tracking server)."""
+
+    def __init__(self) -> None:
+        import socket
+        import threading
+
+        self.sock = socket.create_server(("127.0.0.1", 0))
+        self.uri = f"http://127.0.0.1:{self.sock.getsockname()[1]}"
+        self.held: list = []
+        threading.Thread(target=self._accept, daemon=True).start()
+
+    def _accept(self) -> None:
+        with contextlib.suppress(OSError):
+            while True:
+                self.held.append(self.sock.accept()[0])
+
+    def close(self) -> None:
+        for conn in self.held:
+            conn.close()
+        self.sock.close()
+
+
+class _Counting:
+    """An MLflow client call that counts how often pcpg made it."""
+
+    def __init__(self, uri: str) -> None:
+        from mlflow import MlflowClient
+
+        self.client, self.tracking_uri, self.calls = MlflowClient(uri), uri, 0
+
+    def get_experiment_by_name(self, name: str):
+        self.calls += 1
+        return self.client.get_experiment_by_name(name)
+
+
+def test_a_server_that_hangs_is_reported_after_one_call_not_five(monkeypatch):
+    """A server that takes connections and never answers cost every call MLflow's timeout x its
+    tries, five times over (~30 min at the defaults); now one call and a /health probe."""
+    from pcpg_dist import tracking
+
+    monkeypatch.setenv("MLFLOW_HTTP_REQUEST_TIMEOUT", "1")
+    monkeypatch.setenv("MLFLOW_HTTP_REQUEST_BACKOFF_FACTOR", "0")
+    monkeypatch.setattr(tracking, "HEALTH_TIMEOUT", 1.0)
+    server = _Silent()
+    try:
+        client = _Counting(server.uri)
+        with pytest.raises(ServiceError) as e:
+            tracking._retry(client.get_experiment_by_name, "x")
+        assert client.calls == 1
+        tries = 1 + int(os.environ["MLFLOW_HTTP_REQUEST_MAX_RETRIES"])  # MLflow's own, per call
+        assert len(server.held) == tries + 1  # one call's tries and one /health probe; was 5 x (tries + 1)
+        assert "accepts connections but does not answer" in str(e.value) and "\n" not in str(e.value)
+        assert "local results are kept" in str(e.value)
+    finally:
+        server.close()
+
+
+def test_a_server_that_refuses_is_still_retried(monkeypatch):
+    """Refused connections are a restart, not a hang: all five attempts are made."""
+    import socket
+
+    from pcpg_dist import tracking
+
+    with socket.socket() as s:  # a free port with nothing listening
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    monkeypatch.setenv("MLFLOW_HTTP_REQUEST_BACKOFF_FACTOR", "0")
+    monkeypatch.setattr(tracking.time, "sleep", lambda s: None)
+    client = _Counting(f"http://127.0.0.1:{port}")
+    with pytest.raises(ServiceError, match="failed"):
+        tracking._retry(client.get_experiment_by_name, "x")
+    assert client.calls == 5
