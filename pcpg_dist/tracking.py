@@ -357,10 +357,10 @@ def _hangs(uri: str) -> bool:
     try:
         with urllib.request.urlopen(uri.rstrip("/") + "/health", timeout=HEALTH_TIMEOUT):
             return False
-    except (TimeoutError, socket.timeout):
+    except TimeoutError:
         return True
     except urllib.error.URLError as e:
-        return isinstance(e.reason, TimeoutError | socket.timeout)
+        return isinstance(e.reason, TimeoutError)
     except (OSError, ValueError):  # refused, reset, an HTTP error status: not hung
         return False
 
