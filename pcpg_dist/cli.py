@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import shlex
 import sys
 from pathlib import Path
 
@@ -217,7 +218,8 @@ def _cmd_tune(args: argparse.Namespace) -> None:
                   f"{res.best_value:.4f} with {shown}")
     if res.failed_stale:
         console.print(f"failed and re-queued stale trials {res.failed_stale} (their driver had stopped)")
-    console.print(f"best config: {res.best_config}  (run it: pcpg run {res.best_config})")
+    again = "" if args.workdir == "runs" else f" --workdir {shlex.quote(args.workdir)}"  # the study's data
+    console.print(f"best config: {res.best_config}  (run it: pcpg run {shlex.quote(str(res.best_config))}{again})")
     console.print(f"dashboard: uv run optuna-dashboard {res.storage} --host 127.0.0.1")
 
 

@@ -444,8 +444,9 @@ def run_study(cfg: ExperimentConfig, storage_url: str | Storage | None = None, w
         raise DataError(f"study {name!r}: no trial completed ({_state_counts(study)}); see the trials' "
                         f"'error' / 'pruned_reason' attributes (uv run optuna-dashboard {storage.shown})")
     best = study.best_trial
-    best_params = {**best.user_attrs.get("params_full", {}), **best.params}
-    best_config = write_outputs(cfg, study, best_params, out)
+    # what the study chose (fixed dimensions are the config's own values, not a finding)
+    best_params = {p: int(v) for p, v in best.params.items()}
+    best_config = write_outputs(cfg, study, {**best.user_attrs.get("params_full", {}), **best_params}, out)
     result = TuneResult(name, storage.shown, best_params, float(best.value), best_config, _state_counts(study),
                         tracker.parent_id if tracker else None, stale, out)
     if tracker is not None:
@@ -513,7 +514,9 @@ def best_config_data(cfg: ExperimentConfig, params: dict[str, int], where: Path)
     data = cfg.model_dump(mode="json", exclude={"tuning"}, exclude_unset=True)
     for name in params:
         section, key = TARGETS[name]
-        data.setdefault(section, {})[key] = getattr(getattr(tuned, section), key)
+        value = getattr(getattr(tuned, section), key)
+        if value != getattr(getattr(cfg, section), key):  # unchanged (a fixed dimension): as the config has it
+            data.setdefault(section, {})[key] = value
     if tuned.evaluation.corruption_levels != cfg.evaluation.corruption_levels:  # k = 1: see apply_params
         data.setdefault("evaluation", {})["corruption_levels"] = list(tuned.evaluation.corruption_levels)
     return {k: portable(v) if isinstance(v, dict) else v for k, v in data.items()}
@@ -528,7 +531,8 @@ def write_outputs(cfg: ExperimentConfig, study: Any, best_params: dict[str, int]
 
     out.mkdir(parents=True, exist_ok=True)
     path = out / "best_config.yaml"
-    header = (f"# Best parameters of Optuna study {study.study_name!r} ({', '.join(f'{k}={v}' for k, v in best_params.items())}),\n"
+    chosen = ", ".join(f"{k}={v}" for k, v in study.best_trial.params.items())
+    header = (f"# Best parameters of Optuna study {study.study_name!r} ({chosen}),\n"
               f"# score {study.best_value:.4f}: the study's config with only these changed. `pcpg run` it with\n"
               f"# the study's --workdir to reuse the data the study cached under the same name.\n")
     data = best_config_data(cfg, best_params, out)

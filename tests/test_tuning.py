@@ -158,10 +158,12 @@ def test_best_config_is_loadable_elsewhere(tmp_path):
     cfg = config(tmp_path)
     where = tmp_path / "deep" / "out"
     where.mkdir(parents=True)
-    data = best_config_data(cfg, {"k": 3, "bc_width": 16}, where)
+    fixed = {"lstm_hidden": cfg.clustering.hidden_size, "latent": cfg.clustering.latent_size}  # not searched
+    data = best_config_data(cfg, {"k": 3, "bc_width": 16, **fixed}, where)
     assert "tuning" not in data and data["name"] == "tinytune"
     assert not Path(data["gridworld"]["layout_dir"]).is_absolute()
-    # only what the study's config set, and the tuned values: no other domain's defaults
+    # only what the study's config set, and the tuned values: no other domain's defaults, and no
+    # size the study held at the config's value
     assert set(data) == set(TINY) - {"tuning"}
     assert data["clustering"] == {**TINY["clustering"], "k": 3} and data["bc"] == {**TINY["bc"], "hidden_size": 16}
     (where / "best.yaml").write_text(yaml.safe_dump(data))
