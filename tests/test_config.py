@@ -49,8 +49,10 @@ def test_a_config_anywhere_runs_the_paper_layouts_without_naming_a_folder(tmp_pa
     path = elsewhere / "mine.yaml"
     path.write_text(yaml.safe_dump({"name": "mine", "gridworld": {"environments": ["E1", "E5"]}}))
     cfg = load_config(path)
-    assert cfg.gridworld.layout_dir == PAPER_LAYOUTS
+    assert cfg.gridworld.layout_path("E1") == PAPER_LAYOUTS / "E1.txt"
     assert cfg.gridworld.layout_text("E5") == (PAPER_LAYOUTS / "E5.txt").read_text()
+    # the hash and the recorded config do not hold where pcpg is installed: same on every machine
+    assert str(PAPER_LAYOUTS) not in cfg.model_dump_json() and cfg.gridworld.layout_dir is None
     path.write_text(yaml.safe_dump({"name": "m", "gridworld": {"environments": ["E9"]}}))
     with pytest.raises(ConfigError, match="E9"):
         load_config(path)

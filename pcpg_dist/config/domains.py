@@ -22,8 +22,9 @@ LEVELS_TRAIN: tuple[str, ...] = ("test", "hard", "random_1", "random_2", "gene_1
 LEVELS_TEST: tuple[str, ...] = ("holmgard_1", "holmgard_2", "holmgard_4", "holmgard_6", "holmgard_9",
                                 "holmgard_10")
 
-#: The paper's five GridWorld layouts E1-E5 (shipped in pcpg_dist/data/gridworld): the default
-#: ``gridworld.layout_dir``, so a config anywhere runs them without naming a folder.
+#: The paper's five GridWorld layouts E1-E5 (shipped in pcpg_dist/data/gridworld), read when
+#: ``gridworld.layout_dir`` is left out, so a config anywhere runs them without naming a folder (and
+#: a config's hash and its record in run.json do not depend on where pcpg is installed).
 PAPER_LAYOUTS = Path(__file__).resolve().parents[1] / "data" / "gridworld"
 
 Goal = Literal["no_death", "any", "won_level"]
@@ -115,9 +116,9 @@ class RandomLayoutsConfig(StrictModel):
 class GridWorldConfig(StrictModel):
     """Which GridWorld layouts to use: layout files, or ``random_layouts`` drawn by the generator."""
 
-    layout_dir: Annotated[Path, Field(description="folder of layout files NAME.txt; relative paths are "
-                                                  "relative to the config file; default: the paper's "
-                                                  "E1-E5, shipped with pcpg")] = PAPER_LAYOUTS
+    layout_dir: Annotated[Path | None, Field(description="folder of layout files NAME.txt; relative paths "
+                                                         "are relative to the config file; left out: the "
+                                                         "paper's E1-E5, shipped with pcpg")] = None
     environments: Annotated[list[str], Field(min_length=1, description="layout names (files "
                                              "layout_dir/NAME.txt)")] = ["E1", "E2", "E3", "E4", "E5"]
 
@@ -127,8 +128,8 @@ class GridWorldConfig(StrictModel):
 
     @field_validator("layout_dir")
     @classmethod
-    def _resolve(cls, v: Path, info: ValidationInfo) -> Path:
-        return relative_to_config(v, info)
+    def _resolve(cls, v: Path | None, info: ValidationInfo) -> Path | None:
+        return None if v is None else relative_to_config(v, info)
 
     @model_validator(mode="after")
     def _one_source(self) -> GridWorldConfig:
@@ -156,7 +157,7 @@ class GridWorldConfig(StrictModel):
     _texts: dict[str, str] = PrivateAttr(default_factory=dict)
 
     def layout_path(self, env: str) -> Path:
-        return self.layout_dir / f"{env}.txt"
+        return (self.layout_dir or PAPER_LAYOUTS) / f"{env}.txt"
 
     def layout_text(self, env: str) -> str:
         if env not in self._texts:
