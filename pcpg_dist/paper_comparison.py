@@ -126,6 +126,26 @@ def _env_tables(summary: Path, envs: list[str], name: str) -> list[pd.DataFrame]
     return out
 
 
+def length_summary(tables: list[pd.DataFrame]) -> str:
+    """PCPG's mean length from the lowest to the highest p and its styles' spread at the highest p,
+    from length tables (method, k, p, mean): the rollouts' (rollout_length) or the kept data's
+    (subset_length)."""
+    d = pd.concat(tables) if tables else None
+    d = None if d is None else d[d.method == "pcpg"]
+    if d is None or not len(d):
+        return "—"
+    pc = d.groupby("p")["mean"].mean()
+    at_top = d[d.p == d.p.max()]["mean"]
+    return (f"PCPG mean length {pc.iloc[0]:.1f} at p={pc.index[0]:g} to {pc.iloc[-1]:.1f} at "
+            f"p={pc.index[-1]:g}; styles at p={d.p.max():g} from {at_top.min():.1f} to {at_top.max():.1f}")
+
+
+def kept_lengths(summary: Path, envs: list[str]) -> str:
+    """Figs. 5 and 6 answered from the data: the length of the trajectories each agent imitates
+    (subset_length), whether or not the domain plays rollouts."""
+    return length_summary(_env_tables(summary, envs, "subset_length"))
+
+
 def paper_rows(domain: str, metrics: dict, summary: Path, envs: list[str]) -> list[PaperRow]:
     """Every table and figure of the paper: what the paper reports and what this run measured."""
     paper = paper_numbers(domain)
@@ -148,12 +168,15 @@ def paper_rows(domain: str, metrics: dict, summary: Path, envs: list[str]) -> li
                          if h["compared"] else "—"))
     dist = [metrics.get(f"reward_distance/style{s}") for s in range(16)]
     rnd = [metrics.get(f"random/reward_distance/style{s}") for s in range(16)]
+    lengths = _env_tables(summary, envs, "rollout_length")
+    # rollouts without distances: the domain has no per-style rewards or optimal returns to measure them
+    absent = "— (no reward-distance hooks for this domain)" if lengths else "— (no rollouts)"
     rows.append(PaperRow("Table 3: reward distance to the optimum, PCPG", f"{first}-reward",
                          said("reward distance, PCPG (Table 3)", "not reported for this domain"),
-                         " / ".join(f"{v:.2f}" for v in dist if v is not None) or "— (no rollouts)"))
+                         " / ".join(f"{v:.2f}" for v in dist if v is not None) or absent))
     rows.append(PaperRow("Table 3: reward distance to the optimum, random", f"{first}-reward",
                          said("reward distance, random (Table 3)", "not reported for this domain"),
-                         " / ".join(f"{v:.2f}" for v in rnd if v is not None) or "— (no rollouts)"))
+                         " / ".join(f"{v:.2f}" for v in rnd if v is not None) or absent))
     cross = _env_tables(summary, envs, "cross_accuracy")
     ours = "—"
     if cross:
@@ -167,18 +190,10 @@ def paper_rows(domain: str, metrics: dict, summary: Path, envs: list[str]) -> li
                 ours += f"; off-diagonal {min(off):.2f} to {max(off):.2f}"
     rows.append(PaperRow("Table 4: accuracy of π_k on H_k' (mean over p)", f"{first}-cross",
                          said("cross-accuracy diagonal (Table 4)", "strongest on the diagonal"), ours))
-    lengths = _env_tables(summary, envs, "rollout_length")
-    ours = "— (no rollouts)"
-    if lengths:
-        d = pd.concat(lengths)
-        pc = d[d.method == "pcpg"].groupby("p")["mean"].mean()
-        at_top = d[(d.method == "pcpg") & (d.p == d.p.max())]["mean"]
-        if len(pc) >= 1:
-            ours = (f"PCPG mean length {pc.iloc[0]:.1f} at p={pc.index[0]:g} to {pc.iloc[-1]:.1f} at "
-                    f"p={pc.index[-1]:g}; styles at p={d.p.max():g} from {at_top.min():.1f} to {at_top.max():.1f}")
     rows.append(PaperRow("Figs. 5 and 6: rollout length vs p", f"{first}-rollout_length",
                          said("", "longer with higher p; styles converge to different lengths, "
-                                  "No Clustering to one"), ours))
+                                  "No Clustering to one"),
+                         length_summary(lengths) if lengths else "— (no rollouts)"))
     corr = metrics.get("correlation/diagonal_mean")
     rows.append(PaperRow("Fig. 7: model vs subset correlation", f"{first}-correlation",
                          said("", "each model correlates most with its own subset"),

@@ -27,6 +27,7 @@ from pcpg_dist.paper_comparison import (  # noqa: F401 - paper_numbers/PROTOCOL 
     PAPER_DOMAINS,
     PROTOCOL,
     headline,
+    kept_lengths,
     paper_numbers,
     paper_rows,
     plain,
@@ -63,7 +64,9 @@ ENV_SECTIONS = (
 )
 
 
-def _env_sections(summary: Path, env: str, rows_by_ref: dict[str, PaperRow]) -> tuple[list[Section], list[Section]]:
+def _env_sections(summary: Path, env: str, rows: dict[str, PaperRow]) -> tuple[list[Section], list[Section]]:
+    """An environment's sections (``rows``: the paper's and this run's line of each, by section key)
+    and what it has beyond them."""
     folder = summary / env
     csvs = {p.stem: p for p in files_in(folder, summary, ".csv")}
     pngs = {p.name: p for p in files_in(folder, summary, ".png")}
@@ -86,7 +89,7 @@ def _env_sections(summary: Path, env: str, rows_by_ref: dict[str, PaperRow]) -> 
             sec.tables.append(table_of(df, name, f"{env}/{name}.csv", std))
         if sec.figure is None and not sec.tables:
             continue
-        paper = rows_by_ref.get(ref)
+        paper = rows.get(key)
         if paper is not None:
             sec.paper_says, sec.ours = paper.paper, paper.ours
         sections.append(sec)
@@ -179,7 +182,14 @@ def build(summary: Path, reproduce_target: str | None = None) -> Report:
         if inside(path, summary) and (df := read_csv(path)) is not None and len(df):
             sec.tables.append(table_of(df, stem, f"{stem}.csv"))
         top.append(sec)
-    env_parts = [(env, *_env_sections(summary, env, by_ref)) for env in envs]
+    by_section = {key: by_ref[ref] for key, _, ref, *_ in ENV_SECTIONS if ref in by_ref}
+
+    def rows_of(env: str) -> dict[str, PaperRow]:  # the kept data shares the rollouts' paper figures,
+        # not their numbers: its line comes from its own table (this environment's kept lengths)
+        kept = PaperRow("", "", by_ref["Figs. 5 and 6"].paper, kept_lengths(summary, [env]))
+        return by_section | {"subset_length": kept}
+
+    env_parts = [(env, *_env_sections(summary, env, rows_of(env))) for env in envs]
     anchors = {sec.anchor for sec in top} | {sec.anchor for _, secs, more in env_parts for sec in secs + more}
     for row in paper:
         if row.anchor not in anchors:

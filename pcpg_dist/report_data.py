@@ -168,6 +168,7 @@ class TableSpec:
 TABLE_SPECS = {
     "accuracy": TableSpec(("method",), ("p", "mean", "std"), unique=("method", "p")),
     "rollout_length": TableSpec(("method",), ("p", "mean")),
+    "subset_length": TableSpec(("method",), ("p", "mean")),
     "corruption_accuracy": TableSpec(numbers=("c", "mean", "std")),
     "corruption_reward": TableSpec(numbers=("c",), number_prefix="R"),
 }

@@ -289,6 +289,53 @@ def test_a_domain_without_rollouts_or_labels_renders(summary, tmp_path):
     assert set(re.findall(r'href="#([^"]+)"', html)) <= anchors and "E1-cross" in anchors
 
 
+def test_kept_length_line_comes_from_the_data_and_table3_says_why_it_is_absent(summary, tmp_path):
+    """The kept-trajectory section's "this run" line gives the data's kept lengths (its own table,
+    subset_length), not the rollouts' (it showed the rollout line, and "— (no rollouts)" above a full
+    table without them); Table 3 without distances says why: no rollouts, or rollouts but no
+    reward-distance hooks (it said "no rollouts" beside rollouts)."""
+
+    def lengths(path: Path) -> str:
+        d = pd.read_csv(path)
+        d = d[d.method == "pcpg"]
+        pc, top = d.groupby("p")["mean"].mean(), d[d.p == d.p.max()]["mean"]
+        return (f"PCPG mean length {pc.iloc[0]:.1f} at p={pc.index[0]:g} to {pc.iloc[-1]:.1f} at "
+                f"p={pc.index[-1]:g}; styles at p={d.p.max():g} from {top.min():.1f} to {top.max():.1f}")
+
+    def lines(folder: Path) -> tuple[dict[str, str], dict[str, str]]:
+        model = build(folder)
+        sections = {s.anchor: s.ours for _, secs, _ in model.envs for s in secs}
+        return sections, {r.item: r.ours for r in model.paper}
+
+    kept, rolled = lengths(summary / "E1" / "subset_length.csv"), lengths(summary / "E1" / "rollout_length.csv")
+    assert kept != rolled
+    sections, _ = lines(summary)
+    assert sections["E1-subset_length"] == kept and sections["E1-rollout_length"] == rolled
+    md = render(summary, tmp_path / "with")[1].read_text()
+    kept_part = md[md.index("Kept-trajectory length vs p"):]
+    assert kept.split(";")[0] in kept_part.split("\n###")[0] and rolled.split(";")[0] not in kept_part
+
+    table3 = "Table 3: reward distance to the optimum, PCPG"
+    no_hooks = tamper_metrics(summary, tmp_path / "hooks", lambda k: "reward_distance" not in k)
+    (no_hooks / "E1" / "reward_distance.csv").unlink()
+    sections, paper = lines(no_hooks)  # rollouts ran, but the domain measures no reward distance
+    assert paper[table3] == "— (no reward-distance hooks for this domain)"
+    for f in (no_hooks / "E1").glob("rollout*"):
+        f.unlink()
+    sections, paper = lines(no_hooks)  # no rollouts at all (a data-only domain)
+    assert paper[table3] == "— (no rollouts)"
+    assert "E1-rollout_length" not in sections and sections["E1-subset_length"] == kept
+
+
+def tamper_metrics(summary: Path, tmp: Path, keep) -> Path:
+    """A copy of ``summary`` with only the metrics whose name ``keep`` accepts."""
+    folder = tmp / "summary"
+    shutil.copytree(summary, folder)
+    metrics = json.loads((folder / "metrics.json").read_text())
+    (folder / "metrics.json").write_text(json.dumps({k: v for k, v in metrics.items() if keep(k)}))
+    return folder
+
+
 # ----------------------------------------------------------------------------- bad summaries
 ACCURACY_HEAD = "method,p,mean,std,seeds\n"
 TAMPERED = {  # case: (file in the summary, its new text, what the one error line must say)
