@@ -290,8 +290,9 @@ class Dataset:
                             f"{SCHEMA_VERSION}); regenerate it with this version")
         if not 1 <= n_actions <= MAX_ACTIONS:
             raise DataError(f"{source}: n_actions {n_actions} outside 1..{MAX_ACTIONS}")
+        check_action_memory(table.num_rows, n_actions, source, "n_actions in its metadata")
         names = table.column_names
-        d = sum(1 for c in names if c.startswith("s") and c[1:].isdigit())
+        d = sum(1 for c in names if c.startswith("s") and c[1:].isascii() and c[1:].isdigit())
         expected = {"trajectory": pa.int64(), "t": pa.int64(), "env": pa.string(), "style": pa.int64(),
                     **{f"s{j}": pa.float32() for j in range(d)}, "action": pa.int64(),
                     "valid": pa.list_(pa.bool_(), n_actions), "reward": pa.float64(), "success": pa.bool_(),
@@ -347,6 +348,24 @@ def _mask_rows(valid: np.ndarray, rows: int, n_actions: int) -> np.ndarray:
     if v.shape != (rows, n_actions):
         raise DataError(f"valid must have shape ({rows}, {n_actions}), got {v.shape}")
     return v.astype(bool)
+
+
+#: bytes per (step, action) cell: the validity mask (1) and float32 BC logits with their gradient (8)
+ACTION_CELL_BYTES = 9
+
+
+def check_action_memory(rows: int, n_actions: int, source: str, origin: str) -> None:
+    """Refuse, before the ``(rows, n_actions)`` validity mask is built, a number of actions whose
+    mask and BC outputs would not fit in half this machine's memory (a 26 KB table with one action
+    999999 asked for 8 GB and more, and the process was killed without a word)."""
+    from pcpg_dist.config.stages import check_memory
+
+    try:
+        check_memory(float(rows) * n_actions * ACTION_CELL_BYTES, f"{rows} steps x {n_actions} actions "
+                     f"({origin})", "the number of actions: actions are numbered 0..n-1, so log them as "
+                     "0, 1, 2, ... for the moves your game has")
+    except ValueError as e:
+        raise DataError(f"{source}: {e}") from None
 
 
 def bool_lists(column: pa.ChunkedArray | pa.Array, n_actions: int, source: str) -> np.ndarray:

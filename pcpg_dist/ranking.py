@@ -102,7 +102,12 @@ def score_dataset(dataset: Dataset, cfg: RankConfig, score: ScoreFn | None = Non
         raise DataError(f"score function returned shape {values.shape}, expected "
                         f"({dataset.n_trajectories},)")
     if not np.isfinite(values).all():
-        raise DataError("score function returned NaN or infinite values")
+        bad = np.flatnonzero(~np.isfinite(values))
+        raise DataError(f"{dataset.domain}-{dataset.env}: the skill score of trajectory "
+                        f"{dataset.trajectory_ids[bad[0]]} is {values[bad[0]]} ({len(bad)} of "
+                        f"{dataset.n_trajectories} trajectories not finite); Step B ranks by finite scores: "
+                        f"check the domain's score setting and the values it adds up (rewards near "
+                        f"float64's limit overflow when summed)")
     return values
 
 

@@ -42,6 +42,24 @@ def check_outside_run(path: Path, option: str = "--out") -> None:
 # --------------------------------------------------------------------------- the agents' index
 AGENTS_INDEX = "index.json"  # RUN/agents/index.json: which files `pcpg run` wrote for which environment
 
+#: the files and folders a run writes beside its environments' folders (summary/, agents/, report/,
+#: a sweep's folder); an environment of one of these names would collide with them only once every
+#: stage had run (tests/test_run_folders.py checks the list against a real run)
+BESIDE_UNITS = frozenset({
+    "metrics.json", "accuracy_vs_p.csv", "accuracy_vs_p.json", "accuracy_vs_p.png", "clustering.csv",
+    "clustering.json", "run.json", AGENTS_INDEX, "figures", "report.html", "report.md", "points",
+    "summary.csv", "sweep.json", *REWRITTEN, "report",
+})
+
+
+def check_unit_name(name: str) -> None:
+    """An environment (unit) name that is not a file or folder a run writes beside it (compared
+    without case, for case-insensitive file systems)."""
+    if name.lower() in BESIDE_UNITS:
+        raise DataError(f"environment name {name!r} is the name of a file or folder pcpg writes beside the "
+                        f"environments' folders ({', '.join(sorted(BESIDE_UNITS))}); rename that "
+                        f"environment (for logs: its 'env' value)")
+
 
 def write_agents_index(agents: Path) -> None:
     """Record the SHA-256 of every file of ``agents/<env>/``, per environment, so a file moved,

@@ -37,6 +37,7 @@ from pcpg_dist.dataset import Dataset, atomic_write_bytes, confined, load_datase
 from pcpg_dist.domains.base import Unit
 from pcpg_dist.parallel import set_threads
 from pcpg_dist.ray_utils import run_tasks
+from pcpg_dist.run_folders import check_unit_name
 
 CODE_VERSION = "2"  # bump when a stage's numbers or files change for the same config (2: bool valid masks)
 CLUSTER_VERSION = "2"  # bump when only Step A's files change (2: result.json holds the margins)
@@ -265,6 +266,7 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
             units = {u.name: u for u in p.cfg.domain_object.units(p.cfg, datas[p.dkey])}
             for name in units:
                 confined(p.out, name, "unit name")  # unit names become folder and run names
+                check_unit_name(name)
             unit_sets[ukey] = units, {n: ray.put(u) for n, u in units.items()}
         p.units, p.refs = unit_sets[ukey]
     times["generate"] = time.perf_counter() - t0

@@ -155,6 +155,17 @@ def test_custom_score_is_used(toy):
         plan_cells(toy, toy.styles, tr, RankConfig(), [0], score=lambda ds: np.ones(3))
 
 
+def test_a_score_that_is_not_finite_names_the_trajectory(toy):
+    """Rewards of 1e308 summed to inf: the message named nothing (no data, trajectory or count)."""
+    tr, _ = split_trajectories(toy.n_trajectories, 0.2, 0)
+    overflow = np.where(np.arange(toy.n_trajectories) % 3 == 1, np.inf, 1.0)
+    with pytest.raises(DataError) as e:
+        plan_cells(toy, toy.styles, tr, RankConfig(), [0], score=lambda ds: overflow[: ds.n_trajectories])
+    n = toy.n_trajectories
+    assert (f"{toy.domain}-{toy.env}: the skill score of trajectory {toy.trajectory_ids[1]} is inf "
+            f"({(n + 1) // 3} of {n} trajectories not finite)") in str(e.value)
+
+
 def test_style_margin_ranks_ambiguous_trajectories_last_in_training_and_test_alike(toy):
     """ranking.style_margin: a trajectory whose cluster is barely more likely than the next best
     ranks after every other of its cluster (then by skill, then by id); 0 is the paper's ranking."""

@@ -431,3 +431,61 @@ def test_a_minari_path_that_is_not_an_id_is_refused_at_load_before_any_folder_is
     with pytest.raises(ConfigError) as e:
         load_config(write_config(tmp_path, f"minari:{dataset_id}"))
     assert "is not a Minari dataset id" in str(e.value) and "\n" not in str(e.value)
+
+
+def test_a_huge_action_number_is_refused_before_its_mask_is_built(tmp_path, monkeypatch) -> None:
+    """One action 999999 in a 26 KB table made a (rows x 10^6) mask: 23.5 GB, then a silent kill."""
+    import pcpg_dist.config.stages as stages
+
+    monkeypatch.setattr(stages, "machine_memory", lambda: 8 << 30)  # the same answer on any machine
+    df = tiny_table(n_traj=400)
+    df.loc[0, "action"] = 999_999
+    with pytest.raises(DataError) as e:
+        load(df, tmp_path)
+    msg = str(e.value)
+    assert "2000 steps x 1000000 actions (the largest action + 1) needs about 16.8 GiB" in msg, msg
+    assert "actions are numbered 0..n-1" in msg and "\n" not in msg
+    with pytest.raises(DataError, match=r"x 1000000 actions \(trajectories.n_actions\)"):
+        load(tiny_table(n_traj=400), tmp_path, n_actions=1_000_000)
+
+
+@pytest.mark.parametrize("column", ["s1\u0660", "s\u0661", "s\uff11"])  # Arabic-Indic, full-width digits
+def test_a_state_column_with_non_ascii_digits_is_one_line(tmp_path, column) -> None:
+    """'s1٠' was read as state 10 and failed in a KeyError traceback; 's١' was called a leading zero."""
+    df = tiny_table(d=11).rename(columns={"s10": column}) if column == "s1\u0660" else tiny_table().assign(**{column: 1.0})
+    with pytest.raises(DataError) as e:
+        load(df, tmp_path)
+    assert f"column {column!r} names a state with non-ASCII digits" in str(e.value)
+
+
+def test_an_env_named_like_a_summary_file_is_refused_before_clustering(tmp_path, capsys) -> None:
+    """env 'metrics.json' ran every stage, then collided with summary/metrics.json (every rerun too)."""
+    path = tmp_path / "logs.parquet"
+    df = frozenlake_logs(per_style=10, seed=1)
+    df["env"] = np.where(df.trajectory % 2 == 0, "metrics.json", "lake")
+    df.to_parquet(path, index=False)
+    code = main(["run", str(write_config(tmp_path, path)), "--no-tracking", "--quiet",
+                 "--workdir", str(tmp_path / "runs")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "Traceback" not in err, err
+    assert "environment name 'metrics.json' is the name of a file or folder pcpg writes" in err
+    run = tmp_path / "runs" / "own_logs"
+    assert not (run / "cache" / "cluster").exists() and not (run / "summary").exists()
+
+
+@pytest.mark.parametrize("key", ["feature_names", "action_names"])
+def test_tampered_minari_names_are_one_line(tmp_path, monkeypatch, key) -> None:
+    from pcpg_dist.domains.trajectories.minari_io import read_minari, write_minari
+
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "minari"))
+    path = tmp_path / "lake.parquet"
+    frozenlake_logs(per_style=3, seed=5).drop(columns="env").to_parquet(path, index=False)
+    (ds,) = datasets_from_table(read_step_table(path)).values()
+    write_minari({"lake": ds}, tmp_path / "minari", "pcpg/lake-v0")
+    meta_file = tmp_path / "minari" / "pcpg" / "lake-v0" / "data" / "metadata.json"
+    meta = json.loads(meta_file.read_text())
+    meta["pcpg"][key] = 5
+    meta_file.write_text(json.dumps(meta))
+    with pytest.raises(DataError) as e:
+        read_minari("pcpg/lake-v0")
+    assert f"metadata 'pcpg.{key}' is 5; expected a list of names" in str(e.value)

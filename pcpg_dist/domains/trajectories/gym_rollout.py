@@ -129,10 +129,13 @@ def check_compatible(env: gymnasium.Env, state_dim: int, n_actions: int) -> None
             f"write each state as gymnasium.spaces.flatten(observation_space, obs) or name the env "
             f"(and {KWARGS_KEY}) the logs were recorded in")
     if n != n_actions:
+        unused = (f"if the players never took actions {n_actions}..{n - 1}, set trajectories.n_actions: {n}; "
+                  if n > n_actions else "")
         raise ConfigError(
             f"key '{ENV_KEY}': {env_id} has {n} actions ({env.action_space}) but the logs have "
-            f"{n_actions} (the width of 'valid'); log actions as 0..{n - 1} or name the env "
-            f"(and {KWARGS_KEY}) the logs were recorded in")
+            f"{n_actions} (trajectories.n_actions, else the width of a 'valid' column, else the largest "
+            f"action + 1); {unused}log actions as 0..{n - 1} or name the env (and {KWARGS_KEY}) the "
+            f"logs were recorded in")
 
 
 def _mask(env_id: str, info: Mapping[str, Any], n_actions: int) -> np.ndarray:

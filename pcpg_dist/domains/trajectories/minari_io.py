@@ -20,6 +20,7 @@ import contextlib
 import difflib
 import os
 import re
+import reprlib
 import shutil
 import tempfile
 import warnings
@@ -31,7 +32,7 @@ import numpy as np
 import pyarrow as pa
 
 from pcpg_dist.config.domains import MINARI_ID, minari_id_problem
-from pcpg_dist.dataset import MANIFEST, Dataset, load_datasets
+from pcpg_dist.dataset import MANIFEST, Dataset, check_action_memory, load_datasets
 from pcpg_dist.errors import DataError, first_line
 
 ENV_VAR = "MINARI_DATASETS_PATH"
@@ -283,12 +284,18 @@ def read_minari(dataset_id: str) -> tuple[pa.Table, dict]:
     elif meta_styles is not None:
         cols["style"] = pa.array(np.repeat(meta_styles, lengths_a))
     if any(v is not None for v in valids):
+        check_action_memory(int(sum(lengths)), n_actions, source, f"its action space {action_space}")
         mask = np.concatenate([v if v is not None else np.ones((n, n_actions), bool)
                                for v, n in zip(valids, lengths, strict=True)])
         cols["valid"] = pa.FixedSizeListArray.from_arrays(pa.array(mask.reshape(-1)), n_actions)
     del states, all_states  # the table holds its own copy
 
     pcpg_meta = raw_meta.get("pcpg") if isinstance(raw_meta.get("pcpg"), dict) else {}
+    for key in ("feature_names", "action_names"):  # names pcpg wrote; anything else is not trusted
+        value = pcpg_meta.get(key)
+        if value is not None and not (isinstance(value, list) and all(isinstance(x, str) for x in value)):
+            raise DataError(f"{source}: metadata 'pcpg.{key}' is {reprlib.repr(value)}; expected a list of "
+                            f"names (strings), or no such key")
     names = pcpg_meta.get("feature_names") or ()
     if len(names) != d:
         names = observation_names(obs_space)

@@ -27,14 +27,21 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from pcpg_dist.dataset import MAX_ACTIONS, MAX_STYLES, Dataset, bool_lists, check_parquet_memory
+from pcpg_dist.dataset import (
+    MAX_ACTIONS,
+    MAX_STYLES,
+    Dataset,
+    bool_lists,
+    check_action_memory,
+    check_parquet_memory,
+)
 from pcpg_dist.errors import DataError, first_line
 
 DOMAIN = "trajectories"
 REQUIRED = ("trajectory", "t", "action")
 RESERVED = {"trajectory", "t", "action", "reward", "valid", "env", "style", "success"}
-STATE = re.compile(r"^s(0|[1-9]\d*)$")  # s0, s1, ...; "s01" is not s1
-STATE_LIKE = re.compile(r"^s\d+$")
+STATE = re.compile(r"s(0|[1-9][0-9]*)")  # s0, s1, ...; "s01" is not s1; ASCII digits only
+STATE_LIKE = re.compile(r"s\d+")  # any Unicode digits: refused below unless STATE, never read as another
 MAX_FILES = 10_000
 MAX_ENVS = 10_000  # each env is an evaluation unit with its own clustering and models
 
@@ -272,11 +279,14 @@ def _per_trajectory(values: np.ndarray, starts: np.ndarray, order: np.ndarray, n
 
 
 def state_columns(names: list[str], source: str) -> list[str]:
-    odd = next((c for c in names if STATE_LIKE.match(c) and not STATE.match(c)), None)
+    odd = next((c for c in names if STATE_LIKE.fullmatch(c) and not STATE.fullmatch(c)), None)
+    if odd is not None and not odd.isascii():
+        raise DataError(f"{source}: column {odd!r} names a state with non-ASCII digits; state columns are "
+                        f"named s0, s1, ... s{{d-1}} with the digits 0-9")
     if odd is not None:
         raise DataError(f"{source}: column '{odd}' has a leading zero; state columns are named s0, s1, ... "
                         f"s{{d-1}} without leading zeros (rename it s{int(odd[1:])})")
-    idx = sorted(int(m.group(1)) for c in names if (m := STATE.match(c)))
+    idx = sorted(int(m.group(1)) for c in names if (m := STATE.fullmatch(c)))
     if not idx:
         raise DataError(f"{source}: no state columns; expected numeric columns s0, s1, ... s{{d-1}}")
     if idx != list(range(len(idx))):
@@ -291,6 +301,13 @@ def _codes(col: pa.ChunkedArray) -> tuple[np.ndarray, list]:
         col = col.cast(col.type.value_type)
     enc = pc.dictionary_encode(col).combine_chunks()
     return enc.indices.to_numpy(zero_copy_only=False).astype(np.int64), enc.dictionary.to_pylist()
+
+
+def _action_origin(n_actions: int | None, valid: bool) -> str:
+    """Where the number of actions came from, for a message."""
+    if n_actions is not None:
+        return "trajectories.n_actions"
+    return "the length of the valid lists" if valid else "the largest action + 1"
 
 
 def datasets_from_table(step: StepTable, n_actions: int | None = None,
@@ -392,17 +409,19 @@ def datasets_from_table(step: StepTable, n_actions: int | None = None,
         if (sizes != width).any():
             row = int(np.flatnonzero(sizes != width)[0])
             raise _fail(where, "valid", row, f"{int(sizes[row])} entries, expected {width} (one per action)")
+        check_action_memory(rows, width, source, _action_origin(n_actions, valid=True))
         valid = bool_lists(vcol, width, source)
         n = width
     else:
         n = n_actions if n_actions is not None else int(actions.max()) + 1
     if n < 1 or n > MAX_ACTIONS:
         raise DataError(f"{source}: {n} actions; pcpg handles 1..{MAX_ACTIONS}")
+    check_action_memory(rows, n, source, _action_origin(n_actions, valid=valid is not None))
     too_big = a_sorted >= n
     if too_big.any():
         row = int(order[np.flatnonzero(too_big)[0]])
-        raise _fail(where, "action", row, f"action {actions[row]} is outside 0..{n - 1}"
-                    + (" (the length of the valid lists)" if valid is not None else " (trajectories.n_actions)"))
+        raise _fail(where, "action", row, f"action {actions[row]} is outside 0..{n - 1} "
+                                           f"({_action_origin(n_actions, valid is not None)})")
     if valid is not None:
         taken = a_sorted >= 0
         ok = np.ones(rows, bool)
