@@ -203,3 +203,15 @@ def test_agents_swapped_between_environments_are_refused_by_export(small_run, tm
     err = capsys.readouterr().err.strip()
     assert "E3/group000.pt: not the file the run wrote here" in err and "\n" not in err
     assert not (tmp_path / "swapped").exists()
+
+
+def test_the_names_written_beside_the_environments_are_all_reserved(small_run):
+    """An environment may not be named like a file a run writes beside the environments' folders
+    (run_folders.BESIDE_UNITS, checked before clustering): the list covers what a run writes."""
+    from pcpg_dist.run_folders import BESIDE_UNITS
+
+    envs = {"E1", "E3"}
+    beside = {p.name for folder in ("summary", "agents", "report") for p in (small_run / folder).iterdir()}
+    beside |= {p.name for p in small_run.iterdir()}
+    assert envs <= beside  # the environments' folders are there, beside the rest
+    assert beside - envs - {"cache.lock"} <= BESIDE_UNITS, beside - envs - BESIDE_UNITS
