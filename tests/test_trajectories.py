@@ -489,3 +489,23 @@ def test_tampered_minari_names_are_one_line(tmp_path, monkeypatch, key) -> None:
     with pytest.raises(DataError) as e:
         read_minari("pcpg/lake-v0")
     assert f"metadata 'pcpg.{key}' is 5; expected a list of names" in str(e.value)
+
+
+def test_logs_that_never_took_the_envs_last_action_are_told_to_set_n_actions(tmp_path) -> None:
+    """Logs without action 3 on FrozenLake (4 actions): the message blamed a 'valid' column the
+    logs did not have; it now says where the count came from and which key to set."""
+    df = frozenlake_logs(per_style=10, seed=3)
+    df = df[~df.trajectory.isin(df.trajectory[df.action == 3])]
+    path = tmp_path / "lake.parquet"
+    df.to_parquet(path, index=False)
+    lake = {"path": str(path), "score": "return", "gymnasium_env": "FrozenLake-v1",
+            "gymnasium_kwargs": {"map_name": "8x8", "is_slippery": False}}
+    cfg = load_config(write_config(tmp_path, path, trajectories=lake))
+    with pytest.raises(ConfigError) as e:
+        cfg.domain_object.units(cfg, cfg.domain_object.generate(cfg, show_progress=False))
+    msg = str(e.value)
+    assert "but the logs have 3 (trajectories.n_actions, else the width of a 'valid' column, else the largest " \
+           "action + 1); if the players never took action 3, set trajectories.n_actions: 4" in msg, msg
+    cfg = load_config(write_config(tmp_path, path, trajectories={**lake, "n_actions": 4}))
+    (unit,) = cfg.domain_object.units(cfg, cfg.domain_object.generate(cfg, show_progress=False))
+    assert unit.dataset.n_actions == 4

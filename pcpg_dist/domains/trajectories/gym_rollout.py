@@ -129,8 +129,8 @@ def check_compatible(env: gymnasium.Env, state_dim: int, n_actions: int) -> None
             f"write each state as gymnasium.spaces.flatten(observation_space, obs) or name the env "
             f"(and {KWARGS_KEY}) the logs were recorded in")
     if n != n_actions:
-        unused = (f"if the players never took actions {n_actions}..{n - 1}, set trajectories.n_actions: {n}; "
-                  if n > n_actions else "")
+        rest = f"action {n_actions}" if n == n_actions + 1 else f"actions {n_actions}..{n - 1}"
+        unused = f"if the players never took {rest}, set trajectories.n_actions: {n}; " if n > n_actions else ""
         raise ConfigError(
             f"key '{ENV_KEY}': {env_id} has {n} actions ({env.action_space}) but the logs have "
             f"{n_actions} (trajectories.n_actions, else the width of a 'valid' column, else the largest "
