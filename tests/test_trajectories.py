@@ -473,8 +473,13 @@ def test_an_env_named_like_a_summary_file_is_refused_before_clustering(tmp_path,
     assert not (run / "cache" / "cluster").exists() and not (run / "summary").exists()
 
 
-@pytest.mark.parametrize("key", ["feature_names", "action_names"])
-def test_tampered_minari_names_are_one_line(tmp_path, monkeypatch, key) -> None:
+@pytest.mark.parametrize("key, value, needle", [
+    ("pcpg.feature_names", 5, "metadata 'pcpg.feature_names' is 5; expected a list of names"),
+    ("pcpg.action_names", 5, "metadata 'pcpg.action_names' is 5; expected a list of names"),
+    # Minari reads every episode the metadata counts when asked for its iterator (was 'cannot access')
+    ("total_episodes", 10**9, "unreadable episode data (no such file"),
+])
+def test_tampered_minari_metadata_is_one_line(tmp_path, monkeypatch, key, value, needle) -> None:
     from pcpg_dist.domains.trajectories.minari_io import read_minari, write_minari
 
     monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "minari"))
@@ -484,11 +489,15 @@ def test_tampered_minari_names_are_one_line(tmp_path, monkeypatch, key) -> None:
     write_minari({"lake": ds}, tmp_path / "minari", "pcpg/lake-v0")
     meta_file = tmp_path / "minari" / "pcpg" / "lake-v0" / "data" / "metadata.json"
     meta = json.loads(meta_file.read_text())
-    meta["pcpg"][key] = 5
+    *parents, last = key.split(".")
+    target = meta
+    for name in parents:
+        target = target[name]
+    target[last] = value
     meta_file.write_text(json.dumps(meta))
     with pytest.raises(DataError) as e:
         read_minari("pcpg/lake-v0")
-    assert f"metadata 'pcpg.{key}' is 5; expected a list of names" in str(e.value)
+    assert needle in str(e.value) and "\n" not in str(e.value)
 
 
 def test_logs_that_never_took_the_envs_last_action_are_told_to_set_n_actions(tmp_path) -> None:

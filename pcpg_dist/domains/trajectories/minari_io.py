@@ -156,15 +156,26 @@ def _load(dataset_id: str) -> Any:
 
 
 def _episodes(dataset: Any, dataset_id: str) -> Iterator[Any]:
-    """The episodes, with a read failure as one DataError (Minari raises several kinds)."""
-    it = iter(dataset.iterate_episodes())
+    """The episodes, with a read failure as one DataError (Minari raises several kinds, some when
+    asked for the iterator: it reads every episode its metadata counts)."""
+    errors = (ValueError, KeyError, TypeError, OSError, pa.ArrowException)
+
+    def unreadable(e: BaseException) -> DataError:
+        hint = (f"no such file {e}; does its metadata's total_episodes match the episodes stored?"
+                if isinstance(e, FileNotFoundError) else first_line(e))
+        return DataError(f"minari:{dataset_id}: unreadable episode data ({hint})")
+
+    try:
+        it = iter(dataset.iterate_episodes())
+    except errors as e:
+        raise unreadable(e) from None
     while True:
         try:
             episode = next(it)
         except StopIteration:
             return
-        except (ValueError, KeyError, TypeError, OSError, pa.ArrowException) as e:
-            raise DataError(f"minari:{dataset_id}: unreadable episode data ({str(e)[:200]})") from None
+        except errors as e:
+            raise unreadable(e) from None
         yield episode
 
 
