@@ -119,6 +119,7 @@ def _cmd_cluster(args: argparse.Namespace) -> None:
     from pcpg_dist.cache import write_files
     from pcpg_dist.config.overrides import load_config_with
     from pcpg_dist.dataset import atomic_write_bytes, confined, load_datasets
+    from pcpg_dist.domains import contract
     from pcpg_dist.generate import generate_to
     from pcpg_dist.progress import out as console  # results: stdout
     from pcpg_dist.ray_utils import init_ray, run_tasks
@@ -132,7 +133,7 @@ def _cmd_cluster(args: argparse.Namespace) -> None:
     else:
         datasets = generate_to(cfg, out / "data", show_progress=not args.quiet)
     # the same units (split, per-level scaling, valid sets) as `pcpg run` clusters
-    units = {u.name: u for u in cfg.domain_object.units(cfg, datasets)}
+    units = {u.name: u for u in contract.units(cfg, datasets)}
     envs = list(units)
     folders = {e: confined(out, e, "unit name") for e in envs}
     results = run_tasks(cluster_task, [(units[e], cfg.clustering, cfg.seed, cfg.runner.cpus_per_task)

@@ -36,6 +36,11 @@ class TrainingError(PcpgError):
     hyper-parameters to change; nothing trained by that run is published."""
 
 
+class DomainError(PcpgError):
+    """A domain broke its contract (docs/writing-a-domain.md): one of its methods raised, or
+    returned what pcpg cannot use; the message names the domain, the method and what was wrong."""
+
+
 class ServiceError(PcpgError):
     """A tracking server, Ray cluster or study storage cannot be reached or used."""
 

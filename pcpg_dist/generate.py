@@ -11,6 +11,7 @@ from pathlib import Path
 
 from pcpg_dist.config import ExperimentConfig
 from pcpg_dist.dataset import Dataset, write_datasets
+from pcpg_dist.domains import contract
 from pcpg_dist.domains.base import Unit
 from pcpg_dist.provenance import provenance
 
@@ -19,7 +20,7 @@ __all__ = ["Unit", "generate", "generate_to", "units"]
 
 def generate(cfg: ExperimentConfig, show_progress: bool = True) -> dict[str, Dataset]:
     """Every dataset file of the config's domain, keyed by env (Ray must be initialised)."""
-    return cfg.domain_object.generate(cfg, show_progress)
+    return contract.generate(cfg, show_progress)
 
 
 def generate_to(cfg: ExperimentConfig, out_dir: Path, show_progress: bool = True) -> dict[str, Dataset]:
@@ -35,11 +36,11 @@ def write_to(cfg: ExperimentConfig, datasets: dict[str, Dataset], out_dir: Path,
     """Write the datasets and their manifest (config, seeds, provenance) to ``out_dir``."""
     return write_datasets(out_dir, list(datasets.values()), {
         "config": cfg.model_dump(mode="json"), "config_hash": cfg.hash(), "base_seed": cfg.seed,
-        **cfg.domain_object.manifest(cfg, datasets),
+        **contract.manifest(cfg, datasets),
         "generate_seconds": None if seconds is None else round(seconds, 3), **provenance(),
     })
 
 
 def units(cfg: ExperimentConfig, datasets: dict[str, Dataset]) -> list[Unit]:
     """The evaluation units of a domain's datasets (split, valid sets, what Step A clusters)."""
-    return cfg.domain_object.units(cfg, datasets)
+    return contract.units(cfg, datasets)

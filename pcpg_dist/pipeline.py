@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from pcpg_dist.domains import contract
 from pcpg_dist.domains.base import Unit
 
 
@@ -71,7 +72,7 @@ def plan_unit(unit: Unit, labels: np.ndarray, cfg, *, rank_cfg=None, seeds=None,
     rank_cfg = rank_cfg or cfg.ranking
     corrupt = cfg.evaluation.corruption_levels if corruption and has_styles(unit) else ()
     return plan_cells(unit.dataset, labels, unit.train_idx, rank_cfg, cfg.seeds if seeds is None else seeds,
-                      k=cfg.clustering.k, score=cfg.domain_object.score(cfg), corruption_levels=corrupt,
+                      k=cfg.clustering.k, score=contract.score(cfg), corruption_levels=corrupt,
                       corruption_ps=cfg.evaluation.corruption_ps, margins=margins)
 
 
@@ -81,13 +82,12 @@ def evaluate_unit(unit: Unit, labels: np.ndarray, trained, cfg, out_dir: str | P
     """Accuracy tables, cross accuracy, rollouts and the domain's extras; finite metrics only."""
     from pcpg_dist.evaluation import evaluate
 
-    domain = cfg.domain_object
     result = evaluate(unit.dataset, labels, unit.test_idx, trained, rank_cfg or cfg.ranking,
-                      eval_cfg or cfg.evaluation, out_dir=out_dir, hooks=domain.hooks(cfg, unit.name) if rollouts else None,
-                      score=domain.score(cfg), k=cfg.clustering.k, margins=margins)
+                      eval_cfg or cfg.evaluation, out_dir=out_dir, hooks=contract.hooks(cfg, unit.name) if rollouts else None,
+                      score=contract.score(cfg), k=cfg.clustering.k, margins=margins)
     metrics = {k: float(v) for k, v in result.metrics.items() if np.isfinite(v)}
     if extras and out_dir is not None:
-        metrics.update(domain.extras(cfg, unit, labels, trained, Path(out_dir)))
+        metrics.update(contract.extras(cfg, unit, labels, trained, Path(out_dir)))
     return metrics
 
 

@@ -34,6 +34,7 @@ import numpy as np
 from pcpg_dist.cache import Cache, content_key, files_of
 from pcpg_dist.config import ExperimentConfig
 from pcpg_dist.dataset import Dataset, atomic_write_bytes, confined, load_datasets
+from pcpg_dist.domains import contract
 from pcpg_dist.domains.base import Unit
 from pcpg_dist.parallel import set_threads
 from pcpg_dist.ray_utils import run_tasks
@@ -82,7 +83,7 @@ class Point:
 # --------------------------------------------------------------------------- data
 def data_key(cfg: ExperimentConfig) -> str:
     """Content key of the data: what the domain says identifies it (settings, file contents, seed)."""
-    return content_key(CODE_VERSION, *cfg.domain_object.data_key(cfg))
+    return content_key(CODE_VERSION, *contract.data_key(cfg))
 
 
 def load_or_generate(cfg: ExperimentConfig, cache: Cache, show_progress: bool) -> tuple[dict[str, Dataset], str]:
@@ -92,7 +93,7 @@ def load_or_generate(cfg: ExperimentConfig, cache: Cache, show_progress: bool) -
     path = cache.path("data", key)
     if cache.done("data", key) is None:
         # generated and validated in memory first: bad input leaves nothing behind
-        datasets = cfg.domain_object.generate(cfg, show_progress)
+        datasets = contract.generate(cfg, show_progress)
         cache.start("data", key)
         write_to(cfg, datasets, path)
         cache.finish("data", key, {"stage": "data"})
@@ -102,7 +103,7 @@ def load_or_generate(cfg: ExperimentConfig, cache: Cache, show_progress: bool) -
 def load_units(cfg: ExperimentConfig, cache: Cache, show_progress: bool) -> tuple[list[Unit], str]:
     """The config's evaluation units (data generated or loaded once, then cached) and the data key."""
     files, key = load_or_generate(cfg, cache, show_progress)
-    return cfg.domain_object.units(cfg, files), key
+    return contract.units(cfg, files), key
 
 
 # --------------------------------------------------------------------------- Ray tasks
@@ -263,7 +264,7 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
             datas[p.dkey] = load_or_generate(p.cfg, cache, show_progress)[0]
         ukey = content_key(p.dkey, p.cfg.model_dump(mode="json", exclude=NOT_IN_UNITS))
         if ukey not in unit_sets:
-            units = {u.name: u for u in p.cfg.domain_object.units(p.cfg, datas[p.dkey])}
+            units = {u.name: u for u in contract.units(p.cfg, datas[p.dkey])}
             for name in units:
                 confined(p.out, name, "unit name")  # unit names become folder and run names
                 check_unit_name(name)

@@ -23,6 +23,7 @@ import yaml
 
 from pcpg_dist.cli import main
 from pcpg_dist.domains import registry
+from pcpg_dist.domains.base import Unit
 
 PACKAGE = Path(__file__).resolve().parent / "plugin_domain"
 TINY = {
@@ -173,3 +174,209 @@ def test_pcpg_run_end_to_end(corridor_site, tmp_path):
     assert sorted(m[f"rollout/length/k{c}/p1"] for c in range(3)) == pytest.approx(routes, abs=1.0)
     run = json.loads((summary / "run.json").read_text())
     assert run["config"]["domain"] == "corridor" and run["config"]["plugin"]["length"] == 12
+
+
+# --------------------------------------------------------------------------- broken plugins
+# A third party's domain that breaks the contract of docs/writing-a-domain.md: the corridor with
+# one method replaced. pcpg checks what each method returns where it receives it, and turns an
+# exception raised inside a plugin's method into one line naming the domain and the method.
+
+
+def broken_corridor(**methods):
+    """The corridor domain with ``methods`` replaced (a subclass, as a plugin author writes one)."""
+    from pcpg_corridor import CorridorDomain
+
+    return type("BrokenCorridor", (CorridorDomain,), methods)()
+
+
+def raising(exc: Exception):
+    def method(*args, **kwargs):
+        raise exc
+
+    return method
+
+
+def corridor_units(test_idx):
+    def units(self, cfg, datasets):
+        return [Unit(env, ds, np.asarray(test_idx)) for env, ds in datasets.items()]
+
+    return units
+
+
+def _generated(self, cfg, show_progress=True):
+    from pcpg_corridor import CorridorDomain
+
+    return CorridorDomain.generate(self, cfg, show_progress)
+
+
+BEFORE_CLUSTERING = {
+    "generate-empty": ({"generate": lambda self, cfg, show_progress=True: {}},
+                       "generate returned an empty dict; it must return a non-empty dict of environment "
+                       "name -> Dataset"),
+    "generate-list": ({"generate": lambda self, cfg, show_progress=True: list(_generated(self, cfg).values())},
+                      "generate returned a list; it must return a non-empty dict"),
+    "generate-none": ({"generate": lambda self, cfg, show_progress=True: None},
+                      "generate returned None; it must return a non-empty dict"),
+    "generate-array": ({"generate": lambda self, cfg, show_progress=True: {"L12": np.zeros(3)}},
+                       "generate returned a ndarray for 'L12'; it must return a non-empty dict"),
+    "generate-same-env": ({"generate": lambda self, cfg, show_progress=True: {
+                              "a": _generated(self, cfg)["L12"], "b": _generated(self, cfg)["L12"]}},
+                          "generate returned two datasets of environment 'L12' (keys 'a' and 'b')"),
+    "generate-raises": ({"generate": raising(RuntimeError("simulator crashed\nat step 7"))},
+                        "generate raised RuntimeError: simulator crashed"),
+    "units-out-of-range": ({"units": corridor_units([0, 5, 999])},
+                           "units returned unit 'L12' with test_idx 999, outside 0..179 (its dataset holds "
+                           "180 trajectories)"),
+    "units-negative": ({"units": corridor_units([-1, 3])}, "test_idx -1, outside 0..179"),
+    "units-floats": ({"units": corridor_units([0.5, 3.0])}, "dtype float64; it must be a 1-D array of "
+                                                          "trajectory positions (integers)"),
+    "units-repeated": ({"units": corridor_units([3, 3])}, "test_idx naming a trajectory twice"),
+    "units-all-held-out": ({"units": corridor_units(np.arange(180))},
+                           "all 180 trajectories held out; at least one must be left for training"),
+    "units-cluster-input": ({"units": lambda self, cfg, datasets: [
+                                Unit("L12", datasets["L12"], np.arange(5), datasets["L12"].subset(np.arange(9)))]},
+                            "unit 'L12' with 9 trajectories as its cluster_input; it must be a Dataset of the "
+                            "same 180 trajectories"),
+    "units-same-name": ({"units": lambda self, cfg, datasets: [Unit("L12", datasets["L12"], np.arange(5))] * 2},
+                        "units returned a unit named 'L12' at position 1; every unit needs its own"),
+    "units-none": ({"units": lambda self, cfg, datasets: None},
+                   "units returned None; it must return a non-empty list of Unit"),
+    "units-raises": ({"units": raising(KeyError("L13"))}, "units raised KeyError: 'L13'"),
+    "score-raises": ({"score": raising(ValueError("no skill column"))},
+                     "score raised ValueError: no skill column"),
+    "score-function-raises": ({"score": lambda self, cfg: raising(ZeroDivisionError("division by zero"))},
+                              "score's function raised ZeroDivisionError: division by zero"),
+    "score-not-callable": ({"score": lambda self, cfg: np.ones(180)},
+                           "score returned a ndarray; it must return None or a function"),
+    "score-wrong-shape": ({"score": lambda self, cfg: lambda ds: np.ones(3)},
+                          "score function returned shape (3,), expected (180,)"),
+    "score-strings": ({"score": lambda self, cfg: lambda ds: ["high"] * ds.n_trajectories},
+                      "score's function returned a list that does not convert to floats"),
+    "hooks-raises": ({"hooks": raising(FileNotFoundError(2, "No such file", "levels/L12.txt"))},
+                     "hooks raised FileNotFoundError: [Errno 2] No such file: 'levels/L12.txt'"),
+    "hooks-dict": ({"hooks": lambda self, cfg, unit: {"rollout": None}},
+                   "hooks returned a dict for unit 'L12'; it must return None or a DomainHooks"),
+}
+
+
+@pytest.mark.parametrize("fault", list(BEFORE_CLUSTERING))
+def test_broken_plugin_fails_in_one_line_before_clustering(corridor_site, ray_session, capsys, tmp_path,
+                                                           monkeypatch, fault):
+    """A plugin whose generate, units, score or hooks is broken stops `pcpg run` with one line
+    naming the domain, the method and what it returned (or raised), before any Ray task starts:
+    no clustering, nothing written but the generated data's cache entry."""
+    import pcpg_dist.runner as runner
+
+    methods, says = BEFORE_CLUSTERING[fault]
+    monkeypatch.setitem(registry._loaded, "corridor", broken_corridor(**methods))
+    stages = []
+    monkeypatch.setattr(runner, "_run_stage", lambda description, *a, **k: stages.append(description) or 0)
+    work = tmp_path / "w"
+    code, err = run_cli(capsys, "run", str(write_config(tmp_path)), "--no-tracking", "--workdir", str(work))
+    assert (code, len(err)) == (2, 1), err
+    who = "" if fault == "score-wrong-shape" else "domain 'corridor': "  # pcpg's own DataError, as before
+    assert err[0].startswith(f"pcpg: error: {who}") and says in err[0], err[0]
+    assert stages == []  # failed before Step A: no task of any stage was submitted
+    assert not (work / "corridor-e2e" / "cache" / "cluster").exists()
+    if fault.startswith("generate"):  # checked before the data is cached: nothing written at all
+        assert not work.exists()
+
+
+@pytest.fixture(scope="module")
+def corridor_trained(corridor_site, tmp_path_factory):
+    """A tiny corridor unit clustered and trained in-process: (cfg, unit, labels, trained)."""
+    from pcpg_dist.bc import train_plan
+    from pcpg_dist.config import load_config
+    from pcpg_dist.domains import contract
+    from pcpg_dist.pipeline import cluster_unit, plan_unit
+
+    small = {"corridor": {"length": 12, "trajectories_per_style": 8, "noise_max": 0.2}, "seeds": [0],
+             "ranking": {"ps": [1.0]}, "bc": {"epochs": 3, "hidden_size": 8},
+             "clustering": {"k": 3, "pretrain_epochs": 1, "dec_epochs": 1},
+             "evaluation": {"rollouts_per_policy": 2, "corruption_levels": [0.0], "max_steps": 20}}
+    cfg = load_config(write_config(tmp_path_factory.mktemp("cfg"), **small))
+    (unit,) = contract.units(cfg, contract.generate(cfg, show_progress=False))
+    clustering = cluster_unit(unit, cfg.clustering, cfg.seed, ceiling=False)
+    trained = train_plan(plan_unit(unit, clustering.labels, cfg), cfg.bc)
+    return cfg, unit, clustering.labels, trained
+
+
+def _rollout_returning(value):
+    def hooks(self, cfg, unit):
+        from pcpg_dist.domains.base import DomainHooks
+
+        return DomainHooks(rollout=lambda policy, n, rng: value(n))
+
+    return hooks
+
+
+def _short_rollout(self, cfg, unit):
+    from pcpg_corridor.game import Corridor, rollout_fn
+
+    from pcpg_dist.domains.base import DomainHooks
+
+    real = rollout_fn(Corridor(12), cfg.evaluation.max_steps)
+    return DomainHooks(rollout=lambda policy, n, rng: real(policy, n - 1, rng))
+
+
+IN_EVALUATION = {
+    "extras-str": ({"extras": lambda self, *a: {"x": "abc"}},
+                   "extras returned 'x': 'abc' for unit 'L12'; it must return a dict of metric name (str) -> "
+                   "finite float"),
+    "extras-nan": ({"extras": lambda self, *a: {"x": float("nan")}}, "extras returned 'x': nan"),
+    "extras-list": ({"extras": lambda self, *a: [1.0]}, "extras returned a list for unit 'L12'"),
+    "extras-raises": ({"extras": raising(IndexError("list index out of range"))},
+                      "extras raised IndexError: list index out of range"),
+    "rollout-dict": ({"hooks": _rollout_returning(lambda n: {"lengths": [5] * n})},
+                     "the rollout hook returned a dict; it must return a Dataset of the 2 episodes asked for"),
+    "rollout-none": ({"hooks": _rollout_returning(lambda n: None)}, "the rollout hook returned None"),
+    "rollout-short": ({"hooks": _short_rollout},
+                      "the rollout hook returned a Dataset of 1 episode(s); it must return a Dataset of the 2 "
+                      "episodes asked for"),
+    "rollout-raises": ({"hooks": _rollout_returning(raising(OSError("simulator died")))},
+                       "the rollout hook raised OSError: simulator died"),
+}
+
+
+@pytest.mark.parametrize("fault", list(IN_EVALUATION))
+def test_broken_plugin_in_the_evaluation_is_one_line(corridor_trained, monkeypatch, tmp_path, fault):
+    """extras and rollouts run inside the evaluation (a Ray task in `pcpg run`, whose PcpgError
+    reaches the CLI as its one line): what they return is checked where the evaluation gets it."""
+    from pcpg_dist.errors import DomainError
+    from pcpg_dist.pipeline import evaluate_unit
+
+    cfg, unit, labels, trained = corridor_trained
+    methods, says = IN_EVALUATION[fault]
+    monkeypatch.setitem(registry._loaded, "corridor", broken_corridor(**methods))
+    with pytest.raises(DomainError) as raised:
+        evaluate_unit(unit, labels, trained, cfg, tmp_path)
+    message = str(raised.value)
+    assert "\n" not in message and message.startswith("domain 'corridor': ") and says in message, message
+
+
+def test_good_extras_and_rollouts_pass_through(corridor_trained, monkeypatch, tmp_path):
+    """The checks let a well-behaved plugin's metrics through as floats (numpy numbers too)."""
+    from pcpg_dist.pipeline import evaluate_unit
+
+    cfg, unit, labels, trained = corridor_trained
+    extras = {"extras": lambda self, *a: {"mine/count": np.int64(3), "mine/share": np.float32(0.25)}}
+    monkeypatch.setitem(registry._loaded, "corridor", broken_corridor(**extras))
+    metrics = evaluate_unit(unit, labels, trained, cfg, tmp_path)
+    assert metrics["mine/count"] == 3.0 and metrics["mine/share"] == 0.25
+    assert type(metrics["mine/count"]) is float
+    assert sorted(k for k in metrics if k.startswith("rollout/length/k"))  # the corridor's rollouts ran
+
+
+def test_a_built_in_domains_exception_keeps_its_traceback():
+    """Only a plugin's exceptions become one line: in a built-in domain it is a bug in pcpg-dist."""
+    from pcpg_dist.domains import contract
+    from pcpg_dist.domains.base import Domain
+    from pcpg_dist.errors import DomainError
+
+    builtin = type("Builtin", (Domain,), {"__module__": "pcpg_dist.domains.fake", "name": "fake"})()
+    plugin = type("Plugin", (Domain,), {"name": "fake"})()
+    with pytest.raises(ZeroDivisionError), contract.calling(builtin, "generate"):
+        1 / 0  # noqa: B018
+    says = "^domain 'fake': generate raised ZeroDivisionError: division by zero$"
+    with pytest.raises(DomainError, match=says), contract.calling(plugin, "generate"):
+        1 / 0  # noqa: B018
