@@ -380,3 +380,14 @@ def test_a_built_in_domains_exception_keeps_its_traceback():
     says = "^domain 'fake': generate raised ZeroDivisionError: division by zero$"
     with pytest.raises(DomainError, match=says), contract.calling(plugin, "generate"):
         1 / 0  # noqa: B018
+
+
+def test_a_plugin_check_config_raising_anything_is_one_line(corridor_site, capsys, tmp_path, monkeypatch):
+    """check_config may raise ValueError or a pcpg error; anything else was a traceback at load."""
+    monkeypatch.setitem(registry._loaded, "corridor",
+                        broken_corridor(check_config=raising(OSError(13, "Permission denied", "/srv/levels"))))
+    code, err = run_cli(capsys, "run", str(write_config(tmp_path)), "--no-tracking", "--workdir", str(tmp_path / "w"))
+    assert (code, len(err)) == (2, 1), err
+    assert "domain 'corridor': check_config raised PermissionError: [Errno 13] Permission denied: " \
+           "'/srv/levels'" in err[0], err[0]
+    assert not (tmp_path / "w").exists()

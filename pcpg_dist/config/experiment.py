@@ -199,8 +199,11 @@ def parse_config(data: Any, source: str = "<config>", base_dir: Path | None = No
         more = f" (and {len(errors) - 1} more problem(s))" if len(errors) > 1 else ""
         domain = data.get("domain") if isinstance(data.get("domain"), str) else None
         raise ConfigError(one_line(f"{source}: {_describe(errors[0], domain)}{more}")) from None
+    from pcpg_dist.domains.contract import calling
+
     try:  # the chosen domain's own settings and checks (files exist, a plugin's section, ...)
-        cfg.domain_object.check_config(cfg)
+        with calling(cfg.domain_object, "check_config"):  # a plugin's other exceptions: one line too
+            cfg.domain_object.check_config(cfg)
     except (PcpgError, ValueError) as e:
         raise ConfigError(one_line(f"{source}: {e}")) from None
     return cfg
