@@ -35,6 +35,15 @@ def test_shipped_configs_load(name):
     assert cfg.name and cfg.flat()["name"] == cfg.name
 
 
+def test_mlflow_params_hold_only_the_sections_that_act_on_the_run():
+    """A GridWorld run's page listed ~40 params of Mario, MiniDungeons, logs and tuning."""
+    grid = load_config(EXPERIMENTS / "quick.yaml").flat()
+    mario = load_config(EXPERIMENTS / "mario.yaml").flat()
+    assert {k.split(".")[0] for k in grid} >= {"gridworld", "pbtg", "clustering", "bc"}
+    assert not any(k.startswith(("mario.", "minidungeons.", "trajectories.", "tuning.", "plugin")) for k in grid)
+    assert "mario.path" in mario and not any(k.startswith(("gridworld.", "pbtg.", "tuning.")) for k in mario)
+
+
 def test_layout_dir_is_relative_to_the_config_file(tmp_path):
     cfg = load_config(write(tmp_path, BASE))
     assert cfg.gridworld.layout_path("E1") == (tmp_path / "gridworlds" / "E1.txt").resolve()

@@ -45,6 +45,10 @@ MAX_YAML_NODES = 100_000  # values after alias expansion: a 'billion laughs' fil
 MAX_YAML_DEPTH = 50  # nesting of lists and mappings
 
 
+#: the sections that hold one domain's settings (a run logs only its own domain's)
+DOMAIN_SECTIONS = ("gridworld", "minidungeons", "mario", "trajectories", "pbtg", "plugin")
+
+
 class ExperimentConfig(StrictModel):
     """A whole experiment: data, clustering, ranking, BC, evaluation and fan-out."""
 
@@ -139,8 +143,11 @@ class ExperimentConfig(StrictModel):
         return hashlib.sha256(self.model_dump_json(exclude={"tuning", "runner"}).encode()).hexdigest()[:16]
 
     def flat(self) -> dict[str, str]:
-        """Flattened ``section.key -> value`` strings, for MLflow params."""
+        """Flattened ``section.key -> value`` strings, for MLflow params: the sections that act on
+        a run (`tuning`, which `pcpg run` ignores, and the other domains' sections are left out:
+        a GridWorld run's page listed ~40 params of Mario, MiniDungeons, logs and tuning)."""
         out: dict[str, str] = {}
+        unused = {"tuning", *DOMAIN_SECTIONS} - set(self.domain_object.config_sections())
 
         def walk(prefix: str, value: Any) -> None:
             if isinstance(value, dict) and value:
@@ -149,7 +156,7 @@ class ExperimentConfig(StrictModel):
             else:
                 out[prefix] = json.dumps(value) if isinstance(value, list | tuple | dict) else str(value)
 
-        walk("", self.model_dump(mode="json"))
+        walk("", self.model_dump(mode="json", exclude=unused))
         return out
 
 

@@ -103,6 +103,13 @@ class Domain:
     paper_numbers: ClassVar[dict[str, str]] = {}
 
     # ------------------------------------------------------------------ config
+    def config_sections(self) -> tuple[str, ...]:
+        """The ExperimentConfig domain sections this domain reads (the others' defaults are not
+        logged as its run's MLflow params)."""
+        if self.settings_key is not None:
+            return (self.settings_key,)
+        return ("plugin",) if self.settings_model is not None else ()
+
     def settings(self, cfg: ExperimentConfig) -> Any:
         """This domain's settings in ``cfg`` (None when it has none)."""
         if self.settings_key is not None:

@@ -55,6 +55,9 @@ class GridWorldDomain(Domain):
         "reward distance, random (Table 3)": "33.05 / 180.84 / 180.12 / 192.42",
     }
 
+    def config_sections(self) -> tuple[str, ...]:
+        return ("gridworld", "pbtg")  # the layouts, and PBTG's Q-learning and sampling
+
     def data_key(self, cfg) -> list[Any]:
         gw = cfg.gridworld
         if gw.random_layouts is not None:  # the layouts' text, so a generator change regenerates
