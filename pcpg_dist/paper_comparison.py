@@ -109,8 +109,8 @@ def headline(metrics: dict) -> dict:
     acc, ceil = metrics.get("clustering/accuracy"), metrics.get("clustering/ceiling")
     gap = metrics.get("clustering/gap_to_ceiling")
     return {"rows": rows, "wins": wins, "compared": compared,
-            "accuracy": None if acc is None else f"{acc:.4g}", "ceiling": None if ceil is None else f"{ceil:.4g}",
-            "gap": None if gap is None else f"{gap:+.4g}",
+            "accuracy": None if acc is None else f"{acc:.3f}", "ceiling": None if ceil is None else f"{ceil:.3f}",
+            "gap": None if gap is None else f"{gap:+.3f}",
             "random": fmt(metrics.get("random/accuracy"))}
 
 
