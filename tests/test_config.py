@@ -295,6 +295,20 @@ def test_an_override_given_twice_is_refused_not_the_last_taken(tmp_path):
                             "'bc.epochs=7'); give it once as bc.epochs=VALUE")
 
 
+def test_an_optional_sections_keys_can_be_overridden_one_by_one(tmp_path):
+    """`gridworld.random_layouts.count=2` was 'unknown config key'; the whole mapping was needed."""
+    from pcpg_dist.config.overrides import load_config_with
+
+    path = write(tmp_path, {"name": "r", "gridworld": {"random_layouts": {"count": 5, "seed": 11}}})
+    cfg = load_config_with(path, ["gridworld.random_layouts.count=2"])
+    assert cfg.gridworld.units == ["R0000", "R0001"] and cfg.gridworld.random_layouts.seed == 11
+    fresh = write(tmp_path, {"name": "r"})
+    assert load_config_with(fresh, ["gridworld.random_layouts.count=3"]).gridworld.random_layouts.count == 3
+    assert load_config_with(path, ["gridworld.random_layouts={count: 1}"]).gridworld.units == ["R0000"]
+    with pytest.raises(ConfigError, match="did you mean 'gridworld.random_layouts.count'"):
+        load_config_with(path, ["gridworld.random_layouts.cuont=2"])
+
+
 @pytest.mark.parametrize("content, needle", [
     (b"name: x\nseed: \xff\xfe\n", "bad.yaml, line 2: not UTF-8 text (byte 14)"),
     (b"a: &a [*a]\nname: x\n", "a YAML alias refers to a value that contains it"),

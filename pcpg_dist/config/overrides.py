@@ -25,6 +25,7 @@ import json
 import math
 import re
 import reprlib
+import typing
 from pathlib import Path
 from typing import Any
 
@@ -38,14 +39,19 @@ _OPEN_SECTIONS = {"plugin", "gymnasium_kwargs"}  # free-form mappings: any sub-k
 
 
 def _leaf_keys(model: type[BaseModel], prefix: str = "") -> list[str]:
+    """Every settable dotted key. An optional section (``gridworld.random_layouts: {count, seed} |
+    None``) is settable whole and key by key (``gridworld.random_layouts.count=2``)."""
     out: list[str] = []
     for name, field in model.model_fields.items():
         key = f"{prefix}{name}"
         ann = field.annotation
         if isinstance(ann, type) and issubclass(ann, BaseModel):
             out += _leaf_keys(ann, key + ".")
-        else:
-            out.append(key)
+            continue
+        out.append(key)
+        for arg in typing.get_args(ann):  # Optional[Model]: its keys too
+            if isinstance(arg, type) and issubclass(arg, BaseModel):
+                out += _leaf_keys(arg, key + ".")
     return out
 
 
