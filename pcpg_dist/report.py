@@ -115,10 +115,10 @@ def _stage_rows(run: dict, n_envs: int) -> tuple[list[list[str]], list[str]]:
     """(stage, seconds, work done, source) rows and the stages served wholly from the cache
     (``run`` as :func:`read_run` checked it)."""
     computed, seconds = run.get("computed", {}), run.get("stage_seconds", {})
-    work = {"generate": ("data", "data sets generated"),
-            "cluster": ("clustering", f"of {n_envs} clusterings computed"),
-            "train": ("train_groups", "groups of cells trained"),
-            "evaluate": ("evaluations", f"of {n_envs} evaluations computed")}
+    work = {"generate": ("data", ("data set generated", "data sets generated")),
+            "cluster": ("clustering", (f"of {n_envs} clusterings computed",) * 2),
+            "train": ("train_groups", ("group of cells trained", "groups of cells trained")),
+            "evaluate": ("evaluations", (f"of {n_envs} evaluations computed",) * 2)}
     listed = run.get("cached_stages")
     if listed is not None:  # the runner's own record (it keeps a cached stage's first timing)
         cached = list(listed)
@@ -126,13 +126,13 @@ def _stage_rows(run: dict, n_envs: int) -> tuple[list[list[str]], list[str]]:
         cached = [s for s, (key, _) in work.items() if key in computed and not computed[key]]
     rows = []
     for stage, secs in seconds.items():
-        key, what = work.get(stage, ("", ""))
-        done = f"{computed[key]} {what}" if key in computed else "—"
+        key, (one, many) = work.get(stage, ("", ("", "")))
+        done = f"{computed[key]} {one if computed[key] == 1 else many}" if key in computed else "—"
         if stage in cached:
             source = "cache (seconds of the run that computed it)" if listed is not None else "cache"
         else:
             source = "computed"
-        rows.append([stage, fmt(float(secs), 2), done, source])
+        rows.append([stage, fmt(float(secs), 1), done, source])
     return rows, cached
 
 

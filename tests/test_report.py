@@ -22,6 +22,7 @@ import pytest
 
 from pcpg_dist import figures
 from pcpg_dist.report import build, render
+from pcpg_dist.report_data import table_of
 
 DATA = Path(__file__).parent / "data" / "report_summary"
 NS = "{http://www.w3.org/1999/xhtml}"
@@ -228,6 +229,12 @@ def test_cache_section_says_which_stages_were_served_from_cache(summary, tmp_pat
     rows = {r[0]: r for r in recorded.stages}
     assert rows["generate"][2:] == ["0 data sets generated", "cache (seconds of the run that computed it)"]
     assert rows["train"][2:] == ["2 groups of cells trained", "computed"]
+    one = build(edit_run(summary, tmp_path / "e", computed={"data": 1, "clustering": 1, "train_groups": 1,
+                                                            "evaluations": 1}))
+    assert [r[2] for r in one.stages][:3] == ["1 data set generated", "1 of 1 clusterings computed",
+                                              "1 group of cells trained"]
+    text = " ".join(html.read_text().split())
+    assert "in this invocation: cluster. Every unit" in text  # a space between the two sentences
 
 
 def test_markdown_twin_escapes_data(summary, tmp_path):
@@ -433,3 +440,30 @@ def test_report_of_a_mistyped_run_creates_no_mlflow_store(tmp_path, monkeypatch,
     assert err == [f"pcpg: error: 'nosuchrun' is neither a run's output folder nor an MLflow run: no such "
                    f"folder, and no MLflow store at sqlite:///{tmp_path.resolve() / 'mlflow.db'}"]
     assert list(tmp_path.iterdir()) == []
+
+
+def test_one_number_format_per_column():
+    """Counts as integers, lengths and rewards to 1 decimal, fractions to 3; a std takes its mean's
+    decimals; No Clustering's k of -1 is a dash. Was: "7.000 ± 0.000" beside "11 ± 0.000", "99.737 ±
+    0.263" beside "137.2 ± 1.665", counts as "2.000"."""
+    lengths = pd.DataFrame({"method": ["nc", "pcpg", "pcpg"], "k": [-1, 0, 3], "p": [1.0, 1.0, 0.5],
+                            "mean": [7.0, 11.0, 13.943], "std": [0.0, 0.0, 2.435], "n": [80, 176, 88]})
+    t = table_of(lengths, "subset_length")
+    assert t.rows == [["No Clustering", "—", "1", "7.0 ± 0.0", "80"],
+                      ["PCPG", "0", "1", "11.0 ± 0.0", "176"],
+                      ["PCPG", "3", "0.5", "13.9 ± 2.4", "88"]]
+    reward = pd.DataFrame({"c": [0.0, 0.5], "k": [0, 0], "R1": [100.0, 99.737], "R2": [150.0, 137.2],
+                           "R1_std": [0.0, 0.263], "R2_std": [0.0, 1.665]})
+    assert table_of(reward, "corruption_reward").rows == [["0", "0", "100.0 ± 0.0", "150.0 ± 0.0"],
+                                                          ["0.5", "0", "99.7 ± 0.3", "137.2 ± 1.7"]]
+    acc = pd.DataFrame({"p": [1.0], "pcpg": [1.0], "pcpg_std": [0.0], "random": [0.25], "seeds": [2]})
+    assert table_of(acc, "accuracy").rows == [["1", "1.000 ± 0.000", "0.250", "2"]]
+
+
+def test_clustering_table_leads_with_accuracy_ceiling_and_gap(page):
+    body = parse(page[0]).find(f"{NS}body")
+    table = body.find(f".//{NS}section[@id='clustering']//{NS}table")
+    labels = [text_of(tr.find(f"{NS}td")) for tr in table.find(f"{NS}tbody")]
+    assert labels[:3] == ["accuracy", "ceiling", "gap to ceiling (ceiling − accuracy)"], labels
+    cells = [text_of(td) for tr in table.find(f"{NS}tbody") for td in tr.findall(f"{NS}td")[1:]]
+    assert "1.000" not in cells and all(re.fullmatch(r"-?\d+(\.\d{3})?|—", c) for c in cells), cells
