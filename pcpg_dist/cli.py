@@ -74,12 +74,47 @@ def _cmd_sweep(args: argparse.Namespace) -> None:
     res = run_sweep(args.config, axes, fixed, workdir=Path(args.workdir), tracking_uri=args.tracking_uri,
                     track=not args.no_tracking, show_progress=not args.quiet,
                     command=" ".join(["pcpg", *sys.argv[1:]]))
+    _print_points(res)
     print(f"sweep: {len(res.rows)} points ({res.ran} run now, {len(res.rows) - res.ran} finished before) "
           f"in {res.seconds:.1f} s")
     print(f"table: {res.out_dir / 'summary.csv'}")
     print(f"report: {res.out_dir / 'report.html'}  ({len(res.figures)} figures)")
     if res.parent_run_id:
+        from pcpg_dist.tracking import default_tracking_uri, ui_link
+
+        uri = args.tracking_uri or default_tracking_uri()
         print(f"MLflow sweep run: {res.parent_run_id}")
+        if not uri.startswith(("http://", "https://")):
+            print(f"start the UI: uv run mlflow ui --backend-store-uri {uri}")
+        print(f"runs table: {ui_link(uri, res.parent_run_id)}")
+
+
+def _print_points(res) -> None:
+    """The sweep's points on stdout: axis values, then PCPG and No Clustering at p = 1 and at the
+    smallest p, and the clustering accuracy (every column: summary.csv and the report)."""
+    import re
+
+    from rich.table import Table
+
+    from pcpg_dist.progress import out as console
+
+    keys = {k for r in res.rows for k in r}
+    ps = sorted((float(m.group(1)), m.group(1)) for k in keys if (m := re.fullmatch(r"pcpg/accuracy/p([0-9.]+)", k)))
+    shown = [("clustering/accuracy", "clust. acc")]
+    for _, p in dict.fromkeys([ps[-1], ps[0]] if ps else []):
+        shown += [(f"pcpg/accuracy/p{p}", f"PCPG p{p}"), (f"baseline/accuracy/p{p}", f"NC p{p}")]
+    shown = [(k, title) for k, title in shown if k in keys]
+    table = Table(title="Sweep points (mean over seeds; NC = No Clustering)", title_justify="left")
+    for axis in res.axes:
+        table.add_column(axis.rsplit(".", 1)[-1] if sum(a.rsplit(".", 1)[-1] == axis.rsplit(".", 1)[-1]
+                                                        for a in res.axes) == 1 else axis)
+    for _, title in shown:
+        table.add_column(title, justify="right")
+    for row in res.rows:
+        values = [row.get(k) for k, _ in shown]
+        table.add_row(*(str(row.get(a, "")) for a in res.axes),
+                      *("-" if v is None or v == "" else f"{float(v):.3f}" for v in values))
+    console.print(table)
 
 
 def _cmd_report(args: argparse.Namespace) -> None:

@@ -268,3 +268,20 @@ def test_classify_never_overwrites_its_inputs_or_a_special_file(tmp_path, capsys
         atomic_write_bytes(fifo, b"x")
     assert fifo.is_fifo() and sorted(p.name for p in tmp_path.iterdir()) == ["data.parquet", "fifo", "model"]
     assert main(["classify", str(tmp_path / "model"), str(data), "--out", str(tmp_path / "ok.csv")]) == 0
+
+
+def test_sweep_prints_its_points_numbers_on_stdout(capsys, tmp_path):
+    """`pcpg sweep` printed where its table was, and no number: now each point's headline."""
+    from pcpg_dist.cli import _print_points
+    from pcpg_dist.sweep import SweepResult
+
+    rows = [{"pbtg.noise_max": n, "clustering.k": k, "point": f"p{n}-{k}", "clustering/accuracy": 0.9 + k / 100,
+             "pcpg/accuracy/p1": 0.5 + n, "baseline/accuracy/p1": 0.75, "pcpg/accuracy/p0.1": 0.97,
+             "baseline/accuracy/p0.1": 0.2 + n} for n in (0.1, 0.3) for k in (3, 4)]
+    res = SweepResult(tmp_path, {"pbtg.noise_max": [0.1, 0.3], "clustering.k": [3, 4]}, rows, [], 1.0, 4)
+    _print_points(res)
+    out = capsys.readouterr().out
+    assert all(f" {title} " in out for title in ("noise_max", "k", "clust. acc", "PCPG p1", "NC p1", "PCPG p0.1",
+                                                 "NC p0.1")), out
+    row = next(line for line in out.splitlines() if line.startswith("│ 0.3") and " 4 " in line)
+    assert [c.strip() for c in row.split("│")[3:8]] == ["0.940", "0.800", "0.750", "0.970", "0.500"]
