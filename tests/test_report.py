@@ -21,7 +21,7 @@ import pandas as pd
 import pytest
 
 from pcpg_dist import figures
-from pcpg_dist.report import build, render
+from pcpg_dist.report import build, render, render_sweep
 from pcpg_dist.report_data import table_of
 
 DATA = Path(__file__).parent / "data" / "report_summary"
@@ -467,3 +467,64 @@ def test_clustering_table_leads_with_accuracy_ceiling_and_gap(page):
     assert labels[:3] == ["accuracy", "ceiling", "gap to ceiling (ceiling − accuracy)"], labels
     cells = [text_of(td) for tr in table.find(f"{NS}tbody") for td in tr.findall(f"{NS}td")[1:]]
     assert "1.000" not in cells and all(re.fullmatch(r"-?\d+(\.\d{3})?|—", c) for c in cells), cells
+
+
+def make_sweep(root: Path) -> Path:
+    """A sweep folder as `pcpg sweep` writes it: sweep.json, summary.csv (columns in its order:
+    alphabetical metrics, std beside), one figure, and two points with their own reports."""
+    folder = root / "sw" / "sweep"
+    folder.mkdir(parents=True)
+    png = (DATA.parent / "report_summary").glob("**/*.png")
+    figure = next(png, None)
+    data = figure.read_bytes() if figure else base64.b64decode(
+        "iVBORw0KGgoAAAANSUhEUgAAAAEAAAABCAYAAAAfFcSJAAAADUlEQVR42mNk+M9QDwADhgGAWjR9awAAAABJRU5ErkJggg==")
+    (folder / "pcpg_lead_p0.5__vs__clustering.k.png").write_bytes(data)
+    (folder / "sweep.json").write_text(json.dumps({
+        "format": 1, "name": "sw", "description": "Sweep of sw over clustering.k", "axes": {"clustering.k": [3, 4]},
+        "fixed": {"bc.epochs": 200}, "points": 2, "figures": ["pcpg_lead_p0.5__vs__clustering.k.png"]}))
+    (folder / "summary.csv").write_text(
+        "clustering.k,baseline/accuracy/p0.5,baseline/accuracy/p0.5/std,clustering/accuracy,clustering/ceiling,"
+        "clustering/gap_to_ceiling,pcpg/accuracy/p0.5,pcpg/accuracy/p0.5/std,pcpg_lead/p0.5,point\n"
+        "3,0.6338,0.0309793,0.739062,0.979688,0.240625,0.99127,0.000793651,0.357439,k=3-aaaa\n"
+        "4,0.546,0.034606,0.971875,0.979688,0.0078125,0.992098,0.00068306,0.446146,k=4-bbbb\n")
+    for point in ("k=3-aaaa", "k=4-bbbb"):
+        (folder / "points" / point / "report").mkdir(parents=True)
+        (folder / "points" / point / "report" / "report.html").write_text(f"<p>{point}</p>")
+        (folder / "points" / point / "summary").mkdir()
+        (folder / "points" / point / "summary" / "run.json").write_text(json.dumps({
+            "command": f"pcpg sweep sw.yaml clustering.k=3,4 [point clustering.k={point[2]}]",
+            "provenance": {"git_commit": "abc123", "uv_lock": "f00d"}, "config": {"seed": 0, "seeds": [0, 1]}}))
+    return folder
+
+
+def test_sweep_page_reads_like_the_run_report(tmp_path):
+    """Axes first, then PCPG, No Clustering and the lead, then clustering accuracy, ceiling and gap,
+    as mean ± std to 3 decimals; a headline; each point's report linked (relative: the links work
+    once the folder is moved); figures with headings and captions, one per row on a phone."""
+    folder = make_sweep(tmp_path)
+    body = parse(render_sweep(folder, folder).read_text()).find(f"{NS}body")
+    table = body.find(f".//{NS}section[@id='points']//{NS}table")
+    headers = [text_of(th) for th in table.iter(f"{NS}th")]
+    assert headers == ["clustering.k", "PCPG, p=0.5 ± std", "No Clustering, p=0.5 ± std",
+                       "PCPG lead over No Clustering, p=0.5", "clustering accuracy", "supervised ceiling",
+                       "gap to the ceiling (ceiling − accuracy)", "report"]
+    rows = [[text_of(td) for td in tr.findall(f"{NS}td")] for tr in table.find(f"{NS}tbody")]
+    assert rows[0] == ["3", "0.991 ± 0.001", "0.634 ± 0.031", "+0.357", "0.739", "0.980", "+0.241", "report"]
+    assert rows[1][2] == "0.546 ± 0.035"
+    headline = " ".join(text_of(body.find(f".//{NS}section[@id='headline']")).split())
+    assert "Best point" in headline and "clustering.k=4" in headline and "+0.446" in headline
+    moved = tmp_path / "moved"
+    shutil.move(str(folder.parent), str(moved))
+    for a in table.iter(f"{NS}a"):
+        href = a.get("href")
+        assert not href.startswith(("/", "file:")) and (moved / "sweep" / href).is_file(), href
+    figs = body.findall(f".//{NS}figure")
+    assert [text_of(f.find(f"{NS}h4")) for f in figs] == ["PCPG lead over No Clustering, p=0.5 vs clustering.k"]
+    assert "error bars" in text_of(figs[0].find(f"{NS}figcaption"))
+    assert "pcpg sweep sw.yaml clustering.k=3,4" in text_of(body.find(f".//{NS}section[@id='provenance']"))
+    assert "minmax(min(100%" in parse(render_sweep(moved / "sweep", tmp_path / "out").read_text()).find(
+        f".//{NS}style").text  # one figure per row where two do not fit
+    # rendered elsewhere (pcpg report SWEEP --out DIR): the links still reach the points
+    page = (tmp_path / "out" / "report.html").read_text()
+    for href in re.findall(r'href="([^"#]+)"', page):
+        assert (tmp_path / "out" / href).resolve().is_file(), href
