@@ -64,6 +64,10 @@ NOTE, PARENT, RUN_NAME = "mlflow.note.content", "mlflow.parentRunId", "mlflow.ru
 # value (mlflow/server/js: ExperimentKind.CUSTOM_MODEL_DEVELOPMENT) opens it on the runs table.
 EXPERIMENT_KIND = ("mlflow.experimentKind", "custom_model_development")
 MAX_PARENT_METRICS = 30
+# Roles (tag ``pcpg.role``): a `pcpg run`'s run is the "parent" of its environments' runs; a `pcpg
+# sweep`'s run ("sweep") is the parent of one "point" run per point, each the parent of its
+# environments' runs. Points made before the role existed carry "parent" and are retagged when found.
+PARENT_ROLE, POINT_ROLE, SWEEP_ROLE = "parent", "point", "sweep"
 PARAM_BATCH, METRIC_BATCH = 100, 1000  # MLflow's limits per log_batch call
 BOOKKEEPING = ("done.json", "*.lock", "*.tmp", ".*")  # cache bookkeeping, never an artifact
 LOCK_TIMEOUT = 600.0  # s; a store lock is held for a find-or-create or one child's logging
@@ -461,9 +465,10 @@ def _curve_points(named: dict[str, dict[float, float]]) -> tuple[list[tuple[str,
     return points, scales
 
 
-# The parent's scalars, most important first (the budget keeps the head of this list).
-_HEADLINE = ("clustering/accuracy", "clustering/ceiling", "clustering/gap_to_ceiling", "clustering/ari",
-             "clustering/nmi", "random/accuracy", "majority/accuracy", "pcpg/wins_over_baseline",
+# The parent's scalars after PCPG and No Clustering at the largest and smallest p and the
+# clustering trio, most important first (the budget keeps the head of the list).
+_CLUSTERING = ("clustering/accuracy", "clustering/ceiling", "clustering/gap_to_ceiling")
+_HEADLINE = ("clustering/ari", "clustering/nmi", "random/accuracy", "majority/accuracy", "pcpg/wins_over_baseline",
              "cross/diagonal_mean", "correlation/diagonal_mean", "corruption/baseline/accuracy")
 # Curves over an axis: (source prefix, axis) -> chart key; the MLflow UI draws value against step.
 PARENT_CURVES = {("pcpg/accuracy", "p"): "accuracy_vs_p/pcpg",
@@ -471,14 +476,23 @@ PARENT_CURVES = {("pcpg/accuracy", "p"): "accuracy_vs_p/pcpg",
                  ("majority/accuracy", "p"): "accuracy_vs_p/majority_class",
                  ("corruption/accuracy", "c"): "accuracy_vs_corruption/pcpg",
                  ("corruption/accuracy_true_subsets", "c"): "accuracy_vs_corruption/pcpg_true_subsets"}
+# A headline scalar that can be the very number of a curve or per-p scalar already logged, e.g.
+# `corruption/baseline/accuracy` (No Clustering over the corruption study's p, at c = 0) is
+# `baseline/accuracy/p1` when that study uses p = 1 only, and `majority/accuracy` is the last point of
+# the `accuracy_vs_p/majority_class` curve: each is logged only when it differs.
+_MAYBE_SAME = {"corruption/baseline/accuracy": "baseline/accuracy", "majority/accuracy": "majority/accuracy",
+               "random/accuracy": "random/accuracy"}
 
 
-def parent_metrics(result) -> tuple[list[tuple[str, float, int]], dict[str, int]]:
+def parent_metrics(result, timings: bool = True) -> tuple[list[tuple[str, float, int]], dict[str, int]]:
     """The parent's (key, value, step) points: at most :data:`MAX_PARENT_METRICS` keys.
 
-    Means over environments only (children hold each environment): PCPG and No Clustering at
-    the largest p, clustering quality, baselines, stage timings, then the other p values while
-    the budget lasts; curves over p and over the corruption level as stepped metrics.
+    Means over environments only (children hold each environment): PCPG and No Clustering at the
+    largest and the smallest p, clustering accuracy / ceiling / gap, PCPG and No Clustering at the
+    other p, then clustering ARI / NMI, baselines, stage timings (unless ``timings`` is false: a
+    sweep's point, whose stages ran batched with the other points') and reward distances while the
+    budget lasts; curves over p and over the corruption level as stepped metrics. A headline key
+    equal to a per-p value already logged (as a scalar or a curve's point) is left out.
     """
     envs = tuple(f"{e}/" for e in getattr(result, "clustering", {}) or {})
     top = {k: v for k, v in result.metrics.items() if not k.startswith(envs)}
@@ -487,13 +501,24 @@ def parent_metrics(result) -> tuple[list[tuple[str, float, int]], dict[str, int]
              if (k.rsplit("/by_", 1)[0], k[-1]) in PARENT_CURVES and len(c) > 1}
     points, scales = _curve_points(named)
     ps = sorted(by_axis.get("pcpg/accuracy/by_p", {}), reverse=True)
-    per_p = [f"{m}/accuracy/p{p:g}" for p in ps for m in ("pcpg", "baseline")]
-    timing = [f"time/{k}_seconds" for k in getattr(result, "stage_seconds", {})]
-    values = {**top, **{f"time/{k}_seconds": v for k, v in getattr(result, "stage_seconds", {}).items()}}
-    order = [*per_p[:2], *_HEADLINE, *timing, *sorted(k for k in scalars if k.startswith("reward_distance/")),
-             *per_p[2:]]
+    ends = list(dict.fromkeys([*ps[:1], *ps[-1:]]))
+    per_p = [f"{m}/accuracy/p{p:g}" for p in [*ends, *(p for p in ps if p not in ends)] for m in ("pcpg", "baseline")]
+    stage_seconds = getattr(result, "stage_seconds", {}) if timings else {}
+    timing = [f"time/{k}_seconds" for k in stage_seconds]
+    values = {**top, **{f"time/{k}_seconds": v for k, v in stage_seconds.items()}}
+    order = [*per_p[:4], *_CLUSTERING, *per_p[4:], *_HEADLINE, *timing,
+             *sorted(k for k in scalars if k.startswith("reward_distance/"))]
     budget = MAX_PARENT_METRICS - len(named)
-    chosen = [k for k in dict.fromkeys(order) if k in values and _finite(values[k])][:budget]
+    chosen: list[str] = []
+    for k in dict.fromkeys(order):
+        if len(chosen) == budget:
+            break
+        if k not in values or not _finite(values[k]):
+            continue
+        if k in _MAYBE_SAME and any(values.get(f"{_MAYBE_SAME[k]}/p{p:g}") == values[k] and (
+                f"{_MAYBE_SAME[k]}/p{p:g}" in chosen or PARENT_CURVES.get((_MAYBE_SAME[k], "p")) in named) for p in ps):
+            continue
+        chosen.append(k)
     return [(k, float(values[k]), 0) for k in chosen] + points, scales
 
 
@@ -586,7 +611,7 @@ def newest_top_level_run(client, exp_id: str):
     sweep's points carry the sweep as theirs) or of a `pcpg sweep` (role ``sweep``); ``None`` if
     it has neither. MLflow's search has no "tag is unset", so a page of a sweep's points is skipped."""
     newest = None
-    for role in ("parent", "sweep"):
+    for role in (PARENT_ROLE, SWEEP_ROLE):
         token, found = None, None
         while found is None:
             page = _retry(client.search_runs, [exp_id], filter_string=f"tags.`{ROLE}` = '{role}'",
@@ -601,10 +626,12 @@ def newest_top_level_run(client, exp_id: str):
 
 
 def sweep_points_of(sweep_run_id: str, uri: str) -> list:
-    """The live point runs of a sweep run, oldest first (each a `pcpg run` of one point)."""
+    """The live point runs of a sweep run, oldest first (each a `pcpg run` of one point; role
+    ``point``, or ``parent`` when an older pcpg made it)."""
     client = _client(uri)
     exp_id = _retry(client.get_run, sweep_run_id).info.experiment_id
-    return _runs_with(client, exp_id, {ROLE: "parent", PARENT: sweep_run_id})
+    runs = [r for role in (POINT_ROLE, PARENT_ROLE) for r in _runs_with(client, exp_id, {ROLE: role, PARENT: sweep_run_id})]
+    return sorted(runs, key=lambda r: (r.info.start_time or 0, r.info.run_id))
 
 
 def open_experiment(name: str, uri: str | None):
@@ -643,17 +670,27 @@ def _runs_with(client, exp_id: str, tags: dict[str, str], parent: str | None = .
 
 
 def _find_or_create(client, uri: str, exp_id: str, key: dict[str, str], parent: str | None,
-                    tags: dict[str, str], params: dict[str, str]):
+                    tags: dict[str, str], params: dict[str, str], legacy: dict[str, str] | None = None):
     """The run with identity ``key`` under ``parent``: found, or created under the identity's lock.
 
+    Runs are found by their tags, never by name: a found run whose name differs from
+    ``tags[RUN_NAME]`` (named by an older pcpg) is renamed. A run carrying ``legacy`` instead of
+    ``key`` (an older pcpg's identity of the same run) is found too and retagged with ``key``.
     After creating, a search merges a twin made on another machine in the same instant: the
     earliest run wins and this process deletes its own (still empty) one.
     """
     lock = "run:" + json.dumps([exp_id, parent, key], sort_keys=True)
     with store_lock(uri, lock):
         found = _runs_with(client, exp_id, key, parent)
+        if not found and legacy:
+            found = _runs_with(client, exp_id, legacy, parent)
+            for k, v in key.items():
+                if found and found[0].data.tags.get(k) != v:
+                    _retry(client.set_tag, found[0].info.run_id, k, v)
         if found:
             run = found[0]
+            if RUN_NAME in tags and run.data.tags.get(RUN_NAME) != tags[RUN_NAME]:
+                _retry(client.set_tag, run.info.run_id, RUN_NAME, tags[RUN_NAME])
             if run.info.status != "FINISHED":
                 _retry(client.update_run, run.info.run_id, status="RUNNING")
                 _log_params(client, run.info.run_id, params, have=run.data.params)
@@ -666,6 +703,27 @@ def _find_or_create(client, uri: str, exp_id: str, key: dict[str, str], parent: 
             return found[0].info.run_id, found[0].info.status == "FINISHED"
         _log_params(client, mine, params)
         return mine, False
+
+
+def short_keys(keys: list[str]) -> dict[str, str]:
+    """Each dotted key's shortest tail that no other key ends with: ``clustering.k`` -> ``k``,
+    unless another key (``pbtg.k``) ends in ``k`` too (then ``clustering.k``)."""
+    out = {}
+    for key in keys:
+        parts = key.split(".")
+        for n in range(1, len(parts) + 1):
+            tail = ".".join(parts[-n:])
+            if not any(o != key and (o == tail or o.endswith("." + tail)) for o in keys):
+                break
+        out[key] = tail
+    return out
+
+
+def point_label(params: dict[str, str]) -> str:
+    """A sweep point's name in MLflow: its axis values, short keys first (``noise_max=0.3 k=4``),
+    so the runs table, the sweep's child list and chart legends show them before any cut."""
+    short = short_keys(list(params))
+    return " ".join(f"{short[k]}={v}" for k, v in params.items())
 
 
 def _provenance_tags(out_dir: Path | None = None) -> dict[str, str]:
@@ -691,6 +749,8 @@ class Tracker:
     parent_id: str
     config_hash: str
     cfg: object = None
+    label: str = ""  # a sweep point's axis values, short ("noise_max=0.3 k=4"): its runs' names
+    sweep_point: bool = False  # a point of a sweep: stage timings go on the sweep's run, not here
 
     @staticmethod
     def start(cfg, uri: str | None, out_dir: Path, *, parent_run_id: str | None = None,
@@ -710,14 +770,17 @@ class Tracker:
             uri, client, exp_id = open_experiment(cfg.name, uri)
         chash = cfg.hash()
         shown = " ".join(f"{k}={v}" for k, v in (params or {}).items())
-        tags = {RUN_NAME: f"{cfg.name}-{chash[:8]}" + (f" [{shown}]" if shown else ""), **_provenance_tags(out_dir),
+        label = point_label(params or {}) if parent_run_id else ""
+        tags = {RUN_NAME: label or f"{cfg.name}-{chash[:8]}", **_provenance_tags(out_dir),
                 NOTE: f"`{cfg.name}`: running (config hash `{chash}`)."}
         if params:
             tags["pcpg.overrides"] = shown
         all_params = {**cfg.flat(), **{k: str(v) for k, v in (params or {}).items()}}
-        parent, _ = _find_or_create(client, uri, exp_id, {ROLE: "parent", CONFIG_HASH: chash}, parent_run_id,
-                                    tags, all_params)
-        return Tracker(uri, exp_id, parent, chash, cfg)
+        role = POINT_ROLE if parent_run_id else PARENT_ROLE
+        legacy = {ROLE: PARENT_ROLE, CONFIG_HASH: chash} if parent_run_id else None
+        parent, _ = _find_or_create(client, uri, exp_id, {ROLE: role, CONFIG_HASH: chash}, parent_run_id,
+                                    tags, all_params, legacy=legacy)
+        return Tracker(uri, exp_id, parent, chash, cfg, label, bool(parent_run_id))
 
     def _children(self, env: str) -> list:
         return _runs_with(_client(self.uri), self.experiment_id, {"pcpg.env": env}, self.parent_id)
@@ -727,14 +790,15 @@ class Tracker:
 
     def child_info(self, env: str, unit_key: str, cluster_metrics: dict[str, float]) -> dict:
         return {"uri": self.uri, "experiment_id": self.experiment_id, "parent_id": self.parent_id,
-                "unit_key": unit_key, "config_hash": self.config_hash, "cluster_metrics": cluster_metrics}
+                "unit_key": unit_key, "config_hash": self.config_hash, "cluster_metrics": cluster_metrics,
+                "label": self.label}
 
     def finish(self, result, agents_dir: Path | None = None, report_dir: Path | None = None) -> None:
         """Log the headline once: a rerun from cache finds the digest and logs nothing again."""
         client = _client(self.uri)
         run = _retry(client.get_run, self.parent_id)
         tags = run.data.tags
-        points, scales = parent_metrics(result)
+        points, scales = parent_metrics(result, timings=not self.sweep_point)
         # the results, not the timings: a rerun's summary stage takes its own time, and must not
         # make the run log everything again
         digest = _digest([pt for pt in points if not pt[0].startswith("time/")])
@@ -809,14 +873,18 @@ def log_environment(info: dict, env: str, out_dir: str, metrics: dict[str, float
     client = _client(uri)
     with store_lock(uri, f"child:{parent}:{env}"):
         runs = _runs_with(client, info["experiment_id"], {"pcpg.env": env}, parent)
+        # a sweep point's environments are named with the point: every point has an E1
+        name = f"{env} · {info['label']}" if info.get("label") else env
         for run in runs:
             if run.info.status == "FINISHED" and run.data.tags.get(UNIT) == info["unit_key"]:
+                if run.data.tags.get(RUN_NAME) != name:  # named by an older pcpg
+                    _retry(client.set_tag, run.info.run_id, RUN_NAME, name)
                 return run.info.run_id
         for run in runs:
             _retry(client.delete_run, run.info.run_id)
         merged = {**info["cluster_metrics"], **metrics}
         points, scales = child_metrics(merged)
-        tags = {PARENT: parent, RUN_NAME: env, "pcpg.env": env, UNIT: info["unit_key"], ROLE: "environment",
+        tags = {PARENT: parent, RUN_NAME: name, "pcpg.env": env, UNIT: info["unit_key"], ROLE: "environment",
                 CONFIG_HASH: info["config_hash"],
                 NOTE: f"Environment `{env}`: its evaluation tables and figures (`evaluation/`), trained "
                       f"cells (`models/`), curves over p and c (steps: {json.dumps(scales)}), std over seeds "
@@ -853,20 +921,34 @@ class SweepTracker:
         params = {f"sweep.{axis}": ",".join(map(str, values)) for axis, values in axes.items()}
         params["sweep.axes"] = ",".join(axes)
         params["sweep.points"] = str(math.prod(len(v) for v in axes.values()) if axes else 0)
-        tags = {RUN_NAME: f"{name}-sweep-{sweep_key[:8]}", NOTE: description, **_provenance_tags()}
-        run_id, _ = _find_or_create(client, uri, exp_id, {ROLE: "sweep", SWEEP_KEY: sweep_key}, None, tags, params)
+        n = params["sweep.points"]
+        tags = {RUN_NAME: f"sweep {' x '.join(short_keys(list(axes)).values())} ({n} points) {sweep_key[:8]}",
+                NOTE: description, **_provenance_tags()}
+        run_id, _ = _find_or_create(client, uri, exp_id, {ROLE: SWEEP_ROLE, SWEEP_KEY: sweep_key}, None, tags, params)
         return SweepTracker(uri, exp_id, run_id, sweep_key)
 
-    def finish(self, metrics: dict[str, float] | None, artifacts: list[Path]) -> None:
-        """Log the sweep's metrics and artifacts once; a rerun with the same results logs nothing."""
+    def finish(self, metrics: dict[str, float] | None, artifacts: list[Path], *,
+               best_points: dict[str, str] | None = None, timings: dict[str, float] | None = None,
+               note: str | None = None) -> None:
+        """Log the sweep's metrics and artifacts once; a rerun with the same results logs nothing.
+
+        ``best_points`` (metric -> the point that has it) become tags ``pcpg.best_point/<metric>``;
+        ``note`` replaces the description; ``timings`` (``time/*`` metrics: the stage times of the
+        points this call computed, all batched together) are logged with the results but left out
+        of the digest, so a rerun that computes nothing logs nothing.
+        """
         client = _client(self.uri)
         run = _retry(client.get_run, self.parent_id)
         points = [(k, float(v), 0) for k, v in sorted((metrics or {}).items()) if _finite(v)]
         files = sorted((Path(a).name, hashlib.sha256(Path(a).read_bytes()).hexdigest() if Path(a).is_file() else "")
                        for a in artifacts)
-        digest = _digest(points, files)
+        tags = {f"pcpg.best_point/{k}": v for k, v in sorted((best_points or {}).items())}
+        if note:
+            tags[NOTE] = note
+        digest = _digest(points, files, tags)
         if run.data.tags.get(LOGGED) != digest:  # metrics and their digest in one batch
-            _log_once(client, self.parent_id, points, {LOGGED: digest})
+            times = [(k, float(v), 0) for k, v in sorted((timings or {}).items()) if _finite(v)]
+            _log_once(client, self.parent_id, points + times, {**tags, LOGGED: digest})
         if run.data.tags.get(ARTIFACTS) != digest:  # files are overwritten, never appended: safe to redo
             for a in map(Path, artifacts):
                 if a.is_dir():

@@ -29,6 +29,9 @@ from pcpg_dist.tracking import (
     find_run,
     log_environment,
     open_experiment,
+    point_label,
+    short_keys,
+    sweep_points_of,
 )
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -352,6 +355,122 @@ def test_an_experiment_name_is_its_newest_top_level_run_never_a_sweeps_point(cfg
     with pytest.raises(ServiceError, match="has no pcpg run or sweep yet"):
         client.create_experiment("empty")
         find_run("empty", uri)
+
+
+def test_short_keys_use_the_last_segment_unless_ambiguous():
+    assert short_keys(["pbtg.noise_max", "clustering.k"]) == {"pbtg.noise_max": "noise_max", "clustering.k": "k"}
+    assert short_keys(["clustering.k", "pbtg.k", "bc.lr"]) == {"clustering.k": "clustering.k", "pbtg.k": "pbtg.k",
+                                                                "bc.lr": "lr"}
+    assert point_label({"pbtg.noise_max": "0.3", "clustering.k": "4"}) == "noise_max=0.3 k=4"
+
+
+def test_sweep_points_and_their_environments_are_named_by_their_axis_values(cfg, tmp_path):
+    """Every point was named "<name>-<hash> [pbtg.noise_max=0.3 clustering.k=4]" (cut off in the UI
+    before the values) and every point's environments "E1", "E2"; points were role "parent" like a
+    `pcpg run`. Runs are found by tags: a rerun reuses every run, and an older pcpg's point (role
+    "parent", the old name) is found, retagged and renamed, never duplicated."""
+    from mlflow import MlflowClient
+
+    from pcpg_dist.config import parse_config
+
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    axes = {"pbtg.noise_max": [0.1, 0.3], "clustering.k": [3, 4]}
+    sweep = SweepTracker.start(cfg.name, "key", axes, "noise x k", uri)
+    client = MlflowClient(uri)
+    assert client.get_run(sweep.parent_id).info.run_name.startswith("sweep noise_max x k (4 points)")
+    raw = cfg.model_dump(mode="json")
+
+    def points() -> dict[str, str]:
+        ids = {}
+        for noise in axes["pbtg.noise_max"]:
+            for k in axes["clustering.k"]:
+                point_cfg = parse_config({**raw, "pbtg": {**raw["pbtg"], "noise_max": noise},
+                                          "clustering": {**raw["clustering"], "k": k}}, source="point")
+                params = {"pbtg.noise_max": str(noise), "clustering.k": str(k)}
+                tracker = Tracker.start(point_cfg, uri, tmp_path / f"{noise}-{k}", parent_run_id=sweep.parent_id,
+                                        params=params)
+                out = tmp_path / "eval"
+                out.mkdir(exist_ok=True)
+                for env in ENVS:
+                    log_environment(tracker.child_info(env, f"key-{env}", {}), env, str(out), env_metrics(env), [])
+                ids[tracker.label] = tracker.parent_id
+        return ids
+
+    first = points()
+    assert sorted(first) == ["noise_max=0.1 k=3", "noise_max=0.1 k=4", "noise_max=0.3 k=3", "noise_max=0.3 k=4"]
+    runs = client.search_runs([sweep.experiment_id], max_results=1000)
+    for label, run_id in first.items():
+        run = client.get_run(run_id)
+        assert run.info.run_name == label and run.data.tags["pcpg.role"] == "point"
+        envs = sorted(r.info.run_name for r in runs if r.data.tags.get("mlflow.parentRunId") == run_id)
+        assert envs == [f"{env} · {label}" for env in ENVS]
+    assert [r.info.run_id for r in sweep_points_of(sweep.parent_id, uri)] == sorted(
+        first.values(), key=lambda i: (client.get_run(i).info.start_time, i))
+    assert find_run(cfg.name, uri)[0].info.run_id == sweep.parent_id  # never a point
+    assert points() == first  # a rerun reuses every run
+    assert len(client.search_runs([sweep.experiment_id], max_results=1000)) == len(runs)
+
+    # a point made by an older pcpg: role "parent", the long name; it is found again, not duplicated
+    old_id = first["noise_max=0.3 k=4"]
+    client.set_tag(old_id, "pcpg.role", "parent")
+    client.set_tag(old_id, "mlflow.runName", "quick-6664d508 [pbtg.noise_max=0.3 clustering.k=4]")
+    for child in client.search_runs([sweep.experiment_id], f"tags.`mlflow.parentRunId` = '{old_id}'"):
+        client.set_tag(child.info.run_id, "mlflow.runName", child.data.tags["pcpg.env"])
+    assert points() == first
+    old = client.get_run(old_id)
+    assert old.data.tags["pcpg.role"] == "point" and old.info.run_name == "noise_max=0.3 k=4"
+    children = client.search_runs([sweep.experiment_id], f"tags.`mlflow.parentRunId` = '{old_id}'")
+    assert sorted(c.info.run_name for c in children) == [f"{env} · noise_max=0.3 k=4" for env in ENVS]
+    assert len(client.search_runs([sweep.experiment_id], max_results=1000)) == len(runs)
+
+
+def test_parent_budget_keeps_every_p_and_the_clustering_trio_and_drops_duplicates(tmp_path):
+    """quick.yaml's parent (ps 1, 0.5, 0.1) logged `pcpg/accuracy/p0.1` but not `baseline/accuracy/p0.1`
+    (the budget had gone to `corruption/baseline/accuracy`, equal to `baseline/accuracy/p1`, and to
+    timings); a sweep's point logged the whole sweep's stage times as its own."""
+    from pcpg_dist.tracking import parent_metrics
+
+    result = make_result(tmp_path)
+    m = result.metrics
+    for p, shift in (("0.25", 0.01), ("0.1", 0.02)):
+        for method in ("pcpg", "baseline", "majority", "random"):
+            m[f"{method}/accuracy/p{p}"] = m[f"{method}/accuracy/p0.5"] - shift
+    m.update({"clustering/ceiling": 0.9, "clustering/gap_to_ceiling": 0.9 - m["clustering/accuracy"],
+              "reward_distance/style2": 0.0, "corruption/accuracy/c0.5": 0.7})
+    assert m["corruption/baseline/accuracy"] == m["baseline/accuracy/p1"]
+    result.stage_seconds["tracking"] = 0.3
+    points, _ = parent_metrics(result)
+    keys = {k for k, _, _ in points}
+    assert len(keys) <= MAX_PARENT_METRICS, sorted(keys)
+    for p in ("1", "0.5", "0.25", "0.1"):
+        assert {f"pcpg/accuracy/p{p}", f"baseline/accuracy/p{p}"} <= keys, p
+    assert {"clustering/accuracy", "clustering/ceiling", "clustering/gap_to_ceiling"} <= keys
+    assert "corruption/baseline/accuracy" not in keys  # == baseline/accuracy/p1, logged already
+    assert "majority/accuracy" not in keys  # == the last point of accuracy_vs_p/majority_class
+    assert "random/accuracy" in keys and "time/train_seconds" in keys
+    m["corruption/baseline/accuracy"] -= 0.01  # a corruption study over other p: its own number
+    assert "corruption/baseline/accuracy" in {k for k, _, _ in parent_metrics(result)[0]}
+    assert not any(k.startswith("time/") for k, _, _ in parent_metrics(result, timings=False)[0])
+
+
+def test_a_sweep_point_logs_no_stage_times_and_the_sweep_names_its_best_points(cfg, tmp_path):
+    from mlflow import MlflowClient
+
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    sweep = SweepTracker.start(cfg.name, "key", {"bc.lr": [0.01, 0.001]}, "lr on quick", uri)
+    point = Tracker.start(cfg, uri, tmp_path / "p0", parent_run_id=sweep.parent_id, params={"bc.lr": "0.01"})
+    point.finish(make_result(tmp_path / "p0"))
+    client = MlflowClient(uri)
+    metrics = client.get_run(point.parent_id).data.metrics
+    assert "pcpg/accuracy/p1" in metrics and not any(k.startswith("time/") for k in metrics), sorted(metrics)
+    for i in range(2):  # the rerun's timings differ, yet nothing is logged again
+        sweep.finish({"best/pcpg/accuracy/p1": 0.8}, [], best_points={"pcpg/accuracy/p1": "lr=0.01"},
+                     timings={"time/train_seconds": 3.0 + i}, note="lr on quick\n\nBest points: …")
+    run = client.get_run(sweep.parent_id)
+    assert run.data.tags["pcpg.best_point/pcpg/accuracy/p1"] == "lr=0.01"
+    assert run.data.tags["mlflow.note.content"].endswith("Best points: …")
+    assert [m.value for m in client.get_metric_history(sweep.parent_id, "time/train_seconds")] == [3.0]
+    assert run.data.tags["pcpg.role"] == "sweep" and client.get_run(point.parent_id).data.tags["pcpg.role"] == "point"
 
 
 # --------------------------------------------------------------------------- the terminal
