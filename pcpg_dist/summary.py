@@ -74,26 +74,34 @@ def long_accuracy(acc: pd.DataFrame) -> pd.DataFrame:
 
 
 def accuracy_figure(acc: pd.DataFrame, path: Path) -> None:
-    """Fig. 4 across environments: one panel per environment, the project's shared figure style."""
+    """Fig. 4 across environments: the mean over environments (the numbers the report's headline
+    quotes) as one panel large enough to read at half a laptop's width, each environment a thin
+    line of its method's colour behind it (each environment's own Fig. 4 is in its section)."""
+    import matplotlib
     from matplotlib.figure import Figure
 
-    from pcpg_dist.figures import accuracy_axes, method_legend, style
+    from pcpg_dist.figures import METHODS, accuracy_axes, method_legend, style
 
     long = long_accuracy(acc)
     envs = list(dict.fromkeys(acc["env"]))
-    cols = min(len(envs), 3)
-    rows = -(-len(envs) // cols)
-    with style():
-        fig = Figure(figsize=(3.6 * cols, 3.0 * rows + 0.5))
-        axes = fig.subplots(rows, cols, squeeze=False).ravel()
-        for ax, env in zip(axes, envs, strict=False):
-            accuracy_axes(ax, long[long["env"] == env])
-            ax.set_title(env)
-        for ax in axes[len(envs):]:
-            ax.set_visible(False)
-        handles, labels = method_legend(axes[0])
-        fig.legend(handles, labels, loc="lower center", ncol=len(labels), bbox_to_anchor=(0.5, 0))
-        fig.tight_layout(rect=(0, 0.08 if rows == 1 else 0.04, 1, 1))
+    mean = long.groupby(["method", "p"], as_index=False, sort=False)[["mean", "std"]].mean()
+    bigger = {"font.size": 11, "axes.titlesize": 12, "axes.labelsize": 11, "legend.fontsize": 10,
+              "xtick.labelsize": 10, "ytick.labelsize": 10, "lines.linewidth": 2.0, "lines.markersize": 6}
+    with style(), matplotlib.rc_context(bigger):
+        fig = Figure(figsize=(5.6, 4.2))
+        ax = fig.subplots()
+        if len(envs) > 1:
+            for env in envs:
+                for method in ("pcpg", "no_clustering"):
+                    d = long[(long["env"] == env) & (long["method"] == method)].sort_values("p")
+                    ax.plot(d.p, d["mean"], color=METHODS[method]["color"], lw=0.8, alpha=0.35,
+                            ls=METHODS[method]["ls"])
+        accuracy_axes(ax, mean)
+        ax.set_title(f"Mean over {len(envs)} environment{'s' if len(envs) != 1 else ''}"
+                     + (" (thin lines: each one)" if len(envs) > 1 else ""))
+        handles, labels = method_legend(ax)
+        fig.legend(handles, labels, loc="lower center", ncol=2, bbox_to_anchor=(0.5, 0))
+        fig.tight_layout(rect=(0, 0.14, 1, 1))
         fig.savefig(path)
 
 

@@ -8,6 +8,7 @@ without it the tests skip, saying so.
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 from pathlib import Path
@@ -116,3 +117,45 @@ def test_pdf_export(browser, report, tmp_path):
     assert main(["report", str(report.parent.parent), "--out", str(tmp_path), "--pdf"]) == 0
     pdf = (tmp_path / "report.pdf").read_bytes()
     assert pdf.startswith(b"%PDF-") and pdf.count(b"/Type /Page") - pdf.count(b"/Type /Pages") >= 3
+
+
+PHONE = 390
+
+
+def test_protocol_banner_and_sweep_figures_fit_a_phone(browser, report, tmp_path):
+    """At 390 px the protocol banner's table wraps inside the page (it was clipped, no scroll cue),
+    and the sweep page shows one figure per row."""
+    from test_report import make_sweep
+
+    from pcpg_dist.report import render_sweep
+
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    pg = browser.new_page(viewport={"width": PHONE, "height": 800})
+    try:
+        pg.goto(report.as_uri())
+        pg.wait_for_load_state("load")
+        wrap = pg.locator("#protocol .tablewrap")
+        assert wrap.evaluate("w => w.scrollWidth <= w.clientWidth + 1")
+        box = wrap.locator("table").bounding_box()
+        assert box is not None and box["x"] >= 0 and box["x"] + box["width"] <= PHONE
+        pg.locator("#protocol").screenshot(path=str(ARTIFACTS / "report_banner_390.png"))
+        img = pg.locator("#fig4 img").bounding_box()
+        assert img is not None and img["width"] >= PHONE - 60  # Fig. 4 takes the phone's width
+        sweep = make_sweep(tmp_path)
+        (sweep / "pcpg_lead_p0.5__vs__clustering.k.png").write_bytes(
+            (report.parent / "figures" / "accuracy_vs_p.png").read_bytes())
+        json_path = sweep / "sweep.json"
+        record = json.loads(json_path.read_text())
+        (sweep / "second.png").write_bytes((report.parent / "figures" / "accuracy_vs_p.png").read_bytes())
+        record["figures"].append("second.png")
+        json_path.write_text(json.dumps(record))
+        pg.goto(render_sweep(sweep, sweep).as_uri())
+        pg.wait_for_load_state("load")
+        figs = pg.locator("figure")
+        assert figs.count() == 2
+        a, b = figs.nth(0).bounding_box(), figs.nth(1).bounding_box()
+        assert b["y"] >= a["y"] + a["height"] - 1 and a["width"] >= PHONE - 60  # stacked, full width
+        assert pg.evaluate("document.documentElement.scrollWidth") <= PHONE
+        pg.screenshot(path=str(ARTIFACTS / "sweep_390.png"), full_page=True)
+    finally:
+        pg.close()

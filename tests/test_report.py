@@ -528,3 +528,33 @@ def test_sweep_page_reads_like_the_run_report(tmp_path):
     page = (tmp_path / "out" / "report.html").read_text()
     for href in re.findall(r'href="([^"#]+)"', page):
         assert (tmp_path / "out" / href).resolve().is_file(), href
+
+
+def test_fig4_across_environments_plots_the_headline_mean_large_enough(summary, tmp_path):
+    """One panel of the mean over environments (the numbers the headline quotes), drawn at a size
+    whose tick labels stay readable at half a laptop's width; was three small panels per row."""
+    from matplotlib.figure import Figure
+
+    from pcpg_dist.summary import accuracy_figure
+
+    seen = []
+    real = Figure.savefig
+
+    def keep(fig, path, *a, **k):
+        seen.append(fig)
+        return real(fig, path, *a, **k)
+
+    acc = pd.read_csv(summary / "accuracy_vs_p.csv")
+    acc = pd.concat([acc, acc.assign(env="E9", pcpg=acc.pcpg - 0.1)], ignore_index=True)
+    Figure.savefig = keep
+    try:
+        accuracy_figure(acc, tmp_path / "fig4.png")
+    finally:
+        Figure.savefig = real
+    (fig,) = seen
+    axes = [ax for ax in fig.axes if ax.get_visible()]
+    assert len(axes) == 1 and fig.get_figwidth() <= 6.5
+    pcpg = next(line for line in axes[0].get_lines() if line.get_color() == "#0072B2" and line.get_lw() >= 1.5)
+    want = acc.groupby("p").pcpg.mean()
+    assert list(pcpg.get_ydata()) == pytest.approx(list(want.sort_index()))
+    assert min(t.get_fontsize() for t in axes[0].get_xticklabels()) >= 10
