@@ -150,7 +150,7 @@ def test_report_renders_everything(first_run, tmp_path):
         assert "pcpg run tiny.yaml" in text and "0.57 / 0.64 / 0.63 / 0.69" in text
         assert "accuracy_vs_p" in text and "Wall time per stage" in text
     assert html.count("data:image/png;base64,") >= 3
-    acc = f"{result.metrics['clustering/accuracy']:.4g}"
+    acc = f"{result.metrics['clustering/accuracy']:.3f}"
     assert acc in md
     assert np.isfinite(result.metrics["cross/diagonal_mean"])
 
