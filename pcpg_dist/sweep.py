@@ -85,6 +85,38 @@ def headline(metrics: dict[str, float]) -> dict[str, float]:
     return out
 
 
+BATCHED_STAGES = ("generate", "cluster", "train", "evaluate")
+STAGE_NOTE = ("Stage times (`time/<stage>_seconds`, `time/sweep_seconds`) are logged here only: the points' stages "
+              "run batched together (shared data and clusterings), so no point has a time of its own; they are "
+              "those of the last call that computed points.")
+
+
+def _p_keys(rows: list[dict[str, Any]]) -> list[str]:
+    """The p values of the rows' ``pcpg/accuracy/p<x>`` keys, largest first (as written in the keys)."""
+    found = {k.rsplit("/p", 1)[1] for r in rows for k in r if re.fullmatch(r"pcpg/accuracy/p[0-9.e-]+", k)}
+    return sorted(found, key=float, reverse=True)
+
+
+def best_points(axes: dict[str, list], rows: list[dict[str, Any]]) -> tuple[dict[str, float], dict[str, str]]:
+    """The sweep run's headline: ``best/<metric>`` for clustering accuracy, PCPG accuracy at the
+    largest p and PCPG's lead at the smallest p, and for each the point that has it (its MLflow
+    run name; ``(+n tied)`` when other points have the same value)."""
+    from pcpg_dist.tracking import point_label
+
+    ps = _p_keys(rows)
+    keys = ["clustering/accuracy", *([f"pcpg/accuracy/p{ps[0]}", f"pcpg_lead/p{ps[-1]}"] if ps else [])]
+    best, where = {}, {}
+    for key in keys:
+        have = [r for r in rows if isinstance(r.get(key), int | float) and math.isfinite(r[key])]
+        if not have:
+            continue
+        top = max(r[key] for r in have)
+        tied = [r for r in have if r[key] == top]
+        best[f"best/{key}"] = float(top)
+        where[key] = point_label({a: _fmt(tied[0][a]) for a in axes}) + (f" (+{len(tied) - 1} tied)" if len(tied) > 1 else "")
+    return best, where
+
+
 def point_slug(axes: dict[str, Any], fixed: dict[str, Any] | None = None, config_hash: str = "") -> str:
     """A stable folder name for a point: its axis values, readable and made safe, plus a short hash
     of everything that sets its config apart (axes, fixed overrides, the config's own hash)."""
@@ -208,9 +240,16 @@ def run_sweep(config: str | Path, axes_args: list[str], overrides: list[str] | N
         files = write_sweep_files(out, plan, rows)
         figures = [f for f in files if f.suffix == ".png"]
         if tracker is not None:
-            best = {f"best/{k}": max(r[k] for r in rows if k in r) for k in ("clustering/accuracy",)
-                    if any(k in r for r in rows)}
-            tracker.finish(best, files)
+            best, where = best_points(axes, rows)
+            note = description + "".join(f"\n\n{line}" for line in [
+                "Best points: " + "; ".join(f"{_readable(k)} {best[f'best/{k}']:.3f} at `{w}`" for k, w in where.items())
+                if where else "", STAGE_NOTE])
+            timings = {}
+            if results:  # the stages this call computed, all its points batched: the sweep's, not a point's
+                timings = {f"time/{s}_seconds": results[0].stage_seconds[s] for s in BATCHED_STAGES
+                           if s in results[0].stage_seconds and s not in results[0].cached_stages}
+                timings["time/sweep_seconds"] = time.perf_counter() - t0
+            tracker.finish(best, files, best_points=where, timings=timings, note=note)
     except BaseException:
         if tracker is not None:
             tracker.fail()
@@ -258,42 +297,87 @@ def _numeric(values: list) -> bool:
     return all(isinstance(v, int | float) and not isinstance(v, bool) for v in values)
 
 
+# Readable names for the figures (the raw key stays in brackets on the axis).
+AXIS_LABELS = {"pbtg.noise_max": "largest per-trajectory action noise", "pbtg.noise_min": "smallest action noise",
+               "clustering.k": "k (clusters)", "clustering.method": "clustering method",
+               "bc.epochs": "BC epochs", "bc.hidden_size": "BC hidden size", "bc.lr": "BC learning rate",
+               "pbtg.trajectories_per_style": "trajectories per style",
+               "pbtg.dataset_per_style": "dataset trajectories per style"}
+_METRIC_LABELS = {"clustering/accuracy": "clustering accuracy", "clustering/ceiling": "supervised ceiling",
+                  "clustering/gap_to_ceiling": "gap to the supervised ceiling",
+                  "cross/diagonal_mean": "cross-accuracy diagonal (mean)"}
+_PER_P = {"pcpg/accuracy/p": "PCPG accuracy", "baseline/accuracy/p": "No Clustering accuracy",
+          "pcpg_lead/p": "PCPG lead over No Clustering"}
+
+
+def _readable(metric: str) -> str:
+    """``pcpg/accuracy/p0.5`` -> "PCPG accuracy at p = 0.5"; a key without a name stays as it is."""
+    for prefix, name in _PER_P.items():
+        if metric.startswith(prefix):
+            return f"{name} at p = {metric.removeprefix(prefix)}"
+    return _METRIC_LABELS.get(metric, metric)
+
+
+def _axis_label(axis: str) -> str:
+    return f"{AXIS_LABELS[axis]} ({axis})" if axis in AXIS_LABELS else axis
+
+
 def draw_sweep(out: Path, axes: dict[str, list], rows: list[dict[str, Any]]) -> list[Path]:
     """One PNG per headline metric against each axis: one line per value of the other axes, error
-    bars the std over seeds."""
+    bars the std over seeds (each environment's, averaged over environments: the ``/std`` keys),
+    where the metric has one (clustering is fitted once per point and PCPG's lead is a difference
+    of means: none); the title says which. Ticks only at the swept values (a numeric axis keeps its spacing). Lines
+    are drawn side by side (a small horizontal offset, a marker each), so equal lines stay visible,
+    and the legend names the ones that are identical."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from pcpg_dist.tracking import short_keys
+
     metrics = [k for k in dict.fromkeys(k for r in rows for k in r)
                if k not in axes and k != "point" and not k.endswith(STD)]
     palette = ["#0072B2", "#E69F00", "#009E73", "#CC79A7", "#56B4E9", "#D55E00", "#F0E442", "#000000"]
+    markers = ["o", "s", "^", "D", "v", "P", "X", "*"]
+    short = short_keys(list(axes))
     paths = []
     for axis, values in axes.items():
         others = [a for a in axes if a != axis]
-        xs = values if _numeric(values) else list(range(len(values)))
+        xs = [float(v) for v in values] if _numeric(values) else list(range(len(values)))
+        gaps = [b - a for a, b in zip(sorted(xs), sorted(xs)[1:], strict=False) if b > a]
+        width = min(gaps) if gaps else 1.0
         for metric in metrics:
             fig, ax = plt.subplots(figsize=(6.4, 4.0), dpi=110)
             groups: dict[tuple, list[dict]] = {}
             for r in rows:
                 groups.setdefault(tuple(_fmt(r[o]) for o in others), []).append(r)
-            for gi, (key, members) in enumerate(groups.items()):
+            lines: dict[tuple, list] = {}
+            for key, members in groups.items():
                 by_x = {_fmt(r[axis]): r for r in members}
                 pts = [(x, by_x[_fmt(v)]) for x, v in zip(xs, values, strict=True) if _fmt(v) in by_x]
-                ys = [r.get(metric, math.nan) for _, r in pts]
-                err = [r.get(metric + STD, 0.0) for _, r in pts]
-                label = ", ".join(f"{o}={k}" for o, k in zip(others, key, strict=True)) or None
-                ax.errorbar([x for x, _ in pts], ys, yerr=err, marker="o", capsize=3, label=label,
-                            color=palette[gi % len(palette)])
-            if not _numeric(values):
-                ax.set_xticks(xs, [_fmt(v) for v in values])
-            ax.set_xlabel(axis)
-            ax.set_ylabel(metric)
+                lines[key] = [(x, r.get(metric, math.nan), r.get(metric + STD, 0.0)) for x, r in pts]
+            same = {key: [other for other in lines if other != key and lines[other] == lines[key]] for key in lines}
+            has_std = False
+            n = len(lines)
+            for gi, (key, pts) in enumerate(lines.items()):
+                shift = (gi - (n - 1) / 2) * width * 0.04 if n > 1 else 0.0
+                err = [e if isinstance(e, int | float) and math.isfinite(e) else 0.0 for _, _, e in pts]
+                has_std |= any(e > 0 for e in err)
+                label = ", ".join(f"{short[o]}={k}" for o, k in zip(others, key, strict=True)) or None
+                if label and same[key]:
+                    label += " (same as " + "; ".join(", ".join(f"{short[o]}={k}" for o, k in zip(others, twin, strict=True))
+                                                     for twin in same[key]) + ")"
+                ax.errorbar([x + shift for x, _, _ in pts], [y for _, y, _ in pts], yerr=err, marker=markers[gi % len(markers)],
+                            capsize=3, label=label, color=palette[gi % len(palette)], alpha=0.9)
+            ax.set_xticks(xs, [_fmt(v) for v in values])
+            ax.set_xlabel(_axis_label(axis))
+            ax.set_ylabel(_readable(metric))
             ax.grid(alpha=0.3)
-            if len(groups) > 1:
+            if len(lines) > 1:
                 ax.legend(fontsize=7, loc="best")
-            ax.set_title(f"{metric} vs {axis}", fontsize=10)
+            bars = "error bars: std over seeds, mean over environments" if has_std else "no error bars: no std over seeds"
+            ax.set_title(f"{_readable(metric)} vs {AXIS_LABELS.get(axis, axis)}\n({bars})", fontsize=10)
             fig.tight_layout()
             path = out / f"{re.sub(r'[^A-Za-z0-9._-]+', '_', metric)}__vs__{re.sub(r'[^A-Za-z0-9._-]+', '_', axis)}.png"
             png = io.BytesIO()

@@ -225,6 +225,63 @@ def test_report_of_a_sweeps_mlflow_run_and_reproduce_names_a_point(tmp_path, cap
     assert len(err) == 1 and "is the MLflow run of a whole pcpg sweep" in err[0] and point.parent_id in err[0], err
 
 
+def noise_x_k_rows() -> tuple[dict, list[dict]]:
+    """The reviewer's grid: k = 4 and 5 give the same clusters at every noise level."""
+    axes = {"pbtg.noise_max": [0.1, 0.3], "clustering.k": [3, 4, 5]}
+    rows = []
+    for noise in axes["pbtg.noise_max"]:
+        for k in axes["clustering.k"]:
+            rows.append({"pbtg.noise_max": noise, "clustering.k": k, "point": f"{noise}-{k}",
+                         "clustering/accuracy": (0.8 if k == 3 else 0.95) - noise / 10,
+                         "pcpg/accuracy/p1": 0.9 - noise / 10 + k / 100, "pcpg/accuracy/p1/std": 0.01,
+                         "baseline/accuracy/p1": 0.8, "pcpg/accuracy/p0.5": 0.85, "baseline/accuracy/p0.5": 0.7,
+                         "pcpg_lead/p0.5": 0.15 + (0.01 if (noise, k) == (0.3, 3) else 0.0)})
+    return axes, rows
+
+
+def test_sweep_figures_tick_the_swept_values_label_axes_and_keep_equal_lines_visible(tmp_path, monkeypatch):
+    """k = 3, 4, 5 was drawn with ticks 3.00, 3.25, …; k = 4 and 5 (equal) hid each other; titles and
+    axes were raw keys and the error bars unexplained."""
+    import matplotlib.figure
+
+    from pcpg_dist.sweep import draw_sweep
+
+    seen = {}
+    save = matplotlib.figure.Figure.savefig
+
+    def spy(fig, *args, **kwargs):
+        ax = fig.axes[0]
+        seen[(ax.get_xlabel(), ax.get_ylabel())] = (
+            ax.get_title(), [t.get_text() for t in ax.get_xticklabels()], list(ax.get_xticks()),
+            ax.get_legend_handles_labels()[1], [tuple(line.get_xdata()) for line in ax.lines if len(line.get_xdata()) > 1])
+        return save(fig, *args, **kwargs)
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", spy)
+    axes, rows = noise_x_k_rows()
+    paths = draw_sweep(tmp_path, axes, rows)
+    assert len(paths) == 2 * 6 and all(p.is_file() for p in paths)
+    k_label, noise_label = "k (clusters) (clustering.k)", "largest per-trajectory action noise (pbtg.noise_max)"
+    title, ticks, xs, legend, _ = seen[(k_label, "PCPG accuracy at p = 1")]
+    assert ticks == ["3", "4", "5"] and xs == [3.0, 4.0, 5.0]
+    assert "error bars: std over seeds" in title and legend == ["noise_max=0.1", "noise_max=0.3"]
+    title, ticks, _, legend, lines = seen[(noise_label, "clustering accuracy")]
+    assert ticks == ["0.1", "0.3"] and "no error bars" in title
+    assert legend == ["k=3", "k=4 (same as k=5)", "k=5 (same as k=4)"]
+    assert len(set(lines)) == 3  # side by side, never drawn on top of each other
+    assert (noise_label, "PCPG lead over No Clustering at p = 0.5") in seen
+
+
+def test_best_points_name_the_point_and_its_ties():
+    from pcpg_dist.sweep import best_points
+
+    axes, rows = noise_x_k_rows()
+    best, where = best_points(axes, rows)
+    assert best["best/pcpg/accuracy/p1"] == pytest.approx(0.9 - 0.01 + 0.05)
+    assert where["pcpg/accuracy/p1"] == "noise_max=0.1 k=5"
+    assert where["clustering/accuracy"] == "noise_max=0.1 k=4 (+1 tied)"
+    assert where["pcpg_lead/p0.5"] == "noise_max=0.3 k=3"
+
+
 # --------------------------------------------------------------------------- end to end
 def read_rows(path: Path) -> list[dict[str, str]]:
     with open(path) as f:
@@ -277,6 +334,16 @@ def test_sweep_shares_stages_logs_once_and_resumes(tiny_yaml, uninterrupted):
     assert {(r.data.params["bc.hidden_size"], r.data.params["bc.epochs"]) for r in points} == {
         ("8", "100"), ("8", "200"), ("16", "100"), ("16", "200")}
     assert all(r.info.status == "FINISHED" for r in runs)
+    # points named by their axis values, no stage times of their own; the sweep run has them and
+    # names its best points
+    assert sorted(r.info.run_name for r in points) == ["hidden_size=16 epochs=100", "hidden_size=16 epochs=200",
+                                                       "hidden_size=8 epochs=100", "hidden_size=8 epochs=200"]
+    assert not any(k.startswith("time/") for r in points for k in r.data.metrics)
+    sweep_run = sweep_runs[0]
+    assert {"time/train_seconds", "time/sweep_seconds", "best/pcpg/accuracy/p1"} <= set(sweep_run.data.metrics)
+    best = max(points, key=lambda r: r.data.metrics["pcpg/accuracy/p1"])
+    assert sweep_run.data.tags["pcpg.best_point/pcpg/accuracy/p1"].startswith(best.info.run_name)
+    assert "Best points: " in sweep_run.data.tags["mlflow.note.content"]
     n_runs = len(runs)
 
     # the same command again: nothing runs, nothing is logged twice, the table is identical
