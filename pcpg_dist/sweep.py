@@ -25,7 +25,6 @@ adding a value to an axis runs only the new points.
 
 from __future__ import annotations
 
-import base64
 import hashlib
 import io
 import json
@@ -388,18 +387,6 @@ def draw_sweep(out: Path, axes: dict[str, list], rows: list[dict[str, Any]]) -> 
     return paths
 
 
-_REPORT = """<!doctype html>
-<html lang="en"><head><meta charset="utf-8"><title>{{ title }}</title>
-<style>body{font-family:system-ui,sans-serif;max-width:1100px;margin:1rem auto;padding:0 1rem;color:#222}
-table{border-collapse:collapse;font-size:.85rem;display:block;overflow-x:auto}
-td,th{border:1px solid #ccc;padding:.2rem .4rem;text-align:right}th{background:#f3f3f3}
-.figs{display:flex;flex-wrap:wrap;gap:.5rem}.figs img{max-width:48%;height:auto}</style></head><body>
-<h1>{{ title }}</h1><p>{{ description }}</p>
-<h2>Points</h2><table><thead><tr>{% for c in columns %}<th>{{ c }}</th>{% endfor %}</tr></thead><tbody>
-{% for r in rows %}<tr>{% for c in columns %}<td>{{ r[c] }}</td>{% endfor %}</tr>{% endfor %}</tbody></table>
-<h2>Figures</h2><div class="figs">{% for f in figures %}<img alt="{{ f.name }}" src="data:image/png;base64,{{ f.data }}">{% endfor %}</div>
-</body></html>
-"""
 
 
 def read_sweep_record(folder: Path) -> dict[str, Any]:
@@ -454,35 +441,7 @@ def _read_rows(path: Path, axes: dict[str, list]) -> list[dict[str, Any]]:
 
 def render_sweep_report(folder: Path, out_dir: Path) -> Path:
     """``report.html`` of the sweep in ``folder`` (its ``sweep.json``, ``summary.csv`` and figures),
-    written to ``out_dir``: a self-contained page, the table of points and every figure. Only the
-    regular files named in ``sweep.json`` beside it are read (no symlink, no other folder)."""
-    import jinja2
+    written to ``out_dir``: :func:`pcpg_dist.report.render_sweep`, styled like a run's report."""
+    from pcpg_dist.report import render_sweep
 
-    from pcpg_dist.report_data import MAX_IMAGE_BYTES, inside
-
-    folder, out_dir = Path(folder), Path(out_dir)
-    record = read_sweep_record(folder)
-    axes = record["axes"]
-    table = folder / "summary.csv"
-    if not inside(table, folder):
-        raise DataError(f"{folder}: no summary.csv (a regular file) beside {SWEEP_JSON}")
-    rows = _read_rows(table, axes)
-    columns = [*axes, *[k for k in dict.fromkeys(k for r in rows for k in r) if k not in axes and k != "point"]]
-
-    def cell(v: Any) -> str:
-        return f"{v:.4g}" if isinstance(v, float) else _fmt(v)
-
-    shown = [{c: cell(r.get(c, "")) for c in columns} for r in rows]
-    figs = []
-    for name in record["figures"]:
-        path = folder / name
-        if not inside(path, folder) or path.stat().st_size > MAX_IMAGE_BYTES:
-            raise DataError(f"{folder}: figure {name} named in {SWEEP_JSON} is not a regular PNG file there "
-                            f"(at most {MAX_IMAGE_BYTES} bytes)")
-        figs.append({"name": name, "data": base64.b64encode(path.read_bytes()).decode()})
-    html = jinja2.Environment(autoescape=True).from_string(_REPORT).render(
-        title=f"Sweep: {record['name']}", description=record["description"], columns=columns, rows=shown,
-        figures=figs)
-    path = out_dir / "report.html"
-    atomic_write_bytes(path, html.encode())
-    return path
+    return render_sweep(Path(folder), Path(out_dir))
