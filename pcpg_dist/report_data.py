@@ -115,7 +115,7 @@ def _as_float(v) -> float | None:
 #: the fields of run.json the report and reproduce use, when present: (type, what it holds)
 RUN_FIELDS = {"config": (dict, "an object"), "provenance": (dict, "an object"),
               "computed": (dict, "an object of counts"), "stage_seconds": (dict, "an object of seconds"),
-              "cached_stages": (list, "a list of stage names")}
+              "cached_stages": (list, "a list of stage names"), "batch_points": (int, "a count of points")}
 
 
 def read_run(path: Path) -> dict:

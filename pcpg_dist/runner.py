@@ -359,7 +359,7 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
 
         # every local result first (summary, agents, report), so all of it is kept when the
         # tracking server is down; then the MLflow runs, one bar for every point's environments
-        results = [_finish_point(p, cache, clusters, dict(times), computed) for p in points]
+        results = [_finish_point(p, cache, clusters, dict(times), computed, len(points)) for p in points]
         unlogged = {id(p): [e for e in p.units if not p.tracker.env_logged(e, p.ekeys[e])]
                     if p.tracker is not None else [] for p in points}
         total = sum(len(v) for v in unlogged.values())
@@ -415,8 +415,9 @@ def _swap_in(out: Path, staging: Path, names: tuple[str, ...]) -> None:
 
 
 def _finish_point(p: Point, cache: Cache, clusters: dict, times: dict[str, float],
-                  computed: dict[str, int]) -> RunResult:
-    """Across one point's environments: summary tables, figures, agents and report (local only)."""
+                  computed: dict[str, int], batch: int = 1) -> RunResult:
+    """Across one point's environments: summary tables, figures, agents and report (local only).
+    ``batch``: the points whose stages ran together (a sweep's); their times and counts are shared."""
     from pcpg_dist.provenance import provenance
     from pcpg_dist.report import render
     from pcpg_dist.summary import write_summary
@@ -454,7 +455,8 @@ def _finish_point(p: Point, cache: Cache, clusters: dict, times: dict[str, float
     run_info = {"config": cfg.model_dump(mode="json"), "config_hash": cfg.hash(),
                 "command": p.command or f"pcpg run <config of {cfg.name}>", "overrides": p.params,
                 "provenance": provenance(), "stage_seconds": times, "cached_stages": cached,
-                "parent_run_id": result.parent_run_id, "computed": computed, "code_version": CODE_VERSION}
+                "parent_run_id": result.parent_run_id, "computed": computed, "code_version": CODE_VERSION,
+                "batch_points": batch}
     atomic_write_bytes(staging / "summary" / "run.json", json.dumps(run_info, indent=1, default=str).encode())
     _swap_in(out, staging, ("agents", "summary"))
     render(out / "summary", staging / "report")

@@ -152,6 +152,7 @@ def test_report_renders_everything(first_run, tmp_path):
     assert html.count("data:image/png;base64,") >= 3
     acc = f"{result.metrics['clustering/accuracy']:.3f}"
     assert acc in md
+    assert run["batch_points"] == 1 and "stages ran together" not in md  # a run's own stage times
     assert np.isfinite(result.metrics["cross/diagonal_mean"])
 
 

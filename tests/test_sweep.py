@@ -324,6 +324,10 @@ def test_sweep_shares_stages_logs_once_and_resumes(tiny_yaml, uninterrupted):
     assert "pcpg_accuracy_p1__vs__bc.epochs.png" in figs and "clustering_accuracy__vs__bc.hidden_size.png" in figs
     html = (first.out_dir / "report.html").read_text()
     assert html.count("data:image/png;base64,") == len(figs) and "bc.hidden_size" in html
+    # each point's own report says its stage times are the batch's (they were shown as its own)
+    for point in (first.out_dir / "points").iterdir():
+        assert json.loads((point / "summary" / "run.json").read_text())["batch_points"] == 4
+        assert "one of 4 sweep points whose stages ran together" in (point / "report" / "report.md").read_text()
 
     client = MlflowClient(uri)
     exp = client.get_experiment_by_name("sweeptiny")
