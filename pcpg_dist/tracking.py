@@ -543,20 +543,22 @@ def describe_run(cfg, result, scales: dict[str, int], command: str) -> str:
     by_axis, _ = curves({k: v for k, v in m.items() if "/" in k})
     ps = sorted(by_axis.get("pcpg/accuracy/by_p", {}), reverse=True)
     envs = list(getattr(result, "clustering", {}) or [])
-    lines = [f"**{command or 'pcpg run'}** — experiment `{cfg.name}`, domain {getattr(cfg, 'domain', '?')}, "
-             f"environments {', '.join(envs) or 'n/a'}, seeds {', '.join(map(str, getattr(cfg, 'seeds', []) or []))}, "
-             f"config hash `{cfg.hash()}`.", ""]
+    # the result first: the runs table's Description column and the page's summary show the start
+    lines = []
     if ps:
-        p = ps[0]
-        lines.append(f"Headline (mean over environments, p = {p:g}): PCPG accuracy "
-                     f"{_fmt(m.get(f'pcpg/accuracy/p{p:g}'))} vs No Clustering {_fmt(m.get(f'baseline/accuracy/p{p:g}'))}"
-                     f" (random {_fmt(m.get('random/accuracy'))}).")
+        at = [f"{_fmt(m.get(f'pcpg/accuracy/p{p:g}'))} vs {_fmt(m.get(f'baseline/accuracy/p{p:g}'))} at p = {p:g}"
+              for p in dict.fromkeys([ps[0], ps[-1]])]
+        lines.append(f"PCPG vs No Clustering accuracy: {'; '.join(at)} (mean over environments; random "
+                     f"{_fmt(m.get('random/accuracy'))}).")
     if _finite(m.get("clustering/accuracy")):
         lines.append(f"Clustering accuracy {_fmt(m['clustering/accuracy'])}"
                      + (f", gap to the supervised ceiling {_fmt(m['clustering/gap_to_ceiling'])}"
                         if _finite(m.get("clustering/gap_to_ceiling")) else "") + ".")
     elif _finite(m.get("clustering/silhouette")):
         lines.append(f"Clustering silhouette {_fmt(m['clustering/silhouette'])} (no true styles to compare).")
+    lines += ["", f"**{command or 'pcpg run'}** — experiment `{cfg.name}`, domain {getattr(cfg, 'domain', '?')}, "
+                  f"environments {', '.join(envs) or 'n/a'}, seeds "
+                  f"{', '.join(map(str, getattr(cfg, 'seeds', []) or []))}, config hash `{cfg.hash()}`."]
     charts = [f"`{k}`: step = {s} × {'p' if k.startswith('accuracy_vs_p') else 'c'}"
               for k, s in sorted(scales.items()) if s]
     if charts:

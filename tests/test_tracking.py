@@ -115,6 +115,9 @@ def test_parent_layout_for_review(cfg, tmp_path):
     assert sorted(m.step for m in corruption) == [0, 100]
     note = parent.data.tags["mlflow.note.content"]
     assert "pcpg run experiments/quick.yaml" in note and f"{REFERENCE['pcpg/accuracy/p1']:.3f}" in note
+    # the result opens the description (the runs table's Description column shows its start)
+    assert note.startswith(f"PCPG vs No Clustering accuracy: {REFERENCE['pcpg/accuracy/p1']:.3f} vs "
+                           f"{REFERENCE['baseline/accuracy/p1']:.3f} at p = 1; "), note
     assert parent.info.status == "FINISHED"
     files = all_artifacts(client, tracker.parent_id)
     assert "summary/accuracy_vs_p.csv" in files and "report/report.html" in files
