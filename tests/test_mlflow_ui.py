@@ -151,7 +151,7 @@ def test_parent_run_has_description_and_its_figure_loads(page, server, store):
     tracker = store["tracker"]
     base = f"{server}/#/experiments/{tracker.experiment_id}/runs/{tracker.parent_id}"
     page.goto(f"{base}?{ML}")
-    page.get_by_text("Headline", exact=False).first.wait_for()  # the run description
+    page.get_by_text("PCPG vs No Clustering accuracy", exact=False).first.wait_for()  # the run description
     page.screenshot(path=str(ARTIFACTS / "parent_overview.png"), full_page=True)
     page.goto(f"{base}/artifacts/summary/accuracy_vs_p.png?{ML}")
     page.get_by_text("summary/accuracy_vs_p.png").first.wait_for()
