@@ -242,9 +242,8 @@ def check_tracking_uri(uri: str, timeout: float = HEALTH_TIMEOUT) -> None:
              "or --no-tracking")
     if scheme in ("http", "https"):
         try:
-            with urllib.request.urlopen(uri.rstrip("/") + "/health", timeout=timeout) as resp:
-                if resp.status != 200:
-                    raise ServiceError(f"MLflow server at {_shown(uri)} answered {resp.status} on /health")
+            if (status := _health(uri, timeout)) != 200:
+                raise ServiceError(f"MLflow server at {_shown(uri)} answered {status} on /health")
         except (urllib.error.URLError, OSError, TimeoutError, ValueError) as e:
             reason = getattr(e, "reason", e)
             raise ServiceError(f"MLflow tracking server {_shown(uri)} is unreachable ({reason}); start it or set "
@@ -349,6 +348,12 @@ def _retry(fn, *args, attempts: int = 5, **kwargs):
     return None
 
 
+def _health(uri: str, timeout: float) -> int:
+    """The HTTP status of an MLflow server's ``/health`` (raises what urllib raises)."""
+    with urllib.request.urlopen(uri.rstrip("/") + "/health", timeout=timeout) as resp:
+        return resp.status
+
+
 def _hangs(uri: str) -> bool:
     """An HTTP server that takes a connection and leaves ``/health`` unanswered for HEALTH_TIMEOUT s.
 
@@ -359,8 +364,8 @@ def _hangs(uri: str) -> bool:
     if not uri.lower().startswith(("http://", "https://")):
         return False
     try:
-        with urllib.request.urlopen(uri.rstrip("/") + "/health", timeout=HEALTH_TIMEOUT):
-            return False
+        _health(uri, HEALTH_TIMEOUT)
+        return False
     except TimeoutError:
         return True
     except urllib.error.URLError as e:
