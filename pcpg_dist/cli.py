@@ -92,16 +92,15 @@ def _cmd_sweep(args: argparse.Namespace) -> None:
 def _print_points(res) -> None:
     """The sweep's points on stdout: axis values, then PCPG and No Clustering at p = 1 and at the
     smallest p, and the clustering accuracy (every column: summary.csv and the report)."""
-    import re
-
     from rich.table import Table
 
     from pcpg_dist.progress import out as console
+    from pcpg_dist.sweep import ps_of
 
     keys = {k for r in res.rows for k in r}
-    ps = sorted((float(m.group(1)), m.group(1)) for k in keys if (m := re.fullmatch(r"pcpg/accuracy/p([0-9.]+)", k)))
+    ps = ps_of(keys)
     shown = [("clustering/accuracy", "clust. acc")]
-    for _, p in dict.fromkeys([ps[-1], ps[0]] if ps else []):
+    for p in dict.fromkeys(ps[:1] + ps[-1:]):
         shown += [(f"pcpg/accuracy/p{p}", f"PCPG p{p}"), (f"baseline/accuracy/p{p}", f"NC p{p}")]
     shown = [(k, title) for k, title in shown if k in keys]
     table = Table(title="Sweep points (mean over seeds; NC = No Clustering)", title_justify="left")

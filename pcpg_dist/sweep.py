@@ -57,13 +57,17 @@ class SweepResult:
     parent_run_id: str | None = None
 
 
+def ps_of(keys) -> list[str]:
+    """The p values of ``pcpg/accuracy/p…`` among ``keys``, as written, largest first."""
+    return sorted({k.rsplit("/p", 1)[1] for k in keys if re.fullmatch(r"pcpg/accuracy/p[0-9.]+", k)},
+                  key=float, reverse=True)
+
+
 def headline_keys(metrics: dict[str, float]) -> list[str]:
     """What a sweep compares: clustering quality, PCPG and No Clustering at every p and PCPG's lead."""
     keys = [k for k in ("clustering/accuracy", "clustering/ceiling", "clustering/gap_to_ceiling",
                         "cross/diagonal_mean") if k in metrics]
-    ps = sorted({k.rsplit("/p", 1)[1] for k in metrics if re.fullmatch(r"pcpg/accuracy/p[0-9.]+", k)},
-                key=float, reverse=True)
-    for p in ps:
+    for p in ps_of(metrics):
         keys += [f"pcpg/accuracy/p{p}", f"baseline/accuracy/p{p}", f"pcpg_lead/p{p}"]
     return keys
 
