@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import reprlib
 import tempfile
 from dataclasses import asdict
 from pathlib import Path
@@ -30,8 +29,6 @@ from pcpg_dist.errors import DataError, ServiceError, first_line
 OPSET = 13  # Gather, MatMul, Where, ArgMax(select_last_index): all there; old enough for most runtimes
 IR_VERSION = 7  # the IR of opset 13, so older runtimes read the file too
 FORMAT = 1
-ACTIVATIONS = ("relu", "tanh")  # bc.activation's values: both have an ONNX operator
-CELL_KINDS = ("pcpg", "nc", "corrupt")  # CellSpec.kind
 
 
 # --------------------------------------------------------------------------- reading agents
@@ -44,7 +41,7 @@ def load_agents_folder(folder: Path) -> dict:
     (:func:`~pcpg_dist.run_folders.check_run_agents`), and every env name must be a plain name, since it becomes a file name: a DataError
     naming the file otherwise.
     """
-    from pcpg_dist.bc import TrainedCells
+    from pcpg_dist.bc import TrainedCells, check_cells
     from pcpg_dist.dataset import confined
     from pcpg_dist.run_folders import check_run_agents
 
@@ -57,8 +54,7 @@ def load_agents_folder(folder: Path) -> dict:
             confined(folder, env_dir.name, f"{env_dir}: env folder")
             parts = []
             for g in groups:
-                parts.append(TrainedCells.load(g))
-                check_cells(g.with_suffix(".json"), parts[-1])
+                parts.append(TrainedCells.load(g))  # checked against its JSON (check_cells)
             out[env_dir.name] = TrainedCells.concat(parts)
     npz = sorted(folder.glob("*.npz"))
     if npz:
@@ -86,61 +82,6 @@ def load_agents_folder(folder: Path) -> dict:
         raise DataError(f"{folder}: no trained agents (expected <env>/*.pt from pcpg run, "
                         f"or <env>.npz from the MLflow agents model)")
     return out
-
-
-def check_cells(source: Path | str, cells) -> None:
-    """A DataError naming ``source`` unless the cells' JSON (specs, sizes, activation) agrees
-    with their weights: one spec per weight set, ``W{l}`` of shape (cells, sizes[l], sizes[l+1]),
-    ``b{l}`` (cells, sizes[l+1]), mean and std (cells, sizes[0]), p in (0, 1]."""
-    sizes, n = cells.sizes, len(cells.specs)
-    if len(sizes) < 2 or not all(_whole(x) and x >= 1 for x in sizes):
-        raise DataError(f"{source}: sizes {reprlib.repr(list(sizes))} must be a list of at least two "
-                        f"positive whole numbers (state width, hidden widths, n_actions)")
-    if cells.activation not in ACTIVATIONS:
-        raise DataError(f"{source}: activation {reprlib.repr(cells.activation)} is not one of "
-                        f"{', '.join(ACTIVATIONS)}")
-    if n == 0:
-        raise DataError(f"{source}: specs is empty; the file must list one spec per trained cell")
-    for i, s in enumerate(cells.specs):
-        _check_spec(f"{source}: specs[{i}]", s)
-    if len({s.key for s in cells.specs}) != n:
-        raise DataError(f"{source}: specs repeat a cell key; each cell needs its own")
-    arrays = []
-    for layer in range(len(sizes) - 1):
-        arrays += [(f"W{layer}", cells.params[f"W{layer}"], (n, sizes[layer], sizes[layer + 1])),
-                   (f"b{layer}", cells.params[f"b{layer}"], (n, sizes[layer + 1]))]
-    arrays += [("mean", cells.mean, (n, sizes[0])), ("std", cells.std, (n, sizes[0]))]
-    for name, value, want in arrays:
-        shape = np.shape(value)
-        if shape[:1] != want[:1]:
-            raise DataError(f"{source}: {n} specs for {shape[0] if shape else 0} weight sets ({name} "
-                            f"has shape {shape}); the file must list one spec per trained cell")
-        if shape != want or not np.issubdtype(np.asarray(value).dtype, np.floating):
-            raise DataError(f"{source}: {name} has shape {shape} ({np.asarray(value).dtype}), but sizes "
-                            f"{list(sizes)} need {want} floats")
-
-
-def _check_spec(where: str, s) -> None:
-    if not isinstance(s.key, str) or not s.key:
-        raise DataError(f"{where}: key {reprlib.repr(s.key)} must be a non-empty string")
-    if s.kind not in CELL_KINDS:
-        raise DataError(f"{where}: kind {reprlib.repr(s.kind)} is not one of {', '.join(CELL_KINDS)}")
-    for field in ("k", "seed"):
-        if not _whole(getattr(s, field)):
-            raise DataError(f"{where}: {field} {reprlib.repr(getattr(s, field))} must be a whole number")
-    if not _number(s.p) or not 0 < s.p <= 1:
-        raise DataError(f"{where}: p {reprlib.repr(s.p)} must be a number in (0, 1]")
-    if not _number(s.c) or not 0 <= s.c <= 1:
-        raise DataError(f"{where}: c {reprlib.repr(s.c)} must be a number in [0, 1]")
-
-
-def _whole(x) -> bool:
-    return isinstance(x, int | np.integer) and not isinstance(x, bool)
-
-
-def _number(x) -> bool:
-    finite_number = isinstance(x, int | float | np.integer | np.floating) and not isinstance(x, bool)
-    return finite_number and bool(np.isfinite(x))
 
 
 def resolve_agents(target: str, tracking_uri: str | None, workdir: Path) -> Path:
@@ -206,6 +147,8 @@ def build_model(env: str, cells):
     """The ONNX model of one environment's ensemble (a :class:`~pcpg_dist.bc.TrainedCells`)."""
     import onnx
     from onnx import TensorProto, helper, numpy_helper
+
+    from pcpg_dist.bc import ACTIVATIONS
 
     d, n_actions, n_layers = cells.state_dim, cells.n_actions, len(cells.sizes) - 1
     if cells.activation not in ACTIVATIONS:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
@@ -178,6 +179,29 @@ def test_an_unreadable_model_file_is_one_line_without_torch_advice(toy, tmp_path
     text = str(info.value)
     assert text == f"{path}: unreadable model files: not a pcpg model file (torch could not read its tensors)"
     assert not caught
+
+
+@pytest.mark.parametrize("edit, says", [
+    (lambda t, m: t.__setitem__("W0", t["W0"][:, :-1]), "W0 has shape"),
+    (lambda t, m: t.__setitem__("final_loss", t["final_loss"][:0]), "1 specs for 0 weight sets (final_loss"),
+    (lambda t, m: t["b0"].fill_(float("nan")), "b0 holds non-finite values"),
+    (lambda t, m: t["std"].zero_(), "std holds values <= 0"),
+    (lambda t, m: m.__setitem__("sizes", [*m["sizes"][:-1], 9]), "need (1, 5, 9) floats"),
+])
+def test_a_model_whose_tensors_do_not_fit_its_json_is_one_line_at_load(toy, tmp_path, edit, says):
+    """TrainedCells.load used to accept tensors of any shape: the fault surfaced later as a
+    matmul error, or as NaN logits that silently picked action 0."""
+    _, _, cells = toy
+    path = train_cells(cells[:1], BCConfig(epochs=2)).save(tmp_path / "cells")
+    tensors = torch.load(path, weights_only=True)
+    meta = json.loads(path.with_suffix(".json").read_text())
+    edit(tensors, meta)
+    torch.save(tensors, path)
+    path.with_suffix(".json").write_text(json.dumps(meta))
+    with pytest.raises(DataError) as info:
+        TrainedCells.load(path)
+    assert str(info.value).startswith(f"{path.with_suffix('.json')}: ") and says in str(info.value)
+    assert "\n" not in str(info.value)
 
 
 def test_device_config():
