@@ -79,6 +79,23 @@ def top_p(indices: np.ndarray, scores: np.ndarray, p: float, ids: np.ndarray,
     return np.sort(indices[order[: n_kept(len(indices), p)]])
 
 
+def _no_margins(dataset: Dataset) -> str:
+    return (f"ranking.style_margin: the clustering of {dataset.domain}-{dataset.env} gives no likelihood "
+            "margins (bag_auto falls back to lstm_dec on its continuous states): use clustering.method "
+            "policy_mix, or set ranking.style_margin to 0")
+
+
+def check_margins_come(cfg, datasets: Sequence[Dataset]) -> None:
+    """Before Step A: a DataError if ``ranking.style_margin`` will find a clustering without
+    margins (``bag_auto`` on continuous states), rather than after every unit was clustered."""
+    from pcpg_dist.clustering import falls_back_to_lstm
+
+    if cfg.ranking.style_margin > 0 and cfg.clustering.method == "bag_auto":
+        for d in datasets:
+            if falls_back_to_lstm(d):
+                raise DataError(_no_margins(d))
+
+
 def ranked_last(margins: np.ndarray | None, cfg: RankConfig, dataset: Dataset) -> np.ndarray | None:
     """The style-aware part of Step B (``ranking.style_margin``; None = the paper's ranking): which
     trajectories rank after the rest of their cluster because their cluster is less than
@@ -86,9 +103,7 @@ def ranked_last(margins: np.ndarray | None, cfg: RankConfig, dataset: Dataset) -
     if cfg.style_margin <= 0:
         return None
     if margins is None:
-        raise DataError(f"ranking.style_margin: the clustering of {dataset.domain}-{dataset.env} gave "
-                        "no likelihood margins (bag_auto falls back to lstm_dec on continuous states): "
-                        "use clustering.method policy_mix, or set ranking.style_margin to 0")
+        raise DataError(_no_margins(dataset))
     margins = np.asarray(margins, dtype=np.float64)
     if margins.shape != (dataset.n_trajectories,):
         raise DataError(f"style margins must have shape ({dataset.n_trajectories},), got {margins.shape}")

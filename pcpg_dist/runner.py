@@ -37,6 +37,7 @@ from pcpg_dist.dataset import Dataset, atomic_write_bytes, confined, load_datase
 from pcpg_dist.domains import contract
 from pcpg_dist.domains.base import Unit
 from pcpg_dist.parallel import set_threads
+from pcpg_dist.ranking import check_margins_come
 from pcpg_dist.ray_utils import run_tasks
 from pcpg_dist.run_folders import check_unit_name
 
@@ -268,6 +269,7 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
             for name in units:
                 confined(p.out, name, "unit name")  # unit names become folder and run names
                 check_unit_name(name)
+            check_margins_come(p.cfg, [u.clustered for u in units.values()])
             unit_sets[ukey] = units, {n: ray.put(u) for n, u in units.items()}
         p.units, p.refs = unit_sets[ukey]
     times["generate"] = time.perf_counter() - t0

@@ -473,6 +473,20 @@ def test_an_env_named_like_a_summary_file_is_refused_before_clustering(tmp_path,
     assert not (run / "cache" / "cluster").exists() and not (run / "summary").exists()
 
 
+def test_style_margin_on_continuous_states_with_bag_auto_is_refused_before_clustering(tmp_path, capsys) -> None:
+    """bag_auto falls back to lstm_dec on continuous states, which has no margins: the error came
+    after every unit was clustered."""
+    path = tmp_path / "logs.parquet"
+    tiny_table(n_traj=12, steps=5).to_parquet(path, index=False)
+    cfg = write_config(tmp_path, path, clustering={"k": 2, "method": "bag_auto"}, ranking__style_margin=1.0)
+    code = main(["run", str(cfg), "--no-tracking", "--quiet", "--workdir", str(tmp_path / "runs")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "Traceback" not in err, err
+    assert "ranking.style_margin: the clustering of trajectories-" in err and "policy_mix" in err
+    run = tmp_path / "runs" / "own_logs"
+    assert not (run / "cache" / "cluster").exists() and not (run / "summary").exists()
+
+
 @pytest.mark.parametrize("key, value, needle", [
     ("pcpg.feature_names", 5, "metadata 'pcpg.feature_names' is 5; expected a list of names"),
     ("pcpg.action_names", 5, "metadata 'pcpg.action_names' is 5; expected a list of names"),
