@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 import yaml
 
@@ -59,6 +60,14 @@ def test_run_produces_metrics_tables_figures(first_run):
         assert (summary / name).is_file(), name
     assert list((summary / "E1").glob("*.png")) and list((summary / "E1").glob("*.csv"))
     assert result.computed == {"data": 1, "clustering": 1, "train_groups": 1, "evaluations": 1}
+    # the summary's table holds each environment's own figures at each p (random was the
+    # all-test-steps figure in every row, beside a per-p majority class)
+    table, own = pd.read_csv(summary / "accuracy_vs_p.csv"), pd.read_csv(summary / "E1" / "accuracy.csv")
+    for col, method in (("pcpg", "pcpg"), ("no_clustering", "no_clustering"), ("random", "random"),
+                        ("majority", "majority")):
+        for p in (1.0, 0.5):
+            want = own[(own.method == method) & (own.p == p)]["mean"].item()
+            assert table[(table.env == "E1") & (table.p == p)][col].item() == pytest.approx(want), (col, p)
 
 
 @pytest.mark.slow
