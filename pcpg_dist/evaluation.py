@@ -214,6 +214,13 @@ def evaluate(
     metrics["random/accuracy"] = scorer.random_accuracy(test_idx)
     metrics["majority/accuracy"] = majority_accuracy(test_idx)
     tables["accuracy"] = pd.DataFrame(rows)
+    if not (dataset.styles < 0).any():  # which true style each cluster stands for (Tables 3-5 by style)
+        sizes = np.bincount(labels, minlength=k)
+        majority = style_of_clusters(dataset, labels, k)
+        tables["cluster_style"] = pd.DataFrame({
+            "k": np.arange(k), "style": majority, "trajectories": sizes[:k],
+            "purity": [float(np.mean(dataset.styles[labels == c] == majority[c])) if sizes[c] else np.nan
+                       for c in range(k)]})
     if any(f"pcpg/accuracy/p{fmt(p)}" in metrics and f"baseline/accuracy/p{fmt(p)}" in metrics
            for p in ps):
         wins = [metrics[f"pcpg/accuracy/p{fmt(p)}"] > metrics[f"baseline/accuracy/p{fmt(p)}"]
@@ -258,7 +265,7 @@ def evaluate(
     h_train = threshold(labels, train_idx, scores, ids, ps, k, last)
     nc_train = threshold_all(train_idx, scores, ids, ps)
     def length_row(method: str, c: int, p: float, idx: np.ndarray) -> dict:
-        kept = dataset.lengths[idx]
+        kept = dataset.lengths[idx] - 1  # steps (actions taken), the unit of the rollouts' length
         return {"method": method, "k": c, "p": p, "mean": float(kept.mean()),
                 "std": float(kept.std()), "n": len(idx)}
 
@@ -337,6 +344,7 @@ def _rollouts(dataset, labels, k, seeds, ps, cells, trained, cfg, hooks, tables,
         return
     rnd = hooks.rollout(random_policy, cfg.rollouts_per_policy, _rollout_rng(cfg.rollout_seed, "random"))
     dist_rows = []
+    by_style: dict[tuple[int, float], list[float]] = {}  # two clusters of one majority style pool
     for c in range(k):
         style = styles[c]
         if style < 0:  # an empty cluster: no agent, no style
@@ -349,12 +357,14 @@ def _rollouts(dataset, labels, k, seeds, ps, cells, trained, cfg, hooks, tables,
             if not len(own):
                 continue
             dists = list(np.abs(own["return_own_style"].to_numpy() - best))
-            put(f"reward_distance/style{style}/p{fmt(p)}", dists)
-            if p == cfg.reward_p:
-                put(f"reward_distance/style{style}", dists)
+            by_style.setdefault((style, p), []).extend(dists)
             dist_rows.append({"k": c, "style": style, "p": p, "optimal": best, "actions": mode,
                               "pcpg_mean": float(np.mean(dists)), "pcpg_std": float(np.std(dists)),
                               "random": rnd_dist, "headline": p == cfg.reward_p})
+    for (style, p), dists in by_style.items():
+        put(f"reward_distance/style{style}/p{fmt(p)}", dists)
+        if p == cfg.reward_p:
+            put(f"reward_distance/style{style}", dists)
     tables["reward_distance"] = pd.DataFrame(dist_rows)
 
 

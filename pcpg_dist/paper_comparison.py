@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from pcpg_dist.config.stages import RankConfig
@@ -146,6 +147,49 @@ def kept_lengths(summary: Path, envs: list[str]) -> str:
     return length_summary(_env_tables(summary, envs, "subset_length"))
 
 
+def _by_style(summary: Path, env: str, matrix: pd.DataFrame) -> pd.DataFrame | None:
+    """``matrix`` (rows and columns k<c>) reordered into style order (R1, R2, ...), where the
+    environment's clusters stand for its styles one to one (``cluster_style.csv``); else None."""
+    table = _env_tables(summary, [env], "cluster_style")
+    if not table or not {"k", "style"} <= set(table[0].columns):
+        return None
+    style = {f"k{int(k)}": int(s) for k, s in zip(table[0]["k"], table[0]["style"], strict=True)}
+    names = list(matrix.index)
+    order = sorted(names, key=lambda n: style.get(n, -1))
+    if sorted(style.get(n, -1) for n in names) != list(range(len(names))):
+        return None  # a style with two clusters, or one with none: no one-to-one order
+    out = matrix.loc[order, order]
+    out.index = out.columns = [f"R{style[n] + 1}" for n in order]
+    return out
+
+
+def cross_summary(summary: Path, envs: list[str]) -> str:
+    """Table 4 in one line: the cross-accuracy diagonal and off-diagonal range, in style order
+    (R1, R2, ...) and averaged over environments where every environment's clusters match its
+    styles one to one; otherwise each environment's matrix is in its own cluster order, so only
+    per-environment figures are averaged."""
+    mats = {}
+    for env in envs:
+        for table in _env_tables(summary, [env], "cross_accuracy"):
+            mats[env] = table.set_index(table.columns[0]).astype(float)
+    if not mats:
+        return "—"
+    aligned = [_by_style(summary, env, m) for env, m in mats.items()]
+    if all(a is not None for a in aligned) and len({tuple(a.index) for a in aligned}) == 1:
+        m, note = sum(a.to_numpy() for a in aligned) / len(aligned), ""
+    elif len(mats) == 1:
+        m, note = next(iter(mats.values())).to_numpy(), " (by cluster: not matched to styles one to one)"
+    else:
+        diag = [float(np.mean(np.diagonal(m.to_numpy()))) for m in mats.values()]
+        rows = sum(int((m.to_numpy().argmax(axis=1) == np.arange(len(m))).sum()) for m in mats.values())
+        return (f"diagonal mean {np.mean(diag):.2f}, the row maximum in {rows} of "
+                f"{sum(len(m) for m in mats.values())} rows (clusters not matched to styles one to one, "
+                f"so not averaged cell by cell)")
+    off = [m[i, j] for i in range(m.shape[0]) for j in range(m.shape[1]) if i != j]
+    text = "diagonal " + " / ".join(f"{m[i, i]:.2f}" for i in range(min(m.shape)))
+    return text + (f"; off-diagonal {min(off):.2f} to {max(off):.2f}" if off else "") + note
+
+
 def paper_rows(domain: str, metrics: dict, summary: Path, envs: list[str]) -> list[PaperRow]:
     """Every table and figure of the paper: what the paper reports and what this run measured."""
     paper = paper_numbers(domain)
@@ -168,26 +212,21 @@ def paper_rows(domain: str, metrics: dict, summary: Path, envs: list[str]) -> li
                          if h["compared"] else "—"))
     dist = [metrics.get(f"reward_distance/style{s}") for s in range(16)]
     rnd = [metrics.get(f"random/reward_distance/style{s}") for s in range(16)]
+
+    def by_style(values: list) -> str:  # R1, R2, ... in place: a style no cluster stands for is "—"
+        n = max((i + 1 for i, v in enumerate(values) if v is not None), default=0)
+        return " / ".join("—" if v is None else f"{v:.2f}" for v in values[:n])
+
     lengths = _env_tables(summary, envs, "rollout_length")
     # rollouts without distances: the domain has no per-style rewards or optimal returns to measure them
     absent = "— (no reward-distance hooks for this domain)" if lengths else "— (no rollouts)"
     rows.append(PaperRow("Table 3: reward distance to the optimum, PCPG", f"{first}-reward",
                          said("reward distance, PCPG (Table 3)", "not reported for this domain"),
-                         " / ".join(f"{v:.2f}" for v in dist if v is not None) or absent))
+                         by_style(dist) or absent))
     rows.append(PaperRow("Table 3: reward distance to the optimum, random", f"{first}-reward",
                          said("reward distance, random (Table 3)", "not reported for this domain"),
-                         " / ".join(f"{v:.2f}" for v in rnd if v is not None) or absent))
-    cross = _env_tables(summary, envs, "cross_accuracy")
-    ours = "—"
-    if cross:
-        mats = [c.set_index(c.columns[0]).to_numpy(float) for c in cross]
-        if len({m.shape for m in mats}) == 1:
-            m = sum(mats) / len(mats)
-            diag = [m[i, i] for i in range(min(m.shape))]
-            off = [m[i, j] for i in range(m.shape[0]) for j in range(m.shape[1]) if i != j]
-            ours = "diagonal " + " / ".join(f"{v:.2f}" for v in diag)
-            if off:
-                ours += f"; off-diagonal {min(off):.2f} to {max(off):.2f}"
+                         by_style(rnd) or absent))
+    ours = cross_summary(summary, envs)
     rows.append(PaperRow("Table 4: accuracy of π_k on H_k' (mean over p)", f"{first}-cross",
                          said("cross-accuracy diagonal (Table 4)", "strongest on the diagonal"), ours))
     rows.append(PaperRow("Figs. 5 and 6: rollout length vs p", f"{first}-rollout_length",
@@ -214,11 +253,11 @@ def paper_rows(domain: str, metrics: dict, summary: Path, envs: list[str]) -> li
                          said("", "falls toward No Clustering as c rises; the spread grows"), ours))
     rewards = _env_tables(summary, envs, "corruption_reward")
     ours = "—"
-    if rewards:
-        d = pd.concat(rewards)
-        rcols = [c for c in d.columns if c.startswith("R") and not c.endswith("_std")]
-        spread = d.groupby("c")[rcols].std(ddof=0).mean(axis=1)
-        ours = "spread of subset rewards across clusters: " + " ; ".join(
+    if rewards:  # the spread across one environment's clusters, then the mean over environments
+        rcols = [c for c in rewards[0].columns if c.startswith("R") and not c.endswith("_std")]
+        spread = pd.concat([d.groupby("c")[[c for c in rcols if c in d]].std(ddof=0).mean(axis=1)
+                            for d in rewards], axis=1).mean(axis=1)
+        ours = "spread of subset rewards across an environment's clusters: " + " ; ".join(
             f"c={c:g}: {v:.1f}" for c, v in spread.items())
     rows.append(PaperRow("Table 5: subset rewards under label corruption", f"{first}-corruption_reward",
                          said("", "subsets' rewards become alike as c rises"), ours))

@@ -112,6 +112,15 @@ def _ref_key(item: str) -> str:
     return item.split(":")[0].strip()
 
 
+def _by_ref(rows: list[PaperRow]) -> dict[str, PaperRow]:
+    """``paper_rows`` by the paper's item ("Fig. 4", "Table 4", ...); Table 3's two rows (PCPG,
+    random) as one."""
+    out = {_ref_key(r.item): r for r in rows}
+    out["Table 3"] = PaperRow("Table 3", "", *(f"{a}; random {b}" for a, b in zip(
+        (rows[2].paper, rows[2].ours), (rows[3].paper, rows[3].ours), strict=True)))
+    return out
+
+
 def _stage_rows(run: dict, n_envs: int) -> tuple[list[list[str]], list[str]]:
     """(stage, seconds, work done, source) rows and the stages served wholly from the cache
     (``run`` as :func:`read_run` checked it)."""
@@ -170,9 +179,7 @@ def build(summary: Path, reproduce_target: str | None = None) -> Report:
     name, domain = str(cfg.get("name", summary.parent.name)), str(cfg.get("domain", "gridworld"))
     envs = [d.name for d in sorted(summary.iterdir()) if d.is_dir() and not d.is_symlink()]
     paper = paper_rows(domain, metrics, summary, envs)
-    by_ref = {_ref_key(r.item): r for r in paper}
-    by_ref["Table 3"] = PaperRow("Table 3", "", *(f"{a}; random {b}" for a, b in zip(
-        (paper[2].paper, paper[2].ours), (paper[3].paper, paper[3].ours), strict=True)))
+    by_ref = _by_ref(paper)
     top: list[Section] = []
     fig4 = Section("fig4", "Accuracy vs p across environments", "Fig. 4", by_ref["Fig. 4"].paper,
                    by_ref["Fig. 4"].ours, figure_of(summary / "accuracy_vs_p.png", summary, "accuracy vs p"))
@@ -183,12 +190,15 @@ def build(summary: Path, reproduce_target: str | None = None) -> Report:
         if inside(path, summary) and (df := read_csv(path)) is not None and len(df):
             sec.tables.append(table_of(df, stem, f"{stem}.csv"))
         top.append(sec)
-    by_section = {key: by_ref[ref] for key, _, ref, *_ in ENV_SECTIONS if ref in by_ref}
 
-    def rows_of(env: str) -> dict[str, PaperRow]:  # the kept data shares the rollouts' paper figures,
-        # not their numbers: its line comes from its own table (this environment's kept lengths)
-        kept = PaperRow("", "", by_ref["Figs. 5 and 6"].paper, kept_lengths(summary, [env]))
-        return by_section | {"subset_length": kept}
+    def rows_of(env: str) -> dict[str, PaperRow]:
+        """This environment's own figures beside the paper's (the run-wide ones head the page)."""
+        own = _by_ref(paper_rows(domain, {k[len(env) + 1:]: v for k, v in metrics.items()
+                                          if k.startswith(f"{env}/")}, summary, [env]))
+        # the kept data shares the rollouts' paper figures, not their numbers: its line comes
+        # from its own table (this environment's kept lengths)
+        kept = PaperRow("", "", own["Figs. 5 and 6"].paper, kept_lengths(summary, [env]))
+        return {key: own[ref] for key, _, ref, *_ in ENV_SECTIONS if ref in own} | {"subset_length": kept}
 
     env_parts = [(env, *_env_sections(summary, env, rows_of(env))) for env in envs]
     anchors = {sec.anchor for sec in top} | {sec.anchor for _, secs, more in env_parts for sec in secs + more}

@@ -43,7 +43,7 @@ from pcpg_dist.run_folders import check_unit_name
 
 CODE_VERSION = "2"  # bump when a stage's numbers or files change for the same config (2: bool valid masks)
 CLUSTER_VERSION = "2"  # bump when only Step A's files change (2: result.json holds the margins)
-EVAL_VERSION = "2"  # bump when only the evaluation's metrics or tables change (2: rollout/success/...)
+EVAL_VERSION = "3"  # bump when only the evaluation's metrics or tables change (3: cluster_style, kept length in steps)
 STAGES = ("generate", "cluster", "train", "evaluate")
 # fields of a config that cannot change its evaluation units (dataset, split, what Step A sees)
 NOT_IN_UNITS = {"name", "clustering", "bc", "evaluation", "runner", "tuning", "seeds", "sweep"}

@@ -77,6 +77,29 @@ def test_rollouts_reward_distance_and_lengths(run):
     table = res.tables["reward_distance"]
     assert set(table.actions) == {"greedy"} and table.headline.sum() == 2
     assert m["reward_distance/style0/p1"] == m["reward_distance/style0"]
+    # the kept data's length and the rollouts' are both in steps (actions taken): the best kept
+    # quarter walks the 8-move route, as the clones do (the kept length counted states: 9)
+    for style in (0, 1):
+        assert 8 <= m[f"subset/length/k{style}/p0.25"] < 8.5
+
+
+def test_two_clusters_of_one_style_pool_their_reward_distance(tmp_path):
+    """reward_distance/style<s> was the last cluster of style s's figure: the others were dropped."""
+    ds = make_dataset(120, seed=1)
+    tr, te = split_trajectories(ds.n_trajectories, RANK.test_fraction, RANK.split_seed)
+    labels = np.where(ds.styles == 1, 2, ds.trajectory_ids % 2)  # style 0 split over clusters 0 and 1
+    rank = RankConfig(ps=(1.0, 0.5))
+    model = train_cells(plan_cells(ds, labels, tr, rank, seeds=[0], k=3), BCConfig(epochs=100))  # soft: sampled rollouts stray
+    hooks = DomainHooks(rollout=rollout, returns=returns, optimal_return=optimal_return)
+    cfg = EvalConfig(corruption_levels=(), rollouts_per_policy=10, figures=False, greedy=False)
+    res = evaluate(ds, labels, te, model, rank, cfg, tmp_path, hooks, k=3)
+    styles = res.tables["cluster_style"]
+    assert list(styles["style"]) == [0, 0, 1] and list(styles["purity"]) == [1.0, 1.0, 1.0]
+    table = res.tables["reward_distance"]
+    own = table[table.headline & (table["style"] == 0)]
+    assert list(own.k) == [0, 1]  # each cluster's own row, both kept
+    assert own.pcpg_mean.nunique() == 2, own  # else the pooled and the last figure agree
+    assert res.metrics["reward_distance/style0"] == pytest.approx(own.pcpg_mean.mean())
 
 
 def test_corruption_falls_to_no_clustering(run):

@@ -17,6 +17,7 @@ import shutil
 from pathlib import Path
 
 import html5lib
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -558,3 +559,64 @@ def test_fig4_across_environments_plots_the_headline_mean_large_enough(summary, 
     want = acc.groupby("p").pcpg.mean()
     assert list(pcpg.get_ydata()) == pytest.approx(list(want.sort_index()))
     assert min(t.get_fontsize() for t in axes[0].get_xticklabels()) >= 10
+
+
+def add_env(summary: Path, name: str, order: list[int], shift: float) -> None:
+    """A second environment: E1's files with its clusters renumbered (cluster i of ``name`` is E1's
+    cluster ``order[i]``) and its own metrics (E1's plus ``shift``)."""
+    shutil.copytree(summary / "E1", summary / name)
+    cross = pd.read_csv(summary / "E1" / "cross_accuracy.csv", index_col=0)
+    names = [f"k{i}" for i in order]
+    moved = cross.loc[names, names]
+    moved.index = moved.columns = [f"k{i}" for i in range(len(order))]
+    moved.to_csv(summary / name / "cross_accuracy.csv")
+    pd.DataFrame({"k": range(len(order)), "style": order}).to_csv(summary / name / "cluster_style.csv", index=False)
+    metrics = json.loads((summary / "metrics.json").read_text())
+    metrics.update({f"{name}/{k[3:]}": v + shift for k, v in list(metrics.items()) if k.startswith("E1/")})
+    (summary / "metrics.json").write_text(json.dumps(metrics))
+
+
+def test_each_environment_section_shows_its_own_figures_and_table4_is_in_style_order(summary, tmp_path):
+    """An environment's "this run" lines quoted the run-wide figures; Table 4's line averaged the
+    environments' matrices by cluster number, which is arbitrary in each environment."""
+    from pcpg_dist.paper_comparison import cross_summary
+
+    folder = copy_summary(tmp_path)
+    pd.DataFrame({"k": range(4), "style": range(4)}).to_csv(folder / "E1" / "cluster_style.csv", index=False)
+    add_env(folder, "E2", [2, 0, 3, 1], shift=10.0)
+    model = build(folder)
+    lines = {s.anchor: s.ours for _, secs, _ in model.envs for s in secs}
+    metrics = json.loads((folder / "metrics.json").read_text())
+    for env in ("E1", "E2"):
+        random = " / ".join(f"{metrics[f'{env}/random/reward_distance/style{s}']:.2f}" for s in range(4))
+        assert lines[f"{env}-reward"].endswith(f"random {random}"), (env, lines[f"{env}-reward"])
+    # E2 is E1 renumbered: in style order both read as E1, and so does their mean
+    e1 = cross_summary(folder, ["E1"])
+    assert e1.startswith("diagonal 0.96 / 0.92 / 0.92 / 0.92; off-diagonal 0.06 to 0.76")
+    assert cross_summary(folder, ["E2"]) == e1 == cross_summary(folder, ["E1", "E2"])
+    assert lines["E2-cross"] == e1
+    # without a one-to-one match the matrices are not averaged cell by cell
+    pd.DataFrame({"k": range(4), "style": [0, 0, 1, 2]}).to_csv(folder / "E2" / "cluster_style.csv", index=False)
+    assert cross_summary(folder, ["E2"]).endswith("(by cluster: not matched to styles one to one)")
+    assert cross_summary(folder, ["E1", "E2"]).startswith("diagonal mean 0.93, the row maximum in 8 of 8 rows")
+
+
+def test_table3_keeps_each_style_in_its_column_and_table5_spreads_within_an_environment(summary, tmp_path):
+    from pcpg_dist.paper_comparison import paper_rows
+
+    folder = copy_summary(tmp_path)
+    add_env(folder, "E2", [0, 1, 2, 3], shift=0.0)
+    reward = pd.read_csv(folder / "E2" / "corruption_reward.csv")
+    rcols = [c for c in reward.columns if c.startswith("R") and not c.endswith("_std")]
+    reward[rcols] += 1000.0 * (np.arange(len(reward)) % 3)[:, None]  # E2's clusters far apart
+    reward.to_csv(folder / "E2" / "corruption_reward.csv", index=False)
+    metrics = {"reward_distance/style0": 1.0, "reward_distance/style2": 3.0}  # style 1: no cluster
+    rows = {r.item: r.ours for r in paper_rows("gridworld", metrics, folder, ["E1", "E2"])}
+    assert rows["Table 3: reward distance to the optimum, PCPG"] == "1.00 / — / 3.00"
+    spread = {}
+    for env in ("E1", "E2"):
+        d = pd.read_csv(folder / env / "corruption_reward.csv")
+        spread[env] = d.groupby("c")[rcols].std(ddof=0).mean(axis=1)
+    want = (spread["E1"] + spread["E2"]) / 2
+    assert rows["Table 5: subset rewards under label corruption"].endswith(
+        " ; ".join(f"c={c:g}: {v:.1f}" for c, v in want.items()))

@@ -4,6 +4,10 @@ The numbers were made with the code *before* the domain-seam redesign (commit db
 ``uv run python tests/reference/configs.py``; ``tests/test_reference.py`` runs the same configs with
 today's code and must get the same numbers. Regenerate only when a change of numbers is intended,
 and say so in the commit.
+
+Intended changes since: 2026-11-25, ``subset/length/*`` counts steps (one less than the states
+it counted) and ``reward_distance/style<s>`` pools every cluster of majority style s (it was the
+last such cluster's); only those 72 values were replaced, each checked to be exactly that change.
 """
 
 from __future__ import annotations
