@@ -12,6 +12,7 @@ import numpy as np
 import pandas as pd
 
 from pcpg_dist.config.stages import RankConfig
+from pcpg_dist.errors import DataError
 from pcpg_dist.report_data import PaperRow, fmt, inside, read_csv
 
 #: domains the paper has results for (others get no paper column and a banner saying so)
@@ -150,9 +151,13 @@ def kept_lengths(summary: Path, envs: list[str]) -> str:
 def _by_style(summary: Path, env: str, matrix: pd.DataFrame) -> pd.DataFrame | None:
     """``matrix`` (rows and columns k<c>) reordered into style order (R1, R2, ...), where the
     environment's clusters stand for its styles one to one (``cluster_style.csv``); else None."""
-    table = _env_tables(summary, [env], "cluster_style")
-    if not table or not {"k", "style"} <= set(table[0].columns):
+    table = _env_tables(summary, [env], "cluster_style")  # checked: k and style are numbers
+    if not table:
         return None
+    for col in ("k", "style"):
+        values = table[0][col].to_numpy(float)
+        if not (np.isfinite(values) & (values == np.round(values))).all():
+            raise DataError(f"{summary / env / 'cluster_style.csv'}: column {col!r} must hold whole numbers")
     style = {f"k{int(k)}": int(s) for k, s in zip(table[0]["k"], table[0]["style"], strict=True)}
     names = list(matrix.index)
     order = sorted(names, key=lambda n: style.get(n, -1))

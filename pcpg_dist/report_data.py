@@ -175,6 +175,7 @@ TABLE_SPECS = {
     "subset_length": TableSpec(("method",), ("p", "mean")),
     "corruption_accuracy": TableSpec(numbers=("c", "mean", "std")),
     "corruption_reward": TableSpec(numbers=("c",), number_prefix="R"),
+    "cluster_style": TableSpec(numbers=("k", "style"), unique=("k",)),
 }
 #: matrices written with their row labels as the first, unnamed column (any such table is one)
 MATRICES = ("cross_accuracy", "cross_accuracy_std", "correlation", "correlation_std")

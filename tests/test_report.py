@@ -372,6 +372,12 @@ TAMPERED = {  # case: (file in the summary, its new text, what the one error lin
                         "accuracy.csv: column 'p', line 2: 'abc' is not a number"),
     "cross_accuracy_text": ("E1/cross_accuracy.csv", ",k0,k1\nk0,abc,0.5\nk1,0.1,0.2\n",
                             "cross_accuracy.csv: column 'k0', line 2: 'abc' is not a number"),
+    "cluster_style_text": ("E1/cluster_style.csv", "k,style\n0,abc\n", "cluster_style.csv: column 'style', "
+                                                                        "line 2: 'abc' is not a number"),
+    "cluster_style_half": ("E1/cluster_style.csv", "k,style\n0,0.5\n1,1\n",
+                           "cluster_style.csv: column 'style' must hold whole numbers"),
+    "cluster_style_repeated": ("E1/cluster_style.csv", "k,style\n0,0\n0,1\n",
+                               "cluster_style.csv: line 3 repeats the row for k 0"),
     "computed_text": ("run.json", {"computed": {"data": "x"}}, "run.json: computed 'data' is 'x'"),
     "computed_overflow": ("run.json", {"computed": {"data": math.inf}}, "run.json: computed 'data' is inf"),
     "stage_seconds_list": ("run.json", {"stage_seconds": [1, 2]}, "run.json: 'stage_seconds' is [1, 2]"),
