@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import gymnasium as gym
 import minari
@@ -254,3 +255,41 @@ def test_an_interrupted_export_leaves_nothing_and_the_rerun_writes_it(rng, minar
     assert sorted(written) == ["pcpg/int/a-v0", "pcpg/int/b-v0"]
     assert minari.load_dataset("pcpg/int/b-v0").total_episodes == 2
     assert sorted(p.name for p in minari_root.iterdir()) == ["pcpg"]
+
+
+def test_a_sigkilled_export_leaves_a_temporary_root_the_next_export_removes(rng, minari_root, tmp_path):
+    """SIGKILL skips the export's cleanup: its hidden .pcpg-minari-*.tmp root stayed in --out for
+    good. The next export into the folder removes it; a live export's root and another machine's stay."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from pcpg_dist.domains.trajectories import minari_io
+
+    minari_root.mkdir(parents=True)
+    script = (
+        "import time, numpy as np, sys\n"
+        "sys.path.insert(0, 'tests')\n"
+        "from test_minari import pcpg_dataset\n"
+        "from pcpg_dist.domains.trajectories import minari_io\n"
+        "real = minari_io._episode_buffers\n"
+        "def slow(ds):\n"
+        "    time.sleep(600)\n"
+        "minari_io._episode_buffers = slow\n"
+        f"minari_io.write_minari({{'a': pcpg_dataset(np.random.default_rng(0), 'a')}}, {str(minari_root)!r}, 'pcpg/k-v0')\n")
+    proc = subprocess.Popen([sys.executable, "-c", script], cwd=Path(__file__).parents[1])
+    deadline = time.monotonic() + 120
+    while not list(minari_root.glob(".pcpg-minari-*.tmp")) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    (stale,) = minari_root.glob(".pcpg-minari-*.tmp")
+    assert stale.name.startswith(f"{minari_io._build_prefix()}{proc.pid}-")
+    live = minari_root / f"{minari_io._build_prefix()}{os.getpid()}-x.tmp"  # this process: alive
+    other = minari_root / f".pcpg-minari-another-host-{proc.pid}-x.tmp"
+    live.mkdir()
+    other.mkdir()
+    (written,) = write_minari({"b": pcpg_dataset(rng, "b")}, minari_root, "pcpg/k-v0")
+    assert not stale.exists() and live.is_dir() and other.is_dir()
+    assert minari.load_dataset(written).total_episodes == 5

@@ -22,6 +22,7 @@ import os
 import re
 import reprlib
 import shutil
+import socket
 import tempfile
 import warnings
 from collections.abc import Iterator
@@ -376,6 +377,26 @@ def _deferred_size(storage: Any) -> Any:
                         jpeg_encoding=storage.jpeg_encoding)
 
 
+def _build_prefix() -> str:
+    """Temporary export roots are named ``<this>-<pid>-<random>.tmp``: which machine, which process."""
+    return f".pcpg-minari-{socket.gethostname()}-"
+
+
+def _remove_stale_builds(out_dir: Path) -> None:
+    """Remove the temporary roots of exports on this machine whose process is gone (a SIGKILL
+    skips the ``finally`` that removes them); another live export's, or another machine's, stay."""
+    for folder in out_dir.glob(f"{_build_prefix()}*.tmp"):
+        pid = folder.name.removeprefix(_build_prefix()).split("-", 1)[0]
+        if not pid.isdigit():
+            continue
+        try:
+            os.kill(int(pid), 0)
+        except ProcessLookupError:
+            shutil.rmtree(folder, ignore_errors=True)
+        except (PermissionError, OverflowError):  # alive, another user's; or no such pid at all
+            continue
+
+
 def write_minari(datasets: dict[str, Dataset], out_dir: Path, dataset_id: str,
                  description: str | None = None) -> dict[str, Path]:
     """Write pcpg datasets as Minari datasets under ``out_dir`` (use it as ``$MINARI_DATASETS_PATH``).
@@ -400,7 +421,8 @@ def write_minari(datasets: dict[str, Dataset], out_dir: Path, dataset_id: str,
     # Built under a temporary root inside out_dir and renamed into place when every one is complete:
     # an interrupted export leaves no half dataset (Minari loaded one as valid, with 0 episodes, and
     # refused the rerun because it "already exists").
-    build = Path(tempfile.mkdtemp(dir=out_dir, prefix=".pcpg-minari-", suffix=".tmp"))
+    _remove_stale_builds(out_dir)
+    build = Path(tempfile.mkdtemp(dir=out_dir, prefix=f"{_build_prefix()}{os.getpid()}-", suffix=".tmp"))
     try:
         with datasets_root(build), warnings.catch_warnings():
             # Minari warns for every unset author/code_permalink/eval_env field: noise for an export.
