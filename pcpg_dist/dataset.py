@@ -413,6 +413,18 @@ def file_name(domain: str, env: str) -> str:
     return f"{domain}-{env}.parquet"
 
 
+def content_digest(ds: Dataset) -> str:
+    """A hash of what a clusterer reads of ``ds`` (states, actions, valid masks, trajectory
+    bounds), for cache keys: a domain may derive its clustering input from any setting (Mario's
+    valid mask comes from the training episodes, so from the split)."""
+    h = hashlib.sha256()
+    for a in (ds.states, ds.actions, ds.valid, ds.offsets):
+        a = np.ascontiguousarray(a)
+        h.update(f"{a.dtype.str}{a.shape}".encode())
+        h.update(a.data)
+    return h.hexdigest()[:20]
+
+
 def sha256_file(path: Path) -> str:
     h = hashlib.sha256()
     with open(path, "rb") as f:

@@ -33,7 +33,7 @@ import numpy as np
 
 from pcpg_dist.cache import Cache, content_key, files_of
 from pcpg_dist.config import ExperimentConfig
-from pcpg_dist.dataset import Dataset, atomic_write_bytes, confined, load_datasets
+from pcpg_dist.dataset import Dataset, atomic_write_bytes, confined, content_digest, load_datasets
 from pcpg_dist.domains import contract
 from pcpg_dist.domains.base import Unit
 from pcpg_dist.parallel import set_threads
@@ -289,10 +289,14 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
         # ---- Step A: one clustering per (data, environment, clustering settings)
         t0 = time.perf_counter()
         jobs: dict[str, tuple] = {}
+        digests: dict[int, str] = {}  # what each unit's clusterer reads, hashed once per unit
         for p in points:
             for e, u in p.units.items():
+                # the input's digest, not only the settings: a domain may derive it from any of
+                # them (Mario's valid mask comes from the training episodes, so from the split)
+                digest = digests.get(id(u)) or digests.setdefault(id(u), content_digest(u.clustered))
                 p.ckeys[e] = k = content_key(CODE_VERSION, CLUSTER_VERSION, p.dkey, e, p.cfg.clustering,
-                                             p.cfg.seed, u.cluster_input_note)
+                                             p.cfg.seed, u.cluster_input_note, digest)
                 if k not in jobs and cache.done("cluster", k) is None:
                     jobs[k] = (p.refs[e], p.cfg.clustering, p.cfg.seed, p.cfg.runner.cpus_per_task)
 

@@ -92,3 +92,31 @@ def test_mario_run_beats_the_majority_class_and_profiles_styles(mario_run, mario
     cross = pd.read_csv(smb / "cross_accuracy.csv", index_col=0)
     assert cross.shape == (2, 2) and ((cross > 0.05) & (cross < 0.6)).all().all()
     assert json.loads((mario_run.out_dir / "summary" / "metrics.json").read_text())["smb/majority/accuracy"] > 0
+
+
+@pytest.mark.slow
+def test_a_split_that_changes_the_clustering_input_gets_its_own_clustering(ray_session, mario_cfg, tmp_path) -> None:
+    """Mario's clustering input (its valid-event mask) comes from the training episodes, so from the
+    split; the clustering cache key held only the settings, so a rerun (or a sweep point) with
+    another ranking.split_seed reused the first split's clustering."""
+    fast = {"ranking.test_fraction": 0.9, "seeds": [0], "clustering.em_iterations": 2,
+            "clustering.policy_steps": 10, "bc.epochs": 2, "bc.finetune_epochs": 1,
+            "evaluation.corruption_levels": [], "evaluation.figures": False}
+
+    def cfg(split_seed: int):
+        from pcpg_dist.config import ExperimentConfig
+        from pcpg_dist.config.overrides import apply_overrides
+
+        raw = apply_overrides(mario_cfg.model_dump(mode="json"), {**fast, "ranking.split_seed": split_seed})
+        return ExperimentConfig.model_validate(raw)
+
+    masks = [units(cfg(s), generate(cfg(s), show_progress=False))[0].clustered.valid.any(axis=0) for s in (0, 2)]
+    assert (masks[0] != masks[1]).any()  # the two splits' training episodes saw different events
+    work = tmp_path / "runs"
+    first = run_experiment(cfg(0), workdir=work, tracking_uri=None, show_progress=False)
+    second = run_experiment(cfg(2), workdir=work, tracking_uri=None, show_progress=False)
+    again = run_experiment(cfg(2), workdir=work, tracking_uri=None, show_progress=False)
+    assert first.computed["clustering"] == second.computed["clustering"] == 1
+    assert again.computed["clustering"] == 0
+    fresh = run_experiment(cfg(2), workdir=tmp_path / "fresh", tracking_uri=None, show_progress=False)
+    assert second.metrics["clustering/size_min_frac"] == fresh.metrics["clustering/size_min_frac"]
