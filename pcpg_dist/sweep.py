@@ -148,6 +148,11 @@ def _finished(out: Path, cfg, track: bool, uri: str | None) -> dict | None:
     return metrics
 
 
+def _point_run_id(out: Path) -> str:
+    """The MLflow run of a finished point (``_finished`` checked its run.json names one)."""
+    return json.loads((out / "summary" / "run.json").read_text())["parent_run_id"]
+
+
 def _run_finished(uri: str | None, run_id: Any) -> bool:
     """Whether the point's MLflow run exists and finished (a deleted or killed one is redone)."""
     if not isinstance(run_id, str) or not run_id:
@@ -233,6 +238,10 @@ def run_sweep(config: str | Path, axes_args: list[str], overrides: list[str] | N
         results = run_points(todo, root / "cache", tracking_uri=tracking_uri, track=track,
                              show_progress=show_progress,
                              sweep_parent_id=tracker.parent_id if tracker else None) if todo else []
+        if tracker is not None:  # reused points are this sweep's too (one child per point)
+            for p in points:
+                if done[id(p)] is not None:
+                    tracker.add_reused(_point_run_id(p.out))
         metrics_of = {id(p): r.metrics for p, r in zip(todo, results, strict=True)}
         computed = results[0].computed if results else {}
         rows = []

@@ -363,6 +363,25 @@ def test_sweep_shares_stages_logs_once_and_resumes(tiny_yaml, uninterrupted):
     assert more.ran == 2 and more.computed["clustering"] == 0 and more.computed["data"] == 0
     new_rows = read_rows(more.out_dir / "summary.csv")
     assert [r for r in new_rows if r["bc.epochs"] != "300"] == rows
+    # its MLflow run has a child per point: the two it ran, and copies of the four it reused
+    # (it had only the new two, while naming its best points among the others)
+    kids = [r for r in client.search_runs([exp.experiment_id], max_results=1000)
+            if r.data.tags.get("mlflow.parentRunId") == more.parent_run_id]
+    assert len(kids) == 6 and all(r.info.status == "FINISHED" for r in kids)
+    copies = {r.data.tags["pcpg.same_as"]: r for r in kids if "pcpg.same_as" in r.data.tags}
+    assert set(copies) == {r.info.run_id for r in points}
+    for src in points:
+        copy = copies[src.info.run_id]
+        assert copy.info.run_name == src.info.run_name and copy.data.params == src.data.params
+        assert copy.data.metrics == src.data.metrics
+        own, copied = ({k: sorted((m.step, m.value) for m in client.get_metric_history(run_id, k))
+                        for k in src.data.metrics} for run_id in (src.info.run_id, copy.info.run_id))
+        assert copied == own and any(len(h) > 1 for h in own.values())  # its curves over p too
+    named = {t for k, t in client.get_run(more.parent_run_id).data.tags.items() if k.startswith("pcpg.best_point/")}
+    assert all(any(t.startswith(r.info.run_name) for r in kids) for t in named)
+    n_now = len(client.search_runs([exp.experiment_id], max_results=1000))
+    run_sweep(tiny_yaml, ["bc.epochs=100,200,300"], workdir=tmp_path / "runs", tracking_uri=uri, show_progress=False)
+    assert len(client.search_runs([exp.experiment_id], max_results=1000)) == n_now  # no copy twice
 
 
 @pytest.mark.slow
