@@ -544,9 +544,12 @@ def build_sweep(folder: Path, out_dir: Path) -> SweepPage:
         metric_part, _, axis_part = stem.partition("__vs__")
         metric, axis = safe.get(metric_part, metric_part), safe_axes.get(axis_part, axis_part)
         others = [a for a in axes if a != axis]
+        # as the figure drew them (sweep.draw_sweep): bars only where a point has a std over seeds
+        bars = any((num(r, metric + SWEEP_STD) or 0.0) > 0 for r in rows)
         caption = (f"{sweep_metric_label(metric)} against {axis}"
                    + (f"; one line per value of {', '.join(others)}" if others else "")
-                   + "; error bars: std over seeds.")
+                   + ("; error bars: std over seeds, mean over environments." if bars
+                      else "; no error bars: no std over seeds."))
         by_axis.setdefault(axis, []).append(
             {"title": f"{sweep_metric_label(metric)} vs {axis}", "caption": caption, "name": name,
              "uri": "data:image/png;base64," + base64.b64encode(path.read_bytes()).decode(),

@@ -485,10 +485,12 @@ def make_sweep(root: Path) -> Path:
     figure = next(png, None)
     data = figure.read_bytes() if figure else base64.b64decode(
         "iVBORw0KGgoAAAANSUhEUgAAAAEAAAABCAYAAAAfFcSJAAAADUlEQVR42mNk+M9QDwADhgGAWjR9awAAAABJRU5ErkJggg==")
-    (folder / "pcpg_lead_p0.5__vs__clustering.k.png").write_bytes(data)
+    names = ["pcpg_accuracy_p0.5__vs__clustering.k.png", "pcpg_lead_p0.5__vs__clustering.k.png"]
+    for name in names:
+        (folder / name).write_bytes(data)
     (folder / "sweep.json").write_text(json.dumps({
         "format": 1, "name": "sw", "description": "Sweep of sw over clustering.k", "axes": {"clustering.k": [3, 4]},
-        "fixed": {"bc.epochs": 200}, "points": 2, "figures": ["pcpg_lead_p0.5__vs__clustering.k.png"]}))
+        "fixed": {"bc.epochs": 200}, "points": 2, "figures": names}))
     (folder / "summary.csv").write_text(
         "clustering.k,baseline/accuracy/p0.5,baseline/accuracy/p0.5/std,clustering/accuracy,clustering/ceiling,"
         "clustering/gap_to_ceiling,pcpg/accuracy/p0.5,pcpg/accuracy/p0.5/std,pcpg_lead/p0.5,point\n"
@@ -526,8 +528,12 @@ def test_sweep_page_reads_like_the_run_report(tmp_path):
         href = a.get("href")
         assert not href.startswith(("/", "file:")) and (moved / "sweep" / href).is_file(), href
     figs = body.findall(f".//{NS}figure")
-    assert [text_of(f.find(f"{NS}h4")) for f in figs] == ["PCPG lead over No Clustering, p=0.5 vs clustering.k"]
-    assert "error bars" in text_of(figs[0].find(f"{NS}figcaption"))
+    assert [text_of(f.find(f"{NS}h4")) for f in figs] == ["PCPG, p=0.5 vs clustering.k",
+                                                          "PCPG lead over No Clustering, p=0.5 vs clustering.k"]
+    # as the figures drew them: the lead has no std over seeds, so no bars (every caption said bars)
+    captions = [text_of(f.find(f"{NS}figcaption")) for f in figs]
+    assert "; error bars: std over seeds, mean over environments." in captions[0]
+    assert "; no error bars: no std over seeds." in captions[1] and "error bars: std" not in captions[1]
     assert "pcpg sweep sw.yaml clustering.k=3,4" in text_of(body.find(f".//{NS}section[@id='provenance']"))
     assert "minmax(min(100%" in parse(render_sweep(moved / "sweep", tmp_path / "out").read_text()).find(
         f".//{NS}style").text  # one figure per row where two do not fit
