@@ -368,9 +368,15 @@ def run_study(cfg: ExperimentConfig, storage_url: str | Storage | None = None, w
 
     # every check of the user's input is behind us: only now is the study created and marked, so
     # a mistake never leaves a study that refuses the corrected command
-    sampler = optuna.samplers.TPESampler(seed=tune.sampler_seed, n_startup_trials=tune.n_startup_trials)
-    study = optuna.create_study(study_name=name, storage=storage.storage, sampler=sampler,
-                                direction="maximize", load_if_exists=True)
+    study = optuna.create_study(study_name=name, storage=storage.storage, direction="maximize",
+                                load_if_exists=True)
+    # a fresh study draws from sampler_seed; one resumed or extended (--n-trials more) from a seed
+    # that also counts its trials, else its first draws repeat the earlier call's (same points,
+    # answered from their results: budget spent, nothing explored)
+    done_before = len(study.get_trials(deepcopy=False))
+    seed = tune.sampler_seed if not done_before else int(
+        np.random.SeedSequence([tune.sampler_seed, done_before]).generate_state(1)[0])
+    study.sampler = optuna.samplers.TPESampler(seed=seed, n_startup_trials=tune.n_startup_trials)
     if known is None:
         study.set_user_attr("pcpg.objective_key", key)
         study.set_user_attr("pcpg.config_name", cfg.name)
@@ -441,6 +447,8 @@ def run_study(cfg: ExperimentConfig, storage_url: str | Storage | None = None, w
     if tracker is not None:
         tracker.log_finished(study)  # trials answered from earlier results
     if not study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)):
+        if tracker is not None:
+            tracker.fail("FAILED")  # its MLflow run stayed RUNNING
         raise DataError(f"study {name!r}: no trial completed ({_state_counts(study)}); see the trials' "
                         f"'error' / 'pruned_reason' attributes (uv run optuna-dashboard {storage.shown})")
     best = study.best_trial
@@ -637,8 +645,9 @@ class StudyTracker:
             _retry(client.log_artifacts, self.parent_id, str(result.out_dir), "tuning")
         _retry(client.set_terminated, self.parent_id, "FINISHED")
 
-    def fail(self) -> None:
+    def fail(self, status: str = "KILLED") -> None:
+        """Mark the study's run ended: KILLED when interrupted, FAILED when no trial completed."""
         from pcpg_dist.tracking import _client, _retry
 
         with contextlib.suppress(Exception):  # best effort while already failing
-            _retry(_client(self.uri).set_terminated, self.parent_id, "KILLED", attempts=2)
+            _retry(_client(self.uri).set_terminated, self.parent_id, status, attempts=2)

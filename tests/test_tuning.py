@@ -443,3 +443,37 @@ def test_the_trial_count_line_reads_as_words():
         study.tell(trial, 0.5 if state == TrialState.COMPLETE else None, state=state)
     assert trial_counts(_state_counts(study)) == "1 complete, 2 pruned, 1 failed"
     assert trial_counts({}) == "none"
+
+
+@pytest.mark.slow
+def test_an_extended_study_draws_new_points(ray_session, tmp_path, workdir):
+    """`--n-trials` more on an existing study re-seeded the sampler as the first call had: its first
+    draws repeated the first call's trials, answered from their results (budget spent, nothing new)."""
+    cfg = config(tmp_path, n_startup_trials=10)  # both calls draw at random (as while trials are pruned)
+    name, journal = unique("extend"), str(tmp_path / "journal.log")
+    first = run_study(cfg, storage_url=journal, workdir=workdir, track=False, show_progress=False,
+                      study_name=name, out=tmp_path / "a")
+    run_study(cfg, storage_url=journal, workdir=workdir, track=False, show_progress=False,
+              study_name=name, n_trials=4, out=tmp_path / "b")
+    import optuna
+    from optuna.storages.journal import JournalFileBackend, JournalStorage
+
+    trials = optuna.load_study(study_name=name, storage=JournalStorage(JournalFileBackend(journal))).get_trials()
+    assert sum(first.n_trials.values()) == 2 and len(trials) == 4
+    assert [t.params for t in trials[2:]] != [t.params for t in trials[:2]]
+    assert not all("duplicate_of" in t.user_attrs for t in trials[2:])
+
+
+@pytest.mark.slow
+def test_a_study_where_no_trial_completes_marks_its_mlflow_run_failed(ray_session, tmp_path, workdir):
+    from mlflow import MlflowClient
+
+    cfg = config(tmp_path, n_trials=1, k_range=[4, 4], min_cluster_fraction=0.26)  # k = 4: always pruned
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    with pytest.raises(DataError, match="no trial completed"):
+        run_study(cfg, storage_url=str(tmp_path / "journal.log"), workdir=workdir, tracking_uri=uri,
+                  show_progress=False, study_name=unique("none"), out=tmp_path / "out")
+    client = MlflowClient(uri)
+    runs = client.search_runs([client.get_experiment_by_name("tinytune").experiment_id])
+    roots = [r for r in runs if "mlflow.parentRunId" not in r.data.tags]
+    assert len(roots) == 1 and roots[0].info.status == "FAILED"  # it stayed RUNNING
