@@ -23,6 +23,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import hashlib
+import http.client
 import io
 import json
 import logging
@@ -245,6 +246,9 @@ def check_tracking_uri(uri: str, timeout: float = HEALTH_TIMEOUT) -> None:
         try:
             if (status := _health(uri, timeout)) != 200:
                 raise ServiceError(f"MLflow server at {_shown(uri)} answered {status} on /health")
+        except http.client.HTTPException as e:  # something answers, not in HTTP (a Ray or database port)
+            raise ServiceError(f"{_shown(uri)} does not answer in HTTP ({type(e).__name__}): is it the MLflow "
+                               f"server's port? set MLFLOW_TRACKING_URI to the server's http://HOST:PORT") from None
         except (urllib.error.URLError, OSError, TimeoutError, ValueError) as e:
             reason = getattr(e, "reason", e)
             raise ServiceError(f"MLflow tracking server {_shown(uri)} is unreachable ({reason}); start it or set "
@@ -257,8 +261,11 @@ def check_tracking_uri(uri: str, timeout: float = HEALTH_TIMEOUT) -> None:
                            f"bare postgresql:// as the psycopg 3 driver, which pcpg does not ship)")
     elif scheme.split("+")[0] in ("postgresql", "mysql", "mssql"):
         _check_port(uri, timeout)
+        _check_database(uri, timeout)
     elif uri.startswith("databricks"):
         return
+    elif scheme == "" and re.fullmatch(r"[A-Za-z0-9.-]+:\d+(/.*)?", uri):  # HOST:PORT, the scheme left out
+        raise ServiceError(f"tracking URI {_shown(uri)} has no scheme: write http://{uri} for an MLflow server; {forms}")
     elif scheme in ("", "file"):
         if os.environ.get("MLFLOW_ALLOW_FILE_STORE", "").lower() not in ("1", "true"):
             raise ServiceError(f"tracking URI {_shown(uri)} is a folder store, which MLflow 3 no longer accepts; "
@@ -284,6 +291,32 @@ def _check_port(uri: str, timeout: float) -> None:
         socket.create_connection((host, port), timeout=timeout).close()
     except (OSError, ValueError) as e:
         raise ServiceError(f"tracking database {_shown(uri)} is unreachable ({e}); start it or fix the URI") from None
+
+
+def _check_database(uri: str, timeout: float) -> None:
+    """The database accepts pcpg (its driver is installed, the database and user exist): MLflow's
+    own first connection retries for minutes and then prints a 100-line traceback."""
+    import sqlalchemy
+    from sqlalchemy.exc import NoSuchModuleError, SQLAlchemyError
+
+    scheme = uri.partition("://")[0]
+    args = {"connect_timeout": max(1, int(timeout))} if scheme.startswith("postgresql") else {}
+    try:
+        engine = sqlalchemy.create_engine(uri, connect_args=args)
+    except (NoSuchModuleError, ImportError) as e:
+        raise ServiceError(f"tracking URI {_shown(uri)}: its driver is not installed ({first_line(e, 200)}); "
+                           f"pcpg ships postgresql+psycopg2://") from None
+    except (SQLAlchemyError, ValueError) as e:
+        raise ServiceError(f"tracking URI {_shown(uri)} is not a database URL SQLAlchemy reads ({first_line(e, 200)})") from None
+    try:
+        with engine.connect():
+            pass
+    except SQLAlchemyError as e:
+        cause = first_line(getattr(e, "orig", None) or e, 300)
+        raise ServiceError(f"tracking database {_shown(uri)} refused the connection ({cause}); create the "
+                           f"database or user, or fix the URI") from None
+    finally:
+        engine.dispose()
 
 
 def _check_sqlite_store(uri: str, db: Path) -> None:
@@ -341,12 +374,21 @@ def _retry(fn, *args, attempts: int = 5, **kwargs):
             uri = getattr(getattr(fn, "__self__", None), "tracking_uri", "(unknown URI)")
             hung = _hangs(uri)
             if i == attempts - 1 or hung:
-                first = first_line(e, 300)
+                first = _reason(e)
                 what = "accepts connections but does not answer" if hung else "failed"
                 raise ServiceError(f"MLflow tracking server {_shown(uri)} {what} ({first}); local results are kept: "
                                    f"rerun the same command once it is reachable to log them") from None
             time.sleep(min(2 ** i, 10))
     return None
+
+
+def _reason(e: BaseException) -> str:
+    """A failed call's cause in a few words: the OS error urllib3 buries in a long retry text
+    ("[Errno 111] Connection refused"), else the first line, cut at a word."""
+    text = first_line(e, 10_000)
+    if found := re.findall(r"\[Errno -?\d+\][^'\")\]]*", text):
+        return found[-1].strip()
+    return text if len(text) <= 200 else text[:200].rsplit(" ", 1)[0] + " …"
 
 
 def _health(uri: str, timeout: float) -> int:

@@ -545,7 +545,16 @@ def test_a_tracking_uri_pcpg_cannot_use_is_one_line_and_nothing_of_the_users_is_
              f"sqlite:///{app}": "table 'runs' is not MLflow's", "foo://x": "MLflow stores runs at no foo://",
              str(tmp_path / "nodir" / "mlruns"): "folder store",
              "postgresql://u@127.0.0.1:1/db": "write postgresql+psycopg2://",
-             "postgresql+psycopg2://u:secret@127.0.0.1:1/db": "is unreachable"}
+             "postgresql+psycopg2://u:secret@127.0.0.1:1/db": "is unreachable",
+             # the probe's round: a database or user that does not exist (1 min 50 s of retries,
+             # then ~100 lines), a driver pcpg does not ship, HOST:PORT without http:// (read
+             # as a folder store), a port that answers but not in HTTP (a 40-line traceback)
+             "postgresql+psycopg2://postgres@127.0.0.1:5432/pcpg_no_such_db":
+                 'database "pcpg_no_such_db" does not exist',
+             "postgresql+psycopg2://pcpg_no_such_user@127.0.0.1:5432/test": 'role "pcpg_no_such_user" does not exist',
+             "postgresql+psycopg://postgres@127.0.0.1:5432/test": "its driver is not installed",
+             "127.0.0.1:5000": "has no scheme: write http://127.0.0.1:5000",
+             _binary_server(): "does not answer in HTTP"}
     for uri, says in cases.items():
         work = tmp_path / "runs"
         assert main(["run", str(ROOT / "experiments" / "quick.yaml"), "--tracking-uri", uri,
@@ -555,6 +564,38 @@ def test_a_tracking_uri_pcpg_cannot_use_is_one_line_and_nothing_of_the_users_is_
         assert "secret" not in err[0] and not work.exists()
     assert notes.read_text() == "my notes\n" and (folder / "kept.txt").read_text() == "kept\n"
     assert app.read_bytes() == app_bytes and sorted(p.name for p in tmp_path.iterdir()) == ["app.db", "data", "notes.txt"]
+
+
+def _binary_server() -> str:
+    """The URI of a port that answers every connection with bytes that are not HTTP (as Ray's does)."""
+    import socket
+    import threading
+
+    sock = socket.create_server(("127.0.0.1", 0))
+
+    def serve() -> None:
+        with contextlib.suppress(OSError):
+            while True:
+                conn = sock.accept()[0]
+                conn.recv(65536)  # the request, then an answer that is not HTTP
+                conn.sendall(b"\x00\x00\x18\x04\x00\x00\x00\x00\x00\r\n\r\n")
+                conn.shutdown(socket.SHUT_RDWR)
+                conn.close()
+
+    threading.Thread(target=serve, daemon=True).start()
+    return f"http://127.0.0.1:{sock.getsockname()[1]}"
+
+
+def test_a_failed_calls_reason_is_its_os_error_not_urllib3s_paragraph():
+    from pcpg_dist.tracking import _reason
+
+    text = ("API request to endpoint /api/2.0/mlflow/runs/get failed with exception HTTPConnectionPool(host="
+            "'127.0.0.1', port=18500): Max retries exceeded with url: /api/2.0/mlflow/runs/get?run_id=abc "
+            "(Caused by NewConnectionError('<urllib3.connection.HTTPConnection object at 0x7f>: Failed to "
+            "establish a new connection: [Errno 111] Connection refused'))")
+    assert _reason(OSError(text)) == "[Errno 111] Connection refused"
+    long = "word " * 100
+    assert _reason(OSError(long)).endswith(" …") and len(_reason(OSError(long))) <= 202
 
 
 class _Silent:
