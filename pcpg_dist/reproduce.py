@@ -138,8 +138,9 @@ def code_notes(run: dict, cfg) -> list[str]:
 
 
 def reproduce(summary: Path, workdir: Path | None = None, rtol: float = RTOL, atol: float = ATOL,
-              show_progress: bool = False) -> Reproduction:
-    """Rerun the run recorded in ``summary`` (Ray initialised by the caller) and compare."""
+              show_progress: bool = False, source: str | None = None) -> Reproduction:
+    """Rerun the run recorded in ``summary`` (Ray initialised by the caller) and compare;
+    ``source``: what the user named (a run id, a folder) for the new run's recorded command."""
     from pcpg_dist.runner import run_experiment
 
     summary = Path(summary)
@@ -149,7 +150,7 @@ def reproduce(summary: Path, workdir: Path | None = None, rtol: float = RTOL, at
     notes = code_notes(run, cfg)
     out = _fresh(workdir, cfg.name)
     result = run_experiment(cfg, workdir=out, track=False, show_progress=show_progress,
-                            command=f"pcpg reproduce {summary}")
+                            command=f"pcpg reproduce {source or summary}")
     return Reproduction(compare_metrics(logged, result.metrics, rtol, atol), result.out_dir, rtol, atol, notes)
 
 
@@ -182,13 +183,15 @@ def cli_reproduce(args) -> int:
 
     if args.rtol < 0 or args.atol < 0 or not (math.isfinite(args.rtol) and math.isfinite(args.atol)):
         raise ConfigError(f"--rtol {args.rtol} / --atol {args.atol}: tolerances must be finite and >= 0")
-    downloads = Path(tempfile.gettempdir()) / "pcpg-reproduce-logged"  # used for MLflow downloads only
-    summary, _ = resolve_summary(args.run, args.tracking_uri, downloads)
-    # everything a user can get wrong is checked before Ray and torch start
-    cfg = recorded_config(read_run(summary / "run.json"), summary / "run.json")
-    read_metrics(summary / "metrics.json")
-    workdir = _fresh(Path(args.workdir) if args.workdir else None, cfg.name)
-    init_ray(args.ray_address)
-    rep = reproduce(summary, workdir, args.rtol, args.atol, show_progress=not args.quiet)
+    # a run's summary fetched from MLflow lands in a private folder removed afterwards (it was a
+    # fixed /tmp/pcpg-reproduce-logged shared by every user of the machine, never cleaned)
+    with tempfile.TemporaryDirectory(prefix="pcpg-reproduce-") as downloads:
+        summary, _ = resolve_summary(args.run, args.tracking_uri, Path(downloads))
+        # everything a user can get wrong is checked before Ray and torch start
+        cfg = recorded_config(read_run(summary / "run.json"), summary / "run.json")
+        read_metrics(summary / "metrics.json")
+        workdir = _fresh(Path(args.workdir) if args.workdir else None, cfg.name)
+        init_ray(args.ray_address)
+        rep = reproduce(summary, workdir, args.rtol, args.atol, show_progress=not args.quiet, source=args.run)
     print_reproduction(rep)
     return 0 if rep.ok else 1

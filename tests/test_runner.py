@@ -225,3 +225,28 @@ def test_a_failure_that_is_not_bad_input_leaves_no_empty_run_folder(ray_session,
     with pytest.raises(OSError, match="No space"):
         run_experiment(tiny_cfg, workdir=tmp_path / "runs", track=False, show_progress=False)
     assert not (tmp_path / "runs").exists()
+
+
+@pytest.mark.slow
+def test_reproduce_by_mlflow_run_id_downloads_to_a_private_folder_it_removes(first_run, tmp_path, monkeypatch, capsys):
+    """`pcpg reproduce RUN_ID` fetched the logged summary into a fixed /tmp/pcpg-reproduce-logged,
+    shared by every user of the machine and never cleaned, and recorded that path as its command."""
+    import tempfile
+
+    from mlflow import MlflowClient
+
+    from pcpg_dist.cli import main
+
+    work, uri, _ = first_run
+    client = MlflowClient(uri)
+    (parent,) = client.search_runs([client.get_experiment_by_name("tiny").experiment_id],
+                                   filter_string="tags.`pcpg.role` = 'parent'")
+    private = tmp_path / "tmp"
+    private.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(private))
+    fresh = tmp_path / "fresh"
+    assert main(["reproduce", parent.info.run_id, "--tracking-uri", uri, "--workdir", str(fresh), "--quiet"]) == 0
+    assert capsys.readouterr().out.splitlines()[-1].startswith("REPRODUCED")
+    assert list(private.iterdir()) == []
+    redone = json.loads(next(fresh.glob("*/summary/run.json")).read_text())
+    assert redone["command"] == f"pcpg reproduce {parent.info.run_id}"
