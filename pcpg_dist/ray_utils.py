@@ -17,7 +17,7 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from pcpg_dist.errors import ConfigError, PcpgError, ServiceError, catch_sigterm
+from pcpg_dist.errors import ConfigError, PcpgError, ServiceError, catch_sigterm, first_line
 from pcpg_dist.parallel import available_cpus
 
 # Ray's `uv run` hook would start every worker through `uv run` in the driver's project folder: it
@@ -109,7 +109,12 @@ def init_ray(address: str | None = None, num_cpus: int | None = None) -> None:
                         raise
                     ray.shutdown()
     except (ConnectionError, RuntimeError, ValueError) as e:
-        raise ServiceError(f"cannot start or join Ray at {address or 'local'}: {str(e)[:300]}") from None
+        hint = ""
+        if address and isinstance(e, ConnectionError):  # Ray does not say when it is the token
+            hint = ("; if the cluster uses token auth, this driver needs its token (RAY_AUTH_TOKEN_PATH, "
+                    "RAY_AUTH_TOKEN or ~/.ray/auth_token, with RAY_AUTH_MODE=token); one started with "
+                    "RAY_AUTH_MODE=disabled needs that here too")
+        raise ServiceError(f"cannot start or join Ray at {address or 'local'}: {first_line(e, 300)}{hint}") from None
     except Exception as e:
         if "timed out during startup" in str(e):
             raise ServiceError("Ray did not start within its 30 s limit three times (is the machine "
@@ -133,11 +138,36 @@ def _check_port(address: str, timeout: float = 5.0) -> None:
         host = port = None
     if not host or not port:
         raise ServiceError(f"--ray-address {address[:200]!r}: expected HOST:PORT, ray://HOST:PORT or auto")
+    if "://" in address and url.scheme != "ray":  # http://HEAD:8265 is the dashboard's (ray job submit)
+        raise ServiceError(f"--ray-address {address[:200]!r}: expected HOST:PORT (the head's port, "
+                           f"`ray start --head --port`), ray://HOST:PORT or auto, not a {url.scheme}:// URL")
     try:
-        socket.create_connection((host, port), timeout=timeout).close()
+        with socket.create_connection((host, port), timeout=timeout) as conn:
+            speaks_grpc = _answers_http2(conn, timeout)
     except OSError as e:
         raise ServiceError(f"no Ray cluster answers at {address[:200]} ({e}); start one with `ray start --head` "
                            f"there or check --ray-address / RAY_ADDRESS") from None
+    if not speaks_grpc and os.environ.get("RAY_USE_TLS", "0").lower() not in ("1", "true"):
+        # an MLflow, database or web port: ray.init would wait there without end, printing its C++ log
+        raise ServiceError(f"{address[:200]} answers, but not as a Ray head does (no gRPC): is it another "
+                           f"service's port? the head's is `ray start --head --port` (default 6379)")
+
+
+def _answers_http2(conn, timeout: float) -> bool:
+    """Whether the server on ``conn`` speaks HTTP/2, as gRPC (Ray's GCS and client server) does: it
+    answers the client preface with a SETTINGS frame (type 4 in the 9-byte frame header)."""
+    conn.settimeout(timeout)
+    try:
+        conn.sendall(b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + b"\x00\x00\x00\x04\x00\x00\x00\x00\x00")
+        head = b""
+        while len(head) < 9:
+            chunk = conn.recv(9 - len(head))
+            if not chunk:
+                break
+            head += chunk
+    except OSError:
+        return False
+    return len(head) == 9 and head[3] == 0x04
 
 
 # --------------------------------------------------------------------------- what the cluster has

@@ -157,15 +157,25 @@ def test_classify_writes_the_models_labels_and_warns_on_another_layout(tmp_path,
 
 
 def test_a_ray_address_where_nothing_answers_is_one_line_at_once(tmp_path):
-    """Ray waited ~14 min on a dead head (821 s measured), printing its C++ log all the while."""
+    """Ray waited ~14 min on a dead head (821 s measured), printing its C++ log all the while; on a
+    port where another service answers (MLflow's, a database's) it waited without end."""
+    import http.server
+    import threading
+
+    web = http.server.ThreadingHTTPServer(("127.0.0.1", 0), http.server.SimpleHTTPRequestHandler)
+    threading.Thread(target=web.serve_forever, daemon=True).start()
+    other = f"127.0.0.1:{web.server_address[1]}"
     for address, says in [("127.0.0.1:1", "no Ray cluster answers at 127.0.0.1:1"),
-                          ("ray://127.0.0.1:1", "no Ray cluster answers"), ("foo", "expected HOST:PORT")]:
+                          ("ray://127.0.0.1:1", "no Ray cluster answers"), ("foo", "expected HOST:PORT"),
+                          ("http://127.0.0.1:8265", "not a http:// URL"),
+                          (other, f"{other} answers, but not as a Ray head does")]:
         out = subprocess.run([sys.executable, "-m", "pcpg_dist.cli", "generate", str(ROOT / "experiments" / "quick.yaml"),
                               "--out", str(tmp_path / "data"), "--ray-address", address],
                              capture_output=True, text=True, timeout=120, cwd=tmp_path)
         err = out.stderr.strip().splitlines()
         assert out.returncode == 2 and len(err) == 1 and says in err[0], (address, out.stderr[-2000:])
         assert not (tmp_path / "data").exists()
+    web.shutdown()
 
 
 @pytest.mark.slow
