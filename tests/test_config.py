@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import pytest
@@ -48,6 +49,18 @@ def test_layout_dir_is_relative_to_the_config_file(tmp_path):
     cfg = load_config(write(tmp_path, BASE))
     assert cfg.gridworld.layout_path("E1") == (tmp_path / "gridworlds" / "E1.txt").resolve()
     assert cfg.hash() == load_config(write(tmp_path, BASE)).hash()
+
+
+def test_layout_dir_may_start_at_home_and_a_missing_file_names_both_keys(tmp_path, monkeypatch):
+    """`~/layouts` was read as a folder named '~' beside the config; a missing layout named only
+    gridworld.environments, though the folder is as likely wrong."""
+    home = tmp_path / "home"
+    shutil.copytree(PAPER_LAYOUTS, home / "layouts")
+    monkeypatch.setenv("HOME", str(home))
+    cfg = load_config(write(tmp_path, {**BASE, "gridworld": {"layout_dir": "~/layouts", "environments": ["E1"]}}))
+    assert cfg.gridworld.layout_path("E1") == home / "layouts" / "E1.txt"
+    with pytest.raises(ConfigError, match=r"not found \(keys gridworld.layout_dir, gridworld.environments\)"):
+        load_config(write(tmp_path, {**BASE, "gridworld": {"layout_dir": "~/none", "environments": ["E1"]}}))
 
 
 def test_a_config_anywhere_runs_the_paper_layouts_without_naming_a_folder(tmp_path, monkeypatch):

@@ -96,7 +96,8 @@ def check_text_file(path: Path, what: str, max_bytes: int = MAX_LEVEL_BYTES, utf
 
 
 def relative_to_config(v: Path, info: ValidationInfo) -> Path:
-    """Relative paths in a config file are relative to the file's folder."""
+    """Relative paths in a config file are relative to the file's folder; ``~`` is the home folder."""
+    v = v.expanduser()
     base = (info.context or {}).get("base_dir")
     return (Path(base) / v).resolve() if base is not None and not v.is_absolute() else v
 
@@ -170,7 +171,7 @@ class GridWorldConfig(StrictModel):
         for env in self.environments:
             if not self.layout_path(env).is_file():
                 raise ValueError(f"layout file {self.layout_path(env)} for environment {env!r} not found "
-                                 f"(key gridworld.environments)")
+                                 f"(keys gridworld.layout_dir, gridworld.environments)")
             check_text_file(self.layout_path(env), "layout file")
             if problem := layout_size_problem(self.layout_text(env)):
                 raise ValueError(f"layout file {self.layout_path(env)}: {problem}")
