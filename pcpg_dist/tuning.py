@@ -241,7 +241,8 @@ def open_storage(url: str | None, tune: TuneConfig) -> Storage:
                          heartbeat_stale_trial_callback=RetryHeartbeatStaleTrialCallback(max_retry=tune.max_retry))
     except Exception as e:  # noqa: BLE001 - sqlalchemy/driver errors of many kinds
         shown = Storage(url, None, True).shown
-        raise ServiceError(f"cannot open the Optuna storage {shown}: {first_line(e)}") from None
+        raise ServiceError(f"cannot open the Optuna storage {shown}: {first_line(e)}; --optuna-storage takes "
+                           f"a journal file path or a database URL (postgresql://USER@HOST:5432/DB)") from None
     return Storage(url, rdb, heartbeat=True)
 
 

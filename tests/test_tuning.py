@@ -477,3 +477,11 @@ def test_a_study_where_no_trial_completes_marks_its_mlflow_run_failed(ray_sessio
     runs = client.search_runs([client.get_experiment_by_name("tinytune").experiment_id])
     roots = [r for r in runs if "mlflow.parentRunId" not in r.data.tags]
     assert len(roots) == 1 and roots[0].info.status == "FAILED"  # it stayed RUNNING
+
+
+def test_an_optuna_storage_of_the_wrong_kind_says_what_is_allowed(tmp_path, capsys):
+    """`--optuna-storage http://HOST:PORT` (the MLflow server's URL, say) said only "Can't load
+    plugin: sqlalchemy.dialects:http"."""
+    code, err = tune_cli(tmp_path, capsys, "--optuna-storage", "http://127.0.0.1:5000")
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert "takes a journal file path or a database URL (postgresql://USER@HOST:5432/DB)" in err
