@@ -52,11 +52,20 @@ def setup_output(quiet: bool = False, verbose: bool = False, private_ray: bool =
     os.environ.setdefault("MLFLOW_LOGGING_LEVEL", library)  # read when mlflow configures its loggers
     for name in ("mlflow", "alembic"):
         logging.getLogger(name).setLevel(os.environ["MLFLOW_LOGGING_LEVEL"] if name == "mlflow" else library)
-    if private_ray:
-        os.environ.setdefault("RAY_AUTH_MODE", "token")
-    auth = logging.getLogger(_RAY_AUTH_LOGGER)
-    if not any(isinstance(f, _DropMessage) for f in auth.filters):
-        auth.addFilter(_DropMessage(_RAY_TOKEN_NOTICE))
+    if private_ray or _has_ray_token():  # a joined cluster: token mode where a token is at hand, as
+        os.environ.setdefault("RAY_AUTH_MODE", "token")  # `ray start` does (ray.init does not)
+    for name, start in ((_RAY_AUTH_LOGGER, _RAY_TOKEN_NOTICE),
+                        # ray:// (Ray Client) connects from a thread, where Ray cannot set its handler
+                        ("ray._private.worker", "SIGTERM handler is not set because current thread")):
+        logger = logging.getLogger(name)
+        if not any(isinstance(f, _DropMessage) and f.start == start for f in logger.filters):
+            logger.addFilter(_DropMessage(start))
+
+
+def _has_ray_token() -> bool:
+    """Whether this machine has a Ray token for a driver (the variables Ray reads, or its file)."""
+    path = os.environ.get("RAY_AUTH_TOKEN_PATH") or os.path.expanduser("~/.ray/auth_token")
+    return bool(os.environ.get("RAY_AUTH_TOKEN")) or os.path.isfile(path)
 
 
 @contextmanager

@@ -523,6 +523,41 @@ def test_setup_output_silences_library_chatter(monkeypatch):
     security = logging.LogRecord(auth.name, logging.WARNING, __file__, 1, "Token authentication is disabled "
                                  "for this Ray cluster.", None, None)
     assert not auth.filter(notice) and auth.filter(security)  # the security warning stays
+    worker = logging.getLogger("ray._private.worker")
+    monkeypatch.setattr(worker, "filters", list(worker.filters))
+    setup_output()
+    sigterm = logging.LogRecord(worker.name, logging.WARNING, __file__, 1, "SIGTERM handler is not set because "
+                                "current thread is not the main thread.", None, None)
+    assert not worker.filter(sigterm)  # ray:// connects from a thread: Ray's line is noise
+    assert len([f for f in auth.filters if type(f).__name__ == "_DropMessage"]) == 1  # not added twice
+
+
+def test_a_driver_joining_a_cluster_uses_token_mode_where_a_token_is_at_hand(monkeypatch, tmp_path):
+    """Joining a services.sh head (token auth) with RAY_AUTH_MODE unset failed: ray.init, unlike
+    `ray start`, does not read the token file by itself."""
+    import logging
+    import os
+
+    from pcpg_dist.progress import setup_output
+
+    monkeypatch.delenv("MLFLOW_LOGGING_LEVEL", raising=False)
+    pcpg = logging.getLogger("pcpg_dist")
+    for attr in ("handlers", "propagate", "level"):  # put back for the other tests (caplog)
+        monkeypatch.setattr(pcpg, attr, getattr(pcpg, attr))
+    for name in ("mlflow", "alembic"):
+        monkeypatch.setattr(logging.getLogger(name), "level", logging.getLogger(name).level)
+    token = tmp_path / "auth_token"
+    for present, mode in ((False, None), (True, "token")):
+        monkeypatch.delenv("RAY_AUTH_MODE", raising=False)
+        monkeypatch.delenv("RAY_AUTH_TOKEN", raising=False)
+        monkeypatch.setenv("RAY_AUTH_TOKEN_PATH", str(token))
+        if present:
+            token.write_text("0" * 64)
+        setup_output(private_ray=False)
+        assert os.environ.get("RAY_AUTH_MODE") == mode
+    monkeypatch.setenv("RAY_AUTH_MODE", "disabled")  # a cluster that says so keeps its mode
+    setup_output(private_ray=False)
+    assert os.environ["RAY_AUTH_MODE"] == "disabled"
 
 
 def test_a_tracking_uri_pcpg_cannot_use_is_one_line_and_nothing_of_the_users_is_touched(tmp_path, capsys):
