@@ -35,6 +35,9 @@
 #                        PATH takes them from $PATH (e.g. under `uv run --with 'flask-wtf<2'`)
 #   PCPG_START_TIMEOUT   [300]          seconds to wait for a server to answer
 #   PCPG_RAY_START_ATTEMPTS [3]         tries of `ray start` (its raylet must register within 30 s)
+#
+# Exit codes: 0 done; 1 a service failed while starting (its log is named); 2 refused before
+# starting anything (a bad setting or argument, a port already taken, no Ray head to join).
 set -euo pipefail
 
 REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -63,6 +66,7 @@ MLFLOW="${BIN}mlflow"
 RAY="${BIN}ray"
 
 die() { echo "services.sh: $*" >&2; exit 1; }
+refuse() { echo "services.sh: $*" >&2; exit 2; }  # one line, before anything is started
 say() { echo "services.sh: $*"; }
 is_loopback() { [[ "$1" == 127.* || "$1" == localhost || "$1" == ::1 ]]; }
 pidfile() { echo "$STATE/$1.pid"; }
@@ -70,6 +74,77 @@ logfile() { echo "$STATE/$1.log"; }
 client_host() { if [[ "$HOST" == 0.0.0.0 ]]; then hostname -I 2>/dev/null | awk '{print $1}'; else echo "$HOST"; fi; }
 mlflow_url() { echo "http://$(client_host):$MLFLOW_PORT"; }
 db_url() { echo "$PG_URL/$1"; }
+
+# PCPG_PG_URL names the server; the script appends each database name itself.
+check_pg_url() {
+  local rest="${PG_URL#*://}"; rest="${rest##*@}"; rest="${rest%%\?*}"
+  [[ "$rest" != */* ]] || refuse "PCPG_PG_URL must name the PostgreSQL server only, without a database \
+(it ends in '/${rest#*/}'): e.g. postgresql+psycopg2://postgres@127.0.0.1:5432; the databases are set by \
+PCPG_MLFLOW_DB and PCPG_OPTUNA_DB"
+}
+
+# Python for the small checks below: the services' own, else any python3 (a bare worker machine).
+probe_py() { if command -v "$PY" >/dev/null 2>&1; then "$PY" "$@"; else python3 "$@"; fi; }
+
+# port_busy BIND_HOST CONNECT_HOST PORT: exit 0 if something accepts connections at
+# CONNECT_HOST:PORT or holds PORT so that a server could not bind BIND_HOST:PORT ("" = all).
+port_busy() { probe_py - "$@" <<'EOF'
+import errno, socket, sys
+bind_host, connect_host, port = sys.argv[1], sys.argv[2], int(sys.argv[3])
+try:
+    socket.create_connection((connect_host, port), timeout=2).close()
+    sys.exit(0)
+except OSError:
+    pass
+try:
+    family = socket.getaddrinfo(bind_host or None, port, type=socket.SOCK_STREAM,
+                                flags=socket.AI_PASSIVE)[0][0]
+    with socket.socket(family, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as servers do: TIME_WAIT is free
+        s.bind((bind_host, port))
+except OSError as e:
+    sys.exit(0 if e.errno == errno.EADDRINUSE else 1)
+sys.exit(1)
+EOF
+}
+
+# tcp_answers HOST PORT SECONDS: exit 0 if HOST:PORT accepts a TCP connection within SECONDS.
+tcp_answers() { probe_py -c '
+import socket, sys
+try:
+    socket.create_connection((sys.argv[1], int(sys.argv[2])), timeout=float(sys.argv[3])).close()
+except (OSError, ValueError):
+    sys.exit(1)' "$@"
+}
+
+# listens_in_group PORT PGID: exit 0 if a process of group PGID listens on TCP PORT (read from
+# /proc; where there is no /proc it cannot tell and says yes). Tells our server from another one.
+listens_in_group() { probe_py - "$@" <<'EOF'
+import os, sys
+port, pgid = int(sys.argv[1]), sys.argv[2]
+if not os.path.exists("/proc/net/tcp"):
+    sys.exit(0)
+sockets = set()
+for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+    try:
+        with open(table) as f:
+            rows = [line.split() for line in f][1:]
+    except OSError:
+        continue
+    sockets |= {f"socket:[{r[9]}]" for r in rows if r[3] == "0A" and int(r[1].rsplit(":", 1)[1], 16) == port}
+for pid in filter(str.isdigit, os.listdir("/proc")):
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            if f.read().rsplit(")", 1)[1].split()[2] != pgid:
+                continue
+        for fd in os.listdir(f"/proc/{pid}/fd"):
+            if os.readlink(f"/proc/{pid}/fd/{fd}") in sockets:
+                sys.exit(0)
+    except (OSError, IndexError):
+        continue
+sys.exit(1)
+EOF
+}
 
 # The pid of a service this script started, if that process still runs.
 running_pid() {
@@ -108,6 +183,13 @@ wait_for() {
   local deadline=$((SECONDS + TIMEOUT))
   until "$@"; do
     if ! running_pid "$name" >/dev/null; then
+      local pid; pid="$(cat "$(pidfile "$name")" 2>/dev/null)" || true
+      [[ -z "$pid" ]] || kill -KILL -- "-$pid" 2>/dev/null || true  # what it spawned, if any is left
+      rm -f "$(pidfile "$name")"
+      if grep -qi "address already in use" "$(logfile "$name")" 2>/dev/null; then
+        local port="port"; [[ "$name" != mlflow ]] || port="port $MLFLOW_PORT (PCPG_MLFLOW_PORT)"
+        refuse "$name exited: its $port was taken by another process meanwhile; log: $(logfile "$name")"
+      fi
       tail -n 30 "$(logfile "$name")" >&2 || true
       die "$name exited during start; full log: $(logfile "$name")"
     fi
@@ -125,6 +207,9 @@ except Exception:
     sys.exit(1)
 EOF
 }
+
+# /health answers and the server answering is ours (another one may hold the port).
+mlflow_ready() { mlflow_healthy && listens_in_group "$MLFLOW_PORT" "$(cat "$(pidfile mlflow)")"; }
 
 ray_started() { grep -q "Ray runtime started" "$(logfile "$1")" 2>/dev/null; }
 
@@ -189,8 +274,20 @@ EOF
   args+=(${PCPG_MLFLOW_ARGS:-})
   launch mlflow env "${envs[@]}" "$MLFLOW" "${args[@]}"
   say "starting mlflow at $(mlflow_url) (backend $(db_url "$MLFLOW_DB" | sed -E 's#//([^:/@]+):[^@]*@#//\1:***@#'), artifacts $ARTIFACTS)"
-  wait_for mlflow mlflow_healthy
-  say "mlflow is up (pid $(running_pid mlflow))"
+  wait_for mlflow mlflow_ready
+  local pid
+  pid="$(running_pid mlflow)" || die "mlflow exited right after it answered; log: $(logfile mlflow)"
+  say "mlflow is up (pid $pid)"
+}
+
+# Checks before `start mlflow` creates or launches anything.
+preflight_mlflow() {
+  running_pid mlflow >/dev/null && return 0
+  case "$MLFLOW_AUTH" in none|basic) ;; *) refuse "PCPG_MLFLOW_AUTH must be none or basic, not '$MLFLOW_AUTH'" ;; esac
+  local probe="$HOST"; [[ "$HOST" != 0.0.0.0 ]] || probe=127.0.0.1
+  if port_busy "$HOST" "$probe" "$MLFLOW_PORT"; then
+    refuse "port $MLFLOW_PORT on $HOST is already in use by another process: set PCPG_MLFLOW_PORT to a free port"
+  fi
 }
 
 # ------------------------------------------------------------------------------------ Ray
@@ -199,14 +296,14 @@ ensure_ray_auth() {
     token) [[ -n "${RAY_AUTH_TOKEN:-}" || -f "${RAY_AUTH_TOKEN_PATH:-$HOME/.ray/auth_token}" ]] \
              || RAY_AUTH_MODE=token "$RAY" get-auth-token --generate >/dev/null ;;
     disabled) ;;
-    *) die "PCPG_RAY_AUTH_MODE must be token or disabled, not '$RAY_AUTH'" ;;
+    *) refuse "PCPG_RAY_AUTH_MODE must be token or disabled, not '$RAY_AUTH'" ;;
   esac
 }
 
 ray_node() {  # ray_node NAME [ray start arguments...]
   local name="$1"; shift
   if pid="$(running_pid "$name")"; then say "$name already running (pid $pid)"; return 0; fi
-  [[ "$HOST" != 0.0.0.0 ]] || die "Ray needs an address other nodes can reach: set PCPG_HOST to this machine's IP"
+  preflight_ray_node
   ensure_ray_auth
   mkdir -p "$RAY_TEMP"
   local args=(start --block --node-ip-address "$HOST" --temp-dir "$RAY_TEMP" --disable-usage-stats "$@")
@@ -224,6 +321,32 @@ ray_node() {  # ray_node NAME [ray start arguments...]
     say "$name start attempt $attempt failed; retrying"
   done
   say "$name is up (pid $(running_pid "$name")); auth mode: $RAY_AUTH"
+}
+
+# Checks before a Ray node is launched (any node).
+preflight_ray_node() {
+  [[ "$HOST" != 0.0.0.0 ]] || refuse "Ray needs an address other nodes can reach: set PCPG_HOST to this machine's IP"
+  case "$RAY_AUTH" in token|disabled) ;; *) refuse "PCPG_RAY_AUTH_MODE must be token or disabled, not '$RAY_AUTH'" ;; esac
+}
+
+# Checks before `start ray` launches the head: its GCS port (it listens on all interfaces).
+preflight_ray() {
+  running_pid ray >/dev/null && return 0
+  preflight_ray_node
+  if port_busy "" "$HOST" "$RAY_PORT"; then
+    refuse "port $RAY_PORT is already in use on this machine (another Ray head, redis, ...): set PCPG_RAY_PORT to a free port"
+  fi
+}
+
+# Checks before `join HOST:PORT`: the address is well formed and a head answers there.
+preflight_join() {
+  local addr="$1"
+  [[ "$addr" =~ ^[^[:space:]]+:[0-9]+$ ]] || refuse "usage: services.sh join HEAD_IP:PORT (got '$addr')"
+  running_pid ray-worker >/dev/null && return 0
+  preflight_ray_node
+  local host="${addr%:*}"; host="${host#[}"; host="${host%]}"  # [::1]:6379 too
+  tcp_answers "$host" "${addr##*:}" 5 \
+    || refuse "no Ray head answers at $addr (no TCP connection within 5 s): check the address and that the head runs"
 }
 
 start_ray() {
@@ -245,6 +368,7 @@ status_one() {
 }
 
 print_env() {
+  check_pg_url
   cat <<EOF
 export MLFLOW_TRACKING_URI=$(mlflow_url)
 export RAY_ADDRESS=$(client_host):$RAY_PORT
@@ -257,28 +381,31 @@ EOF
 what="${2:-all}"
 case "${1:-}" in
   start)
+    # Every check first: a refusal (exit 2) leaves no database, process or pid file behind.
     case "$what" in
-      all) create_databases "$MLFLOW_DB" "$OPTUNA_DB"; start_mlflow; start_ray ;;
-      db) create_databases "$MLFLOW_DB" "$OPTUNA_DB" ;;
-      mlflow) create_databases "$MLFLOW_DB"; start_mlflow ;;
-      ray) start_ray ;;
-      *) die "unknown service '$what' (all, db, mlflow, ray)" ;;
+      all) check_pg_url; preflight_mlflow; preflight_ray
+           create_databases "$MLFLOW_DB" "$OPTUNA_DB"; start_mlflow; start_ray ;;
+      db) check_pg_url; create_databases "$MLFLOW_DB" "$OPTUNA_DB" ;;
+      mlflow) check_pg_url; preflight_mlflow; create_databases "$MLFLOW_DB"; start_mlflow ;;
+      ray) preflight_ray; start_ray ;;
+      *) refuse "unknown service '$what' (all, db, mlflow, ray)" ;;
     esac ;;
   stop)
     case "$what" in
       all) stop_one ray; stop_one mlflow ;;
       mlflow|ray|ray-worker) stop_one "$what" ;;
-      *) die "unknown service '$what' (all, mlflow, ray, ray-worker)" ;;
+      *) refuse "unknown service '$what' (all, mlflow, ray, ray-worker)" ;;
     esac ;;
   status)
     case "$what" in
       all) rc=0; status_one mlflow || rc=1; status_one ray || rc=1; exit $rc ;;
       mlflow|ray|ray-worker) status_one "$what" ;;
-      *) die "unknown service '$what' (all, mlflow, ray, ray-worker)" ;;
+      *) refuse "unknown service '$what' (all, mlflow, ray, ray-worker)" ;;
     esac ;;
   env) print_env ;;
   join)
-    [[ -n "${2:-}" ]] || die "usage: services.sh join HEAD_IP:PORT"
+    [[ -n "${2:-}" ]] || refuse "usage: services.sh join HEAD_IP:PORT"
+    preflight_join "$2"
     ray_node ray-worker --address "$2" ;;
   *) sed -n '2,11p' "$0" | sed 's/^# \{0,1\}//'; exit 2 ;;
 esac
