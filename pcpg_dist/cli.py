@@ -397,7 +397,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--n-trials", type=int, default=None, help="finished trials the study should hold "
                    "(default: tuning.n_trials); a rerun with more continues the study")
     p.add_argument("--out", default=None, help="folder of best_config.yaml, trials.csv, score_vs_k.png "
-                   "(default: WORKDIR/NAME/tuning)")
+                   "(default: WORKDIR/NAME/tuning, or WORKDIR/NAME/tuning/STUDY for a --study-name other than NAME-tune)")
     p.add_argument("--workdir", default="runs", help="data cache and outputs (default: runs/)")
     tracking(p)
     common(p)

@@ -24,8 +24,10 @@ Why this shape:
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import logging
 import math
+import re
 import reprlib
 import time
 import warnings
@@ -357,7 +359,10 @@ def run_study(cfg: ExperimentConfig, storage_url: str | Storage | None = None, w
     if known is not None and known != key:
         raise ConfigError(f"study {name!r} in {storage.shown} was run with other data, search space or "
                           f"objective settings; pass --study-name NEW to start another study")
-    out = Path(out) if out else Path(workdir).resolve() / cfg.name / "tuning"
+    # the default study's outputs in NAME/tuning, any other study's in a folder of its own (a
+    # second study's overwrote the first's there)
+    default_out = Path(workdir).resolve() / cfg.name / "tuning"
+    out = Path(out) if out else default_out if name == f"{cfg.name}-tune" else default_out / _study_folder(name)
     the_units, _ = load_units(cfg, Cache(Path(workdir).resolve() / cfg.name / "cache"), show_progress)
     datasets = {u.name: u for u in the_units}
     envs = trial_environments(cfg, tune, list(datasets))
@@ -461,6 +466,14 @@ def run_study(cfg: ExperimentConfig, storage_url: str | Storage | None = None, w
     if tracker is not None:
         tracker.finish(result)
     return result
+
+
+def _study_folder(name: str) -> str:
+    """A study name as one folder name: itself where it is plain, else made safe plus a short hash."""
+    if re.fullmatch(r"[A-Za-z0-9_][A-Za-z0-9._-]{0,79}", name) and ".." not in name:
+        return name
+    safe = re.sub(r"[^A-Za-z0-9._-]+", "-", name).strip("-.")[:60] or "study"
+    return f"{safe}-{hashlib.sha256(name.encode()).hexdigest()[:8]}"
 
 
 def _reuse(study: Any, trial: Any, key: tuple) -> bool:

@@ -452,7 +452,10 @@ def test_an_extended_study_draws_new_points(ray_session, tmp_path, workdir):
     cfg = config(tmp_path, n_startup_trials=10)  # both calls draw at random (as while trials are pruned)
     name, journal = unique("extend"), str(tmp_path / "journal.log")
     first = run_study(cfg, storage_url=journal, workdir=workdir, track=False, show_progress=False,
-                      study_name=name, out=tmp_path / "a")
+                      study_name=name)
+    # a study other than NAME-tune writes to a folder of its own (a second study overwrote the first's)
+    assert first.out_dir == Path(workdir).resolve() / "tinytune" / "tuning" / name
+    assert (first.out_dir / "best_config.yaml").is_file()
     run_study(cfg, storage_url=journal, workdir=workdir, track=False, show_progress=False,
               study_name=name, n_trials=4, out=tmp_path / "b")
     import optuna
@@ -485,3 +488,13 @@ def test_an_optuna_storage_of_the_wrong_kind_says_what_is_allowed(tmp_path, caps
     code, err = tune_cli(tmp_path, capsys, "--optuna-storage", "http://127.0.0.1:5000")
     assert code == 2 and len(err.strip().splitlines()) == 1
     assert "takes a journal file path or a database URL (postgresql://USER@HOST:5432/DB)" in err
+
+
+def test_a_study_name_becomes_one_safe_folder():
+    from pcpg_dist.tuning import _study_folder
+
+    assert _study_folder("probe-k34") == "probe-k34"
+    for name in ("../x", "a/b", "..", "x" * 200, "é"):
+        folder = _study_folder(name)
+        assert "/" not in folder and folder not in (".", "..") and len(folder) <= 80, folder
+    assert _study_folder("a/b") != _study_folder("a:b")  # made safe alike, told apart by the hash
