@@ -906,29 +906,6 @@ class Tracker:
                 else:
                     os.environ["MLFLOW_UV_AUTO_DETECT"] = before
 
-    def add_reused(self, point_run_id: str) -> None:
-        """List a point this call reused (an earlier sweep, e.g. before an axis was extended, ran
-        it and logged it under its own sweep run) under this sweep too: a run of the same name,
-        params and metrics (each metric's whole history, so its curves over p), tagged
-        ``pcpg.same_as`` with the run it copies; its environments and artifacts stay on that run.
-        Nothing when the point's run is already this sweep's child; idempotent."""
-        client = _client(self.uri)
-        src = _retry(client.get_run, point_run_id)
-        if src.data.tags.get(PARENT) == self.parent_id:
-            return
-        name = src.data.tags.get(RUN_NAME, point_run_id)
-        note = (f"{name}: reused by this sweep from run `{point_run_id}` of an earlier sweep, which "
-                f"computed it; that run holds its environments, figures and agents. Metrics copied.")
-        run_id, finished = _find_or_create(client, self.uri, self.experiment_id,
-                                           {ROLE: POINT_ROLE, SAME_AS: point_run_id}, self.parent_id,
-                                           {RUN_NAME: name, NOTE: note}, dict(src.data.params))
-        if finished:
-            return
-        points = [(k, m.value, m.step) for k in sorted(src.data.metrics)
-                  for m in _retry(client.get_metric_history, point_run_id, k)]
-        _log_once(client, run_id, points, {})
-        _retry(client.set_terminated, run_id, "FINISHED")
-
     def fail(self) -> None:
         with contextlib.suppress(Exception):  # best effort while already failing
             _retry(_client(self.uri).set_terminated, self.parent_id, "KILLED", attempts=2)

@@ -501,18 +501,25 @@ def test_written_files_follow_the_umask(tmp_path):
     assert (tmp_path / "x.json").stat().st_mode & 0o777 == FILE_MODE == 0o666 & ~mask
 
 
-def test_setup_output_silences_library_chatter(monkeypatch):
+@pytest.fixture
+def logging_restored(monkeypatch):
+    """setup_output changes process-wide logging: put it back for the other tests (caplog)."""
+    import logging
+
+    monkeypatch.delenv("MLFLOW_LOGGING_LEVEL", raising=False)
+    pcpg = logging.getLogger("pcpg_dist")
+    for attr in ("handlers", "propagate", "level"):
+        monkeypatch.setattr(pcpg, attr, getattr(pcpg, attr))
+    for name in ("mlflow", "alembic"):
+        monkeypatch.setattr(logging.getLogger(name), "level", logging.getLogger(name).level)
+
+
+def test_setup_output_silences_library_chatter(monkeypatch, logging_restored):
     import logging
 
     from pcpg_dist.progress import setup_output
 
-    monkeypatch.delenv("MLFLOW_LOGGING_LEVEL", raising=False)
     monkeypatch.delenv("RAY_AUTH_MODE", raising=False)
-    pcpg = logging.getLogger("pcpg_dist")
-    for attr in ("handlers", "propagate", "level"):  # put back for the other tests (caplog)
-        monkeypatch.setattr(pcpg, attr, getattr(pcpg, attr))
-    for name in ("mlflow", "alembic"):
-        monkeypatch.setattr(logging.getLogger(name), "level", logging.getLogger(name).level)
     setup_output()
     import os
 
@@ -532,20 +539,13 @@ def test_setup_output_silences_library_chatter(monkeypatch):
     assert len([f for f in auth.filters if type(f).__name__ == "_DropMessage"]) == 1  # not added twice
 
 
-def test_a_driver_joining_a_cluster_uses_token_mode_where_a_token_is_at_hand(monkeypatch, tmp_path):
+def test_a_driver_joining_a_cluster_uses_token_mode_where_a_token_is_at_hand(monkeypatch, tmp_path, logging_restored):
     """Joining a services.sh head (token auth) with RAY_AUTH_MODE unset failed: ray.init, unlike
     `ray start`, does not read the token file by itself."""
-    import logging
     import os
 
     from pcpg_dist.progress import setup_output
 
-    monkeypatch.delenv("MLFLOW_LOGGING_LEVEL", raising=False)
-    pcpg = logging.getLogger("pcpg_dist")
-    for attr in ("handlers", "propagate", "level"):  # put back for the other tests (caplog)
-        monkeypatch.setattr(pcpg, attr, getattr(pcpg, attr))
-    for name in ("mlflow", "alembic"):
-        monkeypatch.setattr(logging.getLogger(name), "level", logging.getLogger(name).level)
     token = tmp_path / "auth_token"
     for present, mode in ((False, None), (True, "token")):
         monkeypatch.delenv("RAY_AUTH_MODE", raising=False)
