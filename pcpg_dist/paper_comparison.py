@@ -173,10 +173,8 @@ def cross_summary(summary: Path, envs: list[str]) -> str:
     (R1, R2, ...) and averaged over environments where every environment's clusters match its
     styles one to one; otherwise each environment's matrix is in its own cluster order, so only
     per-environment figures are averaged."""
-    mats = {}
-    for env in envs:
-        for table in _env_tables(summary, [env], "cross_accuracy"):
-            mats[env] = table.set_index(table.columns[0]).astype(float)
+    mats = {env: t[0].set_index(t[0].columns[0]).astype(float)
+            for env in envs if (t := _env_tables(summary, [env], "cross_accuracy"))}
     if not mats:
         return "—"
     aligned = [_by_style(summary, env, m) for env, m in mats.items()]

@@ -8,8 +8,11 @@ next run, and in ``cache/`` it also invalidates the unit it lands in.
 
 from __future__ import annotations
 
+import hashlib
 import json
+import re
 from pathlib import Path
+from typing import Any
 
 from pcpg_dist.errors import ConfigError, DataError
 
@@ -109,3 +112,11 @@ def _check_agents_index(agents: Path) -> None:
                 said = ("missing" if want is not None and not file.is_file() else
                         "not listed in " + AGENTS_INDEX if want is None else "not the file the run wrote here (its SHA-256 differs)")
                 raise DataError(f"{file}: {said}; the agents folder is not as pcpg run left it (rerun pcpg run)")
+
+
+def slug(text: str, identity: Any, fallback: str = "x") -> str:
+    """A folder name for ``text``: its letters, digits and ``._=-`` (other runs become '-'), at most
+    80 characters, plus a short hash of ``identity`` (what sets it apart, kept when text is cut)."""
+    digest = hashlib.sha256(json.dumps(identity, sort_keys=True, default=str).encode()).hexdigest()[:8]
+    safe = re.sub(r"[^A-Za-z0-9._=-]+", "-", text)[:80].strip("-.") or fallback
+    return f"{safe}-{digest}"

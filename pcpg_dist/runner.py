@@ -74,6 +74,7 @@ class Point:
     # filled while running
     units: dict[str, Unit] = field(default_factory=dict)
     refs: dict[str, Any] = field(default_factory=dict)
+    digests: dict[str, str] = field(default_factory=dict)  # what each unit's clusterer reads, hashed
     dkey: str = ""
     ckeys: dict[str, str] = field(default_factory=dict)
     groups: list[tuple[str, str, list]] = field(default_factory=list)  # (env, train key, cells)
@@ -257,7 +258,7 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
     # A bad input file fails here, before any MLflow run or cache entry exists.
     t0 = time.perf_counter()
     datas: dict[str, dict[str, Dataset]] = {}
-    unit_sets: dict[str, tuple[dict[str, Unit], dict[str, Any]]] = {}
+    unit_sets: dict[str, tuple[dict[str, Unit], dict[str, Any], dict[str, str]]] = {}
     for p in points:
         p.dkey = data_key(p.cfg)
         if p.dkey not in datas:
@@ -270,8 +271,9 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
                 confined(p.out, name, "unit name")  # unit names become folder and run names
                 check_unit_name(name)
             check_margins_come(p.cfg, [u.clustered for u in units.values()])
-            unit_sets[ukey] = units, {n: ray.put(u) for n, u in units.items()}
-        p.units, p.refs = unit_sets[ukey]
+            unit_sets[ukey] = (units, {n: ray.put(u) for n, u in units.items()},
+                               {n: content_digest(u.clustered) for n, u in units.items()})
+        p.units, p.refs, p.digests = unit_sets[ukey]
     times["generate"] = time.perf_counter() - t0
     # one task holds a unit, its copies in the stage's arrays, and a torch runtime (~600 MB)
     largest = max((_nbytes(u.dataset) for p in points for u in p.units.values()), default=0)
@@ -289,14 +291,12 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
         # ---- Step A: one clustering per (data, environment, clustering settings)
         t0 = time.perf_counter()
         jobs: dict[str, tuple] = {}
-        digests: dict[int, str] = {}  # what each unit's clusterer reads, hashed once per unit
         for p in points:
             for e, u in p.units.items():
                 # the input's digest, not only the settings: a domain may derive it from any of
                 # them (Mario's valid mask comes from the training episodes, so from the split)
-                digest = digests.get(id(u)) or digests.setdefault(id(u), content_digest(u.clustered))
                 p.ckeys[e] = k = content_key(CODE_VERSION, CLUSTER_VERSION, p.dkey, e, p.cfg.clustering,
-                                             p.cfg.seed, u.cluster_input_note, digest)
+                                             p.cfg.seed, u.cluster_input_note, p.digests[e])
                 if k not in jobs and cache.done("cluster", k) is None:
                     jobs[k] = (p.refs[e], p.cfg.clustering, p.cfg.seed, p.cfg.runner.cpus_per_task)
 

@@ -37,7 +37,7 @@ def accuracy_table(per_env: dict[str, dict[str, float]], ps: tuple[float, ...]) 
                          "no_clustering": m.get(f"baseline/accuracy/p{p:g}", np.nan),
                          "no_clustering_std": m.get(f"baseline/accuracy/p{p:g}/std", np.nan),
                          # on the same rows as PCPG at this p, like the majority class
-                         "random": m.get(f"random/accuracy/p{p:g}", m.get("random/accuracy", np.nan)),
+                         "random": m.get(f"random/accuracy/p{p:g}", np.nan),
                          "majority": m.get(f"majority/accuracy/p{p:g}", np.nan)})
     return pd.DataFrame(rows)
 
@@ -123,7 +123,7 @@ def print_summary(result, console) -> None:
         t.add_row(f"{p:g}", f"{m.get(f'pcpg/accuracy/p{p:g}', float('nan')):.3f}",
                   f"{m.get(f'baseline/accuracy/p{p:g}', float('nan')):.3f}",
                   f"{m.get(f'majority/accuracy/p{p:g}', float('nan')):.3f}",
-                  f"{m.get(f'random/accuracy/p{p:g}', m.get('random/accuracy', float('nan'))):.3f}")
+                  f"{m.get(f'random/accuracy/p{p:g}', float('nan')):.3f}")
     console.print(t)
     c = Table(title="Clustering")
     cols = [k for k in ("ari", "nmi", "accuracy", "ceiling", "gap_to_ceiling", "silhouette", "fit_seconds")

@@ -123,19 +123,19 @@ def best_points(axes: dict[str, list], rows: list[dict[str, Any]]) -> tuple[dict
 def point_slug(axes: dict[str, Any], fixed: dict[str, Any] | None = None, config_hash: str = "") -> str:
     """A stable folder name for a point: its axis values, readable and made safe, plus a short hash
     of everything that sets its config apart (axes, fixed overrides, the config's own hash)."""
+    from pcpg_dist.run_folders import slug
+
     text = "_".join(f"{k}={json.dumps(v) if isinstance(v, list | dict) else v}" for k, v in axes.items())
-    identity = [axes, fixed or {}, config_hash]
-    digest = hashlib.sha256(json.dumps(identity, sort_keys=True, default=str).encode()).hexdigest()[:8]
-    safe = re.sub(r"[^A-Za-z0-9._=-]+", "-", text)[:80].strip("-.") or "point"
-    return f"{safe}-{digest}"
+    return slug(text, [axes, fixed or {}, config_hash], fallback="point")
 
 
 def _fmt(v: Any) -> str:
     return json.dumps(v) if isinstance(v, list | dict | bool) or v is None else str(v)
 
 
-def _finished(out: Path, cfg, track: bool, uri: str | None) -> dict | None:
-    """The point's metrics if an earlier call finished it (same config, logged when tracking)."""
+def _finished(out: Path, cfg, track: bool, uri: str | None) -> tuple[dict, str] | None:
+    """The point's metrics and MLflow run id if an earlier call finished it (same config, logged
+    when tracking)."""
     try:
         run = json.loads((out / "summary" / "run.json").read_text())
         metrics = json.loads((out / "summary" / "metrics.json").read_text())
@@ -145,12 +145,7 @@ def _finished(out: Path, cfg, track: bool, uri: str | None) -> dict | None:
         return None
     if track and not _run_finished(uri, run.get("parent_run_id")):
         return None
-    return metrics
-
-
-def _point_run_id(out: Path) -> str:
-    """The MLflow run of a finished point (``_finished`` checked its run.json names one)."""
-    return json.loads((out / "summary" / "run.json").read_text())["parent_run_id"]
+    return metrics, run.get("parent_run_id")
 
 
 def _run_finished(uri: str | None, run_id: Any) -> bool:
@@ -241,12 +236,12 @@ def run_sweep(config: str | Path, axes_args: list[str], overrides: list[str] | N
         if tracker is not None:  # reused points are this sweep's too (one child per point)
             for p in points:
                 if done[id(p)] is not None:
-                    tracker.add_reused(_point_run_id(p.out))
+                    tracker.add_reused(done[id(p)][1])
         metrics_of = {id(p): r.metrics for p, r in zip(todo, results, strict=True)}
         computed = results[0].computed if results else {}
         rows = []
         for p, combo in zip(points, combos, strict=True):
-            m = metrics_of.get(id(p)) or done[id(p)] or {}
+            m = metrics_of[id(p)] if done[id(p)] is None else done[id(p)][0]
             rows.append({**{k: _fmt(v) if isinstance(v, list | dict) else v for k, v in combo.items()},
                          "point": p.out.name, **headline(m)})
         files = write_sweep_files(out, plan, rows)

@@ -24,7 +24,6 @@ Why this shape:
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import logging
 import math
 import re
@@ -470,10 +469,11 @@ def run_study(cfg: ExperimentConfig, storage_url: str | Storage | None = None, w
 
 def _study_folder(name: str) -> str:
     """A study name as one folder name: itself where it is plain, else made safe plus a short hash."""
-    if re.fullmatch(r"[A-Za-z0-9_][A-Za-z0-9._-]{0,79}", name) and ".." not in name:
-        return name
-    safe = re.sub(r"[^A-Za-z0-9._-]+", "-", name).strip("-.")[:60] or "study"
-    return f"{safe}-{hashlib.sha256(name.encode()).hexdigest()[:8]}"
+    from pcpg_dist.config.domains import MAX_NAME, NAME_PATTERN
+    from pcpg_dist.run_folders import slug
+
+    plain = re.match(NAME_PATTERN, name) and ".." not in name and len(name) <= MAX_NAME
+    return name if plain else slug(name[:60], name, fallback="study")
 
 
 def _reuse(study: Any, trial: Any, key: tuple) -> bool:
