@@ -304,6 +304,12 @@ def evaluate(
     return EvalResult(tables, metrics, figures)
 
 
+def over_seeds(runs: pd.DataFrame, col: str) -> pd.DataFrame:
+    """Mean and std of ``col`` per agent (method, k, p) over its seeds; the std with ddof 0, as
+    every std pcpg reports (the metrics' ``/std``), so a CSV and metrics.json never disagree."""
+    return runs.groupby(["method", "k", "p"])[col].agg(mean="mean", std=lambda x: x.std(ddof=0)).reset_index()
+
+
 def _rollout_rng(base: int, key: str) -> np.random.Generator:
     return np.random.default_rng([base, zlib.crc32(key.encode())])
 
@@ -329,11 +335,9 @@ def _rollouts(dataset, labels, k, seeds, ps, cells, trained, cfg, hooks, tables,
             rollout_sets[(c, styles[c])] = ds.subset([0])
     runs = pd.DataFrame(rows)
     tables["rollouts"] = runs
-    length = runs.groupby(["method", "k", "p"])["length"].agg(["mean", "std"]).reset_index()
-    tables["rollout_length"] = length
-    tables["rollout_success"] = runs.groupby(["method", "k", "p"])["success"].agg(["mean", "std"]).reset_index()
-    if "return" in runs:
-        tables["rollout_return"] = runs.groupby(["method", "k", "p"])["return"].agg(["mean", "std"]).reset_index()
+    for col in ("length", "success", "return"):
+        if col in runs:
+            tables[f"rollout_{col}"] = over_seeds(runs, col)
     for (method, c, p), grp in runs.groupby(["method", "k", "p"]):
         who = f"k{c}" if method == "pcpg" else "nc"
         put(f"rollout/length/{who}/p{fmt(p)}", list(grp["length"]))

@@ -50,14 +50,14 @@ def cluster_unit(unit: Unit, cluster_cfg, seed: int, ceiling: bool = True) -> Un
     result = cluster(unit.clustered, cluster_cfg, seed)
     metrics = {f"clustering/{k}": float(v) for k, v in result.metrics.items() if isinstance(v, int | float)}
     if has_styles(unit):
-        from pcpg_dist.ceiling import supervised_ceiling
+        from pcpg_dist.ceiling import gap_to_ceiling, supervised_ceiling
 
         sup = clustering_metrics(unit.dataset.styles, result.labels)
         metrics.update({f"clustering/{k}": float(v) for k, v in sup.items() if isinstance(v, int | float)})
         top = supervised_ceiling(unit.dataset, seed=seed) if ceiling else float("nan")
         if np.isfinite(top):  # what a classifier given the true styles reaches (pcpg_dist/ceiling.py)
             metrics["clustering/ceiling"] = top
-            metrics["clustering/gap_to_ceiling"] = top - metrics["clustering/accuracy"]
+            metrics["clustering/gap_to_ceiling"] = gap_to_ceiling(top, metrics["clustering/accuracy"])
     metrics["clustering/fit_seconds"] = result.fit_seconds
     return UnitClustering(np.asarray(result.labels, np.int64), metrics, result.model, result.margins)
 

@@ -160,3 +160,17 @@ def test_table_4_covers_the_clusters_that_have_agents(tmp_path):
     assert res.metrics["cross/clusters"] == 2
     assert list(res.tables["cross_accuracy"].index) == ["k0", "k2"]
     assert res.metrics["cross/diagonal_mean"] > 0.8 and res.metrics["cross/diagonal_is_row_max"] == 1.0
+
+
+def test_rollout_tables_and_metrics_give_one_std():
+    """The rollout CSVs (and the report, which reads them) and metrics.json (MLflow) quote one
+    std for one figure: over seeds, ddof 0 (the CSVs had pandas' ddof 1, sqrt(4/3) larger)."""
+    from pcpg_dist.evaluation import _mean_std, over_seeds
+
+    runs = pd.DataFrame({"method": ["nc"] * 4 + ["pcpg"] * 2, "k": [-1] * 4 + [0, 0], "p": 1.0,
+                         "length": [10.0, 12.0, 14.0, 20.0, 7.0, 9.0]})
+    table = over_seeds(runs, "length").set_index("method")
+    for method, values in (("nc", [10.0, 12.0, 14.0, 20.0]), ("pcpg", [7.0, 9.0])):
+        assert table.loc[method, "mean"] == pytest.approx(np.mean(values))
+        assert table.loc[method, "std"] == pytest.approx(np.std(values))  # ddof 0
+        assert (table.loc[method, "mean"], table.loc[method, "std"]) == pytest.approx(_mean_std(values))
