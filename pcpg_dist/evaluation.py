@@ -310,7 +310,9 @@ def over_seeds(runs: pd.DataFrame, col: str) -> pd.DataFrame:
     return runs.groupby(["method", "k", "p"])[col].agg(mean="mean", std=lambda x: x.std(ddof=0)).reset_index()
 
 
-def _rollout_rng(base: int, key: str) -> np.random.Generator:
+def rollout_rng(base: int, key: str) -> np.random.Generator:
+    """The rollouts' generator of the agent ``key`` (a cell key): every table of one agent's
+    rollouts (the evaluation's, a domain's extras) plays the same episodes."""
     return np.random.default_rng([base, zlib.crc32(key.encode())])
 
 
@@ -323,7 +325,7 @@ def _rollouts(dataset, labels, k, seeds, ps, cells, trained, cfg, hooks, tables,
         if kind not in ("pcpg", "nc"):
             continue
         ds = hooks.rollout(trained.policy(i, cfg.greedy), cfg.rollouts_per_policy,
-                           _rollout_rng(cfg.rollout_seed, trained.specs[i].key))
+                           rollout_rng(cfg.rollout_seed, trained.specs[i].key))
         row = {"method": kind, "k": c, "p": p, "seed": seed, "actions": mode,
                "length": float((ds.lengths - 1).mean()), "success": float(ds.success.mean())}
         if hooks.returns is None:  # no per-style rewards: the environment's own return is the score
@@ -346,7 +348,7 @@ def _rollouts(dataset, labels, k, seeds, ps, cells, trained, cfg, hooks, tables,
             put(f"rollout/return/{who}/p{fmt(p)}", list(grp["return"]))
     if hooks.returns is None or hooks.optimal_return is None:
         return
-    rnd = hooks.rollout(random_policy, cfg.rollouts_per_policy, _rollout_rng(cfg.rollout_seed, "random"))
+    rnd = hooks.rollout(random_policy, cfg.rollouts_per_policy, rollout_rng(cfg.rollout_seed, "random"))
     dist_rows = []
     by_style: dict[tuple[int, float], list[float]] = {}  # two clusters of one majority style pool
     for c in range(k):

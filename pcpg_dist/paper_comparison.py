@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pcpg_dist.config.stages import RankConfig
+from pcpg_dist.config.domains import MarioLoadConfig
+from pcpg_dist.config.stages import BCConfig, RankConfig
 from pcpg_dist.errors import DataError
 from pcpg_dist.report_data import PaperRow, fmt, inside, read_csv
 
@@ -28,16 +29,26 @@ PROTOCOL: tuple[tuple[str, object, tuple[str, ...] | None], ...] = (
     ("bc.hidden_layers", 3, None),
     ("bc.hidden_size", 5, None),
     ("bc.epochs", 2000, None),
+    ("bc.batch_size", None, None),  # full batch
+    ("bc.init", "scratch", None),  # every agent from its own initialisation
     ("clustering.k", 4, ("gridworld",)),
     ("gridworld.environments", ["E1", "E2", "E3", "E4", "E5"], ("gridworld",)),
     ("gridworld.random_layouts", None, ("gridworld",)),
     ("pbtg.episodes", 20000, ("gridworld",)),
     ("pbtg.trajectories_per_style", 8000, ("gridworld",)),
     ("pbtg.dataset_per_style", 1000, ("gridworld",)),
+    ("mario.event", "id", ("mario",)),  # the state (j, k, r, c, d, e): the event id as one number
+    ("mario.counters", True, ("mario",)),
+    ("mario.increments", False, ("mario",)),
 )
+#: how the report names a paper setting whose value alone would not say it
+PAPER_MEANS = {"bc.batch_size": "none (full batch)"}
 
 #: a protocol setting added after runs were logged: a recorded config without it ran with its default
-ABSENT_MEANS = {"ranking.style_margin": RankConfig.model_fields["style_margin"].default}
+ABSENT_MEANS = {"ranking.style_margin": RankConfig.model_fields["style_margin"].default,
+                "bc.init": BCConfig.model_fields["init"].default,
+                **{f"mario.{name}": MarioLoadConfig.model_fields[name].default
+                   for name in ("event", "counters", "increments")}}
 
 # ----------------------------------------------------------------------------- content
 def paper_numbers(domain: str | None) -> dict[str, str]:
@@ -79,7 +90,7 @@ def protocol_differences(cfg: dict) -> list[tuple[str, str, str]]:
         else:
             same = ours == paper
         if not same:
-            out.append((key, plain(ours), plain(paper)))
+            out.append((key, plain(ours), PAPER_MEANS.get(key, plain(paper))))
     return out
 
 
@@ -132,14 +143,28 @@ def length_summary(tables: list[pd.DataFrame]) -> str:
     """PCPG's mean length from the lowest to the highest p and its styles' spread at the highest p,
     from length tables (method, k, p, mean): the rollouts' (rollout_length) or the kept data's
     (subset_length)."""
-    d = pd.concat(tables) if tables else None
-    d = None if d is None else d[d.method == "pcpg"]
+    every = pd.concat(tables) if tables else None
+    d = None if every is None else every[every.method == "pcpg"]
     if d is None or not len(d):
         return "—"
-    pc = d.groupby("p")["mean"].mean()
+
+    def mean_by_p(rows: pd.DataFrame) -> pd.Series:
+        if "n" not in rows:  # rollouts: one figure per agent, each from as many rollouts
+            return rows.groupby("p")["mean"].mean()
+        # kept data: over the kept trajectories, so that at p = 1, where the clusters together keep
+        # what No Clustering keeps, the two figures are equal
+        w = rows["n"].to_numpy(float) * rows["mean"].to_numpy(float)
+        return pd.Series(w, index=rows.index).groupby(rows.p).sum() / rows.groupby("p")["n"].sum()
+
+    pc = mean_by_p(d)
     at_top = d[d.p == d.p.max()]["mean"]
-    return (f"PCPG mean length {pc.iloc[0]:.1f} at p={pc.index[0]:g} to {pc.iloc[-1]:.1f} at "
+    text = (f"PCPG mean length {pc.iloc[0]:.1f} at p={pc.index[0]:g} to {pc.iloc[-1]:.1f} at "
             f"p={pc.index[-1]:g}; styles at p={d.p.max():g} from {at_top.min():.1f} to {at_top.max():.1f}")
+    nc = every[every.method == "nc"]
+    if len(nc):
+        nc_p = mean_by_p(nc)
+        text += f"; No Clustering {nc_p.iloc[0]:.1f} to {nc_p.iloc[-1]:.1f}"
+    return text
 
 
 def kept_lengths(summary: Path, envs: list[str]) -> str:
@@ -168,26 +193,36 @@ def _by_style(summary: Path, env: str, matrix: pd.DataFrame) -> pd.DataFrame | N
     return out
 
 
+def _matrices(summary: Path, envs: list[str], name: str) -> dict[str, pd.DataFrame]:
+    """Each environment's k x k table ``name`` (cross_accuracy, correlation), rows by cluster."""
+    return {env: t[0].set_index(t[0].columns[0]).astype(float)
+            for env in envs if (t := _env_tables(summary, [env], name))}
+
+
+def _row_max(mats: dict[str, pd.DataFrame]) -> str:
+    """In how many rows, over the environments, the diagonal cell is the row's maximum."""
+    rows = sum(int((m.to_numpy().argmax(axis=1) == np.arange(len(m))).sum()) for m in mats.values())
+    return f"the row maximum in {rows} of {sum(len(m) for m in mats.values())} rows"
+
+
 def cross_summary(summary: Path, envs: list[str]) -> str:
     """Table 4 in one line: the cross-accuracy diagonal and off-diagonal range, in style order
     (R1, R2, ...) and averaged over environments where every environment's clusters match its
     styles one to one; otherwise each environment's matrix is in its own cluster order, so only
     per-environment figures are averaged."""
-    mats = {env: t[0].set_index(t[0].columns[0]).astype(float)
-            for env in envs if (t := _env_tables(summary, [env], "cross_accuracy"))}
+    mats = _matrices(summary, envs, "cross_accuracy")
     if not mats:
         return "—"
     aligned = [_by_style(summary, env, m) for env, m in mats.items()]
     if all(a is not None for a in aligned) and len({tuple(a.index) for a in aligned}) == 1:
-        m, note = sum(a.to_numpy() for a in aligned) / len(aligned), ""
+        m = sum(a.to_numpy() for a in aligned) / len(aligned)
+        note = f" (styles R1 to R{len(m)}: clusters matched to styles)"
     elif len(mats) == 1:
         m, note = next(iter(mats.values())).to_numpy(), " (by cluster: not matched to styles one to one)"
     else:
         diag = [float(np.mean(np.diagonal(m.to_numpy()))) for m in mats.values()]
-        rows = sum(int((m.to_numpy().argmax(axis=1) == np.arange(len(m))).sum()) for m in mats.values())
-        return (f"diagonal mean {np.mean(diag):.2f}, the row maximum in {rows} of "
-                f"{sum(len(m) for m in mats.values())} rows (clusters not matched to styles one to one, "
-                f"so not averaged cell by cell)")
+        return (f"diagonal mean {np.mean(diag):.2f}, {_row_max(mats)} (clusters not matched to styles "
+                f"one to one, so not averaged cell by cell)")
     off = [m[i, j] for i in range(m.shape[0]) for j in range(m.shape[1]) if i != j]
     text = "diagonal " + " / ".join(f"{m[i, i]:.2f}" for i in range(min(m.shape)))
     return text + (f"; off-diagonal {min(off):.2f} to {max(off):.2f}" if off else "") + note
@@ -239,7 +274,9 @@ def paper_rows(domain: str, metrics: dict, summary: Path, envs: list[str]) -> li
     corr = metrics.get("correlation/diagonal_mean")
     rows.append(PaperRow("Fig. 7: model vs subset correlation", f"{first}-correlation",
                          said("", "each model correlates most with its own subset"),
-                         "—" if corr is None else f"mean diagonal correlation {corr:.2f}"))
+                         "—" if corr is None else f"mean diagonal correlation {corr:.2f}" + (
+                             f"; the diagonal is {_row_max(c)}" if (c := _matrices(summary, envs, "correlation"))
+                             else "")))
     drawn = any(inside(summary / e / "rollouts.png", summary) for e in envs)
     rows.append(PaperRow("Fig. 8: one rollout per style", f"{first}-rollouts",
                          said("", "one rollout per style drawn on the grid"),

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from collections import deque
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -307,3 +308,37 @@ def test_rollout_respects_masks_and_rejects_invalid_actions():
 
     with pytest.raises(ValueError, match="invalid"):
         rollout("test", into_wall, 2, np.random.default_rng(0))
+
+
+def test_outcome_rollouts_play_the_agents_own_rollout_episodes(tmp_path, monkeypatch):
+    """outcomes.csv and rollouts.csv describe the same agent: its extras' rollouts must use the
+    evaluation's generator for that agent (seeded by its cell key). They used the cluster number,
+    so one agent had two rollout figures (120.33 steps in one table, 120.1 in the other)."""
+    from pcpg_dist.config import load_config
+    from pcpg_dist.dataset import Dataset
+    from pcpg_dist.domains.base import Unit
+    from pcpg_dist.domains.minidungeons import domain as md_domain
+    from pcpg_dist.domains.minidungeons.data import generate_trajectories
+    from pcpg_dist.evaluation import rollout_rng
+
+    cfg = load_config(Path(__file__).resolve().parent.parent / "experiments" / "minidungeons_paper.yaml")
+    data = Dataset.concat([generate_trajectories("holmgard_1", p, 2, seed=p) for p in range(6)], renumber=True)
+    unit = Unit("levels", data, np.arange(data.n_trajectories))
+    seen = {}
+
+    def fake_rollout(cfg_, policy, n, rng):
+        seen[policy] = rng.bit_generator.state
+        return generate_trajectories("holmgard_1", 0, n, seed=0)
+
+    class Trained:  # the agents of every cluster at the top p and first seed
+        keys = [f"k{k}-p1-s{min(cfg.seeds)}" for k in range(cfg.clustering.k)]
+
+        def policy(self, key, greedy):
+            return key
+
+    monkeypatch.setattr(md_domain, "held_out_rollout", fake_rollout)
+    md_domain.MiniDungeonsDomain().extras(cfg, unit, data.styles, Trained(), tmp_path)
+    assert sorted(seen) == sorted(Trained.keys)
+    for key, state in seen.items():
+        assert state == rollout_rng(cfg.evaluation.rollout_seed, key).bit_generator.state, key
+    assert (tmp_path / "outcomes.csv").is_file()

@@ -291,6 +291,27 @@ def test_quick_config_gets_the_banner_and_the_paper_config_does_not():
     assert {k for k, _, _ in paper} == method_differs(paper_cfg)
 
 
+def test_mario_config_lists_every_departure_from_the_paper():
+    """experiments/mario.yaml departs from the paper in its state, its minibatches and its
+    fine-tuning from the No Clustering agent: the report's protocol table named only the
+    clustering method and the network (the audit of the Mario run)."""
+    from pcpg_dist.config import load_config
+    from pcpg_dist.report import protocol_differences
+
+    cfg = load_config(Path(__file__).resolve().parent.parent / "experiments" / "mario.yaml")
+    found = {k: (ours, paper) for k, ours, paper in protocol_differences(cfg.model_dump(mode="json"))}
+    assert found["bc.init"] == ("no_clustering", "scratch")
+    assert found["bc.batch_size"] == ("512", "none (full batch)")
+    assert found["mario.event"] == ("onehot", "id") and found["mario.increments"] == ("True", "False")
+    assert "mario.counters" not in found  # the paper's counters are kept
+    assert {"clustering.method", "bc.hidden_layers", "bc.hidden_size", "bc.epochs"} <= set(found)
+    # a run recorded before these settings existed ran with their defaults
+    old = cfg.model_dump(mode="json")
+    del old["bc"]["init"], old["mario"]["increments"]
+    found = {k for k, _, _ in protocol_differences(old)}
+    assert "bc.init" not in found and "mario.increments" not in found
+
+
 def test_a_domain_without_rollouts_or_labels_renders(summary, tmp_path):
     """Mario-like: no rollouts, no corruption study, no true styles; every paper row still says
     what is missing, and the page stays valid."""
@@ -321,11 +342,19 @@ def test_kept_length_line_comes_from_the_data_and_table3_says_why_it_is_absent(s
     reward-distance hooks (it said "no rollouts" beside rollouts)."""
 
     def lengths(path: Path) -> str:
-        d = pd.read_csv(path)
-        d = d[d.method == "pcpg"]
-        pc, top = d.groupby("p")["mean"].mean(), d[d.p == d.p.max()]["mean"]
-        return (f"PCPG mean length {pc.iloc[0]:.1f} at p={pc.index[0]:g} to {pc.iloc[-1]:.1f} at "
-                f"p={pc.index[-1]:g}; styles at p={d.p.max():g} from {top.min():.1f} to {top.max():.1f}")
+        every = pd.read_csv(path)
+
+        def by_p(d):  # kept data (with n): over the kept trajectories; rollouts: over the agents
+            if "n" not in d:
+                return d.groupby("p")["mean"].mean()
+            return {p: float(np.average(g["mean"], weights=g["n"])) for p, g in d.groupby("p")}
+
+        d = every[every.method == "pcpg"]
+        pc, nc, top = by_p(d), by_p(every[every.method == "nc"]), d[d.p == d.p.max()]["mean"]
+        ps = sorted(pc.keys())
+        return (f"PCPG mean length {pc[ps[0]]:.1f} at p={ps[0]:g} to {pc[ps[-1]]:.1f} at "
+                f"p={ps[-1]:g}; styles at p={d.p.max():g} from {top.min():.1f} to {top.max():.1f}; "
+                f"No Clustering {nc[ps[0]]:.1f} to {nc[ps[-1]]:.1f}")
 
     def lines(folder: Path) -> tuple[dict[str, str], dict[str, str]]:
         model = build(folder)
@@ -334,6 +363,8 @@ def test_kept_length_line_comes_from_the_data_and_table3_says_why_it_is_absent(s
 
     kept, rolled = lengths(summary / "E1" / "subset_length.csv"), lengths(summary / "E1" / "rollout_length.csv")
     assert kept != rolled
+    # at p = 1 the clusters together keep what No Clustering keeps: one figure for both
+    assert kept.split(" to ")[1].split(" at p=1")[0] == kept.rsplit(" to ", 1)[1]
     sections, _ = lines(summary)
     assert sections["E1-subset_length"] == kept and sections["E1-rollout_length"] == rolled
     md = render(summary, tmp_path / "with")[1].read_text()
@@ -606,11 +637,31 @@ def test_each_environment_section_shows_its_own_figures_and_table4_is_in_style_o
     e1 = cross_summary(folder, ["E1"])
     assert e1.startswith("diagonal 0.96 / 0.92 / 0.92 / 0.92; off-diagonal 0.06 to 0.76")
     assert cross_summary(folder, ["E2"]) == e1 == cross_summary(folder, ["E1", "E2"])
+    assert e1.endswith("(styles R1 to R4: clusters matched to styles)")  # says which order it is in
     assert lines["E2-cross"] == e1
     # without a one-to-one match the matrices are not averaged cell by cell
     pd.DataFrame({"k": range(4), "style": [0, 0, 1, 2]}).to_csv(folder / "E2" / "cluster_style.csv", index=False)
     assert cross_summary(folder, ["E2"]).endswith("(by cluster: not matched to styles one to one)")
     assert cross_summary(folder, ["E1", "E2"]).startswith("diagonal mean 0.93, the row maximum in 8 of 8 rows")
+
+
+def test_fig7_line_counts_the_rows_where_a_model_correlates_most_with_its_own_subset(summary, tmp_path):
+    """The paper's claim is per row; the line gave only the mean diagonal beside it, which held
+    where one model correlated more with another cluster's subset than with its own."""
+    from pcpg_dist.paper_comparison import paper_rows
+
+    folder = copy_summary(tmp_path)
+    path = folder / "E1" / "correlation.csv"
+    corr = pd.read_csv(path, index_col=0)
+    assert (corr.to_numpy().argmax(axis=1) == np.arange(4)).all()
+    fig7 = "Fig. 7: model vs subset correlation"
+    metrics = json.loads((folder / "metrics.json").read_text())
+    row = {r.item: r.ours for r in paper_rows("gridworld", metrics, folder, ["E1"])}[fig7]
+    assert row.endswith("; the diagonal is the row maximum in 4 of 4 rows")
+    corr.iloc[1, 3] = corr.iloc[1, 1] + 0.1  # model k1 now correlates most with k3's subset
+    corr.to_csv(path)
+    row = {r.item: r.ours for r in paper_rows("gridworld", metrics, folder, ["E1"])}[fig7]
+    assert row.startswith("mean diagonal correlation ") and row.endswith("the row maximum in 3 of 4 rows")
 
 
 def test_table3_keeps_each_style_in_its_column_and_table5_spreads_within_an_environment(summary, tmp_path):

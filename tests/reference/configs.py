@@ -8,6 +8,9 @@ and say so in the commit.
 Intended changes since: 2026-11-25, ``subset/length/*`` counts steps (one less than the states
 it counted) and ``reward_distance/style<s>`` pools every cluster of majority style s (it was the
 last such cluster's); only those 72 values were replaced, each checked to be exactly that change.
+The same day MiniDungeons' ``outcome/*`` (the extras' rollouts of each cluster's agent) play the
+episodes of the agent's own rollouts (the evaluation's generator, seeded by its cell key, not by
+the cluster number): the 20 of those 84 values that moved were replaced, nothing else.
 """
 
 from __future__ import annotations

@@ -75,7 +75,7 @@ class MiniDungeonsDomain(Domain):
         import pandas as pd
 
         from pcpg_dist.domains.minidungeons import PROXY_NAMES, outcome_stats
-        from pcpg_dist.evaluation import style_of_clusters
+        from pcpg_dist.evaluation import rollout_rng, style_of_clusters
 
         dataset, test_idx = unit.dataset, unit.test_idx
         style = style_of_clusters(dataset, labels, cfg.clustering.k)
@@ -86,9 +86,9 @@ class MiniDungeonsDomain(Domain):
             key = f"k{k}-p{p:g}-s{seed}"
             if key not in trained.keys:
                 continue
-            rng = np.random.default_rng([cfg.evaluation.rollout_seed, k])
             roll = held_out_rollout(cfg, trained.policy(key, greedy=cfg.evaluation.greedy),
-                                    cfg.evaluation.rollouts_per_policy, rng)
+                                    cfg.evaluation.rollouts_per_policy,
+                                    rollout_rng(cfg.evaluation.rollout_seed, key))  # rollouts.csv's episodes
             agent = outcome_stats(roll).mean(numeric_only=True)
             own = proxies[proxies["style"] == style[k]].mean(numeric_only=True)
             for stat in agent.index.drop(["trajectory", "style"], errors="ignore"):
