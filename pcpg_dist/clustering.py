@@ -426,7 +426,7 @@ def cluster(dataset, cfg: ClusterConfig, seed: int) -> Clustering:
     if n < cfg.k:
         raise DataError(
             f"clustering: {n} trajectories in {dataset.domain}-{dataset.env}, "
-            f"fewer than k={cfg.k} clusters"
+            f"fewer than k={cfg.k} clusters: set clustering.k to at most {n}"
         )
     metrics: dict[str, float] = {}
     if cfg.method == "greedy_mix" and _mostly_distinct_states(states):

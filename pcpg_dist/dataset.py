@@ -222,12 +222,23 @@ class Dataset:
         ``valid`` (T+1, n_actions) bool (or, for up to 63 actions, (T+1,) integer bitmasks) and
         ``rewards`` (T,)."""
         states, actions, valid, rewards, lengths = [], [], [], [], []
-        for tr in trajectories:
+        for i, tr in enumerate(trajectories):
             s = np.asarray(tr["states"], np.float32)
+            a, r = np.asarray(tr["actions"], np.int64), np.asarray(tr["rewards"], np.float64)
+            where = f"dataset {domain}-{env}, trajectory {i}"
+            if s.ndim != 2 or a.ndim != 1 or len(s) != len(a) + 1:
+                raise DataError(f"{where}: states of shape {s.shape} and actions of shape {a.shape}; a "
+                                f"trajectory of T actions has states of shape (T + 1, d), the last after "
+                                f"the last action")
+            if r.shape != a.shape:
+                raise DataError(f"{where}: rewards of shape {r.shape}, expected {a.shape} (one per action)")
+            try:
+                valid.append(_mask_rows(tr["valid"], len(s), n_actions))
+            except DataError as e:
+                raise DataError(f"{where}: {e}") from None
             states.append(s)
-            actions.append(np.r_[np.asarray(tr["actions"], np.int64), -1])
-            valid.append(_mask_rows(tr["valid"], len(s), n_actions))
-            rewards.append(np.r_[np.asarray(tr["rewards"], np.float64), 0.0])
+            actions.append(np.r_[a, -1])
+            rewards.append(np.r_[r, 0.0])
             lengths.append(len(s))
         n = len(trajectories)
         d = states[0].shape[1] if states else 0
@@ -346,7 +357,7 @@ def _mask_rows(valid: np.ndarray, rows: int, n_actions: int) -> np.ndarray:
                             f"(rows, n_actions) bool mask")
         v = (v[:, None].astype(np.int64) >> np.arange(n_actions)) & 1
     if v.shape != (rows, n_actions):
-        raise DataError(f"valid must have shape ({rows}, {n_actions}), got {v.shape}")
+        raise DataError(f"valid must have shape ({rows}, {n_actions}) (one mask per state), got {v.shape}")
     return v.astype(bool)
 
 

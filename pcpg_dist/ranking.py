@@ -114,7 +114,8 @@ def score_dataset(dataset: Dataset, cfg: RankConfig, score: ScoreFn | None = Non
     """Scores from a domain's own ``score`` callable, or Performance (Eq. 3) by default."""
     values = performance(dataset, cfg.beta) if score is None else np.asarray(score(dataset), float)
     if values.shape != (dataset.n_trajectories,):
-        raise DataError(f"score function returned shape {values.shape}, expected "
+        raise DataError(f"domain {dataset.domain!r}: its score function returned shape {values.shape} for "
+                        f"{dataset.env}; it must return one number per trajectory, shape "
                         f"({dataset.n_trajectories},)")
     if not np.isfinite(values).all():
         bad = np.flatnonzero(~np.isfinite(values))

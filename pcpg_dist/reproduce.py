@@ -52,10 +52,11 @@ class Reproduction:
     rtol: float
     atol: float
     notes: list[str] = field(default_factory=list)
+    input_changed: bool = False  # the data the config reads is not what the logged run read
 
     @property
     def ok(self) -> bool:
-        return all(c.matches for c in self.comparisons)
+        return not self.input_changed and all(c.matches for c in self.comparisons)
 
 
 def _is_result(name: str) -> bool:
@@ -137,6 +138,22 @@ def code_notes(run: dict, cfg) -> list[str]:
     return notes
 
 
+def input_note(run: dict, cfg) -> str | None:
+    """Why the rerun does not read the logged run's data, or None when it does (or the run
+    predates the record): a log file edited since, a generator's data of another key."""
+    from pcpg_dist.runner import input_key
+
+    logged = run.get("input_key")
+    if logged is None:
+        return None
+    now = input_key(cfg)
+    if logged == now:
+        return None
+    return (f"input data changed: the logged run read data of key {logged}, the files and settings "
+            f"named by its config give {now} today (a log file edited or replaced since?); the "
+            "metrics below compare runs on different data")
+
+
 def reproduce(summary: Path, workdir: Path | None = None, rtol: float = RTOL, atol: float = ATOL,
               show_progress: bool = False, source: str | None = None) -> Reproduction:
     """Rerun the run recorded in ``summary`` (Ray initialised by the caller) and compare;
@@ -147,11 +164,13 @@ def reproduce(summary: Path, workdir: Path | None = None, rtol: float = RTOL, at
     run = read_run(summary / "run.json")
     logged = read_metrics(summary / "metrics.json")
     cfg = recorded_config(run, summary / "run.json")
-    notes = code_notes(run, cfg)
+    changed = input_note(run, cfg)
+    notes = code_notes(run, cfg) + ([changed] if changed else [])
     out = _fresh(workdir, cfg.name)
     result = run_experiment(cfg, workdir=out, track=False, show_progress=show_progress,
                             command=f"pcpg reproduce {source or summary}")
-    return Reproduction(compare_metrics(logged, result.metrics, rtol, atol), result.out_dir, rtol, atol, notes)
+    return Reproduction(compare_metrics(logged, result.metrics, rtol, atol), result.out_dir, rtol, atol, notes,
+                        input_changed=changed is not None)
 
 
 def _shown(v: float | None) -> str:
@@ -170,7 +189,7 @@ def print_reproduction(rep: Reproduction, file: TextIO | None = None) -> None:
             line += f"  (diff {c.new - c.logged:+.3g})"
         print(line, file=file)
     counts = {s: sum(c.status == s for c in rep.comparisons) for s in ("exact", "within", "differs", "missing", "extra")}
-    verdict = "REPRODUCED" if rep.ok else "NOT REPRODUCED"
+    verdict = "REPRODUCED" if rep.ok else "NOT REPRODUCED" + (" (input data changed)" if rep.input_changed else "")
     print(f"{verdict}: {len(rep.comparisons)} metrics, {counts['exact']} exact, {counts['within']} within "
           f"tolerance (|new - logged| <= {rep.atol:g} + {rep.rtol:g} * |logged|), {counts['differs']} differ, "
           f"{counts['missing']} missing, {counts['extra']} new; outputs in {rep.out_dir}", file=file)

@@ -83,6 +83,13 @@ class Point:
 
 
 # --------------------------------------------------------------------------- data
+def input_key(cfg: ExperimentConfig) -> str:
+    """What the data stage reads, as the domain keys it (a log file's content digest, a
+    generator's seeds), without pcpg's code version: ``pcpg reproduce`` compares it to tell
+    "the inputs changed" apart from "the code changed"."""
+    return content_key(*contract.data_key(cfg))
+
+
 def data_key(cfg: ExperimentConfig) -> str:
     """Content key of the data: what the domain says identifies it (settings, file contents, seed)."""
     return content_key(CODE_VERSION, *contract.data_key(cfg))
@@ -462,7 +469,7 @@ def _finish_point(p: Point, cache: Cache, clusters: dict, times: dict[str, float
                 "command": p.command or f"pcpg run <config of {cfg.name}>", "overrides": p.params,
                 "provenance": provenance(), "stage_seconds": times, "cached_stages": cached,
                 "parent_run_id": result.parent_run_id, "computed": computed, "code_version": CODE_VERSION,
-                "batch_points": batch}
+                "input_key": input_key(cfg), "batch_points": batch}
     atomic_write_bytes(staging / "summary" / "run.json", json.dumps(run_info, indent=1, default=str).encode())
     _swap_in(out, staging, ("agents", "summary"))
     render(out / "summary", staging / "report")

@@ -242,3 +242,21 @@ def test_a_write_that_cannot_happen_names_the_target_not_a_temporary_file(tmp_pa
         atomic_write_bytes(tmp_path / "file" / "below.csv", b"x")  # a folder that is a file
     assert e.value.filename == str(tmp_path / "file" / "below.csv")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "out"]
+
+
+@pytest.mark.parametrize("trajectory, says", [
+    ({"states": np.zeros((3, 2)), "actions": [0, 1, 2], "valid": np.ones((4, 4), bool), "rewards": [0, 0, 0]},
+     "dataset toy-E, trajectory 1: states of shape (3, 2) and actions of shape (3,); a trajectory of T "
+     "actions has states of shape (T + 1, d), the last after the last action"),
+    ({"states": np.zeros((4, 2)), "actions": [0, 1, 2], "valid": np.ones((3, 4), bool), "rewards": [0, 0, 0]},
+     "dataset toy-E, trajectory 1: valid must have shape (4, 4) (one mask per state), got (3, 4)"),
+    ({"states": np.zeros((4, 2)), "actions": [0, 1, 2], "valid": np.ones((4, 4), bool), "rewards": [0, 0]},
+     "dataset toy-E, trajectory 1: rewards of shape (2,), expected (3,) (one per action)"),
+])
+def test_a_trajectory_of_wrong_shapes_is_named_with_what_is_wrong(trajectory, says):
+    """A plugin whose states were one row short was told "valid must have shape (9, 3), got (10, 3)":
+    the wrong array unnamed, the right one blamed, no dataset or trajectory."""
+    good = {"states": np.zeros((3, 2)), "actions": [0, 1], "valid": np.ones((3, 4), bool), "rewards": [0, 1]}
+    with pytest.raises(DataError) as e:
+        Dataset.from_trajectories("toy", "E", 4, [good, trajectory], styles=[0, 1], success=[True, True])
+    assert str(e.value) == says

@@ -249,7 +249,8 @@ BEFORE_CLUSTERING = {
     "score-not-callable": ({"score": lambda self, cfg: np.ones(180)},
                            "score returned a ndarray; it must return None or a function"),
     "score-wrong-shape": ({"score": lambda self, cfg: lambda ds: np.ones(3)},
-                          "score function returned shape (3,), expected (180,)"),
+                          "its score function returned shape (3,) for L12; it must return one number per "
+                          "trajectory, shape (180,)"),
     "score-strings": ({"score": lambda self, cfg: lambda ds: ["high"] * ds.n_trajectories},
                       "score's function returned a list that does not convert to floats"),
     "hooks-raises": ({"hooks": raising(FileNotFoundError(2, "No such file", "levels/L12.txt"))},
@@ -274,7 +275,7 @@ def test_broken_plugin_fails_in_one_line_before_clustering(corridor_site, ray_se
     work = tmp_path / "w"
     code, err = run_cli(capsys, "run", str(write_config(tmp_path)), "--no-tracking", "--workdir", str(work))
     assert (code, len(err)) == (2, 1), err
-    who = "" if fault == "score-wrong-shape" else "domain 'corridor': "  # pcpg's own DataError, as before
+    who = "domain 'corridor': "  # every fault names the domain (the score's shape did not)
     assert err[0].startswith(f"pcpg: error: {who}") and says in err[0], err[0]
     assert stages == []  # failed before Step A: no task of any stage was submitted
     assert not (work / "corridor-e2e" / "cache" / "cluster").exists()
@@ -391,3 +392,16 @@ def test_a_plugin_check_config_raising_anything_is_one_line(corridor_site, capsy
     assert "domain 'corridor': check_config raised PermissionError: [Errno 13] Permission denied: " \
            "'/srv/levels'" in err[0], err[0]
     assert not (tmp_path / "w").exists()
+
+
+def test_an_entry_point_that_is_not_a_domain_says_so(monkeypatch):
+    """An entry point naming a plain class failed later with 'check_config raised AttributeError'."""
+    from pcpg_dist.errors import ConfigError
+
+    monkeypatch.setitem(registry.BUILTIN, "notdomain", "collections:OrderedDict")
+    with pytest.raises(ConfigError) as e:
+        registry.get("notdomain")
+    assert str(e.value) == ("domain 'notdomain': collections:OrderedDict is <class 'collections.OrderedDict'>, "
+                            "not a pcpg_dist.domains.base.Domain (subclass of it, or an instance); "
+                            "docs/writing-a-domain.md shows one")
+    assert "notdomain" not in registry._loaded

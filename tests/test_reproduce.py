@@ -52,6 +52,8 @@ def test_reproduce_matches_every_metric(logged_run, tmp_path, capsys):
     redone = json.loads((fresh / "repro" / "summary" / "run.json").read_text())
     assert {"clustering", "train_groups", "evaluations"} <= set(redone["computed"])
     assert all(n >= 1 for n in redone["computed"].values())  # everything computed again
+    logged_run_info = json.loads((logged_run / "summary" / "run.json").read_text())
+    assert redone["input_key"] == logged_run_info["input_key"]  # the same data, and it was checked
 
 
 def test_compare_metrics_statuses_and_tolerance():
@@ -123,3 +125,32 @@ def test_reproduce_of_a_mistyped_run_creates_no_mlflow_store(tmp_path, monkeypat
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "'nosuchrun' is neither a run's output folder nor an MLflow run" in err[0]
     assert list(tmp_path.iterdir()) == []
+
+
+def test_an_edited_log_is_not_reproduced_even_where_the_metrics_match(tmp_path, capsys):
+    """The probe edited one reward of a run's log and `pcpg reproduce` said REPRODUCED (252 of 252
+    exact): the change did not move a metric, but the rerun read other data than the run."""
+    import pandas as pd
+
+    from pcpg_dist.reproduce import input_note
+    from pcpg_dist.runner import input_key
+
+    log = tmp_path / "logs.parquet"
+    table = pd.DataFrame({"trajectory": [0, 0, 1, 1], "t": [0, 1, 0, 1], "s0": [0.0, 1.0, 0.0, 2.0],
+                          "action": [1, 0, 2, 0], "reward": [0.0, 1.0, 0.0, 1.0]})
+    table.to_parquet(log, index=False)
+    cfg = parse_config({"name": "own", "domain": "trajectories", "trajectories": {"path": str(log), "score": "return"},
+                        "clustering": {"k": 2}}, source="own")
+    run = {"input_key": input_key(cfg)}
+    assert input_note(run, cfg) is None  # the same file: nothing to say
+    assert input_note({}, cfg) is None  # a run logged before the key was recorded: not checked
+    table.loc[1, "reward"] = 5.0
+    table.to_parquet(log, index=False)
+    note = input_note(run, cfg)
+    assert note.startswith(f"input data changed: the logged run read data of key {run['input_key']}")
+    rep = Reproduction(compare_metrics({"x": 1.0}, {"x": 1.0}), tmp_path, 1e-6, 1e-9, [note], input_changed=True)
+    assert not rep.ok
+    print_reproduction(rep)
+    out = capsys.readouterr().out.splitlines()
+    assert out[0] == f"note: {note}" and out[1].split()[:2] == ["exact", "x"]
+    assert out[-1].startswith("NOT REPRODUCED (input data changed): 1 metrics, 1 exact")

@@ -55,6 +55,13 @@ def test_unknown_key_names_the_closest_valid_key(item, closest):
         load_config_with(QUICK, [item])
 
 
+def test_a_section_unlike_any_gets_no_unrelated_suggestion():
+    """`corridor.length=12` (another domain's section) was answered "did you mean 'mario.event'?"."""
+    with pytest.raises(ConfigError) as e:
+        load_config_with(QUICK, ["corridor.length=12"])
+    assert str(e.value) == "unknown config key 'corridor.length'; `pcpg run --help` shows the sections"
+
+
 def test_unknown_key_on_the_command_line_is_one_line_exit_2(capsys):
     assert main(["run", str(QUICK), "--no-tracking", "bc.epitchs=3"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
