@@ -42,6 +42,18 @@ def has_styles(unit: Unit) -> bool:
     return bool(len(unit.dataset.styles)) and bool((unit.dataset.styles >= 0).all())
 
 
+def partial_styles_note(unit: Unit) -> str | None:
+    """What a unit whose styles are known for some trajectories only loses (None otherwise):
+    style scoring needs every trajectory labelled, so it is left out, which would pass unnoticed."""
+    styles = unit.dataset.styles
+    unknown = int((styles < 0).sum())
+    if not unknown or unknown == len(styles):
+        return None
+    return (f"{unit.name}: {unknown} of {len(styles)} trajectories have style -1 (unknown): the scores "
+            f"against the true styles (clustering accuracy, ARI, NMI, the supervised ceiling, the "
+            f"corruption study) need every trajectory labelled and are left out")
+
+
 def cluster_unit(unit: Unit, cluster_cfg, seed: int, ceiling: bool = True) -> UnitClustering:
     """Step A on what the domain says to cluster; scored against true styles when they exist
     (and, with ``ceiling``, against what a classifier given those styles reaches)."""

@@ -21,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import json
+import logging
 import shutil
 import tempfile
 import time
@@ -111,8 +112,14 @@ def load_or_generate(cfg: ExperimentConfig, cache: Cache, show_progress: bool) -
 
 def load_units(cfg: ExperimentConfig, cache: Cache, show_progress: bool) -> tuple[list[Unit], str]:
     """The config's evaluation units (data generated or loaded once, then cached) and the data key."""
+    from pcpg_dist.pipeline import partial_styles_note
+
     files, key = load_or_generate(cfg, cache, show_progress)
-    return contract.units(cfg, files), key
+    units = contract.units(cfg, files)
+    for unit in units:
+        if note := partial_styles_note(unit):
+            logging.getLogger(__name__).warning("%s", note)
+    return units, key
 
 
 # --------------------------------------------------------------------------- Ray tasks
