@@ -114,6 +114,17 @@ def test_rerun_recomputes_nothing_and_duplicates_nothing(first_run, tiny_cfg):
 
 
 @pytest.mark.slow
+def test_ranking_shows_a_bar_of_its_own(first_run, tiny_cfg, capfd):
+    """Step B (ranking, cutting units into cells) runs in the driver: on 40,000 trajectories ~15 s
+    passed under a finished Step A bar before Step C's appeared. It has its own bar now."""
+    work, _, result = first_run
+    again = run_experiment(tiny_cfg, workdir=work / "runs", track=False, show_progress=True)
+    err = capfd.readouterr().err
+    assert "Step B: ranking" in err and again.metrics == result.metrics
+    assert "Step A" not in err  # a stage with nothing to compute shows no bar
+
+
+@pytest.mark.slow
 def test_interrupted_sweep_resumes_with_same_metrics(first_run, tiny_cfg, monkeypatch):
     """Kill the sweep inside evaluation (after training finished); the rerun resumes from there."""
     from mlflow import MlflowClient
