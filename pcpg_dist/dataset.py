@@ -134,7 +134,10 @@ class Dataset:
     @property
     def returns(self) -> np.ndarray:
         """Undiscounted return (sum of rewards) of each trajectory."""
-        return np.add.reduceat(self.rewards, self.offsets[:-1]) if self.n_rows else np.zeros(0)
+        if not self.n_rows:
+            return np.zeros(0)
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is inf, which Step B reports
+            return np.add.reduceat(self.rewards, self.offsets[:-1])
 
     @property
     def row_trajectory(self) -> np.ndarray:
@@ -284,7 +287,9 @@ class Dataset:
     def from_table(table: pa.Table, source: str = "<table>") -> Dataset:
         meta_raw = (table.schema.metadata or {}).get(b"pcpg")
         if meta_raw is None:
-            raise DataError(f"{source}: not a pcpg dataset (no 'pcpg' schema metadata)")
+            raise DataError(f"{source}: not a pcpg dataset (no 'pcpg' schema metadata); a step table of your own "
+                            f"logs becomes pcpg datasets with `pcpg generate CONFIG --out DIR` (domain: "
+                            f"trajectories, docs/bring-your-own-data.md)")
         try:
             meta = json.loads(meta_raw)
             domain, env, n_actions = meta["domain"], meta["env"], int(meta["n_actions"])
@@ -402,8 +407,10 @@ def bool_lists(column: pa.ChunkedArray | pa.Array, n_actions: int, source: str) 
         raise DataError(f"{source}: column 'valid', row {row}: {int(sizes[row])} entries, expected "
                         f"{n_actions} (one per action)")
     values = arr.flatten()
-    if values.null_count:
-        raise DataError(f"{source}: column 'valid' has null entries inside its lists")
+    if values.null_count:  # every list has n_actions entries (checked above): entry i is in row i // n_actions
+        row = int(np.flatnonzero(values.is_null().to_numpy(zero_copy_only=False))[0]) // n_actions
+        raise DataError(f"{source}: column 'valid', row {row}: a null entry in the list; every entry must be "
+                        f"true or false")
     return values.to_numpy(zero_copy_only=False).astype(bool).reshape(rows, n_actions)
 
 
@@ -493,7 +500,26 @@ def write_parquet(dataset: Dataset, path: Path) -> str:
 DECODE_COPIES = 4  # Arrow table, NumPy columns, sorted copies, the Dataset: peak while loading
 
 
-def check_parquet_memory(files: Sequence[Path], source: str) -> None:
+#: what pcpg reads where it reads its own datasets (for the message on a file that is not Parquet)
+DATASET_READS = ("this reads pcpg datasets, which `pcpg generate CONFIG --out DIR` writes from a Parquet step "
+                 "table of your own logs (domain: trajectories, docs/bring-your-own-data.md)")
+#: how pandas reads a text table, by the file's suffix
+TEXT_READERS = {".csv": "pandas.read_csv(path)", ".tsv": "pandas.read_csv(path, sep='\\t')",
+                ".json": "pandas.read_json(path)", ".jsonl": "pandas.read_json(path, lines=True)",
+                ".ndjson": "pandas.read_json(path, lines=True)"}
+
+
+def unreadable_parquet(path: Path, error: Exception, reads: str = DATASET_READS) -> DataError:
+    """One line for a file Arrow cannot read as Parquet: a CSV or JSON file (by its suffix) is told
+    what ``reads`` and how to convert it; any other file gets Arrow's reason."""
+    reader = TEXT_READERS.get(Path(path).suffix.lower())
+    if reader is None:
+        return DataError(f"{path}: not a readable Parquet file ({first_line(error)})")
+    return DataError(f"{path}: not a Parquet file: {reads}; a {Path(path).suffix.lower()[1:].upper()} file "
+                     f"converts to Parquet with {reader}.to_parquet(...)")
+
+
+def check_parquet_memory(files: Sequence[Path], source: str, reads: str = DATASET_READS) -> None:
     """Refuse Parquet input whose decoded size, read from the file footers before any data, would
     not fit in half this machine's memory (a 'small' file can hold a huge, well-compressed table)."""
     from pcpg_dist.config.stages import gib, machine_memory
@@ -503,7 +529,7 @@ def check_parquet_memory(files: Sequence[Path], source: str) -> None:
         try:
             meta = pq.read_metadata(f)
         except (pa.ArrowException, OSError) as e:
-            raise DataError(f"{f}: not a readable Parquet file ({first_line(e)})") from None
+            raise unreadable_parquet(f, e, reads) from None
         raw = sum(meta.row_group(i).total_byte_size for i in range(meta.num_row_groups))
         need += max(raw, meta.num_rows * max(meta.num_columns, 1) * 8) * DECODE_COPIES
         rows += meta.num_rows
@@ -523,7 +549,7 @@ def read_parquet(path: Path, expected_sha256: str | None = None) -> Dataset:
     try:
         table = pq.read_table(path)
     except (pa.ArrowException, OSError) as e:
-        raise DataError(f"{path}: not a readable Parquet file ({first_line(e)})") from None
+        raise unreadable_parquet(path, e) from None
     return Dataset.from_table(table, source=str(path))
 
 

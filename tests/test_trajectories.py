@@ -134,8 +134,9 @@ BAD = {
     "action out of range": (lambda df: df.assign(action=df.action.where(df.index != 2, 7)), None),
     "negative mid action": (lambda df: df.assign(action=df.action.where(df.index != 1, -5)),
                             "column 'action', row 1: action -5 is not allowed"),
-    "t not increasing": (lambda df: df.assign(t=df.t.where(df.index != 2, 0)),
-                         "column 't', row 2: t = 0 does not increase"),
+    "t repeated": (lambda df: df.assign(t=df.t.where(df.index != 2, 0)),
+                   "column 't', rows 0 and 2: trajectory 0 has two rows with t = 0; each step of a trajectory "
+                   "needs its own t"),
     "NaN state": (lambda df: df.assign(s1=df.s1.where(df.index != 4, np.nan)), "column 's1', row 4: is empty"),
     "infinite state": (lambda df: df.assign(s1=df.s1.where(df.index != 4, np.inf)),
                        "column 's1', row 4: inf is not a finite 32-bit float"),

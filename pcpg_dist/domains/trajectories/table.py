@@ -2,9 +2,10 @@
 
 The contract (docs/bring-your-own-data.md), one row per step:
 
-- required: ``trajectory`` (integer or string id), ``t`` (integer, strictly increasing within a
-  trajectory), ``action`` (integer 0..n-1; -1 only on a trajectory's last row, the state after its
-  last action) and the state as numeric columns ``s0 .. s{d-1}``;
+- required: ``trajectory`` (integer, string or bytes id), ``t`` (integer, distinct within a
+  trajectory: its rows are ordered by ``t``, in any order in the file), ``action`` (integer 0..n-1;
+  -1 only on a trajectory's last row, the state after its last action) and the state as numeric
+  columns ``s0 .. s{d-1}``; integer columns may be floats holding whole numbers;
 - optional: ``reward`` (float, received for the row's action), ``valid`` (a list of n booleans),
   ``env`` (one evaluation unit per value), ``style`` (ground truth, evaluation only), ``success``
   (bool), and any numeric per-trajectory column (constant within a trajectory) to rank by.
@@ -34,6 +35,7 @@ from pcpg_dist.dataset import (
     bool_lists,
     check_action_memory,
     check_parquet_memory,
+    unreadable_parquet,
 )
 from pcpg_dist.errors import DataError, first_line
 
@@ -44,6 +46,7 @@ STATE = re.compile(r"s(0|[1-9][0-9]*)")  # s0, s1, ...; "s01" is not s1; ASCII d
 STATE_LIKE = re.compile(r"s\d+")  # any Unicode digits: refused below unless STATE, never read as another
 MAX_FILES = 10_000
 MAX_ENVS = 10_000  # each env is an evaluation unit with its own clustering and models
+READS = "trajectories.path reads Parquet (a file or a folder of them) or minari:DATASET_ID"
 
 
 @dataclass(frozen=True)
@@ -109,7 +112,7 @@ def parquet_files(path: Path) -> list[Path]:
 
 
 def _unreadable(f: Path, e: Exception) -> DataError:
-    return DataError(f"{f}: not a readable Parquet file ({first_line(e)})")
+    return unreadable_parquet(f, e, READS)
 
 
 def _check_same_columns(first: Path, schema: pa.Schema, f: Path, other: pa.Schema) -> None:
@@ -135,7 +138,7 @@ def read_step_table(path: str | Path) -> StepTable:
     """Read a Parquet file or a folder of them (each file's columns must be the first file's)."""
     path = Path(path)
     files = parquet_files(path)
-    check_parquet_memory(files, str(path))
+    check_parquet_memory(files, str(path), READS)
     schemas = []
     for f in files:  # footers only: a file that differs is named before any data is read
         try:
@@ -339,6 +342,10 @@ def datasets_from_table(step: StepTable, n_actions: int | None = None,
         code, ids = _codes(traj_col)
         rank = np.argsort(np.argsort(np.asarray(ids, dtype=object)))
         traj_raw = rank[code].astype(np.int64)  # ids numbered in sorted order
+
+    def traj_name(row: int) -> str:
+        return reprlib.repr(int(traj_raw[row]) if _is_integral(traj_col.type) else traj_col[row].as_py())
+
     if "env" in names:
         env_col = table.column("env")
         if env_col.null_count:
@@ -363,26 +370,29 @@ def datasets_from_table(step: StepTable, n_actions: int | None = None,
 
     t = _integers(table.column("t"), "t", where)
     actions = _integers(table.column("action"), "action", where)
-    # group rows by (env, trajectory), keeping file order inside a trajectory
-    order = np.lexsort((np.arange(rows), traj_raw, env_code))
+    # group rows by (env, trajectory) and order them by t (rows of one t: file order, named below)
+    order = np.lexsort((np.arange(rows), t, traj_raw, env_code))
     key_env, key_traj = env_code[order], traj_raw[order]
     new = np.r_[True, (np.diff(key_traj) != 0) | (np.diff(key_env) != 0)]
     starts = np.flatnonzero(new)
     ends = np.r_[starts[1:], rows]
     t_sorted = t[order]
-    step_ok = np.r_[True, np.diff(t_sorted) > 0] | new
-    if not step_ok.all():
-        at = int(np.flatnonzero(~step_ok)[0])
-        row, previous = int(order[at]), int(order[at - 1])  # the same trajectory's step before it
-        traj = traj_col[row].as_py() if not _is_integral(traj_col.type) else int(traj_raw[row])
-        file, prev_file = where.locate(row)[0], where.locate(previous)[0]
+    repeated = np.r_[False, np.diff(t_sorted) == 0] & ~new
+    if repeated.any():
+        at = int(np.flatnonzero(repeated)[0])
+        row, previous = int(order[at]), int(order[at - 1])  # two rows of one trajectory and t, in file order
+        (file, i), (prev_file, j) = where.locate(row), where.locate(previous)
         if file != prev_file:  # daily files whose ids restart at 0: not a t problem
-            raise DataError(f"{file}: trajectory {reprlib.repr(traj)} appears both in {prev_file} and in this "
-                            f"file (its t restarts at {t[row]} here after {t[previous]} there); trajectory ids "
+            g = np.searchsorted(starts, at, side="right") - 1
+            group = order[starts[g]:ends[g]]  # the trajectory's rows, in t order
+            here = min(t[r] for r in group if where.locate(r)[0] == file)
+            there = max(t[r] for r in group if where.locate(r)[0] == prev_file)
+            raise DataError(f"{file}: trajectory {traj_name(row)} appears both in {prev_file} and in this "
+                            f"file (its t restarts at {here} here after {there} there); trajectory ids "
                             f"must be unique across a folder's files: give each file's trajectories distinct "
                             f"ids (e.g. prefixed by the file's name)")
-        raise _fail(where, "t", row, f"t = {t[row]} does not increase within trajectory {reprlib.repr(traj)} "
-                                      f"(each step's t must be larger than the previous step's)")
+        raise DataError(f"{file}: column 't', rows {j} and {i}: trajectory {traj_name(row)} has two rows with "
+                        f"t = {t[row]}; each step of a trajectory needs its own t")
 
     # actions: 0..n-1, -1 allowed only on a trajectory's last row
     a_sorted = actions[order]
@@ -409,6 +419,11 @@ def datasets_from_table(step: StepTable, n_actions: int | None = None,
         if (sizes != width).any():
             row = int(np.flatnonzero(sizes != width)[0])
             raise _fail(where, "valid", row, f"{int(sizes[row])} entries, expected {width} (one per action)")
+        entries = pc.list_flatten(vcol)
+        if entries.null_count:  # every list has `width` entries: entry i is in row i // width
+            row = _first_null(entries) // width
+            raise _fail(where, "valid", row, f"a null entry in the list (trajectory {traj_name(row)}); every "
+                                              f"entry must be true or false")
         check_action_memory(rows, width, source, _action_origin(n_actions, valid=True))
         valid = bool_lists(vcol, width, source)
         n = width
@@ -469,6 +484,15 @@ def datasets_from_table(step: StepTable, n_actions: int | None = None,
     all_valid = (place(valid) if valid is not None
                  else np.broadcast_to(np.ones(n, bool), (out_rows, n)))
     offsets = np.r_[0, np.cumsum(lengths)].astype(np.int64)
+    with np.errstate(over="ignore", invalid="ignore"):  # the returns Step B ranks by: reported here
+        returns = np.add.reduceat(all_rewards, offsets[:-1])
+    if not np.isfinite(returns).all():
+        i = int(np.flatnonzero(~np.isfinite(returns))[0])
+        lo, hi = offsets[i], offsets[i + 1]
+        row = int(src[lo + np.argmax(np.abs(all_rewards[lo:hi]))])
+        raise _fail(where, "reward", row, f"the rewards of trajectory {traj_name(row)} add up beyond a 64-bit "
+                                          f"float (the largest, {rewards[row]:g}, is in this row); scale the "
+                                          f"rewards down so that each trajectory's sum is finite")
     traj_env = key_env[starts]
     traj_ids = key_traj[starts]
     out: dict[str, Dataset] = {}
