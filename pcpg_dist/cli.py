@@ -202,7 +202,9 @@ def _cmd_classify(args: argparse.Namespace) -> None:
     model = load_model(Path(args.model))
     ds = load_dataset(Path(args.dataset))
     pred = model.predict(ds)
-    table = pd.DataFrame({"trajectory": ds.trajectory_ids, "predicted_style": pred})
+    # the logs' own ids where they were not integers (pcpg numbers those in sorted order)
+    table = pd.DataFrame({"trajectory": ds.trajectory_ids if ds.source_ids is None else ds.source_ids,
+                          "predicted_style": pred})
     atomic_write_bytes(out, table.to_csv(index=False).encode())
     console.print(f"{ds.n_trajectories} trajectories -> {out}; cluster sizes "
                   f"{[int((pred == c).sum()) for c in range(int(pred.max()) + 1)]}")

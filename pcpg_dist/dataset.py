@@ -68,6 +68,9 @@ class Dataset:
     feature_names: tuple[str, ...] = field(default=())
     action_names: tuple[str, ...] = field(default=())
     skill: np.ndarray | None = None  # (n,) float64: a recorded per-trajectory skill score, if any
+    #: (n,) str: the ids the user's logs gave the trajectories where they were not integers
+    #: (``trajectory_ids`` numbers those in sorted order); written back by ``pcpg classify``
+    source_ids: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         rows, n = len(self.actions), len(self.trajectory_ids)
@@ -81,7 +84,7 @@ class Dataset:
         if self.valid.dtype != bool or self.valid.shape != (rows, self.n_actions):
             raise DataError(f"{where}: valid must be a bool mask of shape (rows={rows}, n_actions="
                             f"{self.n_actions}), got {self.valid.dtype} {self.valid.shape}")
-        for name in ("styles", "success", "epsilon", "skill"):
+        for name in ("styles", "success", "epsilon", "skill", "source_ids"):
             if getattr(self, name) is not None and len(getattr(self, name)) != n:
                 raise DataError(f"{where}: {name} has {len(getattr(self, name))} entries, expected {n}")
         if n and (self.styles.min() < -1 or self.styles.max() >= MAX_STYLES):
@@ -174,6 +177,7 @@ class Dataset:
             trajectory_ids=self.trajectory_ids[idx], styles=self.styles[idx],
             success=self.success[idx], epsilon=self.epsilon[idx], feature_names=self.feature_names,
             action_names=self.action_names, skill=None if self.skill is None else self.skill[idx],
+            source_ids=None if self.source_ids is None else self.source_ids[idx],
         )
 
     def with_styles(self, styles: np.ndarray) -> Dataset:
@@ -212,6 +216,8 @@ class Dataset:
             feature_names=first.feature_names, action_names=first.action_names,
             skill=(np.concatenate([p.skill for p in parts]) if all(p.skill is not None for p in parts)
                    else None),
+            source_ids=(np.concatenate([p.source_ids for p in parts])
+                        if all(p.source_ids is not None for p in parts) else None),
         )
 
     @staticmethod
@@ -277,6 +283,8 @@ class Dataset:
         cols["epsilon"] = pa.array(self.epsilon[per_row], pa.float64())
         if self.skill is not None:
             cols["skill"] = pa.array(self.skill[per_row], pa.float64())
+        if self.source_ids is not None:
+            cols["source_id"] = pa.array(self.source_ids[per_row], pa.string())
         meta = {"pcpg": json.dumps({
             "schema_version": SCHEMA_VERSION, "domain": self.domain, "env": self.env,
             "n_actions": self.n_actions, "feature_names": list(self.feature_names),
@@ -318,8 +326,11 @@ class Dataset:
                 raise DataError(f"{source}: missing column '{col}' (expected {typ})")
             if table.schema.field(col).type != typ:
                 raise DataError(f"{source}: column '{col}' has type {table.schema.field(col).type}, expected {typ}")
-        for col in ("trajectory", "t", "style", "action", "valid", "success"):
-            if table.column(col).null_count:
+        if "source_id" in names and table.schema.field("source_id").type != pa.string():
+            raise DataError(f"{source}: column 'source_id' has type {table.schema.field('source_id').type}, "
+                            f"expected string")
+        for col in ("trajectory", "t", "style", "action", "valid", "success", "source_id"):
+            if col in names and table.column(col).null_count:
                 raise DataError(f"{source}: column '{col}' has null values")
         traj = table.column("trajectory").to_numpy()
         t = table.column("t").to_numpy()
@@ -347,6 +358,7 @@ class Dataset:
                 styles=col("style", np.int64)[starts], success=col("success", bool)[starts],
                 epsilon=col("epsilon", np.float64)[starts],
                 skill=col("skill", np.float64)[starts] if "skill" in names else None,
+                source_ids=col("source_id", object)[starts] if "source_id" in names else None,
                 feature_names=feature_names, action_names=action_names,
             )
         except DataError as e:

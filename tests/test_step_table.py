@@ -203,3 +203,42 @@ def test_whole_number_floats_are_integers_and_a_fractional_trajectory_id_is_refu
     with pytest.raises(DataError) as e:
         datasets_from_table(read_step_table(tmp_path / "bad.parquet"))
     assert str(e.value) == f"{tmp_path / 'bad.parquet'}: column 'trajectory', row 5: 1.5 is not an integer"
+
+
+def test_env_values_that_become_one_unit_name_are_named_as_the_user_wrote_them(tmp_path) -> None:
+    """Non-ASCII env values all clean to 'env': the message showed ['env', 'env', 'env'] and blamed
+    "characters other than letters" for the letters 日本; it names the values and what they become."""
+    df = full_table()
+    df["env"] = np.where(df.trajectory.isin(["p0", "p1", "p2"]), "日本", np.where(df.trajectory == "p3", "中国", "E1"))
+    path = tmp_path / "logs.parquet"
+    df.to_parquet(path, index=False)
+    with pytest.raises(DataError) as e:
+        datasets_from_table(read_step_table(path))
+    assert str(e.value) == (f"{path}: column 'env': the values ['日本', '中国'] all become the unit name 'env' "
+                            "(unit names name folders and files: they keep the ASCII letters, digits, '_', '.', "
+                            "'+' and '-' of a value); rename them")
+
+
+def test_string_trajectory_ids_come_back_from_generate_and_classify(tmp_path, capsys) -> None:
+    """Ids like 'p10' were numbered 0..n-1 in sorted order and lost: `pcpg classify` wrote
+    0, 1, 2, ... that could not be joined back to the user's episodes."""
+    from pcpg_dist.clustering import ClusterConfig, cluster
+    from pcpg_dist.dataset import write_parquet
+
+    df = full_table()
+    path = tmp_path / "logs.parquet"
+    df.to_parquet(path, index=False)
+    ds = read(path)
+    assert list(ds.source_ids) == sorted(df.trajectory.unique())  # numbered in sorted order, names kept
+    assert list(ds.subset(np.array([2, 0])).source_ids) == [ds.source_ids[2], ds.source_ids[0]]
+    write_parquet(ds, tmp_path / "data.parquet")
+    back = load_dataset(tmp_path / "data.parquet")
+    assert list(back.source_ids) == list(ds.source_ids)
+    cluster(ds, ClusterConfig(k=2, method="visits_kmeans"), seed=0).model.save(tmp_path / "model")
+    out = tmp_path / "styles.csv"
+    assert main(["classify", str(tmp_path / "model"), str(tmp_path / "data.parquet"), "--out", str(out)]) == 0
+    assert pd.read_csv(out)["trajectory"].tolist() == list(ds.source_ids)
+    int_ids = tiny_table(n_traj=4, steps=3, seed=0)
+    int_ids.to_parquet(tmp_path / "ints.parquet", index=False)
+    (plain,) = datasets_from_table(read_step_table(tmp_path / "ints.parquet")).values()
+    assert plain.source_ids is None  # integer ids are kept as they are

@@ -336,12 +336,16 @@ def datasets_from_table(step: StepTable, n_actions: int | None = None,
     traj_col = table.column("trajectory")
     if traj_col.null_count:
         raise _fail(where, "trajectory", _first_null(traj_col), "is empty (null)")
+    id_names = None  # the user's ids by number, where they are not integers
     if _is_integral(traj_col.type):
         traj_raw = _integers(traj_col, "trajectory", where)
     else:  # strings, bytes (compared as bytes: they need not be UTF-8) or a dictionary of them
         code, ids = _codes(traj_col)
-        rank = np.argsort(np.argsort(np.asarray(ids, dtype=object)))
+        ids = np.asarray(ids, dtype=object)
+        rank = np.argsort(np.argsort(ids))
         traj_raw = rank[code].astype(np.int64)  # ids numbered in sorted order
+        id_names = np.array([v.decode(errors="backslashreplace") if isinstance(v, bytes) else str(v)
+                             for v in ids[np.argsort(ids)]], dtype=object)
 
     def traj_name(row: int) -> str:
         return reprlib.repr(int(traj_raw[row]) if _is_integral(traj_col.type) else traj_col[row].as_py())
@@ -363,8 +367,11 @@ def datasets_from_table(step: StepTable, n_actions: int | None = None,
                                 f"{reprlib.repr(v)} is not UTF-8 text") from None
         env_names = [safe_env_name(v) for v in env_values]
         if len(set(env_names)) != len(env_names):
-            raise DataError(f"{source}: column 'env' has values that differ only in characters other than "
-                            f"letters, digits, '_', '.', '+', '-' ({reprlib.repr(env_names)}); rename them")
+            clash = next(name for name in env_names if env_names.count(name) > 1)
+            values = [v for v, name in zip(env_values, env_names, strict=True) if name == clash]
+            raise DataError(f"{source}: column 'env': the values {reprlib.repr(values)} all become the unit name "
+                            f"{clash!r} (unit names name folders and files: they keep the ASCII letters, digits, "
+                            f"'_', '.', '+' and '-' of a value); rename them")
     else:
         env_code, env_names = np.zeros(rows, np.int64), [step.default_env]
 
@@ -506,5 +513,6 @@ def datasets_from_table(step: StepTable, n_actions: int | None = None,
             valid=np.ascontiguousarray(all_valid[lo:hi]), rewards=all_rewards[lo:hi],
             offsets=offsets[sel[0]: sel[-1] + 2] - lo, trajectory_ids=traj_ids[sel], styles=styles[sel],
             success=success[sel], epsilon=np.full(len(sel), np.nan), feature_names=tuple(s_cols),
-            skill=None if skill is None else skill[sel])
+            skill=None if skill is None else skill[sel],
+            source_ids=None if id_names is None else id_names[traj_ids[sel]])
     return out
