@@ -242,3 +242,26 @@ def test_string_trajectory_ids_come_back_from_generate_and_classify(tmp_path, ca
     int_ids.to_parquet(tmp_path / "ints.parquet", index=False)
     (plain,) = datasets_from_table(read_step_table(tmp_path / "ints.parquet")).values()
     assert plain.source_ids is None  # integer ids are kept as they are
+
+
+def test_actions_never_taken_below_the_largest_are_said_once(tmp_path, caplog) -> None:
+    """One stray action 9 in logs of actions 0..2 made every agent choose among 10 actions, and the
+    random baseline fell from 0.333 to 0.100, without a word."""
+    import logging
+
+    df = tiny_table(n_traj=6, steps=4, seed=0)
+    df = df.drop(columns=[c for c in ("valid",) if c in df])
+    path = tmp_path / "logs.parquet"
+    df.to_parquet(path, index=False)
+    with caplog.at_level(logging.WARNING, logger="pcpg_dist"):
+        datasets_from_table(read_step_table(path))
+    assert caplog.records == []  # every action id below the largest is taken
+    stray = df.index[df.action >= 0][3]
+    df.loc[stray, "action"] = 9
+    df.to_parquet(path, index=False)
+    with caplog.at_level(logging.WARNING, logger="pcpg_dist"):
+        (ds,) = datasets_from_table(read_step_table(path)).values()
+    assert ds.n_actions == 10  # the documented rule still holds
+    assert [r.getMessage() for r in caplog.records] == [
+        f"{path}: 6 of the 10 actions ([3, 4, 5, 6, 7, 8]) are never taken; their number comes from the largest "
+        f"action, 9 (row {stray}): set trajectories.n_actions if that is not right"]

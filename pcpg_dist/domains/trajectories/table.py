@@ -18,6 +18,7 @@ order); nothing is written before the whole table has passed.
 
 from __future__ import annotations
 
+import logging
 import re
 import reprlib
 from dataclasses import dataclass
@@ -436,6 +437,15 @@ def datasets_from_table(step: StepTable, n_actions: int | None = None,
         n = width
     else:
         n = n_actions if n_actions is not None else int(actions.max()) + 1
+        taken = np.bincount(actions[actions >= 0], minlength=n)[:n] if rows else np.zeros(0, np.int64)
+        never = np.flatnonzero(taken == 0)
+        if n_actions is None and len(never) and n > 1:  # a stray large action id widens every agent
+            top = int(np.flatnonzero(actions == n - 1)[0])
+            logging.getLogger(__name__).warning(
+                "%s: %d of the %d actions (%s) are never taken; their number comes from the largest "
+                "action, %d (%s): set trajectories.n_actions if that is not right",
+                where.locate(top)[0], len(never), n, reprlib.repr(never.tolist()), n - 1,
+                f"row {where.locate(top)[1]}")
     if n < 1 or n > MAX_ACTIONS:
         raise DataError(f"{source}: {n} actions; pcpg handles 1..{MAX_ACTIONS}")
     check_action_memory(rows, n, source, _action_origin(n_actions, valid=valid is not None))
