@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pcpg_dist.ceiling import supervised_ceiling
+from pcpg_dist.ceiling import gap_to_ceiling, supervised_ceiling
 from pcpg_dist.clustering import ClusterConfig, cluster, clustering_metrics
 from pcpg_dist.config.stages import PBTGConfig
 from pcpg_dist.dataset import read_parquet, write_parquet
@@ -172,7 +172,7 @@ def main() -> None:
         bayes = bayes_rate(layout, ds) if layout is not None else None
         for method in args.methods:
             r = run_one(cluster_input, method, args.seed, args.dtw_sample)
-            gap = top - r["accuracy"]
+            gap = gap_to_ceiling(top, r["accuracy"])
             gaps.setdefault((group, method), []).append(gap)
             secs.setdefault((group, method), []).append(r["seconds"])
             if bayes is not None:

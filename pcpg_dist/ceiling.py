@@ -29,15 +29,20 @@ MAX_VOCAB = 20_000  # at most this many visited states / state-actions kept as f
 def _bag(ids: np.ndarray, traj: np.ndarray, n: int) -> sparse.csr_matrix:
     """(n trajectories, vocabulary) binary: which ids each trajectory visits.
 
-    Past :data:`MAX_VOCAB` ids only the most frequent are kept, and a count is kept whole: the
-    ids tied at the boundary count are all left out, so no arbitrary order among equally
-    frequent ids decides the features (on MiniDungeons, where most state rows occur once, that
-    order moved the ceiling by up to 0.7 points).
+    Past :data:`MAX_VOCAB` ids only the most frequent are kept. Where the ids tied at the
+    boundary count occur once each, they are all left out: an id of one row is seen by one
+    trajectory, so it cannot carry a style from the training folds to a test trajectory, and
+    which of them made the cut was an arbitrary order (on MiniDungeons, where most state rows
+    occur once, that order moved the ceiling by up to 0.7 points). Ids tied at a larger count
+    are left out whole too, unless that would keep under half the cap; then they fill it in id
+    order (a fixed function of the rows' content).
     """
     uniq, inv, counts = np.unique(ids, return_inverse=True, return_counts=True)
     keep = np.argsort(-counts, kind="stable")
     if len(keep) > MAX_VOCAB:
-        keep = keep[counts[keep] > counts[keep[MAX_VOCAB]]]
+        boundary = counts[keep[MAX_VOCAB]]
+        whole = keep[counts[keep] > boundary]
+        keep = whole if boundary == 1 or len(whole) >= MAX_VOCAB // 2 else keep[:MAX_VOCAB]
     col = np.full(len(uniq), -1)
     col[keep] = np.arange(len(keep))
     c = col[inv.reshape(-1)]

@@ -47,8 +47,8 @@ PAPER_MEANS = {"bc.batch_size": "none (full batch)"}
 #: a protocol setting added after runs were logged: a recorded config without it ran with its default
 ABSENT_MEANS = {"ranking.style_margin": RankConfig.model_fields["style_margin"].default,
                 "bc.init": BCConfig.model_fields["init"].default,
-                **{f"mario.{name}": MarioLoadConfig.model_fields[name].default
-                   for name in ("event", "counters", "increments")}}
+                "mario.event": "id",  # runs before the setting (2026-11-21) read the event id as a number
+                **{f"mario.{name}": MarioLoadConfig.model_fields[name].default for name in ("counters", "increments")}}
 
 # ----------------------------------------------------------------------------- content
 def paper_numbers(domain: str | None) -> dict[str, str]:
@@ -200,8 +200,12 @@ def _matrices(summary: Path, envs: list[str], name: str) -> dict[str, pd.DataFra
 
 
 def _row_max(mats: dict[str, pd.DataFrame]) -> str:
-    """In how many rows, over the environments, the diagonal cell is the row's maximum."""
-    rows = sum(int((m.to_numpy().argmax(axis=1) == np.arange(len(m))).sum()) for m in mats.values())
+    """In how many rows, over the environments, the diagonal cell is the row's maximum (a NaN
+    cell, e.g. the correlation of a constant column, is the maximum of nothing)."""
+    def top(m: np.ndarray) -> int:
+        return sum(bool(np.isfinite(m[i, i]) and m[i, i] >= np.nanmax(m[i])) for i in range(len(m)))
+
+    rows = sum(top(m.to_numpy()) for m in mats.values())
     return f"the row maximum in {rows} of {sum(len(m) for m in mats.values())} rows"
 
 

@@ -138,20 +138,25 @@ def code_notes(run: dict, cfg) -> list[str]:
     return notes
 
 
-def input_note(run: dict, cfg) -> str | None:
-    """Why the rerun does not read the logged run's data, or None when it does (or the run
-    predates the record): a log file edited since, a generator's data of another key."""
+def input_note(run: dict, cfg) -> tuple[str | None, bool]:
+    """``(note, changed)``: why the rerun may not read the logged run's data, and whether it
+    surely does not. None when the keys agree or the run predates the record. The key holds the
+    domain's settings as well as its files' digests, so where the config's hash changed too (a
+    setting added to the schema since), a different key is said but not taken for changed data."""
     from pcpg_dist.runner import input_key
 
     logged = run.get("input_key")
     if logged is None:
-        return None
+        return None, False
     now = input_key(cfg)
     if logged == now:
-        return None
+        return None, False
+    if run.get("config_hash") not in (None, cfg.hash()):
+        return (f"input key: logged {logged}, now {now}; the config hash changed too (above), so this "
+                "may be the settings' schema rather than the data"), False
     return (f"input data changed: the logged run read data of key {logged}, the files and settings "
             f"named by its config give {now} today (a log file edited or replaced since?); the "
-            "metrics below compare runs on different data")
+            "metrics below compare runs on different data"), True
 
 
 def reproduce(summary: Path, workdir: Path | None = None, rtol: float = RTOL, atol: float = ATOL,
@@ -164,13 +169,13 @@ def reproduce(summary: Path, workdir: Path | None = None, rtol: float = RTOL, at
     run = read_run(summary / "run.json")
     logged = read_metrics(summary / "metrics.json")
     cfg = recorded_config(run, summary / "run.json")
-    changed = input_note(run, cfg)
-    notes = code_notes(run, cfg) + ([changed] if changed else [])
+    note, changed = input_note(run, cfg)
+    notes = code_notes(run, cfg) + ([note] if note else [])
     out = _fresh(workdir, cfg.name)
     result = run_experiment(cfg, workdir=out, track=False, show_progress=show_progress,
                             command=f"pcpg reproduce {source or summary}")
     return Reproduction(compare_metrics(logged, result.metrics, rtol, atol), result.out_dir, rtol, atol, notes,
-                        input_changed=changed is not None)
+                        input_changed=changed)
 
 
 def _shown(v: float | None) -> str:

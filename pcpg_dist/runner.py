@@ -78,6 +78,7 @@ class Point:
     refs: dict[str, Any] = field(default_factory=dict)
     digests: dict[str, str] = field(default_factory=dict)  # what each unit's clusterer reads, hashed
     dkey: str = ""
+    ikey: str = ""  # the inputs' key, recorded in run.json (data_keys)
     ckeys: dict[str, str] = field(default_factory=dict)
     groups: list[tuple[str, str, list]] = field(default_factory=list)  # (env, train key, cells)
     ekeys: dict[str, str] = field(default_factory=dict)
@@ -85,22 +86,31 @@ class Point:
 
 
 # --------------------------------------------------------------------------- data
-def input_key(cfg: ExperimentConfig) -> str:
-    """What the data stage reads, as the domain keys it (a log file's content digest, a
-    generator's seeds), without pcpg's code version: ``pcpg reproduce`` compares it to tell
-    "the inputs changed" apart from "the code changed"."""
-    return content_key(*contract.data_key(cfg))
+def data_keys(cfg: ExperimentConfig) -> tuple[str, str]:
+    """``(data key, input key)`` from one reading of what the domain says identifies its data
+    (settings, file contents, seed; a log is hashed once). The data key, with pcpg's code
+    version, names the data in the cache; the input key, without it, is what ``run.json``
+    records for ``pcpg reproduce`` to tell "the inputs changed" apart from "the code changed"."""
+    parts = contract.data_key(cfg)
+    return content_key(CODE_VERSION, *parts), content_key(*parts)
 
 
 def data_key(cfg: ExperimentConfig) -> str:
-    """Content key of the data: what the domain says identifies it (settings, file contents, seed)."""
-    return content_key(CODE_VERSION, *contract.data_key(cfg))
+    """Content key of the data (see :func:`data_keys`)."""
+    return data_keys(cfg)[0]
 
 
-def load_or_generate(cfg: ExperimentConfig, cache: Cache, show_progress: bool) -> tuple[dict[str, Dataset], str]:
+def input_key(cfg: ExperimentConfig) -> str:
+    """Key of the data stage's inputs (see :func:`data_keys`)."""
+    return data_keys(cfg)[1]
+
+
+def load_or_generate(cfg: ExperimentConfig, cache: Cache, show_progress: bool,
+                     key: str | None = None) -> tuple[dict[str, Dataset], str]:
+    """The config's datasets, generated once and cached under ``key`` (its :func:`data_key`)."""
     from pcpg_dist.generate import write_to
 
-    key = data_key(cfg)
+    key = key or data_key(cfg)
     path = cache.path("data", key)
     if cache.done("data", key) is None:
         # generated and validated in memory first: bad input leaves nothing behind
@@ -113,14 +123,19 @@ def load_or_generate(cfg: ExperimentConfig, cache: Cache, show_progress: bool) -
 
 def load_units(cfg: ExperimentConfig, cache: Cache, show_progress: bool) -> tuple[list[Unit], str]:
     """The config's evaluation units (data generated or loaded once, then cached) and the data key."""
-    from pcpg_dist.pipeline import partial_styles_note
-
     files, key = load_or_generate(cfg, cache, show_progress)
     units = contract.units(cfg, files)
+    warn_partial_styles(units)
+    return units, key
+
+
+def warn_partial_styles(units: list[Unit]) -> None:
+    """One warning line per unit whose styles are known for some trajectories only."""
+    from pcpg_dist.pipeline import partial_styles_note
+
     for unit in units:
         if note := partial_styles_note(unit):
             logging.getLogger(__name__).warning("%s", note)
-    return units, key
 
 
 # --------------------------------------------------------------------------- Ray tasks
@@ -275,13 +290,14 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
     datas: dict[str, dict[str, Dataset]] = {}
     unit_sets: dict[str, tuple[dict[str, Unit], dict[str, Any], dict[str, str]]] = {}
     for p in points:
-        p.dkey = data_key(p.cfg)
+        p.dkey, p.ikey = data_keys(p.cfg)
         if p.dkey not in datas:
             computed["data"] += cache.done("data", p.dkey) is None
-            datas[p.dkey] = load_or_generate(p.cfg, cache, show_progress)[0]
+            datas[p.dkey] = load_or_generate(p.cfg, cache, show_progress, p.dkey)[0]
         ukey = content_key(p.dkey, p.cfg.model_dump(mode="json", exclude=NOT_IN_UNITS))
         if ukey not in unit_sets:
             units = {u.name: u for u in contract.units(p.cfg, datas[p.dkey])}
+            warn_partial_styles(list(units.values()))
             for name in units:
                 confined(p.out, name, "unit name")  # unit names become folder and run names
                 check_unit_name(name)
@@ -380,7 +396,6 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
 
         computed["evaluations"] = _run_stage("Evaluation", evaluate_task, jobs, threads, save_eval, show_progress)
         times["evaluate"] = time.perf_counter() - t0
-
 
         # every local result first (summary, agents, report), so all of it is kept when the
         # tracking server is down; then the MLflow runs, one bar for every point's environments
@@ -481,7 +496,7 @@ def _finish_point(p: Point, cache: Cache, clusters: dict, times: dict[str, float
                 "command": p.command or f"pcpg run <config of {cfg.name}>", "overrides": p.params,
                 "provenance": provenance(), "stage_seconds": times, "cached_stages": cached,
                 "parent_run_id": result.parent_run_id, "computed": computed, "code_version": CODE_VERSION,
-                "input_key": input_key(cfg), "batch_points": batch}
+                "input_key": p.ikey, "batch_points": batch}
     atomic_write_bytes(staging / "summary" / "run.json", json.dumps(run_info, indent=1, default=str).encode())
     _swap_in(out, staging, ("agents", "summary"))
     render(out / "summary", staging / "report")

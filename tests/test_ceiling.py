@@ -6,8 +6,9 @@ from pcpg_dist import ceiling
 
 
 def test_the_cap_keeps_or_drops_a_count_whole(monkeypatch):
-    """Ids tied at the boundary count are all left out: which of equally frequent ids would have
-    been kept must not depend on the ids' order (on MiniDungeons it moved the ceiling 0.7 points)."""
+    """Ids tied at the boundary count are all left out (here ids seen twice, with most of the cap
+    kept): which of equally frequent ids would have been kept must not depend on the ids' order
+    (on MiniDungeons it moved the ceiling 0.7 points)."""
     monkeypatch.setattr(ceiling, "MAX_VOCAB", 3)
     ids = np.array([7] * 5 + [3] * 4 + [9, 9] + [1, 1] + [4, 4] + [8])  # counts 5, 4, 2, 2, 2, 1
     traj = np.arange(len(ids)) % 4
@@ -15,6 +16,18 @@ def test_the_cap_keeps_or_drops_a_count_whole(monkeypatch):
     assert bag.shape == (4, 2)  # the ids of counts 5 and 4; the three of count 2 tie at the cap
     relabelled = ceiling._bag(np.array([{7: 2, 3: 6, 9: 0, 1: 5, 4: 3, 8: 1}[int(i)] for i in ids]), traj, 4)
     assert sorted(map(tuple, bag.T.toarray())) == sorted(map(tuple, relabelled.T.toarray()))
+
+
+def test_ids_tied_at_a_shared_count_fill_the_cap_rather_than_empty_it(monkeypatch):
+    """Leaving out every id tied at the boundary count could keep almost nothing (30 ids seen twice
+    and one seen three times: 1 feature of a cap of 20). Ids seen once carry nothing across
+    trajectories and are still left out; ids tied at a larger count fill the cap in id order."""
+    monkeypatch.setattr(ceiling, "MAX_VOCAB", 20)
+    ids = np.array([0, 0, 0] + [i for i in range(1, 31) for _ in range(2)])
+    bag = ceiling._bag(ids, np.arange(len(ids)) % 7, 7)
+    assert bag.shape == (7, 20)
+    once = np.array([0, 0, 0] + list(range(1, 31)))  # 30 ids seen once: only the id seen thrice is kept
+    assert ceiling._bag(once, np.arange(len(once)) % 7, 7).shape == (7, 1)
 
 
 def test_under_the_cap_every_id_is_a_feature():

@@ -35,3 +35,25 @@ def test_a_log_with_some_unknown_styles_says_what_is_left_out(tmp_path, caplog):
     pd.DataFrame([{**r, "style": -1} for r in rows]).to_parquet(log, index=False)
     load_units(cfg, Cache(tmp_path / "cache"), show_progress=False)  # none labelled: nothing is lost
     assert caplog.records == []
+
+
+def test_pcpg_run_says_it_too(ray_session, tmp_path, caplog, monkeypatch):
+    """The warning lived in load_units, which `pcpg run` and sweeps do not call: they were silent."""
+    import pytest
+
+    import pcpg_dist.runner as runner
+
+    class Stop(Exception):
+        pass
+
+    rows = [{"trajectory": traj, "t": t, "s0": float(t), "action": a, "reward": 1.0, "style": style}
+            for traj, style in enumerate([-1, 0, 1, 0]) for t, a in enumerate([traj % 2, -1])]
+    log = tmp_path / "log.parquet"
+    pd.DataFrame(rows).to_parquet(log, index=False)
+    cfg = parse_config({"name": "partial", "domain": "trajectories",
+                        "trajectories": {"path": str(log), "score": "return"}, "clustering": {"k": 2}},
+                       source="partial")
+    monkeypatch.setattr(runner, "_run_stage", lambda *a, **k: (_ for _ in ()).throw(Stop()))  # stop at Step A
+    with caplog.at_level(logging.WARNING, logger="pcpg_dist"), pytest.raises(Stop):
+        runner.run_experiment(cfg, workdir=tmp_path / "runs", track=False, show_progress=False)
+    assert [r.getMessage().split(":")[1] for r in caplog.records] == [" 1 of 4 trajectories have style -1 (unknown)"]

@@ -141,13 +141,16 @@ def test_an_edited_log_is_not_reproduced_even_where_the_metrics_match(tmp_path, 
     table.to_parquet(log, index=False)
     cfg = parse_config({"name": "own", "domain": "trajectories", "trajectories": {"path": str(log), "score": "return"},
                         "clustering": {"k": 2}}, source="own")
-    run = {"input_key": input_key(cfg)}
-    assert input_note(run, cfg) is None  # the same file: nothing to say
-    assert input_note({}, cfg) is None  # a run logged before the key was recorded: not checked
+    run = {"input_key": input_key(cfg), "config_hash": cfg.hash()}
+    assert input_note(run, cfg) == (None, False)  # the same file: nothing to say
+    assert input_note({}, cfg) == (None, False)  # a run logged before the key was recorded: not checked
     table.loc[1, "reward"] = 5.0
     table.to_parquet(log, index=False)
-    note = input_note(run, cfg)
-    assert note.startswith(f"input data changed: the logged run read data of key {run['input_key']}")
+    note, changed = input_note(run, cfg)
+    assert changed and note.startswith(f"input data changed: the logged run read data of key {run['input_key']}")
+    # a config hash that changed too (a setting added since): said, not taken for changed data
+    soft, changed = input_note({**run, "config_hash": "0123"}, cfg)
+    assert not changed and soft.startswith("input key: logged ") and "config hash changed too" in soft
     rep = Reproduction(compare_metrics({"x": 1.0}, {"x": 1.0}), tmp_path, 1e-6, 1e-9, [note], input_changed=True)
     assert not rep.ok
     print_reproduction(rep)

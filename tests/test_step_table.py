@@ -41,7 +41,7 @@ def read(path: Path) -> Dataset:
 
 def assert_same(a: Dataset, b: Dataset) -> None:
     for name in ("states", "actions", "valid", "rewards", "offsets", "trajectory_ids", "styles", "success",
-                 "epsilon", "skill"):
+                 "epsilon", "skill", "source_ids"):
         x, y = getattr(a, name), getattr(b, name)
         assert (x is None) == (y is None) and (x is None or x.dtype == y.dtype), name
         np.testing.assert_array_equal(x, y, err_msg=name)
@@ -60,10 +60,11 @@ def test_shuffled_rows_give_exactly_the_dataset_of_the_sorted_rows(tmp_path) -> 
     assert_same(read(tmp_path / "shuffled.parquet"), expected)
     shuffled.to_parquet(tmp_path / "with_index.parquet")  # pandas' own index column is ignored
     assert_same(read(tmp_path / "with_index.parquet"), expected)
-    folder = tmp_path / "logs"  # a folder: each trajectory's rows spread over three files, shuffled
-    folder.mkdir()
-    for i, part in enumerate(np.array_split(np.arange(len(shuffled)), 3)):
-        shuffled.iloc[part].to_parquet(folder / f"part-{i}.parquet", index=False)
+    folder = tmp_path / "logs"  # a folder of three files, each shuffled, trajectories going on from
+    folder.mkdir()  # one file into the next (t going on): the sorted table cut in three
+    for i, part in enumerate(np.array_split(np.arange(len(df)), 3)):
+        df.iloc[part].sample(frac=1.0, random_state=i).to_parquet(folder / f"part-{i}.parquet", index=False)
+    assert df.iloc[np.array_split(np.arange(len(df)), 3)[1]].trajectory.nunique() < df.trajectory.nunique()
     assert_same(read(folder), expected)
 
 

@@ -55,6 +55,15 @@ def test_unknown_key_names_the_closest_valid_key(item, closest):
         load_config_with(QUICK, [item])
 
 
+@pytest.mark.parametrize("key, closest", [("eval.greedy", "evaluation.greedy"), ("evals.figures", "evaluation.figures"),
+                                          ("cfg.seed", "seed"), ("clustrng.k", "clustering.k"),
+                                          ("corridor.length", None)])
+def test_an_unknown_section_is_guessed_only_by_a_setting_of_that_name(key, closest):
+    from pcpg_dist.config.overrides import closest_key
+
+    assert closest_key(key, "gridworld") == closest
+
+
 def test_a_section_unlike_any_gets_no_unrelated_suggestion():
     """`corridor.length=12` (another domain's section) was answered "did you mean 'mario.event'?"."""
     with pytest.raises(ConfigError) as e:

@@ -261,6 +261,17 @@ def test_trajectory_ids_restarting_in_each_file_of_a_folder_name_both_files(tmp_
                             f"in this file (its t restarts at 0 here after 4 there); trajectory ids must be unique "
                             f"across a folder's files: give each file's trajectories distinct ids (e.g. prefixed by "
                             f"the file's name)")
+    # ids restarting with t ranges that do not overlap (day1's trajectory 0 at t 10.., day2's at
+    # t 0..): merged into one trajectory since rows were ordered by t; a restart all the same
+    day1, day2 = tiny_table(n_traj=1, seed=1), tiny_table(n_traj=1, seed=2)
+    day1["t"] += 10
+    day1.to_parquet(folder / "day1.parquet", index=False)
+    day2.to_parquet(folder / "day2.parquet", index=False)
+    with pytest.raises(DataError) as e:
+        datasets_from_table(read_step_table(folder))
+    assert str(e.value).startswith(f"{folder / 'day2.parquet'}: trajectory 0 appears both in "
+                                   f"{folder / 'day1.parquet'} and in this file (its t restarts at 0 here after "
+                                   f"{day1.t.max()} there)")
     # a trajectory that goes on in the next file (t still increasing) is one trajectory, as before
     whole = tiny_table(n_traj=2)
     whole.iloc[:3].to_parquet(folder / "day1.parquet", index=False)

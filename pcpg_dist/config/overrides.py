@@ -75,14 +75,20 @@ def valid_keys(domain: str | None = None) -> list[str]:
 def closest_key(key: str, domain: str | None) -> str | None:
     """The valid key nearest to a misspelt ``key`` (a section name for a misspelt section), or None."""
     keys = valid_keys(domain)
-    head = key.split(".")[0]
-    tops = {k.split(".")[0] for k in keys}
-    if "." in key and head not in tops and not difflib.get_close_matches(head, tops, n=1, cutoff=0.6):
-        return None  # a section unlike any (another domain's, say): a key there would only mislead
     depth = key.count(".")
     sections = {k.rsplit(".", k.count(".") - depth)[0] for k in keys if k.count(".") > depth}
     close = difflib.get_close_matches(key, [*keys, *sorted(sections)], n=1, cutoff=0.5)
-    return close[0] if close else None
+    if not close:
+        return None
+    head, tops = key.split(".")[0], {k.split(".")[0] for k in keys}
+    if "." in key and head not in tops and not difflib.get_close_matches(head, tops, n=1, cutoff=0.6):
+        # a section unlike any (another domain's, or an abbreviation like `eval`): only a setting of
+        # the same name is a useful guess (`eval.greedy` -> evaluation.greedy, not `corridor.length`
+        # -> mario.event)
+        name, guess = key.rsplit(".", 1)[1], close[0].rsplit(".", 1)[-1]
+        if not difflib.get_close_matches(name, [guess], n=1, cutoff=0.6):
+            return None
+    return close[0]
 
 
 def unknown_key_message(key: str, domain: str | None) -> str:

@@ -386,15 +386,22 @@ def datasets_from_table(step: StepTable, n_actions: int | None = None,
     ends = np.r_[starts[1:], rows]
     t_sorted = t[order]
     repeated = np.r_[False, np.diff(t_sorted) == 0] & ~new
-    if repeated.any():
-        at = int(np.flatnonzero(repeated)[0])
-        row, previous = int(order[at]), int(order[at - 1])  # two rows of one trajectory and t, in file order
+    # a trajectory may go on into a later file of a folder, its t going on too; a later file whose t
+    # starts below an earlier file's is a restart: another trajectory under the same id
+    file_of = (np.repeat(np.arange(len(where.parts)), [n for _, n in where.parts]) if where.parts
+               else np.zeros(rows, np.int64))[order]
+    back = np.r_[False, np.diff(file_of) < 0] & ~new
+    if (repeated | back).any():
+        at = int(np.flatnonzero(repeated | back)[0])
+        row, previous = int(order[at]), int(order[at - 1])  # two rows of one trajectory, in t order
         (file, i), (prev_file, j) = where.locate(row), where.locate(previous)
         if file != prev_file:  # daily files whose ids restart at 0: not a t problem
             g = np.searchsorted(starts, at, side="right") - 1
-            group = order[starts[g]:ends[g]]  # the trajectory's rows, in t order
-            here = min(t[r] for r in group if where.locate(r)[0] == file)
-            there = max(t[r] for r in group if where.locate(r)[0] == prev_file)
+            group = np.arange(starts[g], ends[g])  # the trajectory's rows, in t order
+            first, later = sorted({int(file_of[at]), int(file_of[at - 1])})
+            here = int(t_sorted[group[file_of[group] == later]].min())
+            there = int(t_sorted[group[file_of[group] == first]].max())
+            prev_file, file = where.parts[first][0], where.parts[later][0]
             raise DataError(f"{file}: trajectory {traj_name(row)} appears both in {prev_file} and in this "
                             f"file (its t restarts at {here} here after {there} there); trajectory ids "
                             f"must be unique across a folder's files: give each file's trajectories distinct "
