@@ -27,6 +27,7 @@ import torch
 from pcpg_dist.config.stages import BCConfig
 from pcpg_dist.domains.base import Policy
 from pcpg_dist.errors import ConfigError, DataError, TrainingError, first_line
+from pcpg_dist.parallel import resolve_device
 from pcpg_dist.ranking import Cell, CellSpec, dedupe_rows
 
 ACTIVATIONS = ("relu", "tanh")  # BCConfig.activation's values (both have an ONNX operator)
@@ -253,12 +254,16 @@ def _check_valid(valid: np.ndarray, rows: int, n_actions: int) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------- training
-def resolve_device(name: str) -> torch.device:
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if name == "cuda" and not torch.cuda.is_available():
-        raise ConfigError("bc.device is 'cuda' but torch sees no GPU (use 'cpu' or 'auto')")
-    return torch.device(name)
+def runs_on_cpu_only(cfg: BCConfig) -> bool:
+    """Minibatches (``batch_size``) and the numba kernel are CPU-only: ``auto`` then means the CPU."""
+    return cfg.batch_size is not None or cfg.engine == "numba"
+
+
+def bc_device(cfg: BCConfig) -> torch.device:
+    """Where ``cfg`` trains: ``bc.device``, with ``auto`` on the CPU for CPU-only settings."""
+    if cfg.device == "auto" and runs_on_cpu_only(cfg):
+        return torch.device("cpu")
+    return resolve_device(cfg.device, "bc.device")
 
 
 def layer_sizes(state_dim: int, n_actions: int, cfg: BCConfig) -> tuple[int, ...]:
@@ -322,7 +327,7 @@ def train_cells(cells: Sequence[Cell], cfg: BCConfig,
     if init is not None and len(init) != len(cells):
         raise DataError(f"{len(init)} starting parameter sets for {len(cells)} cells: give one per cell (None: seeded)")
     starts = [_start(sizes, c, None if init is None else init[i]) for i, c in enumerate(cells)]
-    device = resolve_device(cfg.device)
+    device = bc_device(cfg)
     dtype = torch.float32 if cfg.dtype == "float32" else torch.float64
     params = {f"{w}{i}": np.zeros((len(cells), *((a, b) if w == "W" else (b,))), np.float32)
               for i, (a, b) in enumerate(zip(sizes[:-1], sizes[1:], strict=True)) for w in "Wb"}

@@ -157,10 +157,11 @@ def _cmd_cluster(args: argparse.Namespace) -> None:
     from pcpg_dist.generate import generate_to
     from pcpg_dist.progress import out as console  # results: stdout
     from pcpg_dist.ray_utils import init_ray, run_tasks
-    from pcpg_dist.runner import cluster_task
+    from pcpg_dist.runner import cluster_gpus, cluster_task
 
     cfg = load_config_with(args.config, args.overrides)
     init_ray(args.ray_address)
+    gpus = cluster_gpus(cfg)  # a GPU setting no node can serve fails before any work
     out = Path(args.out)
     if args.data:
         datasets = load_datasets(Path(args.data))
@@ -172,7 +173,8 @@ def _cmd_cluster(args: argparse.Namespace) -> None:
     folders = {e: confined(out, e, "unit name") for e in envs}
     results = run_tasks(cluster_task, [(units[e], cfg.clustering, cfg.seed, cfg.runner.cpus_per_task)
                                        for e in envs],
-                        "Step A: clustering", num_cpus=cfg.runner.cpus_per_task, show_progress=not args.quiet)
+                        "Step A: clustering", num_cpus=cfg.runner.cpus_per_task, show_progress=not args.quiet,
+                        num_gpus=gpus)
     for env, res in zip(envs, results, strict=True):
         write_files(folders[env] / "model", res["model"])
         atomic_write_bytes(folders[env] / "labels.json", json.dumps(res["labels"]).encode())

@@ -294,7 +294,7 @@ def trajectory_scores(policy: PolicyMixture, inputs, n: int) -> torch.Tensor:
     """(k, n): log prior + summed step log-likelihood of each trajectory under each policy."""
     s, a, valid, traj = inputs
     lp = policy.step_log_probs(s, a, valid)
-    return torch.zeros(policy.k, n).index_add_(1, traj, lp) + policy.log_prior[:, None]
+    return torch.zeros(policy.k, n, device=lp.device).index_add_(1, traj, lp) + policy.log_prior[:, None]
 
 
 class ClusterModel:

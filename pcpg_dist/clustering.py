@@ -59,6 +59,7 @@ from pcpg_dist.cluster_models import (
 )
 from pcpg_dist.config.stages import ClusterConfig
 from pcpg_dist.errors import DataError
+from pcpg_dist.parallel import resolve_device
 
 __all__ = [
     "ClusterConfig",
@@ -126,9 +127,7 @@ def _fit_lstm(
     Returns the autoencoder, normaliser (mean, std) and centroids.
     """
     n = len(offsets) - 1
-    device = torch.device(cfg.device)
-    if device.type == "cuda" and not torch.cuda.is_available():
-        raise DataError("clustering.device is 'cuda' but torch sees no CUDA device; use 'cpu'")
+    device = resolve_device(cfg.device, "clustering.device")
     mean, std = fit_normaliser(states)
     batches = batches_to(make_batches((states - mean) / std, offsets, cfg.batch_size), device)
     gen = torch.Generator().manual_seed(seed)
@@ -385,14 +384,18 @@ def _fit_policy_mix(dataset, states: np.ndarray, offsets: np.ndarray, cfg: Clust
                         "(it clusters by the actions taken)")
     labels = KMeans(n_clusters=cfg.k, n_init=cfg.kmeans_n_init, random_state=seed).fit_predict(
         counter_summary(states, offsets)).astype(np.int64)
+    device = resolve_device(cfg.device, "clustering.device")
     gen = torch.Generator().manual_seed(seed)
     policy = PolicyMixture(states.shape[1], cfg.hidden_size, cfg.k, dataset.n_actions)
-    policy.reset_parameters(gen)
+    policy.reset_parameters(gen)  # drawn on the CPU from the local generator, then moved
+    policy.to(device)
+    inputs = tuple(t.to(device) for t in inputs)
+    s, a, valid, traj = inputs
     opt = torch.optim.Adam(policy.parameters(), lr=cfg.policy_lr)
     rounds, moved = 0, 1.0
     while rounds < cfg.em_iterations:
         rounds += 1
-        own = torch.from_numpy(labels)[traj]
+        own = torch.from_numpy(labels).to(device)[traj]
         with torch.no_grad():
             share = np.bincount(labels, minlength=cfg.k) / n
             policy.log_prior.copy_(torch.from_numpy(np.log(np.maximum(share, 1e-12))).float())
@@ -403,7 +406,7 @@ def _fit_policy_mix(dataset, states: np.ndarray, offsets: np.ndarray, cfg: Clust
             loss.backward()
             opt.step()
         with torch.no_grad():
-            new = trajectory_scores(policy, inputs, n).argmax(0).numpy().astype(np.int64)
+            new = trajectory_scores(policy, inputs, n).argmax(0).cpu().numpy().astype(np.int64)
         moved = float((new != labels).mean())
         labels = new
         if moved < cfg.em_tol:
@@ -411,7 +414,7 @@ def _fit_policy_mix(dataset, states: np.ndarray, offsets: np.ndarray, cfg: Clust
     # the prior stays the one the final labels were drawn with, so predict() gives them back
     metrics.update({"em_rounds": float(rounds), "em_last_moved": moved,
                     "policy_nll": float(loss.detach())})
-    return labels, policy, mean, std
+    return labels, policy.cpu(), mean, std
 
 
 def cluster(dataset, cfg: ClusterConfig, seed: int) -> Clustering:

@@ -8,6 +8,14 @@ calls :func:`set_threads` with the CPUs it was given before touching torch.
 from __future__ import annotations
 
 import os
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import torch
+
+NEURAL_CLUSTERERS = frozenset({"lstm_dec", "lstm_kmeans", "policy_mix", "bag_auto"})
+"""Clustering methods that may train a network (``bag_auto`` falls back to ``lstm_dec`` on
+continuous states): only these use ``clustering.device`` and ask Ray for a GPU."""
 
 
 def set_threads(n: int) -> None:
@@ -37,3 +45,40 @@ def available_cpus() -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # pragma: no cover - non-Linux
         return max(1, os.cpu_count() or 1)
+
+
+def resolve_device(name: str, key: str) -> torch.device:
+    """``cpu``, ``cuda`` or ``auto`` (a GPU where this process sees one) as a torch device.
+
+    Under Ray the runner makes a stage whose ``key`` is not ``cpu`` ask for GPUs, so that Ray
+    places its tasks on nodes that have one and shares each GPU among a bounded number of them.
+    """
+    import torch
+
+    from pcpg_dist.errors import ConfigError
+
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        raise ConfigError(f"{key} is 'cuda' but torch sees no GPU here; use 'cpu' or 'auto'")
+    return torch.device(name)
+
+
+def stage_gpus(device: str, gpus_per_task: float, node_gpus: float, key: str) -> float:
+    """GPUs each Ray task of a stage asks for: ``gpus_per_task`` where ``device`` (the stage's
+    setting, named ``key``) is ``cuda``, or ``auto`` on a cluster with GPUs; else none.
+    ``node_gpus``: the most GPUs one live node has (a task runs on one node).
+
+    ``cuda`` on a cluster without a GPU fails here, in one line, before anything starts.
+    """
+    from pcpg_dist.errors import ConfigError
+
+    if device == "cpu" or (device == "auto" and node_gpus <= 0):
+        return 0.0
+    if node_gpus <= 0:
+        raise ConfigError(f"{key} is 'cuda' but no Ray node has a GPU; use 'cpu', or 'auto' "
+                          "(a GPU where the cluster has one)")
+    if gpus_per_task > node_gpus:
+        raise ConfigError(f"runner.gpus_per_task: {gpus_per_task:g} GPUs per task, but the largest "
+                          f"Ray node has {node_gpus:g}; set it to at most {node_gpus:g}")
+    return float(gpus_per_task)

@@ -172,11 +172,17 @@ def _answers_http2(conn, timeout: float) -> bool:
 
 # --------------------------------------------------------------------------- what the cluster has
 def node_capacities() -> list[dict[str, float]]:
-    """CPUs and task memory (bytes) of every live node."""
+    """CPUs, GPUs and task memory (bytes) of every live node."""
     import ray
 
-    return [{"CPU": float(n["Resources"].get("CPU", 0)), "memory": float(n["Resources"].get("memory", 0))}
+    return [{"CPU": float(n["Resources"].get("CPU", 0)), "GPU": float(n["Resources"].get("GPU", 0)),
+             "memory": float(n["Resources"].get("memory", 0))}
             for n in ray.nodes() if n.get("Alive")]
+
+
+def node_gpus() -> float:
+    """The most GPUs one live node offers (0 on a cluster without GPUs)."""
+    return max((n["GPU"] for n in node_capacities()), default=0.0)
 
 
 def check_resources(num_cpus: int, memory_bytes: float = 0.0, key: str = "runner.cpus_per_task") -> None:
@@ -212,8 +218,14 @@ def _waiting_for(num_cpus: int, in_flight: int) -> str:
 # --------------------------------------------------------------------------- running tasks
 def run_tasks(fn: Callable[..., Any], calls: Sequence[tuple], description: str,
               num_cpus: int = 1, max_retries: int = 3, on_result: Callable[[int, Any], None] | None = None,
-              show_progress: bool = True, max_in_flight: int | None = None) -> list[Any]:
+              show_progress: bool = True, max_in_flight: int | None = None,
+              num_gpus: float | Sequence[float] = 0.0) -> list[Any]:
     """Run ``fn(*args)`` for every ``args`` in ``calls`` as Ray tasks; results in call order.
+
+    ``num_gpus`` (one for all calls, or one per call): GPUs a task asks for: Ray then runs it on a
+    node with that share of a GPU free. (A Ray 2.60 task that asks for none still sees its node's
+    GPUs, measured on an H100 machine; only the request keeps it off nodes without one and keeps
+    more tasks than ``1 / num_gpus`` off one GPU.)
 
     ``max_retries`` re-runs a task whose worker process died (results are deterministic in the
     arguments, so a retry gives the same numbers). ``on_result(i, result)`` fires as each finishes,
@@ -229,6 +241,7 @@ def run_tasks(fn: Callable[..., Any], calls: Sequence[tuple], description: str,
         return []
     check_resources(num_cpus)
     remote = ray.remote(num_cpus=num_cpus, max_retries=max_retries)(fn)
+    gpus = [float(num_gpus)] * len(calls) if isinstance(num_gpus, int | float) else [float(g) for g in num_gpus]
     limit = max(1, max_in_flight or len(calls))
     results: list[Any] = [None] * len(calls)
     index: dict[Any, int] = {}
@@ -237,7 +250,8 @@ def run_tasks(fn: Callable[..., Any], calls: Sequence[tuple], description: str,
     def submit() -> None:
         nonlocal submitted
         while submitted < len(calls) and len(index) < limit:
-            index[remote.remote(*calls[submitted])] = submitted
+            task = remote.options(num_gpus=gpus[submitted]) if gpus[submitted] else remote
+            index[task.remote(*calls[submitted])] = submitted
             submitted += 1
 
     with progress_bar(description, total=len(calls), enabled=show_progress) as advance:

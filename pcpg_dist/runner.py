@@ -82,6 +82,7 @@ class Point:
     ckeys: dict[str, str] = field(default_factory=dict)
     groups: list[tuple[str, str, list]] = field(default_factory=list)  # (env, train key, cells)
     ekeys: dict[str, str] = field(default_factory=dict)
+    gpus: tuple[float, float] = (0.0, 0.0)  # what a (clustering, BC) task asks Ray for
     tracker: Any = None
 
 
@@ -218,14 +219,38 @@ def _collect_agents(target: Path, models: dict[str, list[Path]]) -> Path:
 
 
 def _run_stage(description: str, fn: Callable, jobs: dict[str, tuple], num_cpus: int,
-               save: Callable[[str, Any], None], show_progress: bool) -> int:
-    """Run one task per key of ``jobs`` (keys shared by several points run once); ``save`` each."""
+               save: Callable[[str, Any], None], show_progress: bool,
+               gpus: dict[str, float] | None = None) -> int:
+    """Run one task per key of ``jobs`` (keys shared by several points run once); ``save`` each.
+    ``gpus``: what each key's task asks for (none where missing)."""
     keys = list(jobs)
     calls = [jobs[k] for k in keys]
     limit = _in_flight(num_cpus, max((_nbytes(c) for c in calls), default=0)) if calls else 1
     run_tasks(fn, calls, description, num_cpus=num_cpus, on_result=lambda i, res: save(keys[i], res),
-              show_progress=show_progress and bool(calls), max_in_flight=limit)
+              show_progress=show_progress and bool(calls), max_in_flight=limit,
+              num_gpus=[(gpus or {}).get(k, 0.0) for k in keys])
     return len(calls)
+
+
+def cluster_gpus(cfg: ExperimentConfig) -> float:
+    """GPUs a clustering task of ``cfg`` asks Ray for (none unless a neural method is on a GPU)."""
+    from pcpg_dist.parallel import NEURAL_CLUSTERERS, stage_gpus
+    from pcpg_dist.ray_utils import node_gpus
+
+    if cfg.clustering.device == "cpu" or cfg.clustering.method not in NEURAL_CLUSTERERS:
+        return 0.0
+    return stage_gpus(cfg.clustering.device, cfg.runner.gpus_per_task, node_gpus(), "clustering.device")
+
+
+def bc_gpus(cfg: ExperimentConfig) -> float:
+    """GPUs a BC training task of ``cfg`` asks Ray for."""
+    from pcpg_dist.bc import runs_on_cpu_only
+    from pcpg_dist.parallel import stage_gpus
+    from pcpg_dist.ray_utils import node_gpus
+
+    if cfg.bc.device == "cpu" or (cfg.bc.device == "auto" and runs_on_cpu_only(cfg.bc)):
+        return 0.0
+    return stage_gpus(cfg.bc.device, cfg.runner.gpus_per_task, node_gpus(), "bc.device")
 
 
 # --------------------------------------------------------------------------- the run
@@ -283,6 +308,7 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
     computed = {"data": 0, "clustering": 0, "train_groups": 0, "evaluations": 0}
     for p in points:
         check_resources(p.cfg.runner.cpus_per_task)
+        p.gpus = (cluster_gpus(p.cfg), bc_gpus(p.cfg))  # a GPU setting no node can serve fails here
 
     # ---- data: each distinct dataset loaded or generated once, each distinct unit put in Ray once.
     # A bad input file fails here, before any MLflow run or cache entry exists.
@@ -322,6 +348,7 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
         # ---- Step A: one clustering per (data, environment, clustering settings)
         t0 = time.perf_counter()
         jobs: dict[str, tuple] = {}
+        gpus: dict[str, float] = {}
         for p in points:
             for e, u in p.units.items():
                 # the input's digest, not only the settings: a domain may derive it from any of
@@ -330,6 +357,7 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
                                              p.cfg.seed, u.cluster_input_note, p.digests[e])
                 if k not in jobs and cache.done("cluster", k) is None:
                     jobs[k] = (p.refs[e], p.cfg.clustering, p.cfg.seed, p.cfg.runner.cpus_per_task)
+                    gpus[k] = p.gpus[0]
 
         def save_cluster(key: str, res: dict) -> None:
             files = {"result.json": json.dumps({k: res[k] for k in ("labels", "margins", "metrics")}).encode(),
@@ -337,7 +365,7 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
             cache.store("cluster", key, files, {"stage": "cluster"})
 
         computed["clustering"] = _run_stage("Step A: clustering", cluster_task, jobs, threads, save_cluster,
-                                            show_progress)
+                                            show_progress, gpus)
         clusters = {k: cache.read_json("cluster", k, "result.json") for p in points for k in p.ckeys.values()}
         times["cluster"] = time.perf_counter() - t0
 
@@ -365,8 +393,11 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
             trained.save(folder / "cells")
             cache.finish("train", key, {"stage": "train", "cells": len(trained.specs)})
 
+        def train_gpus() -> dict[str, float]:
+            return {k: p.gpus[1] for p in points for _, k, _ in p.groups}
+
         computed["train_groups"] = _run_stage("Step C: BC groups", train_task, jobs, threads, save_group,
-                                              show_progress)
+                                              show_progress, train_gpus())
         if later:
             jobs = {}
             for p, e, rest, base_keys in later:
@@ -375,7 +406,7 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
                     [TrainedCells.load(cache.path("train", k) / "cells") for k in keys]))
                 _add_groups(p, e, rest, cache, jobs, finetune_config(p.cfg.bc), base_keys, base)
             computed["train_groups"] += _run_stage("Step C: BC groups from No Clustering", train_task, jobs,
-                                                   threads, save_group, show_progress)
+                                                   threads, save_group, show_progress, train_gpus())
         times["train"] = time.perf_counter() - t0
 
         # ---- Evaluation per environment (MLflow child runs are logged after the summary)

@@ -348,9 +348,12 @@ def run_study(cfg: ExperimentConfig, storage_url: str | Storage | None = None, w
 
     from pcpg_dist.cache import Cache
     from pcpg_dist.progress import progress_bar
-    from pcpg_dist.runner import load_units
+    from pcpg_dist.runner import bc_gpus, cluster_gpus, load_units
 
     tune = tune_settings(cfg, n_trials)
+    # a trial clusters and trains: it asks for a GPU where either stage runs on one (a setting no
+    # node can serve fails here, before the study is touched)
+    gpus = max(cluster_gpus(cfg), bc_gpus(cfg))
     name = study_name or tune.study_name or f"{cfg.name}-tune"
     storage = storage_url if isinstance(storage_url, Storage) else open_storage(storage_url, tune)
     key = objective_key(cfg, tune)
@@ -393,7 +396,7 @@ def run_study(cfg: ExperimentConfig, storage_url: str | Storage | None = None, w
 
     data_ref = ray.put({e: datasets[e] for e in envs})
     threads = cfg.runner.cpus_per_task
-    remote = ray.remote(num_cpus=threads, max_retries=tune.max_retry)(trial_fn)
+    remote = ray.remote(num_cpus=threads, num_gpus=gpus, max_retries=tune.max_retry)(trial_fn)
     tracker = StudyTracker.start(cfg, name, storage.shown, tracking_uri, study) if track else None
 
     # ObjectRef -> the trials waiting on it: a trial that draws the parameters of one in flight

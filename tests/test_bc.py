@@ -205,13 +205,19 @@ def test_a_model_whose_tensors_do_not_fit_its_json_is_one_line_at_load(toy, tmp_
 
 
 def test_device_config():
+    from pydantic import ValidationError
+
+    from pcpg_dist.bc import bc_device
     if not torch.cuda.is_available():
-        with pytest.raises(ConfigError, match="no GPU"):
+        with pytest.raises(ConfigError, match="bc.device is 'cuda' but torch sees no GPU"):
             _resolve("cuda")
-    assert _resolve("auto").type in ("cpu", "cuda")
-    with pytest.raises(ConfigError, match="float32"):
-        from pcpg_dist.bc import _engine
-        _engine(BCConfig(engine="numba", dtype="float64"), torch.device("cpu"))
+    assert _resolve("auto").type == ("cuda" if torch.cuda.is_available() else "cpu")
+    # settings that run on the CPU only keep 'auto' there, GPU or not; 'cuda' refuses them up front
+    assert bc_device(BCConfig(device="auto", batch_size=64)).type == "cpu"
+    assert bc_device(BCConfig(device="auto", engine="numba")).type == "cpu"
+    for bad in ({"device": "cuda"}, {"dtype": "float64"}):
+        with pytest.raises(ValidationError, match="engine numba runs on the CPU in float32 only"):
+            BCConfig(engine="numba", **bad)
 
 
 def _resolve(name):

@@ -152,9 +152,11 @@ class ClusterConfig(StrictModel):
     pretrain_tol: float = Field(
         0.0, ge=0.0, le=1.0, description="LSTM methods: stop pretraining early once an epoch "
         "lowers the reconstruction MSE by less than this fraction (0 = run all pretrain_epochs).")
-    device: Literal["cpu", "cuda"] = Field(
-        "cpu", description="Where the LSTM methods train: 'cpu', or 'cuda' (a GPU; an error if "
-        "none is available). The bag and k-means methods always run on the CPU.")
+    device: Literal["cpu", "cuda", "auto"] = Field(
+        "cpu", description="Where the neural methods (lstm_dec, lstm_kmeans, policy_mix, and "
+        "bag_auto's fallback) train: 'cpu'; 'cuda' (a GPU; an error if none); 'auto' (a GPU "
+        "where there is one). Their Ray tasks then ask for runner.gpus_per_task GPUs. The bag, "
+        "greedy and k-means methods always run on the CPU.")
     em_iterations: int = Field(
         10, ge=1, le=10_000, description="policy_mix: at most this many EM rounds (policies "
         "refitted to the labels, then every trajectory moved to its most likely policy).")
@@ -198,7 +200,9 @@ class BCConfig(StrictModel):
     betas: tuple[float, float] = Field((0.9, 0.999), description="Adam beta1, beta2, each in [0, 1).")
     eps: float = Field(1e-8, gt=0.0, le=1.0, description="Adam epsilon (finite, > 0).")
     device: Literal["cpu", "cuda", "auto"] = Field("cpu", description=(
-        "Where to train: 'auto' uses a GPU when torch sees one; 'cuda' fails without one."))
+        "Where to train: 'auto' uses a GPU where there is one (the CPU with batch_size or engine "
+        "numba, which run there only); 'cuda' fails without one. Ray tasks on a GPU ask for "
+        "runner.gpus_per_task GPUs."))
     dtype: Literal["float32", "float64"] = Field("float32", description="Training precision.")
     engine: Literal["auto", "numba", "torch"] = Field("auto", description=(
         "'numba': fused compiled CPU kernel (fastest on CPU, float32 only); 'torch': stacked "
@@ -224,6 +228,9 @@ class BCConfig(StrictModel):
                                             or self.dtype != "float32"):
             raise ValueError("batch_size needs the numba engine (device cpu, dtype float32, "
                              "engine auto or numba); set batch_size: null for the others")
+        if self.engine == "numba" and (self.device == "cuda" or self.dtype != "float32"):
+            raise ValueError(f"engine numba runs on the CPU in float32 only (got device {self.device}, "
+                             f"dtype {self.dtype}); use engine auto or torch")
         return self
 
 
@@ -387,3 +394,15 @@ class RunnerConfig(StrictModel):
     group_size: Annotated[int, Field(ge=1, le=1_000_000, description="BC cells trained together in one Ray "
                                                                     "task")] = 125
     cpus_per_task: Annotated[int, Field(ge=1, le=4096, description="CPUs (and torch threads) per Ray task")] = 1
+    gpus_per_task: Annotated[float, Field(gt=0, le=64, description=(
+        "GPUs each Ray task of a stage on a GPU asks for (clustering.device or bc.device cuda, or "
+        "auto on a cluster with GPUs): a fraction shares one GPU among tasks (0.25: four at once), "
+        "above 1 a whole number"))] = 0.25
+
+    @field_validator("gpus_per_task")
+    @classmethod
+    def _whole_above_one(cls, v: float) -> float:
+        if v > 1 and v != int(v):
+            raise ValueError(f"must be at most 1 or a whole number (Ray shares a GPU only in fractions "
+                             f"of one), got {v:g}")
+        return v
