@@ -222,7 +222,7 @@ def test_device_config():
 
 def _resolve(name):
     from pcpg_dist.bc import resolve_device
-    return resolve_device(name)
+    return resolve_device(name, "bc.device")
 
 
 def test_minibatches_learn_and_step_on_each_block(toy):

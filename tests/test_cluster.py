@@ -114,7 +114,7 @@ def cluster(tmp_path_factory):
         stderr=subprocess.STDOUT, start_new_session=True)
     hidden = [drv, ROOT / "pcpg_dist", ROOT / "experiments"]
     mounts = " && ".join(f"mount -t tmpfs tmpfs '{d}'" for d in hidden)
-    worker_cmd = (f"{mounts} && exec '{BIN / 'ray'}' start --block --address=127.0.0.1:{port} --num-cpus=2 "
+    worker_cmd = (f"{mounts} && exec '{BIN / 'ray'}' start --block --address=127.0.0.1:{port} --num-cpus=2 --num-gpus=1 "
                   f"--node-ip-address=127.0.0.1 --disable-usage-stats {agent_ports[1]}")
     worker = None
     try:
@@ -174,6 +174,30 @@ def test_impossible_cpu_request_fails_in_one_line(cluster):
     assert len(lines) == 1 and "runner.cpus_per_task" in lines[0] and "at most 2" in lines[0], out.stderr[-2000:]
     assert time.monotonic() - t0 < 240
     assert not (cluster["drv"] / "big" / "nodisk" / "cache" / "cluster").exists()
+
+
+def test_stages_on_a_gpu_ask_ray_for_one(cluster):
+    """The worker node declares one GPU (a Ray resource: this machine has none that torch sees).
+    With ``device: auto`` the driver sees a GPU in the cluster, so Step A's and Step C's tasks ask
+    Ray for ``runner.gpus_per_task`` of it (Ray's own record of the tasks says so); inside them
+    torch finds no GPU, so they train on the CPU and the run finishes. A stage on ``cpu`` asks
+    for none."""
+    out = pcpg(["run", "tiny.yaml", "--no-tracking", "--quiet", "--workdir", "gpu", "clustering.method=lstm_dec",
+                "clustering.pretrain_epochs=2", "clustering.dec_epochs=1", "clustering.device=auto",
+                "bc.device=auto", "runner.gpus_per_task=0.5", "--ray-address", cluster["address"]],
+               cluster["drv"])
+    assert out.returncode == 0, out.stderr[-3000:]
+    listed = subprocess.run([str(BIN / "ray"), "list", "tasks", "--address", cluster["dashboard"], "--detail",
+                             "--format", "json", "--limit", "10000"], env=clean_env(), capture_output=True,
+                            text=True, timeout=120)
+    assert listed.returncode == 0, listed.stderr[-2000:]
+    asked = {}
+    for task in json.loads(listed.stdout):
+        name = task.get("func_or_class_name", "")
+        asked.setdefault(name.rsplit(".", 1)[-1], set()).add(
+            (task.get("required_resources") or {}).get("GPU", 0.0))
+    assert 0.5 in asked.get("cluster_task", set()) and 0.5 in asked.get("train_task", set()), asked
+    assert asked.get("evaluate_task") == {0.0}, asked  # evaluation runs on the CPU
 
 
 def test_ray_job_submit(cluster, tmp_path):

@@ -444,6 +444,9 @@ def datasets_from_table(step: StepTable, n_actions: int | None = None,
         n = width
     else:
         n = n_actions if n_actions is not None else int(actions.max()) + 1
+        if n < 1 or n > MAX_ACTIONS:  # before counting the actions: a stray id of 10**12 is no width
+            raise DataError(f"{source}: {n} actions; pcpg handles 1..{MAX_ACTIONS}")
+        check_action_memory(rows, n, source, _action_origin(n_actions, valid=False))
         taken = np.bincount(actions[actions >= 0], minlength=n)[:n] if rows else np.zeros(0, np.int64)
         never = np.flatnonzero(taken == 0)
         if n_actions is None and len(never) and n > 1:  # a stray large action id widens every agent
