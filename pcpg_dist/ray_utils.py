@@ -200,19 +200,19 @@ def check_resources(num_cpus: int, memory_bytes: float = 0.0, key: str = "runner
                           f"less data per environment or a node with more memory")
 
 
-def _waiting_for(num_cpus: int, in_flight: int) -> str:
+def _waiting_for(num_cpus: int, in_flight: int, num_gpus: float = 0.0) -> str:
     """What queued tasks wait for, when more are submitted than the cluster can run now."""
     import ray
 
     try:
-        free = ray.available_resources().get("CPU", 0.0)
-        total = ray.cluster_resources().get("CPU", 0.0)
+        free, total = ray.available_resources(), ray.cluster_resources()
     except Exception:  # noqa: BLE001 - a status line must never break the run
         return ""
-    queued = in_flight - int(total // max(num_cpus, 1))
-    if free >= num_cpus or queued <= 0:
+    what, need = ("GPU", num_gpus) if num_gpus else ("CPU", float(max(num_cpus, 1)))
+    queued = in_flight - int(total.get(what, 0.0) // need)
+    if free.get(what, 0.0) >= need or queued <= 0:
         return ""
-    return f"{queued} queued, each waiting for {num_cpus} CPU; {free:g} of {total:g} free"
+    return f"{queued} queued, each waiting for {need:g} {what}; {free.get(what, 0.0):g} of {total.get(what, 0.0):g} free"
 
 
 # --------------------------------------------------------------------------- running tasks
@@ -262,7 +262,7 @@ def run_tasks(fn: Callable[..., Any], calls: Sequence[tuple], description: str,
                 done, _ = ray.wait(list(index), num_returns=1, timeout=2.0)
                 if not done:
                     if time.monotonic() - idle_since > 5 and show_progress:
-                        waiting = _waiting_for(num_cpus, len(index))
+                        waiting = _waiting_for(num_cpus, len(index), max((gpus[i] for i in index.values()), default=0.0))
                         advance(0, description=f"{description} ({waiting})" if waiting else description)
                     continue
                 idle_since = time.monotonic()
