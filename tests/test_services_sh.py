@@ -265,6 +265,21 @@ def test_pg_url_naming_the_server_is_accepted(svc, url):
     assert storage.startswith("postgresql+psycopg2://") and storage.endswith(":5432/" + svc.dbs[1])
 
 
+def test_pg_url_options_follow_the_database(svc):
+    """``?sslmode=...`` on the server URL: every database URL puts the database before it (the
+    database was appended after the query), and ``start db`` connects with the option."""
+    url = f"postgresql+psycopg2://{PG['user']}@{PG['host']}:{PG['port']}/?sslmode=disable"
+    res = svc.run("env", PCPG_PG_URL=url)
+    assert res.returncode == 0, res.stderr
+    storage = re.search(r"--optuna-storage (\S+)", res.stdout).group(1)
+    assert storage == f"postgresql+psycopg2://{PG['user']}@{PG['host']}:{PG['port']}/{svc.dbs[1]}?sslmode=disable"
+    res = svc.run("start", "db", PCPG_PG_URL=url)
+    assert res.returncode == 0, res.stderr
+    assert all(db_exists(name) for name in svc.dbs)
+    res = svc.run("start", "db", PCPG_PG_URL=url.replace("disable", "bogus"))
+    assert res.returncode != 0 and "sslmode" in res.stderr, res.stderr  # the option reaches libpq
+
+
 # ---------------------------------------------------------------------------- 3: Ray port
 @pytest.mark.parametrize("what", ["ray", "all"])
 def test_start_ray_refuses_port_in_use(svc, what):

@@ -13,7 +13,8 @@
 #   PCPG_HOST            [127.0.0.1] address MLflow binds to and Ray advertises (0.0.0.0 is refused
 #                        for Ray: give this machine's address that other nodes can reach)
 #   PCPG_PG_URL          [postgresql+psycopg2://postgres@127.0.0.1:5432] PostgreSQL server, no
-#                        database name (a password may sit in the URL or in ~/.pgpass)
+#                        database name (a password may sit in the URL or in ~/.pgpass; ?options
+#                        such as sslmode=require follow each database's name)
 #   PCPG_MLFLOW_DB       [pcpg_mlflow]  MLflow's database (created if missing)
 #   PCPG_OPTUNA_DB       [pcpg_optuna]  Optuna's database (created if missing; a separate database
 #                        because MLflow and Optuna both keep an `alembic_version` table)
@@ -73,11 +74,16 @@ pidfile() { echo "$STATE/$1.pid"; }
 logfile() { echo "$STATE/$1.log"; }
 client_host() { if [[ "$HOST" == 0.0.0.0 ]]; then hostname -I 2>/dev/null | awk '{print $1}'; else echo "$HOST"; fi; }
 mlflow_url() { echo "http://$(client_host):$MLFLOW_PORT"; }
-db_url() { echo "$PG_URL/$1"; }
+# the server, then the database, then PCPG_PG_URL's ?options (sslmode=...), if it has any
+db_url() {
+  local base="${PG_URL%%\?*}" query=""
+  [[ "$PG_URL" != *\?* ]] || query="?${PG_URL#*\?}"
+  echo "${base%/}/$1$query"
+}
 
 # PCPG_PG_URL names the server; the script appends each database name itself.
 check_pg_url() {
-  local rest="${PG_URL#*://}"; rest="${rest##*@}"; rest="${rest%%\?*}"
+  local rest="${PG_URL#*://}"; rest="${rest##*@}"; rest="${rest%%\?*}"; rest="${rest%/}"
   [[ "$rest" != */* ]] || refuse "PCPG_PG_URL must name the PostgreSQL server only, without a database \
 (it ends in '/${rest#*/}'): e.g. postgresql+psycopg2://postgres@127.0.0.1:5432; the databases are set by \
 PCPG_MLFLOW_DB and PCPG_OPTUNA_DB"
@@ -215,16 +221,17 @@ ray_started() { grep -q "Ray runtime started" "$(logfile "$1")" 2>/dev/null; }
 
 # ------------------------------------------------------------------------------------ databases
 create_databases() {
-  "$PY" - "$PG_URL" "$@" <<'EOF'
+  "$PY" - "$(db_url postgres)" "$@" <<'EOF'
 import sys
 import psycopg2
 from psycopg2 import sql
 from sqlalchemy.engine import make_url
 
-url = make_url(sys.argv[1] + "/postgres")
+url = make_url(sys.argv[1])
+options = {k: v for k, v in url.query.items() if isinstance(v, str)}  # sslmode=..., as libpq takes them
 try:
     conn = psycopg2.connect(host=url.host or "127.0.0.1", port=url.port or 5432, user=url.username,
-                            password=url.password, dbname="postgres", connect_timeout=10)
+                            password=url.password, dbname="postgres", connect_timeout=10, **options)
 except psycopg2.OperationalError as e:
     sys.exit(f"services.sh: cannot reach PostgreSQL at {url.host}:{url.port or 5432}: "
              f"{str(e).strip().splitlines()[0]}")
