@@ -242,6 +242,18 @@ def cluster_gpus(cfg: ExperimentConfig) -> float:
     return stage_gpus(cfg.clustering.device, cfg.runner.gpus_per_task, node_gpus(), "clustering.device")
 
 
+def trains_a_network(cluster_cfg, dataset) -> bool:
+    """Whether Step A trains a network on ``dataset`` (a unit's clustering input): ``bag_auto``
+    does only on continuous states (its fallback), so on discrete ones its task needs no GPU."""
+    from pcpg_dist.parallel import NEURAL_CLUSTERERS
+
+    if cluster_cfg.method != "bag_auto":
+        return cluster_cfg.method in NEURAL_CLUSTERERS
+    from pcpg_dist.clustering import falls_back_to_lstm
+
+    return falls_back_to_lstm(dataset)
+
+
 def bc_gpus(cfg: ExperimentConfig) -> float:
     """GPUs a BC training task of ``cfg`` asks Ray for."""
     from pcpg_dist.bc import runs_on_cpu_only
@@ -357,7 +369,7 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
                                              p.cfg.seed, u.cluster_input_note, p.digests[e])
                 if k not in jobs and cache.done("cluster", k) is None:
                     jobs[k] = (p.refs[e], p.cfg.clustering, p.cfg.seed, p.cfg.runner.cpus_per_task)
-                    gpus[k] = p.gpus[0]
+                    gpus[k] = p.gpus[0] if p.gpus[0] and trains_a_network(p.cfg.clustering, u.clustered) else 0.0
 
         def save_cluster(key: str, res: dict) -> None:
             files = {"result.json": json.dumps({k: res[k] for k in ("labels", "margins", "metrics")}).encode(),

@@ -61,6 +61,24 @@ def test_policy_mix_auto_is_the_cpu_fit_where_no_gpu_is_seen():
         assert clustering_metrics(goals.styles, auto.labels)["accuracy"] >= 0.95
 
 
+def test_only_a_clustering_that_trains_a_network_asks_for_a_gpu():
+    """``bag_auto`` trains a network only where it falls back to lstm_dec (continuous states)."""
+    from test_policy_mix import goal_seekers
+
+    from pcpg_dist.dataset import Dataset
+    from pcpg_dist.runner import trains_a_network
+
+    continuous = goal_seekers(5, seed=0)
+    rng = np.random.default_rng(0)
+    grid = [{"states": rng.integers(0, 3, size=(6, 2)).astype(float), "actions": rng.integers(0, 4, 5),
+             "valid": np.full(6, 15), "rewards": np.zeros(5)} for _ in range(20)]  # 9 distinct states
+    discrete = Dataset.from_trajectories("toy", "grid", 4, grid, [0] * 20, [True] * 20)
+    auto = ClusterConfig(method="bag_auto")
+    assert trains_a_network(auto, continuous) and not trains_a_network(auto, discrete)
+    for method, neural in (("lstm_dec", True), ("policy_mix", True), ("greedy_mix", False), ("bag_kmeans", False)):
+        assert trains_a_network(ClusterConfig(method=method), discrete) is neural
+
+
 def test_bc_auto_keeps_cpu_only_settings_on_the_cpu():
     from pcpg_dist.bc import bc_device, runs_on_cpu_only
 
