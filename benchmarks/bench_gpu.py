@@ -63,7 +63,7 @@ def bench_clusterer(name: str, ds, clustered, cfg: ClusterConfig, gpu: bool, row
     print(_fmt(row), flush=True)
 
 
-def bench_bc(data: dict, gpu: bool, threads: int, rows: list[dict]) -> None:
+def bench_bc(data: dict, gpu: bool, rows: list[dict]) -> None:
     rank, seeds, cfg = RankConfig(), [0, 1, 2, 3], BCConfig(epochs=2000)
     cells, tests = [], {}
     for env, ds in data.items():
@@ -74,8 +74,11 @@ def bench_bc(data: dict, gpu: bool, threads: int, rows: list[dict]) -> None:
         tests[env] = (test.states[r], test.valid_mask[r], test.actions[r])
 
     def accuracy(model) -> float:
-        return float(np.mean([(model.predict(*tests[c.key.split("/")[0]][:2], i)
-                               == tests[c.key.split("/")[0]][2]).mean() for i, c in enumerate(cells)]))
+        per_cell = []
+        for i, c in enumerate(cells):
+            s, v, a = tests[c.key.split("/")[0]]
+            per_cell.append((model.predict(s, v, i) == a).mean())
+        return float(np.mean(per_cell))
 
     train_cells(cells[:1], BCConfig(epochs=1))  # numba compiles once (cached on disk after)
     cpu, cpu_s = timed(lambda: train_cells(cells, cfg), False)
@@ -123,7 +126,7 @@ def main() -> None:
         for _, name, raw, clustered in minidungeons_units([0]):
             bench_clusterer(f"MD {name}", raw, clustered, ClusterConfig(k=6, method="policy_mix"), gpu, rows)
     if "bc" in args.parts:
-        bench_bc(data, gpu, args.threads, rows)
+        bench_bc(data, gpu, rows)
     print("\npart        unit          cpu acc   cuda acc   cpu s   cuda s   cpu/cuda")
     for r in rows:
         g = "gpu_s" in r

@@ -156,12 +156,12 @@ def _cmd_cluster(args: argparse.Namespace) -> None:
     from pcpg_dist.domains import contract
     from pcpg_dist.generate import generate_to
     from pcpg_dist.progress import out as console  # results: stdout
-    from pcpg_dist.ray_utils import init_ray, run_tasks
-    from pcpg_dist.runner import cluster_gpus, cluster_task, trains_a_network
+    from pcpg_dist.ray_utils import init_ray, node_gpus, run_tasks
+    from pcpg_dist.runner import cluster_gpus, cluster_task, unit_cluster_gpus
 
     cfg = load_config_with(args.config, args.overrides)
     init_ray(args.ray_address)
-    gpus = cluster_gpus(cfg)  # a GPU setting no node can serve fails before any work
+    gpus = cluster_gpus(cfg, node_gpus())  # a GPU setting no node can serve fails before any work
     out = Path(args.out)
     if args.data:
         datasets = load_datasets(Path(args.data))
@@ -174,8 +174,7 @@ def _cmd_cluster(args: argparse.Namespace) -> None:
     results = run_tasks(cluster_task, [(units[e], cfg.clustering, cfg.seed, cfg.runner.cpus_per_task)
                                        for e in envs],
                         "Step A: clustering", num_cpus=cfg.runner.cpus_per_task, show_progress=not args.quiet,
-                        num_gpus=[gpus if gpus and trains_a_network(cfg.clustering, units[e].clustered) else 0.0
-                                  for e in envs])
+                        num_gpus=[unit_cluster_gpus(gpus, cfg.clustering, units[e].clustered) for e in envs])
     for env, res in zip(envs, results, strict=True):
         write_files(folders[env] / "model", res["model"])
         atomic_write_bytes(folders[env] / "labels.json", json.dumps(res["labels"]).encode())

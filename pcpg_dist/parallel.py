@@ -13,10 +13,6 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     import torch
 
-NEURAL_CLUSTERERS = frozenset({"lstm_dec", "lstm_kmeans", "policy_mix", "bag_auto"})
-"""Clustering methods that may train a network (``bag_auto`` falls back to ``lstm_dec`` on
-continuous states): only these use ``clustering.device`` and ask Ray for a GPU."""
-
 
 def set_threads(n: int) -> None:
     """Limit torch (and BLAS via env vars for subprocesses) to ``n`` threads in this process."""

@@ -232,20 +232,21 @@ def _run_stage(description: str, fn: Callable, jobs: dict[str, tuple], num_cpus:
     return len(calls)
 
 
-def cluster_gpus(cfg: ExperimentConfig) -> float:
-    """GPUs a clustering task of ``cfg`` asks Ray for (none unless a neural method is on a GPU)."""
-    from pcpg_dist.parallel import NEURAL_CLUSTERERS, stage_gpus
-    from pcpg_dist.ray_utils import node_gpus
+def cluster_gpus(cfg: ExperimentConfig, node_gpus: float) -> float:
+    """GPUs a clustering task of ``cfg`` asks Ray for (none unless a neural method is on a GPU);
+    ``node_gpus``: the most one live node has (:func:`pcpg_dist.ray_utils.node_gpus`)."""
+    from pcpg_dist.config.stages import NEURAL_CLUSTERERS
+    from pcpg_dist.parallel import stage_gpus
 
     if cfg.clustering.device == "cpu" or cfg.clustering.method not in NEURAL_CLUSTERERS:
         return 0.0
-    return stage_gpus(cfg.clustering.device, cfg.runner.gpus_per_task, node_gpus(), "clustering.device")
+    return stage_gpus(cfg.clustering.device, cfg.runner.gpus_per_task, node_gpus, "clustering.device")
 
 
 def trains_a_network(cluster_cfg, dataset) -> bool:
     """Whether Step A trains a network on ``dataset`` (a unit's clustering input): ``bag_auto``
     does only on continuous states (its fallback), so on discrete ones its task needs no GPU."""
-    from pcpg_dist.parallel import NEURAL_CLUSTERERS
+    from pcpg_dist.config.stages import NEURAL_CLUSTERERS
 
     if cluster_cfg.method != "bag_auto":
         return cluster_cfg.method in NEURAL_CLUSTERERS
@@ -254,15 +255,19 @@ def trains_a_network(cluster_cfg, dataset) -> bool:
     return falls_back_to_lstm(dataset)
 
 
-def bc_gpus(cfg: ExperimentConfig) -> float:
-    """GPUs a BC training task of ``cfg`` asks Ray for."""
+def unit_cluster_gpus(share: float, cluster_cfg, dataset) -> float:
+    """What one unit's clustering task asks for: the stage's ``share`` where it trains a network."""
+    return share if share and trains_a_network(cluster_cfg, dataset) else 0.0
+
+
+def bc_gpus(cfg: ExperimentConfig, node_gpus: float) -> float:
+    """GPUs a BC training task of ``cfg`` asks Ray for (``node_gpus`` as in :func:`cluster_gpus`)."""
     from pcpg_dist.bc import runs_on_cpu_only
     from pcpg_dist.parallel import stage_gpus
-    from pcpg_dist.ray_utils import node_gpus
 
     if cfg.bc.device == "cpu" or (cfg.bc.device == "auto" and runs_on_cpu_only(cfg.bc)):
         return 0.0
-    return stage_gpus(cfg.bc.device, cfg.runner.gpus_per_task, node_gpus(), "bc.device")
+    return stage_gpus(cfg.bc.device, cfg.runner.gpus_per_task, node_gpus, "bc.device")
 
 
 # --------------------------------------------------------------------------- the run
@@ -314,13 +319,15 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
 
     from pcpg_dist.bc import TrainedCells, finetune_config, split_for_init
     from pcpg_dist.pipeline import plan_unit
-    from pcpg_dist.ray_utils import check_resources
+    from pcpg_dist.ray_utils import check_resources, node_gpus
 
     times: dict[str, float] = {}
     computed = {"data": 0, "clustering": 0, "train_groups": 0, "evaluations": 0}
+    most_gpus = node_gpus()
     for p in points:
         check_resources(p.cfg.runner.cpus_per_task)
-        p.gpus = (cluster_gpus(p.cfg), bc_gpus(p.cfg))  # a GPU setting no node can serve fails here
+        # a GPU setting no node can serve fails here
+        p.gpus = (cluster_gpus(p.cfg, most_gpus), bc_gpus(p.cfg, most_gpus))
 
     # ---- data: each distinct dataset loaded or generated once, each distinct unit put in Ray once.
     # A bad input file fails here, before any MLflow run or cache entry exists.
@@ -369,7 +376,7 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
                                              p.cfg.seed, u.cluster_input_note, p.digests[e])
                 if k not in jobs and cache.done("cluster", k) is None:
                     jobs[k] = (p.refs[e], p.cfg.clustering, p.cfg.seed, p.cfg.runner.cpus_per_task)
-                    gpus[k] = p.gpus[0] if p.gpus[0] and trains_a_network(p.cfg.clustering, u.clustered) else 0.0
+                    gpus[k] = unit_cluster_gpus(p.gpus[0], p.cfg.clustering, u.clustered)
 
         def save_cluster(key: str, res: dict) -> None:
             files = {"result.json": json.dumps({k: res[k] for k in ("labels", "margins", "metrics")}).encode(),

@@ -348,12 +348,14 @@ def run_study(cfg: ExperimentConfig, storage_url: str | Storage | None = None, w
 
     from pcpg_dist.cache import Cache
     from pcpg_dist.progress import progress_bar
+    from pcpg_dist.ray_utils import node_gpus
     from pcpg_dist.runner import bc_gpus, cluster_gpus, load_units
 
     tune = tune_settings(cfg, n_trials)
     # a trial clusters and trains: it asks for a GPU where either stage runs on one (a setting no
     # node can serve fails here, before the study is touched)
-    gpus = max(cluster_gpus(cfg), bc_gpus(cfg))
+    most_gpus = node_gpus()
+    gpus = max(cluster_gpus(cfg, most_gpus), bc_gpus(cfg, most_gpus))
     name = study_name or tune.study_name or f"{cfg.name}-tune"
     storage = storage_url if isinstance(storage_url, Storage) else open_storage(storage_url, tune)
     key = objective_key(cfg, tune)

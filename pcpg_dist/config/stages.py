@@ -84,6 +84,11 @@ class RankConfig(StrictModel):
 LIKELIHOOD_METHODS = ("greedy_mix", "bag_auto", "policy_mix")
 
 
+NEURAL_CLUSTERERS = frozenset({"lstm_dec", "lstm_kmeans", "policy_mix", "bag_auto"})
+"""Clustering methods that may train a network (``bag_auto`` falls back to ``lstm_dec`` on
+continuous states): only these use ``clustering.device`` and ask Ray for a GPU."""
+
+
 class ClusterConfig(StrictModel):
     """Step A settings. The default method, bag_auto (greedy_mix on discrete states), is the best
     label-free clusterer on 20 held-out random GridWorld layouts and falls back to the paper's
