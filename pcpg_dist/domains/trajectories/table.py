@@ -456,9 +456,6 @@ def datasets_from_table(step: StepTable, n_actions: int | None = None,
                 "action, %d (%s): set trajectories.n_actions if that is not right",
                 where.locate(top)[0], len(never), n, reprlib.repr(never.tolist()), n - 1,
                 f"row {where.locate(top)[1]}")
-    if n < 1 or n > MAX_ACTIONS:
-        raise DataError(f"{source}: {n} actions; pcpg handles 1..{MAX_ACTIONS}")
-    check_action_memory(rows, n, source, _action_origin(n_actions, valid=valid is not None))
     too_big = a_sorted >= n
     if too_big.any():
         row = int(order[np.flatnonzero(too_big)[0]])
