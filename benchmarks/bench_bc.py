@@ -48,7 +48,7 @@ def plain_loop(states, valid, actions, mean, std, sizes, epochs, batch, lr, seed
     for _ in range(epochs):
         perm = torch.randperm(len(y))
         for j in range(0, len(y), batch):
-            b = perm[j:j + batch]
+            b = perm[j : j + batch]
             logits = model(x[b]).masked_fill(~v[b], float("-inf"))
             loss = torch.nn.functional.cross_entropy(logits, y[b])
             opt.zero_grad()
@@ -73,8 +73,10 @@ def main() -> None:
     ap.add_argument("--epochs", type=int, default=2000)
     args = ap.parse_args()
     if not Path(args.data).is_dir():
-        raise SystemExit(f"{args.data}: run `uv run pcpg generate experiments/gridworld_paper.yaml "
-                         f"--out {args.data}` first")
+        raise SystemExit(
+            f"{args.data}: run `uv run pcpg generate experiments/gridworld_paper.yaml "
+            f"--out {args.data}` first"
+        )
     rank, seeds = RankConfig(), [0, 1, 2, 3]
     cfg = BCConfig(epochs=args.epochs)
     datasets = load_datasets(Path(args.data))
@@ -87,8 +89,10 @@ def main() -> None:
     plan_s = time.perf_counter() - t0
     raw = sum(c.weights.sum() for c in cells)
     rows = sum(c.n_rows for c in cells)
-    print(f"{len(cells)} models, {raw:.0f} raw steps -> {rows} distinct rows "
-          f"({raw / rows:.0f}x fewer); planning {plan_s:.1f} s")
+    print(
+        f"{len(cells)} models, {raw:.0f} raw steps -> {rows} distinct rows "
+        f"({raw / rows:.0f}x fewer); planning {plan_s:.1f} s"
+    )
     # the plain loop runs first (before numba starts its threads) with one thread: a per-model
     # loop of a 5-unit net gains nothing from threads, and 2 torch threads on a busy 2-core
     # machine were measured ~100x slower
@@ -102,43 +106,76 @@ def main() -> None:
         ds = datasets[env]
         tr, te = splits[env]
         spec = cell.spec
-        raw_cell = next(c for c in plan_cells(ds, ds.styles, tr, RankConfig(ps=(spec.p,)), [spec.seed],
-                                              dedupe=False) if c.spec.kind == spec.kind and c.spec.k == spec.k)
+        raw_cell = next(
+            c
+            for c in plan_cells(
+                ds, ds.styles, tr, RankConfig(ps=(spec.p,)), [spec.seed], dedupe=False
+            )
+            if c.spec.kind == spec.kind and c.spec.k == spec.k
+        )
         scores = performance(ds, rank.beta)
-        subset = (threshold(ds.styles, te, scores, ds.trajectory_ids, [spec.p])[(spec.k, spec.p)]
-                  if spec.kind == "pcpg" else threshold_all(te, scores, ds.trajectory_ids, [spec.p])[spec.p])
+        subset = (
+            threshold(ds.styles, te, scores, ds.trajectory_ids, [spec.p])[(spec.k, spec.p)]
+            if spec.kind == "pcpg"
+            else threshold_all(te, scores, ds.trajectory_ids, [spec.p])[spec.p]
+        )
         s, v, a = test_rows(ds, subset)
         t0, c0 = time.perf_counter(), time.process_time()
-        net = plain_loop(raw_cell.states, raw_cell.valid, raw_cell.actions, cell.mean, cell.std,
-                         (cells[0].state_dim, *[cfg.hidden_size] * cfg.hidden_layers, cells[0].n_actions), args.plain_epochs, 64, args.plain_lr, spec.seed, cfg.activation)
+        net = plain_loop(
+            raw_cell.states,
+            raw_cell.valid,
+            raw_cell.actions,
+            cell.mean,
+            cell.std,
+            (cells[0].state_dim, *[cfg.hidden_size] * cfg.hidden_layers, cells[0].n_actions),
+            args.plain_epochs,
+            64,
+            args.plain_lr,
+            spec.seed,
+            cfg.activation,
+        )
         plain_s.append(time.perf_counter() - t0)
         plain_cpu.append(time.process_time() - c0)
         with torch.no_grad():
-            logits = net(torch.tensor((s - cell.mean) / cell.std)).masked_fill(~torch.tensor(v), float("-inf"))
+            logits = net(torch.tensor((s - cell.mean) / cell.std)).masked_fill(
+                ~torch.tensor(v), float("-inf")
+            )
         acc_p.append(float((logits.argmax(1).numpy() == a).mean()))
         tests.append((i, s, v, a))
-        print(f"  {cell.key:24s} raw steps {raw_cell.n_rows:6d}  plain {plain_s[-1]:6.2f} s  "
-              f"acc plain {acc_p[-1]:.3f}")
+        print(
+            f"  {cell.key:24s} raw steps {raw_cell.n_rows:6d}  plain {plain_s[-1]:6.2f} s  "
+            f"acc plain {acc_p[-1]:.3f}"
+        )
     set_threads(args.threads)
     train_cells(cells[:1], BCConfig(epochs=1))  # compile (cached on disk after the first run)
     t0, c0 = time.perf_counter(), time.process_time()
     model = train_cells(cells, cfg)
     batched_s, batched_cpu = time.perf_counter() - t0, time.process_time() - c0
-    print(f"batched: {len(cells)} models x {cfg.epochs} epochs in {batched_s:.1f} s wall "
-          f"({batched_cpu:.1f} CPU-s, {args.threads} threads) = {batched_s / len(cells) * 1e3:.1f} ms/model")
+    print(
+        f"batched: {len(cells)} models x {cfg.epochs} epochs in {batched_s:.1f} s wall "
+        f"({batched_cpu:.1f} CPU-s, {args.threads} threads) = {batched_s / len(cells) * 1e3:.1f} ms/model"
+    )
 
     for i, s, v, a in tests:
         acc_b.append(float((model.predict(s, v, i) == a).mean()))
     per_plain, per_batched = float(np.mean(plain_s)), batched_s / len(cells)
     cpu_plain, cpu_batched = float(np.mean(plain_cpu)), batched_cpu / len(cells)
-    print(f"plain loop ({args.plain_epochs} epochs, minibatch 64, 1 thread): {per_plain:.2f} s/model "
-          f"({cpu_plain:.2f} CPU-s); all {len(cells)} would take {per_plain * len(cells):.0f} s")
-    print(f"speed ratio per model, wall (plain 1 thread / batched {args.threads} threads): "
-          f"{per_plain / per_batched:.0f}x; per CPU-second: {cpu_plain / cpu_batched:.0f}x")
-    print(f"test accuracy on the sample: batched {np.mean(acc_b):.3f}, plain {np.mean(acc_p):.3f}, "
-          f"difference {np.mean(acc_b) - np.mean(acc_p):+.3f}")
-    print(f"target: all models <= 60 s -> {'met' if batched_s <= 60 else 'MISSED'} ({batched_s:.1f} s); "
-          f">= 50x -> {'met' if min(per_plain / per_batched, cpu_plain / cpu_batched) >= 50 else 'MISSED'}")
+    print(
+        f"plain loop ({args.plain_epochs} epochs, minibatch 64, 1 thread): {per_plain:.2f} s/model "
+        f"({cpu_plain:.2f} CPU-s); all {len(cells)} would take {per_plain * len(cells):.0f} s"
+    )
+    print(
+        f"speed ratio per model, wall (plain 1 thread / batched {args.threads} threads): "
+        f"{per_plain / per_batched:.0f}x; per CPU-second: {cpu_plain / cpu_batched:.0f}x"
+    )
+    print(
+        f"test accuracy on the sample: batched {np.mean(acc_b):.3f}, plain {np.mean(acc_p):.3f}, "
+        f"difference {np.mean(acc_b) - np.mean(acc_p):+.3f}"
+    )
+    print(
+        f"target: all models <= 60 s -> {'met' if batched_s <= 60 else 'MISSED'} ({batched_s:.1f} s); "
+        f">= 50x -> {'met' if min(per_plain / per_batched, cpu_plain / cpu_batched) >= 50 else 'MISSED'}"
+    )
 
 
 if __name__ == "__main__":

@@ -45,23 +45,39 @@ from pcpg_dist.domains import gridworld as gw
 from pcpg_dist.parallel import set_threads
 from pcpg_dist.pbtg import assemble_dataset, generate_pair
 
-METHODS = ("bag_auto", "greedy_mix", "bag_kmeans", "bag_mop", "visits_kmeans", "summary_kmeans", "lstm_dec", "policy_mix",
-           "dtw_kmeans")
+METHODS = (
+    "bag_auto",
+    "greedy_mix",
+    "bag_kmeans",
+    "bag_mop",
+    "visits_kmeans",
+    "summary_kmeans",
+    "lstm_dec",
+    "policy_mix",
+    "dtw_kmeans",
+)
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def datasets(cache: Path, heldout: int, heldout_seed: int, groups: tuple[str, ...] = ("paper", "heldout")):
+def datasets(
+    cache: Path, heldout: int, heldout_seed: int, groups: tuple[str, ...] = ("paper", "heldout")
+):
     """(group, name, Dataset, Layout) for E1-E5 and the held-out layouts, generated once and cached."""
     layouts = []
     if "paper" in groups:
-        layouts += [("paper", gw.load_layout(ROOT / "pcpg_dist" / "data" / "gridworld" / f"E{i}.txt")) for i in range(1, 6)]
+        layouts += [
+            ("paper", gw.load_layout(ROOT / "pcpg_dist" / "data" / "gridworld" / f"E{i}.txt"))
+            for i in range(1, 6)
+        ]
     if "heldout" in groups:
         layouts += [("heldout", lt) for lt in gw.random_layouts(heldout, heldout_seed)]
     for group, lt in layouts:
         path = cache / group / f"{heldout_seed if group == 'heldout' else 'E'}_{lt.name}.parquet"
         if not path.is_file():
             path.parent.mkdir(parents=True, exist_ok=True)
-            write_parquet(assemble_dataset([generate_pair(lt, r, PBTGConfig(), 0) for r in range(4)]), path)
+            write_parquet(
+                assemble_dataset([generate_pair(lt, r, PBTGConfig(), 0) for r in range(4)]), path
+            )
         yield group, lt.name, read_parquet(path), lt
 
 
@@ -79,10 +95,19 @@ def minidungeons_units(seeds: list[int]):
     )
 
     for seed in seeds:
-        parts = [Dataset.concat([generate_trajectories(lv, p, 10, part_seed(seed, lv, p)) for p in range(6)],
-                                renumber=True) for lv in (*LEVELS_TRAIN, *LEVELS_TEST)]
-        yield ("minidungeons", f"seed{seed}", replace(Dataset.concat(parts), env="levels"),
-               replace(Dataset.concat([standardised(p) for p in parts]), env="levels"))
+        parts = [
+            Dataset.concat(
+                [generate_trajectories(lv, p, 10, part_seed(seed, lv, p)) for p in range(6)],
+                renumber=True,
+            )
+            for lv in (*LEVELS_TRAIN, *LEVELS_TEST)
+        ]
+        yield (
+            "minidungeons",
+            f"seed{seed}",
+            replace(Dataset.concat(parts), env="levels"),
+            replace(Dataset.concat([standardised(p) for p in parts]), env="levels"),
+        )
 
 
 def bayes_rate(layout, ds, seed: int = 0, grid: int = 61) -> float:
@@ -96,8 +121,18 @@ def bayes_rate(layout, ds, seed: int = 0, grid: int = 61) -> float:
 
     cfg, t = PBTGConfig(), layout.tables  # the configuration :func:`datasets` generates with
     styles = np.unique(ds.styles)
-    greedy = np.stack([np.where(t.valid, q_learning(t, int(r), cfg, int(pair_seed(seed, layout.name, int(r)).generate_state(3)[0])),
-                                -np.inf).argmax(1) for r in styles])
+    greedy = np.stack(
+        [
+            np.where(
+                t.valid,
+                q_learning(
+                    t, int(r), cfg, int(pair_seed(seed, layout.name, int(r)).generate_state(3)[0])
+                ),
+                -np.inf,
+            ).argmax(1)
+            for r in styles
+        ]
+    )
     ids = {tuple(f): i for i, f in enumerate(t.features.tolist())}
     sid = np.array([ids[tuple(f)] for f in np.asarray(ds.states).tolist()])
     acts = np.asarray(ds.actions)
@@ -109,8 +144,10 @@ def bayes_rate(layout, ds, seed: int = 0, grid: int = 61) -> float:
     log_lik = np.empty((len(styles), ds.n_trajectories, grid))
     for i in range(len(styles)):
         p = np.where((greedy[i, s] == a)[:, None], 1 - eps + eps / n_valid, eps / n_valid)
-        log_lik[i] = np.stack([np.bincount(traj, np.log(p[:, j]), minlength=ds.n_trajectories)
-                               for j in range(grid)], axis=1)
+        log_lik[i] = np.stack(
+            [np.bincount(traj, np.log(p[:, j]), minlength=ds.n_trajectories) for j in range(grid)],
+            axis=1,
+        )
     return float((styles[logsumexp(log_lik, axis=2).argmax(0)] == ds.styles).mean())
 
 
@@ -119,8 +156,11 @@ def dtw_labels(ds, k: int, sample: int, seed: int) -> tuple[np.ndarray, np.ndarr
     from tslearn.clustering import TimeSeriesKMeans
     from tslearn.utils import to_time_series_dataset
 
-    idx = np.sort(np.random.default_rng(seed).choice(ds.n_trajectories, min(sample, ds.n_trajectories),
-                                                     replace=False))
+    idx = np.sort(
+        np.random.default_rng(seed).choice(
+            ds.n_trajectories, min(sample, ds.n_trajectories), replace=False
+        )
+    )
     x = to_time_series_dataset([ds.trajectory_states(int(i)) for i in idx])
     km = TimeSeriesKMeans(n_clusters=k, metric="dtw", max_iter=10, n_init=1, random_state=seed)
     return idx, km.fit_predict(x)
@@ -140,31 +180,52 @@ def run_one(ds, method: str, seed: int, dtw_sample: int) -> dict[str, float]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--methods", nargs="*", default=list(METHODS), choices=METHODS)
     ap.add_argument("--heldout", type=int, default=20, help="number of held-out random layouts")
-    ap.add_argument("--heldout-seed", type=int, default=917_2024, help="random_layouts family of the bench")
+    ap.add_argument(
+        "--heldout-seed", type=int, default=917_2024, help="random_layouts family of the bench"
+    )
     ap.add_argument("--cache", type=Path, default=Path("data/bench_clustering"))
-    ap.add_argument("--groups", nargs="*", default=["paper", "heldout"],
-                    choices=["paper", "heldout", "minidungeons"])
-    ap.add_argument("--md-seeds", nargs="*", type=int, default=[0, 1, 2, 3, 4],
-                    help="MiniDungeons data seeds (group minidungeons)")
+    ap.add_argument(
+        "--groups",
+        nargs="*",
+        default=["paper", "heldout"],
+        choices=["paper", "heldout", "minidungeons"],
+    )
+    ap.add_argument(
+        "--md-seeds",
+        nargs="*",
+        type=int,
+        default=[0, 1, 2, 3, 4],
+        help="MiniDungeons data seeds (group minidungeons)",
+    )
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--dtw-sample", type=int, default=300, help="trajectories per dataset for DTW")
     args = ap.parse_args()
     set_threads(args.threads)
     warnings.simplefilter("ignore")
-    print(f"threads={args.threads} cpus={os.cpu_count()} load={os.getloadavg()[0]:.1f} "
-          f"held-out family={args.heldout_seed} x{args.heldout}; dtw_kmeans on {args.dtw_sample} "
-          f"trajectories per dataset (subsample)")
-    print(f"{'group':<13}{'env':<7}{'ceiling':>8}{'bayes':>7}{'method':>16}{'acc':>7}{'ARI':>7}{'NMI':>7}"
-          f"{'gap':>8}{'s':>7}")
+    print(
+        f"threads={args.threads} cpus={os.cpu_count()} load={os.getloadavg()[0]:.1f} "
+        f"held-out family={args.heldout_seed} x{args.heldout}; dtw_kmeans on {args.dtw_sample} "
+        f"trajectories per dataset (subsample)"
+    )
+    print(
+        f"{'group':<13}{'env':<7}{'ceiling':>8}{'bayes':>7}{'method':>16}{'acc':>7}{'ARI':>7}{'NMI':>7}"
+        f"{'gap':>8}{'s':>7}"
+    )
     gaps: dict[tuple[str, str], list[float]] = {}
     bayes_gaps: dict[tuple[str, str], list[float]] = {}
     secs: dict[tuple[str, str], list[float]] = {}
-    units = [(g, n, ds, ds, lt) for g, n, ds, lt in datasets(args.cache, args.heldout, args.heldout_seed,
-                                                             tuple(args.groups))]
+    units = [
+        (g, n, ds, ds, lt)
+        for g, n, ds, lt in datasets(
+            args.cache, args.heldout, args.heldout_seed, tuple(args.groups)
+        )
+    ]
     if "minidungeons" in args.groups:
         units = [*units, *((*u, None) for u in minidungeons_units(args.md_seeds))]
     for group, name, ds, cluster_input, layout in units:
@@ -177,16 +238,23 @@ def main() -> None:
             secs.setdefault((group, method), []).append(r["seconds"])
             if bayes is not None:
                 bayes_gaps.setdefault((group, method), []).append(bayes - r["accuracy"])
-            print(f"{group:<13}{name:<7}{top:>8.3f}{'–' if bayes is None else f'{bayes:.3f}':>7}{method:>16}{r['accuracy']:>7.3f}{r['ari']:>7.3f}"
-                  f"{r['nmi']:>7.3f}{gap:>+8.3f}{r['seconds']:>7.1f}", flush=True)
+            print(
+                f"{group:<13}{name:<7}{top:>8.3f}{'–' if bayes is None else f'{bayes:.3f}':>7}{method:>16}{r['accuracy']:>7.3f}{r['ari']:>7.3f}"
+                f"{r['nmi']:>7.3f}{gap:>+8.3f}{r['seconds']:>7.1f}",
+                flush=True,
+            )
     print("\nsummary: gap = ceiling - accuracy (target: mean and worst <= 0.010)")
-    print(f"{'group':<13}{'method':>16}{'mean gap':>10}{'worst gap':>10}{'total s':>9}"
-          f"{'mean to bayes':>15}{'worst to bayes':>16}")
+    print(
+        f"{'group':<13}{'method':>16}{'mean gap':>10}{'worst gap':>10}{'total s':>9}"
+        f"{'mean to bayes':>15}{'worst to bayes':>16}"
+    )
     for (group, method), g in gaps.items():
         b = bayes_gaps.get((group, method))
         to_bayes = f"{statistics.mean(b):>+15.4f}{max(b):>+16.4f}" if b else f"{'–':>15}{'–':>16}"
-        print(f"{group:<13}{method:>16}{statistics.mean(g):>+10.4f}{max(g):>+10.4f}"
-              f"{sum(secs[(group, method)]):>9.1f}{to_bayes}")
+        print(
+            f"{group:<13}{method:>16}{statistics.mean(g):>+10.4f}{max(g):>+10.4f}"
+            f"{sum(secs[(group, method)]):>9.1f}{to_bayes}"
+        )
 
 
 if __name__ == "__main__":

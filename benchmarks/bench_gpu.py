@@ -45,20 +45,29 @@ def timed(fn, cuda: bool):
     return out, time.perf_counter() - t0
 
 
-def bench_clusterer(name: str, ds, clustered, cfg: ClusterConfig, gpu: bool, rows: list[dict]) -> None:
+def bench_clusterer(
+    name: str, ds, clustered, cfg: ClusterConfig, gpu: bool, rows: list[dict]
+) -> None:
     """CPU fit, then two cuda fits; one row of figures."""
     from sklearn.metrics import adjusted_rand_score
 
     cpu, cpu_s = timed(lambda: cluster(clustered, cfg, seed=0), False)
-    row = {"part": cfg.method, "unit": name, "cpu_s": cpu_s,
-           "cpu_acc": clustering_metrics(ds.styles, cpu.labels)["accuracy"]}
+    row = {
+        "part": cfg.method,
+        "unit": name,
+        "cpu_s": cpu_s,
+        "cpu_acc": clustering_metrics(ds.styles, cpu.labels)["accuracy"],
+    }
     if gpu:
         on_gpu = cfg.model_copy(update={"device": "cuda"})
         a, a_s = timed(lambda: cluster(clustered, on_gpu, seed=0), True)
         b, _ = timed(lambda: cluster(clustered, on_gpu, seed=0), True)
-        row.update(gpu_s=a_s, gpu_acc=clustering_metrics(ds.styles, a.labels)["accuracy"],
-                   ari_cpu_gpu=adjusted_rand_score(cpu.labels, a.labels),
-                   gpu_repeat_same=float(np.array_equal(a.labels, b.labels)))
+        row.update(
+            gpu_s=a_s,
+            gpu_acc=clustering_metrics(ds.styles, a.labels)["accuracy"],
+            ari_cpu_gpu=adjusted_rand_score(cpu.labels, a.labels),
+            gpu_repeat_same=float(np.array_equal(a.labels, b.labels)),
+        )
     rows.append(row)
     print(_fmt(row), flush=True)
 
@@ -93,46 +102,72 @@ def bench_bc(data: dict, gpu: bool, rows: list[dict]) -> None:
 
 
 def _fmt(row: dict) -> str:
-    parts = [f"{row['part']:10s} {row['unit']:12s} cpu {row['cpu_acc']:.3f} in {row['cpu_s']:6.1f} s"]
+    parts = [
+        f"{row['part']:10s} {row['unit']:12s} cpu {row['cpu_acc']:.3f} in {row['cpu_s']:6.1f} s"
+    ]
     if "gpu_s" in row:
-        parts.append(f"cuda {row['gpu_acc']:.3f} in {row['gpu_s']:6.1f} s  cpu/cuda {row['cpu_s'] / row['gpu_s']:5.2f}x")
+        parts.append(
+            f"cuda {row['gpu_acc']:.3f} in {row['gpu_s']:6.1f} s  cpu/cuda {row['cpu_s'] / row['gpu_s']:5.2f}x"
+        )
     if "ari_cpu_gpu" in row:
-        parts.append(f"ARI(cpu, cuda) {row['ari_cpu_gpu']:.3f}  cuda twice same labels "
-                     f"{'yes' if row['gpu_repeat_same'] else 'no'}")
+        parts.append(
+            f"ARI(cpu, cuda) {row['ari_cpu_gpu']:.3f}  cuda twice same labels "
+            f"{'yes' if row['gpu_repeat_same'] else 'no'}"
+        )
     return "  ".join(parts)
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--threads", type=int, default=1, help="CPU threads (pcpg's tasks use runner.cpus_per_task: 1)")
-    ap.add_argument("--parts", nargs="+", default=["lstm", "policy_mix", "bc"], choices=["lstm", "policy_mix", "bc"])
+    ap.add_argument(
+        "--threads",
+        type=int,
+        default=1,
+        help="CPU threads (pcpg's tasks use runner.cpus_per_task: 1)",
+    )
+    ap.add_argument(
+        "--parts",
+        nargs="+",
+        default=["lstm", "policy_mix", "bc"],
+        choices=["lstm", "policy_mix", "bc"],
+    )
     ap.add_argument("--cache", default=".bench_cache")
     ap.add_argument("--json", default=None, help="also write the rows here")
     args = ap.parse_args()
     set_threads(args.threads)
     gpu = torch.cuda.is_available()
-    print(f"torch {torch.__version__}; GPU: {torch.cuda.get_device_name(0) if gpu else 'none (CPU side only)'}; "
-          f"CPU threads {args.threads}", flush=True)
+    print(
+        f"torch {torch.__version__}; GPU: {torch.cuda.get_device_name(0) if gpu else 'none (CPU side only)'}; "
+        f"CPU threads {args.threads}",
+        flush=True,
+    )
     data = {name: ds for _, name, ds, _ in datasets(Path(args.cache), 0, 0, groups=("paper",))}
     if gpu:  # CUDA context and cuDNN plans, outside every timed fit
         first = next(iter(data.values()))
-        cluster(first.subset(np.arange(64)), ClusterConfig(k=4, method="lstm_dec", device="cuda",
-                                                           pretrain_epochs=1, dec_epochs=1), seed=0)
+        cluster(
+            first.subset(np.arange(64)),
+            ClusterConfig(k=4, method="lstm_dec", device="cuda", pretrain_epochs=1, dec_epochs=1),
+            seed=0,
+        )
     rows: list[dict] = []
     if "lstm" in args.parts:
         for name, ds in data.items():
             bench_clusterer(name, ds, ds, ClusterConfig(k=4, method="lstm_dec"), gpu, rows)
     if "policy_mix" in args.parts:
         for _, name, raw, clustered in minidungeons_units([0]):
-            bench_clusterer(f"MD {name}", raw, clustered, ClusterConfig(k=6, method="policy_mix"), gpu, rows)
+            bench_clusterer(
+                f"MD {name}", raw, clustered, ClusterConfig(k=6, method="policy_mix"), gpu, rows
+            )
     if "bc" in args.parts:
         bench_bc(data, gpu, rows)
     print("\npart        unit          cpu acc   cuda acc   cpu s   cuda s   cpu/cuda")
     for r in rows:
         g = "gpu_s" in r
-        print(f"{r['part']:10s}  {r['unit']:12s}  {r['cpu_acc']:7.3f}  {r.get('gpu_acc', float('nan')):8.3f}  "
-              f"{r['cpu_s']:6.1f}  {r.get('gpu_s', float('nan')):7.1f}  "
-              f"{(r['cpu_s'] / r['gpu_s']) if g else float('nan'):7.2f}x")
+        print(
+            f"{r['part']:10s}  {r['unit']:12s}  {r['cpu_acc']:7.3f}  {r.get('gpu_acc', float('nan')):8.3f}  "
+            f"{r['cpu_s']:6.1f}  {r.get('gpu_s', float('nan')):7.1f}  "
+            f"{(r['cpu_s'] / r['gpu_s']) if g else float('nan'):7.2f}x"
+        )
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
 

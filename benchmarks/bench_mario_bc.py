@@ -58,27 +58,44 @@ def main() -> None:
     args = ap.parse_args()
     set_threads(args.threads)
     cfg = load_config(args.config)
-    cfg = cfg.model_copy(update={"ranking": cfg.ranking.model_copy(update={"split_seed": args.split})})
+    cfg = cfg.model_copy(
+        update={"ranking": cfg.ranking.model_copy(update={"split_seed": args.split})}
+    )
     domain = MarioDomain()
     unit = domain.units(cfg, domain.generate(cfg, show_progress=False))[0]
     ds = unit.dataset
     seeds = [int(s) for s in args.seeds.split(",")]
     ev_cfg = cfg.evaluation.model_copy(update={"figures": False, "corruption_levels": ()})
-    mini = cfg.bc.model_copy(update={"batch_size": args.batch_size, "epochs": args.epochs, "lr": args.lr})
+    mini = cfg.bc.model_copy(
+        update={"batch_size": args.batch_size, "epochs": args.epochs, "lr": args.lr}
+    )
 
     def scores(trained, labels, ps):
-        ev = evaluate_unit(unit, labels, trained, cfg, rank_cfg=cfg.ranking.model_copy(update={"ps": ps}),
-                           eval_cfg=ev_cfg, rollouts=False, extras=False)
+        ev = evaluate_unit(
+            unit,
+            labels,
+            trained,
+            cfg,
+            rank_cfg=cfg.ranking.model_copy(update={"ps": ps}),
+            eval_cfg=ev_cfg,
+            rollouts=False,
+            extras=False,
+        )
         return ev
 
     if not args.skip_full_batch:
         ps = (1.0, 0.5, 0.1)
         rank = cfg.ranking.model_copy(update={"ps": ps})
         zeros = np.zeros(ds.n_trajectories, np.int64)
-        nc = [c for c in plan_unit(unit, zeros, cfg, rank_cfg=rank, seeds=seeds[:1], corruption=False)
-              if c.spec.kind == "nc"]
-        print(f"Part 1: No Clustering agents, split {args.split}, seed {seeds[0]}, rows "
-              + ", ".join(f"p={fmt(c.spec.p)}: {c.n_rows}" for c in nc))
+        nc = [
+            c
+            for c in plan_unit(unit, zeros, cfg, rank_cfg=rank, seeds=seeds[:1], corruption=False)
+            if c.spec.kind == "nc"
+        ]
+        print(
+            f"Part 1: No Clustering agents, split {args.split}, seed {seeds[0]}, rows "
+            + ", ".join(f"p={fmt(c.spec.p)}: {c.n_rows}" for c in nc)
+        )
         runs = {
             f"full batch, {cfg.bc.epochs} steps, lr {cfg.bc.lr} (config)": cfg.bc,
             f"minibatch {args.batch_size}, {args.epochs} passes, lr {args.lr}": mini,
@@ -108,7 +125,9 @@ def main() -> None:
     nc_acc = [ev[f"baseline/accuracy/p{fmt(p)}"] for p in ps]
     scratch = [ev[f"pcpg/accuracy/p{fmt(p)}"] for p in ps]
     pcpg = [c for c in cells if c.spec.kind == "pcpg"]
-    tuned = train_cells(pcpg, mini.model_copy(update={"epochs": args.finetune_epochs}), init=init_from(pcpg, base))
+    tuned = train_cells(
+        pcpg, mini.model_copy(update={"epochs": args.finetune_epochs}), init=init_from(pcpg, base)
+    )
     merged = base.select([c.key for c in cells if c.spec.kind == "nc"])
     ev2 = scores(TrainedCells.concat([merged, tuned]), labels, ps)
     fine = [ev2[f"pcpg/accuracy/p{fmt(p)}"] for p in ps]
@@ -116,9 +135,17 @@ def main() -> None:
     print("  p                         " + " ".join(f"{fmt(p):>8s}" for p in ps))
     print("  No Clustering             " + " ".join(f"{a:8.4f}" for a in nc_acc))
     print("  PCPG from scratch         " + " ".join(f"{a:8.4f}" for a in scratch))
-    print(f"  PCPG fine-tuned ({args.finetune_epochs:2d} ep)   " + " ".join(f"{a:8.4f}" for a in fine))
-    print("  scratch - No Clustering   " + " ".join(f"{a - b:+8.4f}" for a, b in zip(scratch, nc_acc, strict=True)))
-    print("  fine-tuned - No Clust.    " + " ".join(f"{a - b:+8.4f}" for a, b in zip(fine, nc_acc, strict=True)))
+    print(
+        f"  PCPG fine-tuned ({args.finetune_epochs:2d} ep)   " + " ".join(f"{a:8.4f}" for a in fine)
+    )
+    print(
+        "  scratch - No Clustering   "
+        + " ".join(f"{a - b:+8.4f}" for a, b in zip(scratch, nc_acc, strict=True))
+    )
+    print(
+        "  fine-tuned - No Clust.    "
+        + " ".join(f"{a - b:+8.4f}" for a, b in zip(fine, nc_acc, strict=True))
+    )
 
 
 if __name__ == "__main__":

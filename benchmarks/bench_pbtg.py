@@ -21,8 +21,14 @@ ROOT = Path(__file__).resolve().parent.parent
 def main() -> None:
     cfg = load_config(ROOT / "experiments" / "gridworld_paper.yaml")
     layouts = gridworld_layouts(cfg)
-    generate_pair(layouts[0], 0, cfg.pbtg.model_copy(update={"episodes": 10, "trajectories_per_style": 10,
-                                                              "dataset_per_style": 10}), 0)  # JIT warm-up
+    generate_pair(
+        layouts[0],
+        0,
+        cfg.pbtg.model_copy(
+            update={"episodes": 10, "trajectories_per_style": 10, "dataset_per_style": 10}
+        ),
+        0,
+    )  # JIT warm-up
     t0 = time.perf_counter()
     for layout in layouts:
         for r in range(4):

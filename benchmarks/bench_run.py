@@ -29,8 +29,13 @@ def main() -> None:
     ray_start = time.perf_counter() - t0
     with tempfile.TemporaryDirectory() as tmp:
         t1 = time.perf_counter()
-        result = run_experiment(cfg, workdir=Path(tmp) / "runs", tracking_uri=f"sqlite:///{tmp}/mlflow.db",
-                                show_progress=False, command=f"pcpg run {args.config}")
+        result = run_experiment(
+            cfg,
+            workdir=Path(tmp) / "runs",
+            tracking_uri=f"sqlite:///{tmp}/mlflow.db",
+            show_progress=False,
+            command=f"pcpg run {args.config}",
+        )
         total = time.perf_counter() - t1
     print(f"{cfg.name}: {len(result.clustering)} environment(s), seeds {cfg.seeds}")
     print(f"  {'ray start':<10} {ray_start:7.1f} s")

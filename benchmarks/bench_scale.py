@@ -22,7 +22,10 @@ import time
 from pathlib import Path
 
 CONFIG = {
-    "name": "scale", "domain": "gridworld", "seed": 0, "seeds": [0],
+    "name": "scale",
+    "domain": "gridworld",
+    "seed": 0,
+    "seeds": [0],
     "pbtg": {"episodes": 10000, "trajectories_per_style": 160, "dataset_per_style": 40},
     "clustering": {"k": 4},
     "ranking": {"ps": [1.0, 0.5]},
@@ -61,13 +64,23 @@ def one(n: int) -> dict:
     thread.start()
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        result = run_experiment(cfg, workdir=Path(tmp) / "runs", tracking_uri=f"sqlite:///{tmp}/mlflow.db",
-                                show_progress=False)
+        result = run_experiment(
+            cfg,
+            workdir=Path(tmp) / "runs",
+            tracking_uri=f"sqlite:///{tmp}/mlflow.db",
+            show_progress=False,
+        )
         wall = time.perf_counter() - t0
     stop.set()
     thread.join()
-    return {"n": n, "wall": wall, "stages": result.stage_seconds, "rss_mb": peak["rss"] / 2**20,
-            "store_mb": peak["store"] / 2**20, "accuracy": result.metrics.get("clustering/accuracy")}
+    return {
+        "n": n,
+        "wall": wall,
+        "stages": result.stage_seconds,
+        "rss_mb": peak["rss"] / 2**20,
+        "store_mb": peak["store"] / 2**20,
+        "accuracy": result.metrics.get("clustering/accuracy"),
+    }
 
 
 def main() -> None:
@@ -80,19 +93,29 @@ def main() -> None:
         return
     rows = []
     for n in args.sizes:
-        out = subprocess.run([sys.executable, __file__, "--one", str(n)], capture_output=True, text=True)
+        out = subprocess.run(
+            [sys.executable, __file__, "--one", str(n)], capture_output=True, text=True
+        )
         if out.returncode != 0:
             sys.exit(f"N={n} failed:\n{out.stderr[-3000:]}")
         rows.append(json.loads(out.stdout.strip().splitlines()[-1]))
     stages = list(rows[0]["stages"])
-    print(f"{'N':>4} {'wall s':>8} {'s/env':>7} {'RSS MB':>8} {'store MB':>9} "
-          + " ".join(f"{s:>9}" for s in stages) + "  clustering acc")
+    print(
+        f"{'N':>4} {'wall s':>8} {'s/env':>7} {'RSS MB':>8} {'store MB':>9} "
+        + " ".join(f"{s:>9}" for s in stages)
+        + "  clustering acc"
+    )
     for r in rows:
-        print(f"{r['n']:>4} {r['wall']:8.1f} {r['wall'] / r['n']:7.2f} {r['rss_mb']:8.0f} {r['store_mb']:9.1f} "
-              + " ".join(f"{r['stages'].get(s, 0):9.1f}" for s in stages) + f"  {r['accuracy']:.3f}")
+        print(
+            f"{r['n']:>4} {r['wall']:8.1f} {r['wall'] / r['n']:7.2f} {r['rss_mb']:8.0f} {r['store_mb']:9.1f} "
+            + " ".join(f"{r['stages'].get(s, 0):9.1f}" for s in stages)
+            + f"  {r['accuracy']:.3f}"
+        )
     by = {r["n"]: r for r in rows}
     if 5 in by and 80 in by:
-        print(f"driver peak RSS N=80 / N=5 = {by[80]['rss_mb'] / by[5]['rss_mb']:.2f}  (target <= 1.5)")
+        print(
+            f"driver peak RSS N=80 / N=5 = {by[80]['rss_mb'] / by[5]['rss_mb']:.2f}  (target <= 1.5)"
+        )
     if 20 in by and 80 in by:
         ratio = (by[80]["wall"] / 80) / (by[20]["wall"] / 20)
         print(f"time per environment N=80 / N=20 = {ratio:.2f}  (target <= 1.2)")

@@ -39,30 +39,60 @@ def main() -> None:
         uri = f"sqlite:///{tmp}/mlflow.db"
         cfg = load_config_with(args.config, ["bc.hidden_size=8", "bc.lr=0.001"])
         t0 = time.perf_counter()
-        one = run_experiment(cfg, workdir=Path(tmp) / "one", tracking_uri=uri, track=track, show_progress=False)
+        one = run_experiment(
+            cfg, workdir=Path(tmp) / "one", tracking_uri=uri, track=track, show_progress=False
+        )
         t_one = time.perf_counter() - t0
         t0 = time.perf_counter()
-        sweep = run_sweep(args.config, AXES, workdir=Path(tmp) / "sweep", tracking_uri=uri, track=track,
-                          show_progress=False)
+        sweep = run_sweep(
+            args.config,
+            AXES,
+            workdir=Path(tmp) / "sweep",
+            tracking_uri=uri,
+            track=track,
+            show_progress=False,
+        )
         t_sweep = time.perf_counter() - t0
         stages = sweep_stage_seconds(sweep)
     n = len(sweep.rows)
-    print(f"config {Path(args.config).name}; sweep axes {' x '.join(AXES)} = {n} points; tracking {track}")
+    print(
+        f"config {Path(args.config).name}; sweep axes {' x '.join(AXES)} = {n} points; tracking {track}"
+    )
     print(f"{'':<14}{'wall s':>9}{'data':>6}{'cluster':>9}{'train':>7}{'eval':>6}")
     c1, cs = one.computed, sweep.computed
-    print(f"{'one point':<14}{t_one:9.1f}{c1['data']:6d}{c1['clustering']:9d}{c1['train_groups']:7d}"
-          f"{c1['evaluations']:6d}")
-    print(f"{'sweep':<14}{t_sweep:9.1f}{cs['data']:6d}{cs['clustering']:9d}{cs['train_groups']:7d}"
-          f"{cs['evaluations']:6d}")
-    print(f"{'one by one':<14}{n * t_one:9.1f}{n * c1['data']:6d}{n * c1['clustering']:9d}"
-          f"{n * c1['train_groups']:7d}{n * c1['evaluations']:6d}   (12 x one point)")
-    hits = {s: n * c1[k] - cs[k] for s, k in (("data", "data"), ("cluster", "clustering"),
-                                               ("train", "train_groups"), ("eval", "evaluations"))}
-    print("units shared by content key (cache hits vs one by one): "
-          + ", ".join(f"{s} {h}" for s, h in hits.items()))
-    print(f"sweep / one point = {t_sweep / t_one:.2f}  (target <= 1.5); one by one / sweep = "
-          f"{n * t_one / t_sweep:.1f}x")
-    print("one point stage seconds: " + ", ".join(f"{k} {v:.1f}" for k, v in one.stage_seconds.items()))
+    print(
+        f"{'one point':<14}{t_one:9.1f}{c1['data']:6d}{c1['clustering']:9d}{c1['train_groups']:7d}"
+        f"{c1['evaluations']:6d}"
+    )
+    print(
+        f"{'sweep':<14}{t_sweep:9.1f}{cs['data']:6d}{cs['clustering']:9d}{cs['train_groups']:7d}"
+        f"{cs['evaluations']:6d}"
+    )
+    print(
+        f"{'one by one':<14}{n * t_one:9.1f}{n * c1['data']:6d}{n * c1['clustering']:9d}"
+        f"{n * c1['train_groups']:7d}{n * c1['evaluations']:6d}   (12 x one point)"
+    )
+    hits = {
+        s: n * c1[k] - cs[k]
+        for s, k in (
+            ("data", "data"),
+            ("cluster", "clustering"),
+            ("train", "train_groups"),
+            ("eval", "evaluations"),
+        )
+    }
+    print(
+        "units shared by content key (cache hits vs one by one): "
+        + ", ".join(f"{s} {h}" for s, h in hits.items())
+    )
+    print(
+        f"sweep / one point = {t_sweep / t_one:.2f}  (target <= 1.5); one by one / sweep = "
+        f"{n * t_one / t_sweep:.1f}x"
+    )
+    print(
+        "one point stage seconds: "
+        + ", ".join(f"{k} {v:.1f}" for k, v in one.stage_seconds.items())
+    )
     print("sweep stage seconds: " + ", ".join(f"{k} {v:.1f}" for k, v in stages.items()))
 
 

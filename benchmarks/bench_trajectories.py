@@ -60,22 +60,28 @@ def make_log(path: Path, n: int, seed: int = 0) -> float:
 
 
 def run_child(path: Path, method: str) -> dict:
-    out = subprocess.run([sys.executable, "-c", CHILD, str(path), method], capture_output=True, text=True,
-                         check=True)
+    out = subprocess.run(
+        [sys.executable, "-c", CHILD, str(path), method], capture_output=True, text=True, check=True
+    )
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--n", type=int, default=100_000, help="trajectories in the log")
-    ap.add_argument("--methods", default="none,visits_kmeans,lstm_dec",
-                    help="comma-separated: none (load only) and clustering methods (lstm_* run 1+1 epochs)")
+    ap.add_argument(
+        "--methods",
+        default="none,visits_kmeans,lstm_dec",
+        help="comma-separated: none (load only) and clustering methods (lstm_* run 1+1 epochs)",
+    )
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "big.parquet"
         t0 = time.perf_counter()
         mb = make_log(path, args.n)
-        print(f"log: {args.n} trajectories, {mb:.0f} MiB Parquet, made in {time.perf_counter() - t0:.0f} s")
+        print(
+            f"log: {args.n} trajectories, {mb:.0f} MiB Parquet, made in {time.perf_counter() - t0:.0f} s"
+        )
         print(f"{'step':<26} {'load+validate':>14} {'cluster':>9} {'accuracy':>9} {'peak RSS':>9}")
         for method in args.methods.split(","):
             r = run_child(path, method)
@@ -83,8 +89,10 @@ def main() -> None:
             acc = f"{r['accuracy']:9.3f}" if "accuracy" in r else f"{'-':>9}"
             name = "load only" if method == "none" else f"load + {method}"
             print(f"{name:<26} {r['load_seconds']:13.1f}s {cl} {acc} {r['peak_rss_gb']:8.2f}G")
-        print(f"targets: load+validate <= 10 s; clustering within 24 GB "
-              f"(this process: {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20:.2f} G)")
+        print(
+            f"targets: load+validate <= 10 s; clustering within 24 GB "
+            f"(this process: {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20:.2f} G)"
+        )
 
 
 if __name__ == "__main__":

@@ -41,7 +41,7 @@ from mlflow.protos.databricks_pb2 import INTERNAL_ERROR, INVALID_PARAMETER_VALUE
 os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
 
 NC_STYLE = -1  # the `style` of the No-Clustering baseline (top p of every trajectory)
-_NO_SEED = -(2 ** 62)  # "no seed given": the lowest trained one
+_NO_SEED = -(2**62)  # "no seed given": the lowest trained one
 _log = logging.getLogger(__name__)
 REQUIREMENTS = ("mlflow", "numpy", "pandas")  # all that this file imports
 
@@ -131,20 +131,25 @@ class EnvAgents:
         same_style = [(i, s) for i, s in picks if s.kind == kind and (kind == "nc" or s.k == style)]
         where = f"row {row}: env {self.env!r}"
         if not same_style:
-            raise AgentRequestError(f"{where}: style {style} is not trained; trained styles: "
-                                    f"{_names(styles)} (and {NC_STYLE} = No Clustering)")
+            raise AgentRequestError(
+                f"{where}: style {style} is not trained; trained styles: "
+                f"{_names(styles)} (and {NC_STYLE} = No Clustering)"
+            )
         same_p = [(i, s) for i, s in same_style if abs(s.p - p) <= 1e-9 * max(1.0, abs(p))]
         if not same_p:
             ps = sorted({s.p for _, s in same_style}, reverse=True)
-            raise AgentRequestError(f"{where}: p={p:g} is not trained for style {style}; trained p: "
-                                    f"{_names(ps)}")
+            raise AgentRequestError(
+                f"{where}: p={p:g} is not trained for style {style}; trained p: {_names(ps)}"
+            )
         if seed is None:
             return min(same_p, key=lambda x: x[1].seed)[0]
         for i, s in same_p:
             if s.seed == seed:
                 return i
-        raise AgentRequestError(f"{where}: seed {seed} is not trained for style {style} at p={p:g}; "
-                                f"trained seeds: {_names(sorted(s.seed for _, s in same_p))}")
+        raise AgentRequestError(
+            f"{where}: seed {seed} is not trained for style {style} at p={p:g}; "
+            f"trained seeds: {_names(sorted(s.seed for _, s in same_p))}"
+        )
 
 
 # ---------------------------------------------------------------------- files
@@ -152,11 +157,19 @@ def write_env_agents(path: str | Path, env: str, cells) -> Path:
     """``path.npz`` (the arrays) + ``path.json`` (cells, sizes) from a ``TrainedCells``."""
     path = Path(path).with_suffix("")
     path.parent.mkdir(parents=True, exist_ok=True)
-    arrays = {**{n: np.ascontiguousarray(v, np.float32) for n, v in cells.params.items()},
-              "mean": np.asarray(cells.mean, np.float32), "std": np.asarray(cells.std, np.float32)}
+    arrays = {
+        **{n: np.ascontiguousarray(v, np.float32) for n, v in cells.params.items()},
+        "mean": np.asarray(cells.mean, np.float32),
+        "std": np.asarray(cells.std, np.float32),
+    }
     np.savez(path.with_suffix(".npz"), **arrays)
-    meta = {"format": 1, "env": env, "sizes": list(cells.sizes), "activation": cells.activation,
-            "specs": [asdict(CellInfo(s.key, s.kind, s.k, s.p, s.seed, s.c)) for s in cells.specs]}
+    meta = {
+        "format": 1,
+        "env": env,
+        "sizes": list(cells.sizes),
+        "activation": cells.activation,
+        "specs": [asdict(CellInfo(s.key, s.kind, s.k, s.p, s.seed, s.c)) for s in cells.specs],
+    }
     path.with_suffix(".json").write_text(json.dumps(meta, indent=1))
     return path.with_suffix(".npz")
 
@@ -166,7 +179,15 @@ class AgentFileError(ValueError):
 
 
 # what a missing or garbage file, or JSON that is not the mapping write_env_agents makes, raises
-_UNREADABLE = (OSError, ValueError, TypeError, KeyError, EOFError, RecursionError, zipfile.BadZipFile)
+_UNREADABLE = (
+    OSError,
+    ValueError,
+    TypeError,
+    KeyError,
+    EOFError,
+    RecursionError,
+    zipfile.BadZipFile,
+)
 
 
 def _unreadable(path: Path, e: Exception) -> AgentFileError:
@@ -204,9 +225,18 @@ def read_all(folder: str | Path) -> dict[str, EnvAgents]:
 # ---------------------------------------------------------------------- logging helpers
 # INFO and warnings MLflow emits while logging or loading a model whose signature, input example
 # and requirements are all given: they say nothing a user could act on.
-_CHATTY = ("mlflow.pyfunc", "mlflow.models", "mlflow.models.model", "mlflow.models.signature",
-           "mlflow.models.utils", "mlflow.utils.environment", "mlflow.utils.requirements_utils",
-           "mlflow.types", "mlflow.tracking._model_registry", "mlflow.store.artifact")
+_CHATTY = (
+    "mlflow.pyfunc",
+    "mlflow.models",
+    "mlflow.models.model",
+    "mlflow.models.signature",
+    "mlflow.models.utils",
+    "mlflow.utils.environment",
+    "mlflow.utils.requirements_utils",
+    "mlflow.types",
+    "mlflow.tracking._model_registry",
+    "mlflow.store.artifact",
+)
 
 
 @contextlib.contextmanager
@@ -251,10 +281,14 @@ def signature(agents: dict[str, EnvAgents]):
     from mlflow.types.schema import AnyType
 
     d = max(a.state_dim for a in agents.values())
-    inputs = [ColSpec("string", "env", required=False), ColSpec(AnyType(), "style", required=False),
-              ColSpec("double", "p", required=False), ColSpec(AnyType(), "seed", required=False),
-              ColSpec(AnyType(), "valid", required=False),
-              *(ColSpec("double", f"s{j}", required=False) for j in range(d))]
+    inputs = [
+        ColSpec("string", "env", required=False),
+        ColSpec(AnyType(), "style", required=False),
+        ColSpec("double", "p", required=False),
+        ColSpec(AnyType(), "seed", required=False),
+        ColSpec(AnyType(), "valid", required=False),
+        *(ColSpec("double", f"s{j}", required=False) for j in range(d)),
+    ]
     return ModelSignature(inputs=Schema(inputs), outputs=Schema([ColSpec("long", "action")]))
 
 
@@ -263,11 +297,20 @@ def input_example(agents: dict[str, EnvAgents]) -> pd.DataFrame:
     d = max(a.state_dim for a in agents.values())
     rows = []
     for env, a in sorted(agents.items()):
-        spec = next((s for s in a.specs if s.kind == "pcpg"), next(s for s in a.specs if s.kind == "nc"))
+        spec = next(
+            (s for s in a.specs if s.kind == "pcpg"), next(s for s in a.specs if s.kind == "nc")
+        )
         i = a.specs.index(spec)
-        row = {"env": env, "style": spec.k if spec.kind == "pcpg" else NC_STYLE, "p": spec.p,
-               "seed": spec.seed, "valid": [True] * a.n_actions}
-        row.update({f"s{j}": round(float(a.mean[i][j]), 3) if j < a.state_dim else None for j in range(d)})
+        row = {
+            "env": env,
+            "style": spec.k if spec.kind == "pcpg" else NC_STYLE,
+            "p": spec.p,
+            "seed": spec.seed,
+            "valid": [True] * a.n_actions,
+        }
+        row.update(
+            {f"s{j}": round(float(a.mean[i][j]), 3) if j < a.state_dim else None for j in range(d)}
+        )
         rows.append(row)
     return pd.DataFrame(rows)
 
@@ -281,8 +324,11 @@ def conda_env() -> dict:
     """The model's environment, given whole: MLflow then neither infers requirements nor looks
     up a pip version (``pip`` is absent from a uv environment and MLflow warns about it)."""
     python = ".".join(map(str, sys.version_info[:3]))
-    return {"name": "pcpg-agents", "channels": ["conda-forge"],
-            "dependencies": [f"python={python}", "pip", {"pip": pip_requirements()}]}
+    return {
+        "name": "pcpg-agents",
+        "channels": ["conda-forge"],
+        "dependencies": [f"python={python}", "pip", {"pip": pip_requirements()}],
+    }
 
 
 # ---------------------------------------------------------------------- request checks
@@ -300,9 +346,13 @@ def _number(v) -> float:
 def _floats(df: pd.DataFrame, cols: list[str], rows: np.ndarray) -> np.ndarray:
     """(rows, cols) float64; NaN where a value is missing or not a number."""
     block = df[cols].iloc[rows]
-    if all(pd.api.types.is_numeric_dtype(t) and not pd.api.types.is_bool_dtype(t) for t in block.dtypes):
+    if all(
+        pd.api.types.is_numeric_dtype(t) and not pd.api.types.is_bool_dtype(t) for t in block.dtypes
+    ):
         return block.to_numpy(np.float64)
-    return np.array([[_number(v) for v in block[c]] for c in cols], np.float64).T.reshape(len(rows), len(cols))
+    return np.array([[_number(v) for v in block[c]] for c in cols], np.float64).T.reshape(
+        len(rows), len(cols)
+    )
 
 
 def _integers(df: pd.DataFrame, col: str, rows: np.ndarray, optional: bool) -> np.ndarray:
@@ -316,8 +366,10 @@ def _integers(df: pd.DataFrame, col: str, rows: np.ndarray, optional: bool) -> n
             out[j] = _NO_SEED
             continue
         x = _number(v)
-        if not (np.isfinite(x) and x == int(x) and abs(x) < 2 ** 53):
-            raise AgentRequestError(f"row {rows[j]}: column {col!r} must be a whole number, got {_show(v)}")
+        if not (np.isfinite(x) and x == int(x) and abs(x) < 2**53):
+            raise AgentRequestError(
+                f"row {rows[j]}: column {col!r} must be a whole number, got {_show(v)}"
+            )
         out[j] = int(x)
     return out
 
@@ -331,7 +383,11 @@ def _valid_rows(df: pd.DataFrame, rows: np.ndarray, env: str, n_actions: int) ->
             block = np.array(list(values))  # the common case, checked in one go
         except ValueError:  # lists of different lengths: found row by row below
             block = np.zeros(0)
-        if block.dtype == bool and block.shape == (len(rows), n_actions) and block.any(axis=1).all():
+        if (
+            block.dtype == bool
+            and block.shape == (len(rows), n_actions)
+            and block.any(axis=1).all()
+        ):
             return block
     out = np.ones((len(rows), n_actions), bool)
     what = f"a list of {n_actions} booleans (true/false) for env {env!r}, or null for all valid"
@@ -339,17 +395,22 @@ def _valid_rows(df: pd.DataFrame, rows: np.ndarray, env: str, n_actions: int) ->
         if _missing(v):
             continue
         if not isinstance(v, list | tuple | np.ndarray):
-            raise AgentRequestError(f"row {rows[j]}: column 'valid' must be {what}; got {type(v).__name__} {_show(v)}")
+            raise AgentRequestError(
+                f"row {rows[j]}: column 'valid' must be {what}; got {type(v).__name__} {_show(v)}"
+            )
         if np.ndim(v) != 1 or len(v) != n_actions:
             got = f"a list of {len(v)}" if np.ndim(v) == 1 else f"an array of shape {np.shape(v)}"
             raise AgentRequestError(f"row {rows[j]}: column 'valid' must be {what}; got {got}")
         arr = np.asarray(v)
         if arr.dtype != bool:
             bad = next(i for i, x in enumerate(v) if not isinstance(x, bool | np.bool_))
-            raise AgentRequestError(f"row {rows[j]}: column 'valid' must be {what}; item {bad} is {_show(v[bad])}")
+            raise AgentRequestError(
+                f"row {rows[j]}: column 'valid' must be {what}; item {bad} is {_show(v[bad])}"
+            )
         if not arr.any():
-            raise AgentRequestError(f"row {rows[j]}: column 'valid' has no true item; at least one "
-                                    f"action must be valid")
+            raise AgentRequestError(
+                f"row {rows[j]}: column 'valid' has no true item; at least one action must be valid"
+            )
         out[j] = arr
     return out
 
@@ -357,20 +418,26 @@ def _valid_rows(df: pd.DataFrame, rows: np.ndarray, env: str, n_actions: int) ->
 def _states(df: pd.DataFrame, rows: np.ndarray, env: str, d: int) -> np.ndarray:
     for j in range(d):
         if f"s{j}" not in df:
-            raise AgentRequestError(f"row {rows[0]}: column 's{j}' is missing; env {env!r} has {d} "
-                                    f"state features s0..s{d - 1}")
+            raise AgentRequestError(
+                f"row {rows[0]}: column 's{j}' is missing; env {env!r} has {d} "
+                f"state features s0..s{d - 1}"
+            )
     states = _floats(df, [f"s{j}" for j in range(d)], rows)
     bad = ~np.isfinite(states)
     if bad.any():
         r, j = np.argwhere(bad)[0]
-        raise AgentRequestError(f"row {rows[r]}: column 's{j}' must be a finite number, got "
-                                f"{_show(df[f's{j}'].iloc[rows[r]])} (env {env!r} has {d} state features s0..s{d - 1})")
+        raise AgentRequestError(
+            f"row {rows[r]}: column 's{j}' must be a finite number, got "
+            f"{_show(df[f's{j}'].iloc[rows[r]])} (env {env!r} has {d} state features s0..s{d - 1})"
+        )
     extra = [c for c in df.columns if c.startswith("s") and c[1:].isdigit() and int(c[1:]) >= d]
     for c in extra:
         set_ = ~df[c].iloc[rows].isna().to_numpy()
         if set_.any():
-            raise AgentRequestError(f"row {rows[np.argmax(set_)]}: column {c!r} is set, but env {env!r} "
-                                    f"has {d} state features s0..s{d - 1}")
+            raise AgentRequestError(
+                f"row {rows[np.argmax(set_)]}: column {c!r} is set, but env {env!r} "
+                f"has {d} state features s0..s{d - 1}"
+            )
     return states
 
 
@@ -385,13 +452,16 @@ class PcpgAgents(mlflow.pyfunc.PythonModel):
         missing = np.array([_missing(v) for v in env], bool)
         if missing.any():
             if len(names) != 1:
-                raise AgentRequestError(f"row {int(np.argmax(missing))}: column 'env' is missing; this "
-                                        f"model has environments {_names(names)}: name one per row")
+                raise AgentRequestError(
+                    f"row {int(np.argmax(missing))}: column 'env' is missing; this "
+                    f"model has environments {_names(names)}: name one per row"
+                )
             env = np.where(missing, names[0], env)
         for i, v in enumerate(env):
             if not isinstance(v, str) or v not in self.agents:
-                raise AgentRequestError(f"row {i}: env {_show(v)} is not in this model; environments: "
-                                        f"{_names(names)}")
+                raise AgentRequestError(
+                    f"row {i}: env {_show(v)} is not in this model; environments: {_names(names)}"
+                )
         return env
 
     def predict(self, context, model_input: pd.DataFrame, params=None) -> np.ndarray:
@@ -403,16 +473,23 @@ class PcpgAgents(mlflow.pyfunc.PythonModel):
             return self._predict(df)
         except AgentRequestError:
             raise
-        except Exception as e:  # a bug, not a bad request: HTTP 500, one line; the log has the traceback
+        except (
+            Exception
+        ) as e:  # a bug, not a bad request: HTTP 500, one line; the log has the traceback
             _log.exception("pcpg agents model failed")
-            raise OneLineError(f"internal error of the pcpg agents model ({type(e).__name__}: {e}); "
-                               f"the server log has the traceback", error_code=INTERNAL_ERROR) from None
+            raise OneLineError(
+                f"internal error of the pcpg agents model ({type(e).__name__}: {e}); "
+                f"the server log has the traceback",
+                error_code=INTERNAL_ERROR,
+            ) from None
 
     def _predict(self, df: pd.DataFrame) -> np.ndarray:
         for col in ("style", "p"):
             if col not in df:
-                raise AgentRequestError(f"column {col!r} is missing; every row needs style (cluster "
-                                        f"index, {NC_STYLE} = No Clustering) and p (skill level)")
+                raise AgentRequestError(
+                    f"column {col!r} is missing; every row needs style (cluster "
+                    f"index, {NC_STYLE} = No Clustering) and p (skill level)"
+                )
         out = np.empty(len(df), np.int64)
         envs = self._envs(df)
         for env in dict.fromkeys(envs):  # each environment, then each cell: one batched pass
@@ -423,15 +500,18 @@ class PcpgAgents(mlflow.pyfunc.PythonModel):
             p = _floats(df, ["p"], rows)[:, 0]
             if not np.isfinite(p).all():
                 r = int(np.argmax(~np.isfinite(p)))
-                raise AgentRequestError(f"row {rows[r]}: column 'p' must be a number, got "
-                                        f"{_show(df['p'].iloc[rows[r]])}")
+                raise AgentRequestError(
+                    f"row {rows[r]}: column 'p' must be a number, got "
+                    f"{_show(df['p'].iloc[rows[r]])}"
+                )
             combos = pd.MultiIndex.from_arrays([style, p, seed])
             codes, uniques = pd.factorize(combos)
             cell = np.empty(len(rows), np.int64)
             for j, (s, p_j, sd) in enumerate(uniques):  # each distinct (style, p, seed) once
                 first = rows[int(np.argmax(codes == j))]
-                cell[codes == j] = agents.cell_of(int(first), int(s), float(p_j),
-                                                  None if sd == _NO_SEED else int(sd))
+                cell[codes == j] = agents.cell_of(
+                    int(first), int(s), float(p_j), None if sd == _NO_SEED else int(sd)
+                )
             states = _states(df, rows, env, agents.state_dim)
             valid = _valid_rows(df, rows, env, agents.n_actions)
             for c in np.unique(cell):

@@ -70,7 +70,9 @@ class TrainedCells:
             raise DataError(f"no trained cell named {key!r}") from None
 
     # ------------------------------------------------------------------ inference
-    def logits(self, states: np.ndarray, cell: int | str, valid: np.ndarray | None = None) -> np.ndarray:
+    def logits(
+        self, states: np.ndarray, cell: int | str, valid: np.ndarray | None = None
+    ) -> np.ndarray:
         """(B, A) logits of one cell; invalid actions (where ``valid`` is given) get -inf."""
         i = self.index(cell) if isinstance(cell, str) else int(cell)
         states = np.asarray(states, np.float32)
@@ -91,8 +93,14 @@ class TrainedCells:
         """Greedy valid action per state (ties to the lowest action index)."""
         return np.argmax(self.logits(states, cell, valid), axis=1)
 
-    def act(self, states: np.ndarray, valid: np.ndarray, cell: int | str, greedy: bool = True,
-            rng: np.random.Generator | None = None) -> np.ndarray:
+    def act(
+        self,
+        states: np.ndarray,
+        valid: np.ndarray,
+        cell: int | str,
+        greedy: bool = True,
+        rng: np.random.Generator | None = None,
+    ) -> np.ndarray:
         """Actions of one cell's policy: greedy, or sampled from the softmax over valid actions."""
         lg = self.logits(states, cell, valid)
         if greedy:
@@ -104,7 +112,9 @@ class TrainedCells:
         u = rng.random(len(lg))[:, None] * cdf[:, -1:]
         a = (cdf <= u).sum(axis=1)
         # u can land on a zero-width step only at float edges; fall back to the greedy choice
-        bad = (a >= self.n_actions) | ~np.asarray(valid, bool)[np.arange(len(a)), np.minimum(a, self.n_actions - 1)]
+        bad = (a >= self.n_actions) | ~np.asarray(valid, bool)[
+            np.arange(len(a)), np.minimum(a, self.n_actions - 1)
+        ]
         a[bad] = np.argmax(lg[bad], axis=1)
         return a
 
@@ -125,9 +135,15 @@ class TrainedCells:
     # ------------------------------------------------------------------ combine
     def select(self, keys: Sequence[str]) -> TrainedCells:
         idx = [self.index(k) for k in keys]
-        return TrainedCells(tuple(self.specs[i] for i in idx), self.sizes, self.activation,
-                            {n: v[idx] for n, v in self.params.items()}, self.mean[idx],
-                            self.std[idx], self.final_loss[idx])
+        return TrainedCells(
+            tuple(self.specs[i] for i in idx),
+            self.sizes,
+            self.activation,
+            {n: v[idx] for n, v in self.params.items()},
+            self.mean[idx],
+            self.std[idx],
+            self.final_loss[idx],
+        )
 
     @staticmethod
     def concat(parts: Sequence[TrainedCells]) -> TrainedCells:
@@ -137,15 +153,22 @@ class TrainedCells:
         first = parts[0]
         for p in parts[1:]:
             if p.sizes != first.sizes or p.activation != first.activation:
-                raise DataError(f"cannot join ensembles of sizes {p.sizes}/{p.activation} and "
-                                f"{first.sizes}/{first.activation}")
+                raise DataError(
+                    f"cannot join ensembles of sizes {p.sizes}/{p.activation} and "
+                    f"{first.sizes}/{first.activation}"
+                )
         specs = tuple(s for p in parts for s in p.specs)
         if len({s.key for s in specs}) != len(specs):
             raise DataError("joined ensembles have repeated cell keys")
-        return TrainedCells(specs, first.sizes, first.activation,
-                            {n: np.concatenate([p.params[n] for p in parts]) for n in first.params},
-                            np.concatenate([p.mean for p in parts]), np.concatenate([p.std for p in parts]),
-                            np.concatenate([p.final_loss for p in parts]))
+        return TrainedCells(
+            specs,
+            first.sizes,
+            first.activation,
+            {n: np.concatenate([p.params[n] for p in parts]) for n in first.params},
+            np.concatenate([p.mean for p in parts]),
+            np.concatenate([p.std for p in parts]),
+            np.concatenate([p.final_loss for p in parts]),
+        )
 
     # ------------------------------------------------------------------ files
     def save(self, path: str | Path) -> Path:
@@ -153,12 +176,19 @@ class TrainedCells:
         path = Path(path).with_suffix("")
         path.parent.mkdir(parents=True, exist_ok=True)
         # copies: arrays a Ray task returned are read-only views of the object store
-        tensors = {**{n: torch.from_numpy(np.array(v, order="C")) for n, v in self.params.items()},
-                   "mean": torch.from_numpy(np.array(self.mean)), "std": torch.from_numpy(np.array(self.std)),
-                   "final_loss": torch.from_numpy(np.array(self.final_loss))}
+        tensors = {
+            **{n: torch.from_numpy(np.array(v, order="C")) for n, v in self.params.items()},
+            "mean": torch.from_numpy(np.array(self.mean)),
+            "std": torch.from_numpy(np.array(self.std)),
+            "final_loss": torch.from_numpy(np.array(self.final_loss)),
+        }
         torch.save(tensors, path.with_suffix(".pt"))
-        meta = {"format": 1, "sizes": list(self.sizes), "activation": self.activation,
-                "specs": [asdict(s) for s in self.specs]}
+        meta = {
+            "format": 1,
+            "sizes": list(self.sizes),
+            "activation": self.activation,
+            "specs": [asdict(s) for s in self.specs],
+        }
         path.with_suffix(".json").write_text(json.dumps(meta, indent=1))
         return path.with_suffix(".pt")
 
@@ -175,10 +205,19 @@ class TrainedCells:
             arrays = {n: t.numpy() for n, t in tensors.items()}
             n_layers = len(meta["sizes"]) - 1
             params = {f"{w}{i}": arrays[f"{w}{i}"] for i in range(n_layers) for w in "Wb"}
-            cells = TrainedCells(specs, tuple(meta["sizes"]), meta["activation"], params,
-                                 arrays["mean"], arrays["std"], arrays["final_loss"])
+            cells = TrainedCells(
+                specs,
+                tuple(meta["sizes"]),
+                meta["activation"],
+                params,
+                arrays["mean"],
+                arrays["std"],
+                arrays["final_loss"],
+            )
         except Exception as e:  # noqa: BLE001 - a JSON or tensors that do not fit each other
-            raise DataError(f"{path}: unreadable model files ({type(e).__name__}: {first_line(e)})") from None
+            raise DataError(
+                f"{path}: unreadable model files ({type(e).__name__}: {first_line(e)})"
+            ) from None
         check_cells(path.with_suffix(".json"), cells)
         return cells
 
@@ -189,11 +228,15 @@ def check_cells(source: Path | str, cells) -> None:
     ``b{l}`` (cells, sizes[l+1]), mean and std (cells, sizes[0]), p in (0, 1]."""
     sizes, n = cells.sizes, len(cells.specs)
     if len(sizes) < 2 or not all(_whole(x) and x >= 1 for x in sizes):
-        raise DataError(f"{source}: sizes {reprlib.repr(list(sizes))} must be a list of at least two "
-                        f"positive whole numbers (state width, hidden widths, n_actions)")
+        raise DataError(
+            f"{source}: sizes {reprlib.repr(list(sizes))} must be a list of at least two "
+            f"positive whole numbers (state width, hidden widths, n_actions)"
+        )
     if cells.activation not in ACTIVATIONS:
-        raise DataError(f"{source}: activation {reprlib.repr(cells.activation)} is not one of "
-                        f"{', '.join(ACTIVATIONS)}")
+        raise DataError(
+            f"{source}: activation {reprlib.repr(cells.activation)} is not one of "
+            f"{', '.join(ACTIVATIONS)}"
+        )
     if n == 0:
         raise DataError(f"{source}: specs is empty; the file must list one spec per trained cell")
     for i, s in enumerate(cells.specs):
@@ -202,33 +245,50 @@ def check_cells(source: Path | str, cells) -> None:
         raise DataError(f"{source}: specs repeat a cell key; each cell needs its own")
     arrays = []
     for layer in range(len(sizes) - 1):
-        arrays += [(f"W{layer}", cells.params[f"W{layer}"], (n, sizes[layer], sizes[layer + 1])),
-                   (f"b{layer}", cells.params[f"b{layer}"], (n, sizes[layer + 1]))]
-    arrays += [("mean", cells.mean, (n, sizes[0])), ("std", cells.std, (n, sizes[0])),
-               ("final_loss", cells.final_loss, (n,))]
+        arrays += [
+            (f"W{layer}", cells.params[f"W{layer}"], (n, sizes[layer], sizes[layer + 1])),
+            (f"b{layer}", cells.params[f"b{layer}"], (n, sizes[layer + 1])),
+        ]
+    arrays += [
+        ("mean", cells.mean, (n, sizes[0])),
+        ("std", cells.std, (n, sizes[0])),
+        ("final_loss", cells.final_loss, (n,)),
+    ]
     for name, value, want in arrays:
         shape = np.shape(value)
         if shape[:1] != want[:1]:
-            raise DataError(f"{source}: {n} specs for {shape[0] if shape else 0} weight sets ({name} "
-                            f"has shape {shape}); the file must list one spec per trained cell")
+            raise DataError(
+                f"{source}: {n} specs for {shape[0] if shape else 0} weight sets ({name} "
+                f"has shape {shape}); the file must list one spec per trained cell"
+            )
         if shape != want or not np.issubdtype(np.asarray(value).dtype, np.floating):
-            raise DataError(f"{source}: {name} has shape {shape} ({np.asarray(value).dtype}), but sizes "
-                            f"{list(sizes)} need {want} floats")
+            raise DataError(
+                f"{source}: {name} has shape {shape} ({np.asarray(value).dtype}), but sizes "
+                f"{list(sizes)} need {want} floats"
+            )
         if name != "final_loss" and not np.isfinite(value).all():
-            raise DataError(f"{source}: {name} holds non-finite values (NaN or inf); a trained agent's "
-                            f"weights are finite")
+            raise DataError(
+                f"{source}: {name} holds non-finite values (NaN or inf); a trained agent's "
+                f"weights are finite"
+            )
     if (np.asarray(cells.std) <= 0).any():
-        raise DataError(f"{source}: std holds values <= 0; the input scale of every feature must be positive")
+        raise DataError(
+            f"{source}: std holds values <= 0; the input scale of every feature must be positive"
+        )
 
 
 def _check_spec(where: str, s) -> None:
     if not isinstance(s.key, str) or not s.key:
         raise DataError(f"{where}: key {reprlib.repr(s.key)} must be a non-empty string")
     if s.kind not in CELL_KINDS:
-        raise DataError(f"{where}: kind {reprlib.repr(s.kind)} is not one of {', '.join(CELL_KINDS)}")
+        raise DataError(
+            f"{where}: kind {reprlib.repr(s.kind)} is not one of {', '.join(CELL_KINDS)}"
+        )
     for field in ("k", "seed"):
         if not _whole(getattr(s, field)):
-            raise DataError(f"{where}: {field} {reprlib.repr(getattr(s, field))} must be a whole number")
+            raise DataError(
+                f"{where}: {field} {reprlib.repr(getattr(s, field))} must be a whole number"
+            )
     if not _number(s.p) or not 0 < s.p <= 1:
         raise DataError(f"{where}: p {reprlib.repr(s.p)} must be a number in (0, 1]")
     if not _number(s.c) or not 0 <= s.c <= 1:
@@ -240,7 +300,9 @@ def _whole(x) -> bool:
 
 
 def _number(x) -> bool:
-    finite_number = isinstance(x, int | float | np.integer | np.floating) and not isinstance(x, bool)
+    finite_number = isinstance(x, int | float | np.integer | np.floating) and not isinstance(
+        x, bool
+    )
     return finite_number and bool(np.isfinite(x))
 
 
@@ -300,13 +362,14 @@ def buckets(rows: Sequence[int], overhead: int) -> list[list[int]]:
                 best[j], cut[j] = cost, i
     groups, j = [], n
     while j > 0:
-        groups.append(order[cut[j]:j])
+        groups.append(order[cut[j] : j])
         j = cut[j]
     return groups[::-1]
 
 
-def train_cells(cells: Sequence[Cell], cfg: BCConfig,
-                init: Sequence[list[np.ndarray] | None] | None = None) -> TrainedCells:
+def train_cells(
+    cells: Sequence[Cell], cfg: BCConfig, init: Sequence[list[np.ndarray] | None] | None = None
+) -> TrainedCells:
     """Train one policy per cell; pure and deterministic (what one Ray task runs on a group).
 
     ``init[i]``, where given, is cell i's starting parameters (W0, b0, W1, b1, ...; e.g. a
@@ -317,35 +380,67 @@ def train_cells(cells: Sequence[Cell], cfg: BCConfig,
     d, n_actions = cells[0].state_dim, cells[0].n_actions
     for c in cells:
         if c.state_dim != d or c.n_actions != n_actions:
-            raise DataError(f"cell {c.key} has state width {c.state_dim} and {c.n_actions} actions; "
-                            f"cell {cells[0].key} has {d} and {n_actions}: train them separately")
+            raise DataError(
+                f"cell {c.key} has state width {c.state_dim} and {c.n_actions} actions; "
+                f"cell {cells[0].key} has {d} and {n_actions}: train them separately"
+            )
     if len({c.key for c in cells}) != len(cells):
         raise DataError("cell keys must be unique")
-    data = [dedupe_rows(c.states, c.valid, c.actions, c.weights) if cfg.dedupe
-            else (c.states, c.valid, c.actions, c.weights) for c in cells]
+    data = [
+        dedupe_rows(c.states, c.valid, c.actions, c.weights)
+        if cfg.dedupe
+        else (c.states, c.valid, c.actions, c.weights)
+        for c in cells
+    ]
     sizes = layer_sizes(d, n_actions, cfg)
     if init is not None and len(init) != len(cells):
-        raise DataError(f"{len(init)} starting parameter sets for {len(cells)} cells: give one per cell (None: seeded)")
+        raise DataError(
+            f"{len(init)} starting parameter sets for {len(cells)} cells: give one per cell (None: seeded)"
+        )
     starts = [_start(sizes, c, None if init is None else init[i]) for i, c in enumerate(cells)]
     device = bc_device(cfg)
     dtype = torch.float32 if cfg.dtype == "float32" else torch.float64
-    params = {f"{w}{i}": np.zeros((len(cells), *((a, b) if w == "W" else (b,))), np.float32)
-              for i, (a, b) in enumerate(zip(sizes[:-1], sizes[1:], strict=True)) for w in "Wb"}
+    params = {
+        f"{w}{i}": np.zeros((len(cells), *((a, b) if w == "W" else (b,))), np.float32)
+        for i, (a, b) in enumerate(zip(sizes[:-1], sizes[1:], strict=True))
+        for w in "Wb"
+    }
     losses = np.zeros(len(cells))
     if _engine(cfg, device) == "numba":
         trained, losses = _train_numba(cells, data, sizes, cfg, starts)
         check_finite(cells, trained, losses, cfg)
-        return TrainedCells(tuple(c.spec for c in cells), sizes, cfg.activation, trained,
-                            np.stack([c.mean for c in cells]), np.stack([c.std for c in cells]), losses)
+        return TrainedCells(
+            tuple(c.spec for c in cells),
+            sizes,
+            cfg.activation,
+            trained,
+            np.stack([c.mean for c in cells]),
+            np.stack([c.std for c in cells]),
+            losses,
+        )
     for group in buckets([len(x[2]) for x in data], cfg.bucket_overhead_rows):
-        trained, loss = _train_group([cells[i] for i in group], [data[i] for i in group],
-                                     sizes, cfg, device, dtype, [starts[i] for i in group])
+        trained, loss = _train_group(
+            [cells[i] for i in group],
+            [data[i] for i in group],
+            sizes,
+            cfg,
+            device,
+            dtype,
+            [starts[i] for i in group],
+        )
         for name, value in trained.items():
             params[name][group] = value
         losses[group] = loss
     check_finite(cells, params, losses, cfg)
-    return TrainedCells(tuple(c.spec for c in cells), sizes, cfg.activation, params,
-                        np.stack([c.mean for c in cells]), np.stack([c.std for c in cells]), losses)
+    return TrainedCells(
+        tuple(c.spec for c in cells),
+        sizes,
+        cfg.activation,
+        params,
+        np.stack([c.mean for c in cells]),
+        np.stack([c.std for c in cells]),
+        losses,
+    )
 
 
 def split_for_init(cells: Sequence[Cell], cfg: BCConfig) -> tuple[list[Cell], list[Cell]]:
@@ -361,14 +456,20 @@ def init_from(cells: Sequence[Cell], base: TrainedCells) -> list[list[np.ndarray
     table = {(s.p, s.seed): i for i, s in enumerate(base.specs) if s.kind == "nc"}
     missing = [c.key for c in cells if (c.spec.p, c.spec.seed) not in table]
     if missing:
-        raise DataError(f"bc.init no_clustering: cell {missing[0]} has no No Clustering agent of "
-                        "its p and seed to start from")
+        raise DataError(
+            f"bc.init no_clustering: cell {missing[0]} has no No Clustering agent of "
+            "its p and seed to start from"
+        )
     return [base.cell_params(table[(c.spec.p, c.spec.seed)]) for c in cells]
 
 
 def finetune_config(cfg: BCConfig) -> BCConfig:
     """The settings of the cells that start from No Clustering (``finetune_epochs`` epochs)."""
-    return cfg if cfg.finetune_epochs is None else cfg.model_copy(update={"epochs": cfg.finetune_epochs})
+    return (
+        cfg
+        if cfg.finetune_epochs is None
+        else cfg.model_copy(update={"epochs": cfg.finetune_epochs})
+    )
 
 
 def train_plan(cells: Sequence[Cell], cfg: BCConfig) -> TrainedCells:
@@ -386,14 +487,22 @@ def _start(sizes: tuple[int, ...], cell: Cell, given: list[np.ndarray] | None) -
     """A cell's starting parameters as one flat vector: ``given`` (checked) or its seeded init."""
     if given is None:
         return np.concatenate([p.ravel() for p in init_params(sizes, cell.spec.seed)])
-    want = [(a, b) if i % 2 == 0 else (b,) for a, b in zip(sizes[:-1], sizes[1:], strict=True) for i in range(2)]
+    want = [
+        (a, b) if i % 2 == 0 else (b,)
+        for a, b in zip(sizes[:-1], sizes[1:], strict=True)
+        for i in range(2)
+    ]
     got = [tuple(np.shape(p)) for p in given]
     if got != want:
-        raise DataError(f"cell {cell.key}: starting parameters have shapes {got}, the network needs {want}")
+        raise DataError(
+            f"cell {cell.key}: starting parameters have shapes {got}, the network needs {want}"
+        )
     return np.concatenate([np.asarray(p, np.float64).ravel() for p in given])
 
 
-def check_finite(cells: Sequence[Cell], params: dict[str, np.ndarray], losses: np.ndarray, cfg: BCConfig) -> None:
+def check_finite(
+    cells: Sequence[Cell], params: dict[str, np.ndarray], losses: np.ndarray, cfg: BCConfig
+) -> None:
     """Diverged training (NaN or infinite weights or loss) stops the run: such a policy must never
     be evaluated, cached or published as an agent."""
     bad = ~np.isfinite(np.asarray(losses, np.float64))
@@ -401,22 +510,28 @@ def check_finite(cells: Sequence[Cell], params: dict[str, np.ndarray], losses: n
         bad |= ~np.isfinite(value.reshape(len(cells), -1)).all(axis=1)
     if bad.any():
         first = int(np.argmax(bad))
-        raise TrainingError(f"BC training diverged for {int(bad.sum())} of {len(cells)} cells (first: "
-                            f"{cells[first].key}): non-finite weights or loss with bc.lr={cfg.lr}, "
-                            f"bc.betas={list(cfg.betas)}, bc.eps={cfg.eps}, bc.dtype={cfg.dtype}; lower bc.lr "
-                            f"or check the data's state features for huge values")
+        raise TrainingError(
+            f"BC training diverged for {int(bad.sum())} of {len(cells)} cells (first: "
+            f"{cells[first].key}): non-finite weights or loss with bc.lr={cfg.lr}, "
+            f"bc.betas={list(cfg.betas)}, bc.eps={cfg.eps}, bc.dtype={cfg.dtype}; lower bc.lr "
+            f"or check the data's state features for huge values"
+        )
 
 
 def _engine(cfg: BCConfig, device: torch.device) -> str:
     if cfg.engine == "numba" and (device.type != "cpu" or cfg.dtype != "float32"):
-        raise ConfigError("bc.engine 'numba' runs on the CPU in float32 only "
-                          f"(got device {device.type}, dtype {cfg.dtype})")
+        raise ConfigError(
+            "bc.engine 'numba' runs on the CPU in float32 only "
+            f"(got device {device.type}, dtype {cfg.dtype})"
+        )
     engine = cfg.engine
     if engine == "auto":
         engine = "numba" if device.type == "cpu" and cfg.dtype == "float32" else "torch"
     if engine == "torch" and cfg.batch_size is not None:
-        raise ConfigError(f"bc.batch_size={cfg.batch_size} needs the numba engine (CPU, float32); "
-                          f"got engine {engine} on {device.type} in {cfg.dtype}: set bc.batch_size: null")
+        raise ConfigError(
+            f"bc.batch_size={cfg.batch_size} needs the numba engine (CPU, float32); "
+            f"got engine {engine} on {device.type} in {cfg.dtype}: set bc.batch_size: null"
+        )
     return engine
 
 
@@ -428,21 +543,32 @@ def _thread_schedule(rows: Sequence[int], slots: int) -> tuple[np.ndarray, np.nd
         t = int(np.argmin(load))
         bins[t].append(i)
         load[t] += rows[i] + 50  # + a fixed per-cell cost
-    return (np.array([i for b in bins for i in b], np.int64),
-            np.r_[0, np.cumsum([len(b) for b in bins])].astype(np.int64))
+    return (
+        np.array([i for b in bins for i in b], np.int64),
+        np.r_[0, np.cumsum([len(b) for b in bins])].astype(np.int64),
+    )
 
 
-def _train_numba(cells: Sequence[Cell], data: list[tuple[np.ndarray, ...]], sizes: tuple[int, ...],
-                 cfg: BCConfig, starts: list[np.ndarray]) -> tuple[dict, np.ndarray]:
+def _train_numba(
+    cells: Sequence[Cell],
+    data: list[tuple[np.ndarray, ...]],
+    sizes: tuple[int, ...],
+    cfg: BCConfig,
+    starts: list[np.ndarray],
+) -> tuple[dict, np.ndarray]:
     import numba
 
     from pcpg_dist.bc_kernel import train_kernel
 
     n_layers = len(sizes) - 1
     if cfg.batch_size is not None:  # minibatches are blocks of one fixed shuffle per cell
-        data = [tuple(a[order] for a in x) for x, order in
-                ((x, np.random.default_rng([c.spec.seed, 1]).permutation(len(x[2])))
-                 for c, x in zip(cells, data, strict=True))]
+        data = [
+            tuple(a[order] for a in x)
+            for x, order in (
+                (x, np.random.default_rng([c.spec.seed, 1]).permutation(len(x[2])))
+                for c, x in zip(cells, data, strict=True)
+            )
+        ]
     rows = [len(x[2]) for x in data]
     row_off = np.r_[0, np.cumsum(rows)].astype(np.int64)
     xt = np.concatenate([(s - c.mean) / c.std for c, (s, _, _, _) in zip(cells, data, strict=True)])
@@ -457,21 +583,44 @@ def _train_numba(cells: Sequence[Cell], data: list[tuple[np.ndarray, ...]], size
     numba.set_num_threads(max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)))
     schedule, sched_off = _thread_schedule(rows, numba.get_num_threads())
     losses = np.zeros(len(cells))
-    train_kernel(np.ascontiguousarray(xt.T, np.float32), np.ascontiguousarray(neg.T), acts, wn,
-                 row_off, theta, np.array(sizes, np.int64), offs[0:-1:2].copy(), offs[1::2].copy(),
-                 cfg.epochs, cfg.lr, cfg.betas[0], cfg.betas[1], cfg.eps,
-                 cfg.activation == "relu", schedule, sched_off, losses, cfg.batch_size or 0)
+    train_kernel(
+        np.ascontiguousarray(xt.T, np.float32),
+        np.ascontiguousarray(neg.T),
+        acts,
+        wn,
+        row_off,
+        theta,
+        np.array(sizes, np.int64),
+        offs[0:-1:2].copy(),
+        offs[1::2].copy(),
+        cfg.epochs,
+        cfg.lr,
+        cfg.betas[0],
+        cfg.betas[1],
+        cfg.eps,
+        cfg.activation == "relu",
+        schedule,
+        sched_off,
+        losses,
+        cfg.batch_size or 0,
+    )
     out = {}
     for i, (a, b) in enumerate(zip(sizes[:-1], sizes[1:], strict=True)):
-        out[f"W{i}"] = theta[:, offs[2 * i]:offs[2 * i + 1]].reshape(-1, a, b).copy()
-        out[f"b{i}"] = theta[:, offs[2 * i + 1]:offs[2 * i + 2]].copy()
+        out[f"W{i}"] = theta[:, offs[2 * i] : offs[2 * i + 1]].reshape(-1, a, b).copy()
+        out[f"b{i}"] = theta[:, offs[2 * i + 1] : offs[2 * i + 2]].copy()
     del n_layers
     return out, losses
 
 
-def _train_group(cells: list[Cell], data: list[tuple[np.ndarray, ...]], sizes: tuple[int, ...],
-                 cfg: BCConfig, device: torch.device, dtype: torch.dtype,
-                 starts: list[np.ndarray]) -> tuple[dict, np.ndarray]:
+def _train_group(
+    cells: list[Cell],
+    data: list[tuple[np.ndarray, ...]],
+    sizes: tuple[int, ...],
+    cfg: BCConfig,
+    device: torch.device,
+    dtype: torch.dtype,
+    starts: list[np.ndarray],
+) -> tuple[dict, np.ndarray]:
     n_cells, n_rows = len(cells), max(len(x[2]) for x in data)
     d, n_actions = sizes[0], sizes[-1]
     x = np.zeros((n_cells, n_rows, d), np.float32)
@@ -491,8 +640,11 @@ def _train_group(cells: list[Cell], data: list[tuple[np.ndarray, ...]], sizes: t
 
     x, neg, target, weight = t(x), t(neg), t(target), t(weight)
     # one flat (cells, P) buffer for parameters, gradients and Adam moments; W/b are views into it
-    shapes = [(a, b) if i % 2 == 0 else (1, b)
-              for a, b in zip(sizes[:-1], sizes[1:], strict=True) for i in range(2)]
+    shapes = [
+        (a, b) if i % 2 == 0 else (1, b)
+        for a, b in zip(sizes[:-1], sizes[1:], strict=True)
+        for i in range(2)
+    ]
     numel = [a * b for a, b in shapes]
     offs = np.r_[0, np.cumsum(numel)]
     flat = np.stack(starts)
@@ -500,11 +652,13 @@ def _train_group(cells: list[Cell], data: list[tuple[np.ndarray, ...]], sizes: t
     m, v = torch.zeros_like(theta), torch.zeros_like(theta)
 
     def views(buf: torch.Tensor) -> list[torch.Tensor]:
-        return [buf[:, offs[i]:offs[i + 1]].view(n_cells, *shapes[i]) for i in range(len(shapes))]
+        return [buf[:, offs[i] : offs[i + 1]].view(n_cells, *shapes[i]) for i in range(len(shapes))]
 
     ps, gs = views(theta), views(grad)
     relu = cfg.activation == "relu"
-    act_back = torch.ops.aten.threshold_backward.default if relu else torch.ops.aten.tanh_backward.default
+    act_back = (
+        torch.ops.aten.threshold_backward.default if relu else torch.ops.aten.tanh_backward.default
+    )
     n_layers = len(sizes) - 1
     beta1, beta2 = cfg.betas
 
@@ -530,8 +684,8 @@ def _train_group(cells: list[Cell], data: list[tuple[np.ndarray, ...]], sizes: t
             # Adam, exactly as torch.optim.Adam (no weight decay, no amsgrad)
             m.mul_(beta1).add_(grad, alpha=1 - beta1)
             v.mul_(beta2).addcmul_(grad, grad, value=1 - beta2)
-            bc1, bc2 = 1 - beta1 ** step, 1 - beta2 ** step
-            denom = (v.sqrt() / bc2 ** 0.5).add_(cfg.eps)
+            bc1, bc2 = 1 - beta1**step, 1 - beta2**step
+            denom = (v.sqrt() / bc2**0.5).add_(cfg.eps)
             theta.addcdiv_(m, denom, value=-cfg.lr / bc1)
         _, logits = forward()
         logp = torch.log_softmax(logits, dim=-1)
@@ -544,15 +698,19 @@ def _train_group(cells: list[Cell], data: list[tuple[np.ndarray, ...]], sizes: t
     return out, loss.cpu().numpy().astype(np.float64)
 
 
-def weighted_loss_and_grad(cell: Cell, params: list[np.ndarray], activation: str = "relu",
-                           dedupe: bool = True) -> tuple[float, list[np.ndarray]]:
+def weighted_loss_and_grad(
+    cell: Cell, params: list[np.ndarray], activation: str = "relu", dedupe: bool = True
+) -> tuple[float, list[np.ndarray]]:
     """The training loss of one cell and its gradient by autograd (for tests and checks).
 
     Independent of the hand-written backward above, so a test can compare the two and compare
     deduplicated rows against raw ones.
     """
-    s, v, a, w = (dedupe_rows(cell.states, cell.valid, cell.actions, cell.weights) if dedupe
-                  else (cell.states, cell.valid, cell.actions, cell.weights))
+    s, v, a, w = (
+        dedupe_rows(cell.states, cell.valid, cell.actions, cell.weights)
+        if dedupe
+        else (cell.states, cell.valid, cell.actions, cell.weights)
+    )
     ts = [torch.tensor(p, dtype=torch.float64, requires_grad=True) for p in params]
     h = torch.tensor((s - cell.mean) / cell.std, dtype=torch.float64)
     for i in range(len(ts) // 2):

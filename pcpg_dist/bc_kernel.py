@@ -22,11 +22,27 @@ from numba import njit, prange
 
 _F = np.float32
 _CLAMP = _F(7.90531110763549805)
-_A = [_F(c) for c in (-2.76076847742355e-16, 2.00018790482477e-13, -8.60467152213735e-11,
-                      5.12229709037114e-08, 1.48572235717979e-05, 6.37261928875436e-04,
-                      4.89352455891786e-03)]
-_B = [_F(c) for c in (1.19825839466702e-06, 1.18534705686654e-04, 2.26843463243900e-03,
-                      4.89352518554385e-03)]
+_A = [
+    _F(c)
+    for c in (
+        -2.76076847742355e-16,
+        2.00018790482477e-13,
+        -8.60467152213735e-11,
+        5.12229709037114e-08,
+        1.48572235717979e-05,
+        6.37261928875436e-04,
+        4.89352455891786e-03,
+    )
+]
+_B = [
+    _F(c)
+    for c in (
+        1.19825839466702e-06,
+        1.18534705686654e-04,
+        2.26843463243900e-03,
+        4.89352518554385e-03,
+    )
+]
 A0, A1, A2, A3, A4, A5, A6 = _A
 B0, B1, B2, B3 = _B
 
@@ -106,8 +122,27 @@ def _softmax(lg, e, mx, tot, rows, n_actions):  # pragma: no cover - compiled
 
 
 @njit(cache=True, fastmath=_FM, parallel=True)
-def train_kernel(xt, neg, acts, wn, row_off, theta, sizes, w_off, b_off, epochs, lr, beta1,
-                 beta2, eps, relu, schedule, sched_off, loss_out, batch):  # pragma: no cover - compiled
+def train_kernel(
+    xt,
+    neg,
+    acts,
+    wn,
+    row_off,
+    theta,
+    sizes,
+    w_off,
+    b_off,
+    epochs,
+    lr,
+    beta1,
+    beta2,
+    eps,
+    relu,
+    schedule,
+    sched_off,
+    loss_out,
+    batch,
+):  # pragma: no cover - compiled
     """Train every cell in place.
 
     xt (d, R) normalised inputs; neg (A, R) 0 or -1e9 per action; acts (R,) targets;
@@ -197,8 +232,8 @@ def train_kernel(xt, neg, acts, wn, row_off, theta, sizes, w_off, b_off, epochs,
                                     g[nxt, i, k] *= 1.0 - h[layer, i, k] * h[layer, i, k]
                         cur = nxt
                 # ---- Adam
-                bc1 = 1.0 - beta1 ** step
-                bc2 = np.sqrt(1.0 - beta2 ** step)
+                bc1 = 1.0 - beta1**step
+                bc2 = np.sqrt(1.0 - beta2**step)
                 for p in range(n_params):
                     m[p] = beta1 * m[p] + (1.0 - beta1) * grad[p]
                     v[p] = beta2 * v[p] + (1.0 - beta2) * grad[p] * grad[p]

@@ -41,14 +41,21 @@ def content_key(*parts: Any) -> str:
 
 def _listing(folder: Path) -> dict[str, list]:
     """``relative path -> [size, sha256]`` of every file under ``folder`` but the marker."""
-    return {p.relative_to(folder).as_posix(): [p.stat().st_size, sha256_file(p)]
-            for p in sorted(folder.rglob("*")) if p.is_file() and p.name != DONE}
+    return {
+        p.relative_to(folder).as_posix(): [p.stat().st_size, sha256_file(p)]
+        for p in sorted(folder.rglob("*"))
+        if p.is_file() and p.name != DONE
+    }
 
 
 def files_of(folder: str | Path) -> dict[str, bytes]:
     """Every file under ``folder`` as ``relative path -> bytes`` (what a task returns)."""
     folder = Path(folder)
-    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+    return {
+        p.relative_to(folder).as_posix(): p.read_bytes()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }
 
 
 def write_files(folder: Path, files: dict[str, bytes]) -> None:
@@ -97,8 +104,12 @@ class Cache:
 
     def finish(self, stage: str, key: str, info: dict) -> None:
         folder = self.path(stage, key)
-        atomic_write_bytes(folder / DONE, json.dumps({**info, "files": _listing(folder)}, indent=1,
-                                                     sort_keys=True, default=str).encode())
+        atomic_write_bytes(
+            folder / DONE,
+            json.dumps(
+                {**info, "files": _listing(folder)}, indent=1, sort_keys=True, default=str
+            ).encode(),
+        )
 
     def store(self, stage: str, key: str, files: dict[str, bytes], info: dict) -> Path:
         """Start, write a task's files and finish a unit in one call (the driver's only write)."""
@@ -111,5 +122,7 @@ class Cache:
         try:
             return json.loads((self.path(stage, key) / name).read_text())
         except (OSError, ValueError) as e:
-            raise DataError(f"cache entry {stage}/{key}/{name} is unreadable ({e}); delete the folder "
-                            f"{self.path(stage, key)} and rerun") from None
+            raise DataError(
+                f"cache entry {stage}/{key}/{name} is unreadable ({e}); delete the folder "
+                f"{self.path(stage, key)} and rerun"
+            ) from None

@@ -22,8 +22,10 @@ def _cmd_generate(args: argparse.Namespace) -> None:
     init_ray(args.ray_address)
     datasets = generate_to(cfg, Path(args.out), show_progress=not args.quiet)
     for env, ds in datasets.items():
-        console.print(f"{env}: {ds.n_trajectories} trajectories, {ds.n_rows} rows, "
-                      f"success {ds.success.mean():.3f}, mean length {ds.lengths.mean():.1f}")
+        console.print(
+            f"{env}: {ds.n_trajectories} trajectories, {ds.n_rows} rows, "
+            f"success {ds.success.mean():.3f}, mean length {ds.lengths.mean():.1f}"
+        )
     console.print(f"wrote {args.out}/manifest.json")
 
 
@@ -45,10 +47,17 @@ def _cmd_run(args: argparse.Namespace) -> None:
     cfg = load_config_with(args.config, args.overrides)
     _check_tracking(args)
     init_ray(args.ray_address)
-    result = run_experiment(cfg, workdir=Path(args.workdir), tracking_uri=args.tracking_uri,
-                            track=not args.no_tracking, show_progress=not args.quiet,
-                            command=" ".join(["pcpg", *sys.argv[1:]]))
-    print_summary(result, out)  # results on stdout; plain print below: commands stay one copyable line
+    result = run_experiment(
+        cfg,
+        workdir=Path(args.workdir),
+        tracking_uri=args.tracking_uri,
+        track=not args.no_tracking,
+        show_progress=not args.quiet,
+        command=" ".join(["pcpg", *sys.argv[1:]]),
+    )
+    print_summary(
+        result, out
+    )  # results on stdout; plain print below: commands stay one copyable line
     if result.parent_run_id:
         from pcpg_dist.tracking import default_tracking_uri, ui_link
 
@@ -71,12 +80,21 @@ def _cmd_sweep(args: argparse.Namespace) -> None:
     axes, fixed = split_sweep_items(args.axes)
     _check_tracking(args)
     init_ray(args.ray_address)
-    res = run_sweep(args.config, axes, fixed, workdir=Path(args.workdir), tracking_uri=args.tracking_uri,
-                    track=not args.no_tracking, show_progress=not args.quiet,
-                    command=" ".join(["pcpg", *sys.argv[1:]]))
+    res = run_sweep(
+        args.config,
+        axes,
+        fixed,
+        workdir=Path(args.workdir),
+        tracking_uri=args.tracking_uri,
+        track=not args.no_tracking,
+        show_progress=not args.quiet,
+        command=" ".join(["pcpg", *sys.argv[1:]]),
+    )
     _print_points(res)
-    print(f"sweep: {len(res.rows)} points ({res.ran} run now, {len(res.rows) - res.ran} finished before) "
-          f"in {res.seconds:.1f} s")
+    print(
+        f"sweep: {len(res.rows)} points ({res.ran} run now, {len(res.rows) - res.ran} finished before) "
+        f"in {res.seconds:.1f} s"
+    )
     print(f"table: {res.out_dir / 'summary.csv'}")
     print(f"report: {res.out_dir / 'report.html'}  ({len(res.figures)} figures)")
     if res.parent_run_id:
@@ -105,14 +123,19 @@ def _print_points(res) -> None:
     shown = [(k, title) for k, title in shown if k in keys]
     table = Table(title="Sweep points (mean over seeds; NC = No Clustering)", title_justify="left")
     for axis in res.axes:
-        table.add_column(axis.rsplit(".", 1)[-1] if sum(a.rsplit(".", 1)[-1] == axis.rsplit(".", 1)[-1]
-                                                        for a in res.axes) == 1 else axis)
+        table.add_column(
+            axis.rsplit(".", 1)[-1]
+            if sum(a.rsplit(".", 1)[-1] == axis.rsplit(".", 1)[-1] for a in res.axes) == 1
+            else axis
+        )
     for _, title in shown:
         table.add_column(title, justify="right")
     for row in res.rows:
         values = [row.get(k) for k, _ in shown]
-        table.add_row(*(str(row.get(a, "")) for a in res.axes),
-                      *("-" if v is None or v == "" else f"{float(v):.3f}" for v in values))
+        table.add_row(
+            *(str(row.get(a, "")) for a in res.axes),
+            *("-" if v is None or v == "" else f"{float(v):.3f}" for v in values),
+        )
     console.print(table)
 
 
@@ -171,10 +194,14 @@ def _cmd_cluster(args: argparse.Namespace) -> None:
     units = {u.name: u for u in contract.units(cfg, datasets)}
     envs = list(units)
     folders = {e: confined(out, e, "unit name") for e in envs}
-    results = run_tasks(cluster_task, [(units[e], cfg.clustering, cfg.seed, cfg.runner.cpus_per_task)
-                                       for e in envs],
-                        "Step A: clustering", num_cpus=cfg.runner.cpus_per_task, show_progress=not args.quiet,
-                        num_gpus=[unit_cluster_gpus(gpus, cfg.clustering, units[e].clustered) for e in envs])
+    results = run_tasks(
+        cluster_task,
+        [(units[e], cfg.clustering, cfg.seed, cfg.runner.cpus_per_task) for e in envs],
+        "Step A: clustering",
+        num_cpus=cfg.runner.cpus_per_task,
+        show_progress=not args.quiet,
+        num_gpus=[unit_cluster_gpus(gpus, cfg.clustering, units[e].clustered) for e in envs],
+    )
     for env, res in zip(envs, results, strict=True):
         write_files(folders[env] / "model", res["model"])
         atomic_write_bytes(folders[env] / "labels.json", json.dumps(res["labels"]).encode())
@@ -182,9 +209,14 @@ def _cmd_cluster(args: argparse.Namespace) -> None:
             atomic_write_bytes(folders[env] / "margins.json", json.dumps(res["margins"]).encode())
         else:  # never an earlier clustering's margins beside these labels
             (folders[env] / "margins.json").unlink(missing_ok=True)
-        atomic_write_bytes(folders[env] / "metrics.json", json.dumps(res["metrics"], indent=1).encode())
-        shown = ", ".join(f"{k.split('/')[1]} {v:.3f}" for k, v in res["metrics"].items()
-                          if k.split("/")[1] in ("ari", "nmi", "accuracy", "silhouette", "fit_seconds"))
+        atomic_write_bytes(
+            folders[env] / "metrics.json", json.dumps(res["metrics"], indent=1).encode()
+        )
+        shown = ", ".join(
+            f"{k.split('/')[1]} {v:.3f}"
+            for k, v in res["metrics"].items()
+            if k.split("/")[1] in ("ari", "nmi", "accuracy", "silhouette", "fit_seconds")
+        )
         console.print(f"{env}: {shown}  model: {folders[env] / 'model'}")
 
 
@@ -205,22 +237,34 @@ def _cmd_classify(args: argparse.Namespace) -> None:
     ds = load_dataset(Path(args.dataset))
     pred = model.predict(ds)
     # the logs' own ids where they were not integers (pcpg numbers those in sorted order)
-    table = pd.DataFrame({"trajectory": ds.trajectory_ids if ds.source_ids is None else ds.source_ids,
-                          "predicted_style": pred})
+    table = pd.DataFrame(
+        {
+            "trajectory": ds.trajectory_ids if ds.source_ids is None else ds.source_ids,
+            "predicted_style": pred,
+        }
+    )
     atomic_write_bytes(out, table.to_csv(index=False).encode())
-    console.print(f"{ds.n_trajectories} trajectories -> {out}; cluster sizes "
-                  f"{[int((pred == c).sum()) for c in range(int(pred.max()) + 1)]}")
+    console.print(
+        f"{ds.n_trajectories} trajectories -> {out}; cluster sizes "
+        f"{[int((pred == c).sum()) for c in range(int(pred.max()) + 1)]}"
+    )
     unknown = model.unknown_rows(ds)
     if unknown is not None:
         console.print(f"{unknown:.0%} of the rows are in states the model was not fitted on")
         if unknown > 0.1:  # a fresh sample of the same layout: ~1 % (docs/clustering.md)
             logging.getLogger(__name__).warning(
                 "%s: %.0f%% of the rows are in states %s was not fitted on: is it the same layout or "
-                "game? Their labels rest on the remaining rows", args.dataset, 100 * unknown, args.model)
+                "game? Their labels rest on the remaining rows",
+                args.dataset,
+                100 * unknown,
+                args.model,
+            )
     if (ds.styles >= 0).all():
         m = clustering_metrics(ds.styles, pred)
-        console.print("against the true styles: " + ", ".join(f"{k} {v:.3f}" for k, v in m.items()
-                                                             if isinstance(v, float)))
+        console.print(
+            "against the true styles: "
+            + ", ".join(f"{k} {v:.3f}" for k, v in m.items() if isinstance(v, float))
+        )
 
 
 def check_classify_out(out: Path, model: Path, dataset: Path) -> None:
@@ -229,12 +273,18 @@ def check_classify_out(out: Path, model: Path, dataset: Path) -> None:
 
     out_at = out.resolve()
     if out_at in (dataset.resolve(), dataset.resolve().parent / "manifest.json"):
-        raise ConfigError(f"--out {out}: that is the input dataset {dataset} (or its manifest); name another file")
+        raise ConfigError(
+            f"--out {out}: that is the input dataset {dataset} (or its manifest); name another file"
+        )
     if model.resolve() in out_at.parents:
-        raise ConfigError(f"--out {out}: inside the model folder {model}, whose files it would replace; "
-                          f"name a file outside it")
+        raise ConfigError(
+            f"--out {out}: inside the model folder {model}, whose files it would replace; "
+            f"name a file outside it"
+        )
     if out_at.exists() and not out_at.is_file() and not out_at.is_dir():
-        raise ConfigError(f"--out {out}: not a regular file (a FIFO, socket or device); name a regular file")
+        raise ConfigError(
+            f"--out {out}: not a regular file (a FIFO, socket or device); name a regular file"
+        )
 
 
 def _cmd_tune(args: argparse.Namespace) -> None:
@@ -245,20 +295,37 @@ def _cmd_tune(args: argparse.Namespace) -> None:
     from pcpg_dist.tuning import open_storage, run_study, tune_settings
 
     cfg = load_config_with(args.config, args.overrides)
-    storage = open_storage(args.optuna_storage, tune_settings(cfg, args.n_trials))  # before Ray starts
+    storage = open_storage(
+        args.optuna_storage, tune_settings(cfg, args.n_trials)
+    )  # before Ray starts
     _check_tracking(args)
     init_ray(args.ray_address)
-    res = run_study(cfg, storage_url=storage, workdir=Path(args.workdir),
-                    tracking_uri=args.tracking_uri, track=not args.no_tracking,
-                    show_progress=not args.quiet, n_trials=args.n_trials, study_name=args.study_name,
-                    out=Path(args.out) if args.out else None)
+    res = run_study(
+        cfg,
+        storage_url=storage,
+        workdir=Path(args.workdir),
+        tracking_uri=args.tracking_uri,
+        track=not args.no_tracking,
+        show_progress=not args.quiet,
+        n_trials=args.n_trials,
+        study_name=args.study_name,
+        out=Path(args.out) if args.out else None,
+    )
     shown = ", ".join(f"{k}={v}" for k, v in res.best_params.items())
-    console.print(f"study {res.study_name}: trials: {trial_counts(res.n_trials)}; best score "
-                  f"{res.best_value:.4f} with {shown}")
+    console.print(
+        f"study {res.study_name}: trials: {trial_counts(res.n_trials)}; best score "
+        f"{res.best_value:.4f} with {shown}"
+    )
     if res.failed_stale:
-        console.print(f"failed and re-queued stale trials {res.failed_stale} (their driver had stopped)")
-    again = "" if args.workdir == "runs" else f" --workdir {shlex.quote(args.workdir)}"  # the study's data
-    console.print(f"best config: {res.best_config}  (run it: pcpg run {shlex.quote(str(res.best_config))}{again})")
+        console.print(
+            f"failed and re-queued stale trials {res.failed_stale} (their driver had stopped)"
+        )
+    again = (
+        "" if args.workdir == "runs" else f" --workdir {shlex.quote(args.workdir)}"
+    )  # the study's data
+    console.print(
+        f"best config: {res.best_config}  (run it: pcpg run {shlex.quote(str(res.best_config))}{again})"
+    )
     console.print(f"dashboard: uv run optuna-dashboard {res.storage} --host 127.0.0.1")
 
 
@@ -266,7 +333,12 @@ def trial_counts(counts: dict[str, int]) -> str:
     """``{'PRUNED': 2, 'COMPLETE': 1}`` (trials per Optuna state) as ``1 complete, 2 pruned``."""
     order = ["COMPLETE", "PRUNED", "FAIL", "RUNNING", "WAITING"]
     states = sorted(counts, key=lambda s: (order.index(s) if s in order else len(order), s))
-    return ", ".join(f"{counts[s]} {'failed' if s == 'FAIL' else s.lower()}" for s in states if counts[s]) or "none"
+    return (
+        ", ".join(
+            f"{counts[s]} {'failed' if s == 'FAIL' else s.lower()}" for s in states if counts[s]
+        )
+        or "none"
+    )
 
 
 def _cmd_export(args: argparse.Namespace) -> None:
@@ -292,37 +364,64 @@ def _cmd_domains(args: argparse.Namespace) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="pcpg", description="Play-style-centric agents from gameplay data (PCPG) at scale.")
+        prog="pcpg", description="Play-style-centric agents from gameplay data (PCPG) at scale."
+    )
     from pcpg_dist import __version__
 
     parser.add_argument("--version", action="version", version=f"pcpg {__version__}")
-    parser.add_argument("-q", "--quiet", dest="global_quiet", action="store_true",
-                        help="errors only: no progress bars, no warnings (results still on stdout)")
-    parser.add_argument("--verbose", action="store_true", help="also informational logs (pcpg, MLflow)")
+    parser.add_argument(
+        "-q",
+        "--quiet",
+        dest="global_quiet",
+        action="store_true",
+        help="errors only: no progress bars, no warnings (results still on stdout)",
+    )
+    parser.add_argument(
+        "--verbose", action="store_true", help="also informational logs (pcpg, MLflow)"
+    )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     def add_parser(where, name: str, **kw) -> argparse.ArgumentParser:
         """A (sub)command that also takes -q/--quiet and --verbose after its name, like `pcpg -q`."""
         p = where.add_parser(name, **kw)
         # SUPPRESS: absent after the command, the value given before it (or False) stands
-        p.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
-                       help="errors only: no progress bars, no warnings (results still on stdout)")
-        p.add_argument("--verbose", action="store_true", default=argparse.SUPPRESS,
-                       help="also informational logs (pcpg, MLflow)")
+        p.add_argument(
+            "-q",
+            "--quiet",
+            action="store_true",
+            default=argparse.SUPPRESS,
+            help="errors only: no progress bars, no warnings (results still on stdout)",
+        )
+        p.add_argument(
+            "--verbose",
+            action="store_true",
+            default=argparse.SUPPRESS,
+            help="also informational logs (pcpg, MLflow)",
+        )
         return p
 
     def common(p: argparse.ArgumentParser) -> None:
-        p.add_argument("--ray-address", default=None,
-                       help="join this Ray cluster (default: $RAY_ADDRESS, else Ray in-process)")
+        p.add_argument(
+            "--ray-address",
+            default=None,
+            help="join this Ray cluster (default: $RAY_ADDRESS, else Ray in-process)",
+        )
 
     def overrides(p: argparse.ArgumentParser) -> None:
-        p.add_argument("overrides", nargs="*", metavar="KEY=VALUE",
-                       help="change a setting of the YAML before it is validated, e.g. bc.lr=0.003 "
-                            "clustering.k=5 (values read as YAML)")
+        p.add_argument(
+            "overrides",
+            nargs="*",
+            metavar="KEY=VALUE",
+            help="change a setting of the YAML before it is validated, e.g. bc.lr=0.003 "
+            "clustering.k=5 (values read as YAML)",
+        )
 
     def tracking(p: argparse.ArgumentParser) -> None:
-        p.add_argument("--tracking-uri", default=None,
-                       help="MLflow tracking URI (default: $MLFLOW_TRACKING_URI, else sqlite:///mlflow.db)")
+        p.add_argument(
+            "--tracking-uri",
+            default=None,
+            help="MLflow tracking URI (default: $MLFLOW_TRACKING_URI, else sqlite:///mlflow.db)",
+        )
         p.add_argument("--no-tracking", action="store_true", help="do not log to MLflow")
 
     p = add_parser(sub, "generate", help="generate the datasets of a config (PBTG on Ray)")
@@ -332,59 +431,115 @@ def build_parser() -> argparse.ArgumentParser:
     common(p)
     p.set_defaults(func=_cmd_generate)
 
-    p = add_parser(sub, "run", help="run a whole experiment: generate, cluster, rank, train, evaluate, log")
+    p = add_parser(
+        sub, "run", help="run a whole experiment: generate, cluster, rank, train, evaluate, log"
+    )
     p.add_argument("config", help="experiment YAML")
     overrides(p)
-    p.add_argument("--workdir", default="runs", help="outputs and the resumable cache (default: runs/)")
+    p.add_argument(
+        "--workdir", default="runs", help="outputs and the resumable cache (default: runs/)"
+    )
     tracking(p)
     common(p)
     p.set_defaults(func=_cmd_run)
 
-    p = add_parser(sub, "sweep", help="run a grid over config axes: KEY=v1,v2,... (or a start:stop:step range)")
-    p.add_argument("config", help="experiment YAML (its optional sweep: section adds grid/zip axes)")
-    p.add_argument("axes", nargs="*", metavar="KEY=VALUES",
-                   help="an axis (KEY=v1,v2,... or KEY=start:stop:step) or a fixed override (KEY=value)")
-    p.add_argument("--workdir", default="runs", help="outputs and the shared cache (default: runs/)")
+    p = add_parser(
+        sub, "sweep", help="run a grid over config axes: KEY=v1,v2,... (or a start:stop:step range)"
+    )
+    p.add_argument(
+        "config", help="experiment YAML (its optional sweep: section adds grid/zip axes)"
+    )
+    p.add_argument(
+        "axes",
+        nargs="*",
+        metavar="KEY=VALUES",
+        help="an axis (KEY=v1,v2,... or KEY=start:stop:step) or a fixed override (KEY=value)",
+    )
+    p.add_argument(
+        "--workdir", default="runs", help="outputs and the shared cache (default: runs/)"
+    )
     tracking(p)
     common(p)
     p.set_defaults(func=_cmd_sweep)
 
-    p = add_parser(sub, "cluster", help="Step A only: cluster each environment's trajectories by play-style")
+    p = add_parser(
+        sub, "cluster", help="Step A only: cluster each environment's trajectories by play-style"
+    )
     p.add_argument("config", help="experiment YAML (its clustering section)")
     overrides(p)
-    p.add_argument("--out", required=True, help="output folder: <env>/model, labels.json, metrics.json "
-                   "(and margins.json from greedy_mix, bag_auto, policy_mix)")
-    p.add_argument("--data", default=None, help="dataset folder from `pcpg generate` (default: generate)")
+    p.add_argument(
+        "--out",
+        required=True,
+        help="output folder: <env>/model, labels.json, metrics.json "
+        "(and margins.json from greedy_mix, bag_auto, policy_mix)",
+    )
+    p.add_argument(
+        "--data", default=None, help="dataset folder from `pcpg generate` (default: generate)"
+    )
     common(p)
     p.set_defaults(func=_cmd_cluster)
 
-    p = add_parser(sub, "classify", help="assign play-styles to trajectories with a fitted clustering model")
+    p = add_parser(
+        sub, "classify", help="assign play-styles to trajectories with a fitted clustering model"
+    )
     p.add_argument("model", help="model folder written by `pcpg cluster` (<out>/<env>/model)")
     p.add_argument("dataset", help="a dataset Parquet file")
-    p.add_argument("--out", default=None, help="CSV of (trajectory, predicted_style) "
-                   "(default: ./DATASET_STEM.styles.csv in the current folder)")
+    p.add_argument(
+        "--out",
+        default=None,
+        help="CSV of (trajectory, predicted_style) "
+        "(default: ./DATASET_STEM.styles.csv in the current folder)",
+    )
     p.set_defaults(func=_cmd_classify)
 
-    p = add_parser(sub, "report", help="write the reproducibility report of a run (HTML + Markdown) or "
-                                       "the page of a sweep (HTML)")
-    p.add_argument("target", help="a run's output folder (runs/NAME), a sweep's folder (runs/NAME/sweep), an "
-                                  "MLflow run id (a run, a sweep or a sweep's point), or an experiment name "
-                                  "(its newest top-level run: a `pcpg run` or a `pcpg sweep`, never one point)")
-    p.add_argument("--out", default=None, help="folder for report.html/report.md (default: RUN/report; for a sweep, "
-                                                   "its own folder)")
-    p.add_argument("--workdir", default="runs", help="where a run's summary downloaded from MLflow is kept: "
-                   "WORKDIR/.report-cache/RUN_ID (default: runs/; unused for a local folder)")
-    p.add_argument("--pdf", action="store_true", help="also print report.pdf with a headless Chromium")
+    p = add_parser(
+        sub,
+        "report",
+        help="write the reproducibility report of a run (HTML + Markdown) or "
+        "the page of a sweep (HTML)",
+    )
+    p.add_argument(
+        "target",
+        help="a run's output folder (runs/NAME), a sweep's folder (runs/NAME/sweep), an "
+        "MLflow run id (a run, a sweep or a sweep's point), or an experiment name "
+        "(its newest top-level run: a `pcpg run` or a `pcpg sweep`, never one point)",
+    )
+    p.add_argument(
+        "--out",
+        default=None,
+        help="folder for report.html/report.md (default: RUN/report; for a sweep, its own folder)",
+    )
+    p.add_argument(
+        "--workdir",
+        default="runs",
+        help="where a run's summary downloaded from MLflow is kept: "
+        "WORKDIR/.report-cache/RUN_ID (default: runs/; unused for a local folder)",
+    )
+    p.add_argument(
+        "--pdf", action="store_true", help="also print report.pdf with a headless Chromium"
+    )
     p.add_argument("--tracking-uri", default=None, help="MLflow tracking URI (default: as for run)")
     p.set_defaults(func=_cmd_report)
 
-    p = add_parser(sub, "reproduce", help="rerun a logged run from its recorded config and seeds in a fresh "
-                                         "folder; compare every metric with the logged one (exit 1 if any differs)")
-    p.add_argument("run", metavar="RUN", help="one run: its output folder (runs/NAME, or a sweep's point: "
-                                              "runs/NAME/sweep/points/POINT), an MLflow run id, or an experiment "
-                                              "name (its newest top-level run, as for report); not a whole sweep")
-    p.add_argument("--workdir", default=None, help="fresh (new or empty) folder for the rerun "
-                   "(default: a new temporary folder, printed at the end)")
+    p = add_parser(
+        sub,
+        "reproduce",
+        help="rerun a logged run from its recorded config and seeds in a fresh "
+        "folder; compare every metric with the logged one (exit 1 if any differs)",
+    )
+    p.add_argument(
+        "run",
+        metavar="RUN",
+        help="one run: its output folder (runs/NAME, or a sweep's point: "
+        "runs/NAME/sweep/points/POINT), an MLflow run id, or an experiment "
+        "name (its newest top-level run, as for report); not a whole sweep",
+    )
+    p.add_argument(
+        "--workdir",
+        default=None,
+        help="fresh (new or empty) folder for the rerun "
+        "(default: a new temporary folder, printed at the end)",
+    )
     p.add_argument("--rtol", type=float, default=1e-6, help="relative tolerance (default: 1e-6)")
     p.add_argument("--atol", type=float, default=1e-9, help="absolute tolerance (default: 1e-9)")
     p.add_argument("--tracking-uri", default=None, help="MLflow tracking URI (default: as for run)")
@@ -394,41 +549,85 @@ def build_parser() -> argparse.ArgumentParser:
     p = add_parser(sub, "tune", help="tune k and the network sizes with Optuna (trials on Ray)")
     p.add_argument("config", help="experiment YAML (its tuning section: search space, objective)")
     overrides(p)
-    p.add_argument("--optuna-storage", default=None,
-                   help="study storage: a journal file path (default: ./optuna_journal.log) or an RDB "
-                        "URL for teams, e.g. postgresql://user@host:5432/db")
-    p.add_argument("--study-name", default=None, help="study name (default: tuning.study_name, else NAME-tune)")
-    p.add_argument("--n-trials", type=int, default=None, help="finished trials the study should hold "
-                   "(default: tuning.n_trials); a rerun with more continues the study")
-    p.add_argument("--out", default=None, help="folder of best_config.yaml, trials.csv, score_vs_k.png "
-                   "(default: WORKDIR/NAME/tuning, or WORKDIR/NAME/tuning/STUDY for a --study-name other than NAME-tune)")
+    p.add_argument(
+        "--optuna-storage",
+        default=None,
+        help="study storage: a journal file path (default: ./optuna_journal.log) or an RDB "
+        "URL for teams, e.g. postgresql://user@host:5432/db",
+    )
+    p.add_argument(
+        "--study-name", default=None, help="study name (default: tuning.study_name, else NAME-tune)"
+    )
+    p.add_argument(
+        "--n-trials",
+        type=int,
+        default=None,
+        help="finished trials the study should hold "
+        "(default: tuning.n_trials); a rerun with more continues the study",
+    )
+    p.add_argument(
+        "--out",
+        default=None,
+        help="folder of best_config.yaml, trials.csv, score_vs_k.png "
+        "(default: WORKDIR/NAME/tuning, or WORKDIR/NAME/tuning/STUDY for a --study-name other than NAME-tune)",
+    )
     p.add_argument("--workdir", default="runs", help="data cache and outputs (default: runs/)")
     tracking(p)
     common(p)
     p.set_defaults(func=_cmd_tune)
 
-    p = add_parser(sub, "domains", help="list the registered domains (built-ins and installed plugins)")
+    p = add_parser(
+        sub, "domains", help="list the registered domains (built-ins and installed plugins)"
+    )
     p.set_defaults(func=_cmd_domains)
 
-    p = add_parser(sub, "export", help="export for use outside pcpg: trained agents as ONNX, datasets as Minari")
+    p = add_parser(
+        sub,
+        "export",
+        help="export for use outside pcpg: trained agents as ONNX, datasets as Minari",
+    )
     p.set_defaults(func=_cmd_export)
     formats = p.add_subparsers(dest="what", required=True, metavar="FORMAT")
-    e = add_parser(formats, "onnx", help="one ONNX model per environment + a JSON table of its cells "
-                                        "(docs/agents.md)")
-    e.add_argument("run", help="a run's output folder (runs/NAME), an MLflow run id, or an experiment name "
-                               "(its newest top-level run, as for report)")
-    e.add_argument("--out", required=True, help="folder for agents_<env>.onnx and agents_<env>.json")
-    e.add_argument("--workdir", default=None, help="keep the agents downloaded from MLflow here "
-                   "(default: a temporary folder)")
+    e = add_parser(
+        formats,
+        "onnx",
+        help="one ONNX model per environment + a JSON table of its cells (docs/agents.md)",
+    )
+    e.add_argument(
+        "run",
+        help="a run's output folder (runs/NAME), an MLflow run id, or an experiment name "
+        "(its newest top-level run, as for report)",
+    )
+    e.add_argument(
+        "--out", required=True, help="folder for agents_<env>.onnx and agents_<env>.json"
+    )
+    e.add_argument(
+        "--workdir",
+        default=None,
+        help="keep the agents downloaded from MLflow here (default: a temporary folder)",
+    )
     e.add_argument("--tracking-uri", default=None, help="MLflow tracking URI (default: as for run)")
-    e = add_parser(formats, "minari", help="a pcpg dataset (or a run's cached data) as Minari datasets, "
-                                          "one per environment")
-    e.add_argument("source", metavar="RUN_OR_DATA",
-                   help="a pcpg dataset folder (with manifest.json) or a run's output folder (runs/NAME)")
-    e.add_argument("--out", required=True, help="Minari datasets root to write into (use it as "
-                   "MINARI_DATASETS_PATH)")
-    e.add_argument("--dataset-id", default=None, help="Minari id namespace/name-vN (default: "
-                   "pcpg/<folder name>-v0); with several environments each gets namespace/name/<env>-vN")
+    e = add_parser(
+        formats,
+        "minari",
+        help="a pcpg dataset (or a run's cached data) as Minari datasets, one per environment",
+    )
+    e.add_argument(
+        "source",
+        metavar="RUN_OR_DATA",
+        help="a pcpg dataset folder (with manifest.json) or a run's output folder (runs/NAME)",
+    )
+    e.add_argument(
+        "--out",
+        required=True,
+        help="Minari datasets root to write into (use it as MINARI_DATASETS_PATH)",
+    )
+    e.add_argument(
+        "--dataset-id",
+        default=None,
+        help="Minari id namespace/name-vN (default: "
+        "pcpg/<folder name>-v0); with several environments each gets namespace/name/<env>-vN",
+    )
     return parser
 
 
@@ -437,12 +636,16 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = build_parser()
     args, extra = parser.parse_known_args(argv)
     # KEY=VALUE items after an option (`pcpg run c.yaml --quiet bc.lr=0.1`) belong to the command
-    target = "axes" if hasattr(args, "axes") else "overrides" if hasattr(args, "overrides") else None
+    target = (
+        "axes" if hasattr(args, "axes") else "overrides" if hasattr(args, "overrides") else None
+    )
     if extra and (target is None or any(e.startswith("-") for e in extra)):
         parser.error(f"unrecognized arguments: {' '.join(extra)}")
     if extra:
         setattr(args, target, [*getattr(args, target), *extra])
-    args.quiet = args.global_quiet or getattr(args, "quiet", False)  # `pcpg -q run` or `pcpg run -q`
+    args.quiet = args.global_quiet or getattr(
+        args, "quiet", False
+    )  # `pcpg -q run` or `pcpg run -q`
     return args
 
 
@@ -450,8 +653,11 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     from pcpg_dist.progress import setup_output
 
-    setup_output(quiet=args.quiet, verbose=args.verbose,
-                 private_ray=not (getattr(args, "ray_address", None) or os.environ.get("RAY_ADDRESS")))
+    setup_output(
+        quiet=args.quiet,
+        verbose=args.verbose,
+        private_ray=not (getattr(args, "ray_address", None) or os.environ.get("RAY_ADDRESS")),
+    )
     try:
         catch_sigterm()
         args.func(args)
@@ -467,8 +673,10 @@ def main(argv: list[str] | None = None) -> int:
         from pcpg_dist import errors
 
         terminated = isinstance(e, Terminated) or errors.sigterm_received
-        print(f"pcpg: interrupted{' (SIGTERM)' if terminated else ''}; rerun the same command to resume",
-              file=sys.stderr)
+        print(
+            f"pcpg: interrupted{' (SIGTERM)' if terminated else ''}; rerun the same command to resume",
+            file=sys.stderr,
+        )
         return 143 if terminated else 130
     return 0
 

@@ -45,7 +45,7 @@ def _state_columns(states: np.ndarray, vocab_states: np.ndarray) -> np.ndarray:
     inv, _ = row_ids(both)
     col_of = np.full(inv.max() + 1, -1, np.int64)
     col_of[inv[: len(vocab_states)]] = np.arange(len(vocab_states))
-    return col_of[inv[len(vocab_states):]]
+    return col_of[inv[len(vocab_states) :]]
 
 
 def fit_vocabulary(states: np.ndarray, actions: np.ndarray, n_actions: int) -> BagVocabulary:
@@ -60,8 +60,9 @@ def fit_vocabulary(states: np.ndarray, actions: np.ndarray, n_actions: int) -> B
     return BagVocabulary(vocab, sa.astype(np.int64), int(n_actions))
 
 
-def bag_matrix(states: np.ndarray, offsets: np.ndarray, actions: np.ndarray,
-               vocab: BagVocabulary) -> sparse.csr_matrix:
+def bag_matrix(
+    states: np.ndarray, offsets: np.ndarray, actions: np.ndarray, vocab: BagVocabulary
+) -> sparse.csr_matrix:
     """(n trajectories, vocab.width) binary rows [visited states | state-actions | final state]."""
     n = len(offsets) - 1
     v = len(vocab.states)
@@ -96,5 +97,7 @@ def dedup_rows(x: sparse.csr_matrix) -> tuple[np.ndarray, np.ndarray, np.ndarray
     proj = np.random.default_rng(20240917).standard_normal((x.shape[1], 2))
     h = np.asarray(x @ proj)
     key = h[:, 0] + 1j * h[:, 1]
-    _, first, inv, counts = np.unique(key, return_index=True, return_inverse=True, return_counts=True)
+    _, first, inv, counts = np.unique(
+        key, return_index=True, return_inverse=True, return_counts=True
+    )
     return first, counts.astype(np.float64), inv.reshape(-1)

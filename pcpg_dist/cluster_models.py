@@ -118,10 +118,12 @@ def visit_features(states: np.ndarray, offsets: np.ndarray, vocab: np.ndarray):
     inv, _ = row_ids(both)
     col_of = np.full(inv.max() + 1, -1, np.int64)
     col_of[inv[: len(vocab)]] = np.arange(len(vocab))
-    cols = col_of[inv[len(vocab):]]
+    cols = col_of[inv[len(vocab) :]]
     traj = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets))
     ok = cols >= 0
-    m = sparse.csr_matrix((np.ones(int(ok.sum())), (traj[ok], cols[ok])), shape=(len(offsets) - 1, len(vocab)))
+    m = sparse.csr_matrix(
+        (np.ones(int(ok.sum())), (traj[ok], cols[ok])), shape=(len(offsets) - 1, len(vocab))
+    )
     m.data[:] = 1.0
     return normalize(m)
 
@@ -232,8 +234,15 @@ def batches_to(batches: list[PackedBatch], device: torch.device) -> list[PackedB
     """The same batches on ``device`` (PackedSequence's batch_sizes stay on the CPU, as torch wants)."""
     if device.type == "cpu":
         return batches
-    return [PackedBatch(b.index.to(device), PackedSequence(b.packed.data.to(device), b.packed.batch_sizes),
-                        b.repeat.to(device), b.lengths.to(device)) for b in batches]
+    return [
+        PackedBatch(
+            b.index.to(device),
+            PackedSequence(b.packed.data.to(device), b.packed.batch_sizes),
+            b.repeat.to(device),
+            b.lengths.to(device),
+        )
+        for b in batches
+    ]
 
 
 # --------------------------------------------------------------------- the saved model
@@ -248,8 +257,12 @@ class PolicyMixture(nn.Module):
     def __init__(self, state_dim: int, hidden_size: int, k: int, n_actions: int) -> None:
         super().__init__()
         self.k, self.n_actions = int(k), int(n_actions)
-        self.trunk = nn.Sequential(nn.Linear(state_dim, hidden_size), nn.Tanh(),
-                                   nn.Linear(hidden_size, hidden_size), nn.Tanh())
+        self.trunk = nn.Sequential(
+            nn.Linear(state_dim, hidden_size),
+            nn.Tanh(),
+            nn.Linear(hidden_size, hidden_size),
+            nn.Tanh(),
+        )
         self.heads = nn.Linear(hidden_size, self.k * self.n_actions)
         self.register_buffer("log_prior", torch.full((self.k,), -math.log(self.k)))
 
@@ -261,8 +274,9 @@ class PolicyMixture(nn.Module):
                 lin.weight.uniform_(-bound, bound, generator=generator)
                 lin.bias.uniform_(-bound, bound, generator=generator)
 
-    def step_log_probs(self, states: torch.Tensor, actions: torch.Tensor,
-                       valid: torch.Tensor) -> torch.Tensor:
+    def step_log_probs(
+        self, states: torch.Tensor, actions: torch.Tensor, valid: torch.Tensor
+    ) -> torch.Tensor:
         """(k, rows): log pi_c(a_t | s_t) of every step under every head, invalid actions masked."""
         logits = self.heads(self.trunk(states)).view(len(states), self.k, self.n_actions)
         logits = logits.permute(1, 0, 2).masked_fill(~valid, -1e9)
@@ -280,21 +294,30 @@ def policy_inputs(dataset, states: np.ndarray, mean: np.ndarray, std: np.ndarray
     n_actions = int(dataset.n_actions)
     rows = np.flatnonzero(actions >= 0)
     if rows.size and actions[rows].max() >= n_actions:
-        raise DataError(f"{dataset.domain}-{dataset.env}: action {int(actions[rows].max())} "
-                        f"outside 0..{n_actions - 1}")
+        raise DataError(
+            f"{dataset.domain}-{dataset.env}: action {int(actions[rows].max())} "
+            f"outside 0..{n_actions - 1}"
+        )
     valid = np.asarray(dataset.valid, bool)[rows].copy()
     valid[np.arange(rows.size), actions[rows]] = True
     traj = dataset.row_trajectory[rows]
     norm = ((states[rows] - mean) / std).astype(np.float32)
-    return (torch.from_numpy(norm), torch.from_numpy(actions[rows]), torch.from_numpy(valid),
-            torch.from_numpy(traj))
+    return (
+        torch.from_numpy(norm),
+        torch.from_numpy(actions[rows]),
+        torch.from_numpy(valid),
+        torch.from_numpy(traj),
+    )
 
 
 def trajectory_scores(policy: PolicyMixture, inputs, n: int) -> torch.Tensor:
     """(k, n): log prior + summed step log-likelihood of each trajectory under each policy."""
     s, a, valid, traj = inputs
     lp = policy.step_log_probs(s, a, valid)
-    return torch.zeros(policy.k, n, device=lp.device).index_add_(1, traj, lp) + policy.log_prior[:, None]
+    return (
+        torch.zeros(policy.k, n, device=lp.device).index_add_(1, traj, lp)
+        + policy.log_prior[:, None]
+    )
 
 
 class ClusterModel:
@@ -333,8 +356,15 @@ class ClusterModel:
         self.bag = bag  # BagVocabulary of the bag_* methods (pcpg_dist/cluster_features.py)
         self.policy = policy  # policy_mix: k policies; features = posteriors, centroids = I_k
         # greedy_mix / bag_auto: (votes (k, V, A) over the bag's states, log cluster shares, noise)
-        self.greedy = None if greedy is None else (np.asarray(greedy[0], np.float64),
-                                                   np.asarray(greedy[1], np.float64), float(greedy[2]))
+        self.greedy = (
+            None
+            if greedy is None
+            else (
+                np.asarray(greedy[0], np.float64),
+                np.asarray(greedy[1], np.float64),
+                float(greedy[2]),
+            )
+        )
 
     @property
     def k(self) -> int:
@@ -364,8 +394,10 @@ class ClusterModel:
             return visit_features(states, offsets, self.vocabulary)
         if self.policy is not None:
             if int(dataset.n_actions) != self.policy.n_actions:
-                raise DataError(f"policy_mix model was fitted on {self.policy.n_actions} actions, "
-                                f"dataset {dataset.domain}-{dataset.env} has {dataset.n_actions}")
+                raise DataError(
+                    f"policy_mix model was fitted on {self.policy.n_actions} actions, "
+                    f"dataset {dataset.domain}-{dataset.env} has {dataset.n_actions}"
+                )
             inputs = policy_inputs(dataset, states, self.mean, self.std)
             with torch.no_grad():
                 scores = trajectory_scores(self.policy, inputs, len(offsets) - 1)
@@ -381,7 +413,7 @@ class ClusterModel:
         """Nearest centroid (= argmax of DEC's Student-t assignment); ties go to the lower index."""
         if not isinstance(feats, np.ndarray):  # sparse visit features: |x|^2 - 2 x.c + |c|^2
             c = self.centroids.astype(np.float64)
-            d2 = -2 * np.asarray(feats @ c.T) + (c ** 2).sum(axis=1)[None]
+            d2 = -2 * np.asarray(feats @ c.T) + (c**2).sum(axis=1)[None]
             return np.argmin(d2, axis=1).astype(np.int64)
         d2 = (
             (feats[:, None, :].astype(np.float64) - self.centroids[None].astype(np.float64)) ** 2
@@ -411,10 +443,13 @@ class ClusterModel:
         states, _ = self._checked_states(dataset)
         votes, log_share, noise = self.greedy
         if int(dataset.n_actions) != votes.shape[2]:
-            raise DataError(f"{self.method} model was fitted on {votes.shape[2]} actions, "
-                            f"dataset {dataset.domain}-{dataset.env} has {dataset.n_actions}")
-        return greedy_mix.predict(greedy_mix.Steps.of_dataset(dataset, states, self.bag.states),
-                                  votes, log_share, noise)
+            raise DataError(
+                f"{self.method} model was fitted on {votes.shape[2]} actions, "
+                f"dataset {dataset.domain}-{dataset.env} has {dataset.n_actions}"
+            )
+        return greedy_mix.predict(
+            greedy_mix.Steps.of_dataset(dataset, states, self.bag.states), votes, log_share, noise
+        )
 
     # ------------------------------------------------------------- persistence
     def save(self, directory: str | Path) -> Path:
@@ -478,10 +513,13 @@ def read_tensors(path: Path, what: str = "") -> dict[str, torch.Tensor]:
         raise DataError(f"{path}: {what}cannot read it ({first_line(e)})") from None
     except Exception:  # noqa: BLE001 - UnpicklingError, EOFError, RuntimeError, ...: not our format
         raise DataError(f"{path}: {what}{TORCH_UNREADABLE}") from None
-    if not isinstance(obj, dict) or not all(isinstance(k, str) and isinstance(v, torch.Tensor)
-                                            for k, v in obj.items()):
-        raise DataError(f"{path}: {what}not a pcpg model file (it holds a {type(obj).__name__}, "
-                        f"not named tensors)")
+    if not isinstance(obj, dict) or not all(
+        isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in obj.items()
+    ):
+        raise DataError(
+            f"{path}: {what}not a pcpg model file (it holds a {type(obj).__name__}, "
+            f"not named tensors)"
+        )
     return obj
 
 
@@ -498,19 +536,26 @@ class _Weights:
     def fail(self, text: str) -> DataError:
         return DataError(f"{self.path}: {text}")
 
-    def get(self, name: str, shape: tuple[int | None, ...], dtypes=_FLOATS,
-            finite: bool = True) -> torch.Tensor:
+    def get(
+        self, name: str, shape: tuple[int | None, ...], dtypes=_FLOATS, finite: bool = True
+    ) -> torch.Tensor:
         """``name``, present, of one of ``dtypes`` and of ``shape`` (None: any size there)."""
         t = self.tensors.get(name)
         if t is None:
             raise self.fail(f"no tensor '{name}', which a {self.method} model needs")
         if t.dtype not in dtypes:
-            raise self.fail(f"{name} has dtype {_dtype(t.dtype)}; a {self.method} model stores "
-                            + " or ".join(_dtype(d) for d in dtypes))
-        if t.ndim != len(shape) or any(w is not None and w != n for w, n in zip(shape, t.shape, strict=True)):
+            raise self.fail(
+                f"{name} has dtype {_dtype(t.dtype)}; a {self.method} model stores "
+                + " or ".join(_dtype(d) for d in dtypes)
+            )
+        if t.ndim != len(shape) or any(
+            w is not None and w != n for w, n in zip(shape, t.shape, strict=True)
+        ):
             want = ", ".join("any" if w is None else str(w) for w in shape)
             want = f"({want},)" if len(shape) == 1 else f"({want})"
-            raise self.fail(f"{name} has shape {tuple(t.shape)}; a {self.method} model needs {want}")
+            raise self.fail(
+                f"{name} has shape {tuple(t.shape)}; a {self.method} model needs {want}"
+            )
         if finite and t.is_floating_point() and not bool(torch.isfinite(t).all()):
             raise self.fail(f"{name} has non-finite values (NaN or inf); all must be finite")
         return t
@@ -576,19 +621,42 @@ def load_model(directory: str | Path) -> ClusterModel:
         except ValidationError as e:
             first = e.errors(include_url=False)[0]
             raise ValueError(f"config.{'.'.join(map(str, first['loc']))}: {first['msg']}") from None
-    except (ValueError, KeyError, TypeError, OverflowError, RecursionError, UnicodeDecodeError) as e:
-        raise DataError(f"{cfg_path}: unreadable cluster model config ({' '.join(str(e).split())[:200]})") from None
+    except (
+        ValueError,
+        KeyError,
+        TypeError,
+        OverflowError,
+        RecursionError,
+        UnicodeDecodeError,
+    ) as e:
+        raise DataError(
+            f"{cfg_path}: unreadable cluster model config ({' '.join(str(e).split())[:200]})"
+        ) from None
     if meta.get("format_version") != FORMAT_VERSION:
         raise DataError(
             f"{cfg_path}: format_version {meta.get('format_version')!r}, expected {FORMAT_VERSION}"
         )
-    known_methods = ("lstm_dec", "lstm_kmeans", "summary_kmeans", "visits_kmeans", "policy_mix", *BAG_METHODS)
+    known_methods = (
+        "lstm_dec",
+        "lstm_kmeans",
+        "summary_kmeans",
+        "visits_kmeans",
+        "policy_mix",
+        *BAG_METHODS,
+    )
     if method not in known_methods:
         raise DataError(f"{cfg_path}: unknown clustering method {method!r}")
-    key = "n_actions" if method == "policy_mix" else "bag_n_actions" if method in BAG_METHODS else None
+    key = (
+        "n_actions"
+        if method == "policy_mix"
+        else "bag_n_actions"
+        if method in BAG_METHODS
+        else None
+    )
     if key is not None and (type(meta.get(key)) is not int or not 1 <= meta[key] <= 1_000_000):
-        raise DataError(f"{cfg_path}: {key} {meta.get(key)!r}; a {method} model needs an integer "
-                        f"in 1..1000000")
+        raise DataError(
+            f"{cfg_path}: {key} {meta.get(key)!r}; a {method} model needs an integer in 1..1000000"
+        )
     tensors = read_tensors(w_path)
     w = _Weights(w_path, method, tensors)
     d = state_dim
@@ -596,11 +664,17 @@ def load_model(directory: str | Path) -> ClusterModel:
     # the method's modules fix the names and shapes of their tensors
     make_ae = make_policy = None
     if method in ("lstm_dec", "lstm_kmeans"):
+
         def make_ae():
-            return SequenceAutoencoder(d, settings.hidden_size, settings.latent_size, settings.pooling)
+            return SequenceAutoencoder(
+                d, settings.hidden_size, settings.latent_size, settings.pooling
+            )
+
     if method == "policy_mix":
+
         def make_policy():
             return PolicyMixture(d, settings.hidden_size, k, meta["n_actions"])
+
     extra = {"visits_kmeans": {"vocabulary"}}.get(method, set())
     if method in BAG_METHODS:
         extra = {"bag_states", "bag_sa_keys"}
@@ -612,8 +686,10 @@ def load_model(directory: str | Path) -> ClusterModel:
         extra = {"pm." + n for n in _shapes(make_policy)}
     foreign = sorted(set(tensors) - {"mean", "std", "centroids"} - extra)
     if foreign:
-        raise w.fail(f"holds tensor '{foreign[0]}', which a {method} model (the method in "
-                     f"{CONFIG_FILE}) does not have")
+        raise w.fail(
+            f"holds tensor '{foreign[0]}', which a {method} model (the method in "
+            f"{CONFIG_FILE}) does not have"
+        )
 
     # feature width: where the centroids live
     width = None
@@ -627,7 +703,9 @@ def load_model(directory: str | Path) -> ClusterModel:
     if method == "visits_kmeans":
         vocab = w.get("vocabulary", (None, d))
         if not 1 <= vocab.shape[0] <= MAX_VOCAB:
-            raise w.fail(f"vocabulary has {vocab.shape[0]} states; a visits_kmeans model has 1..{MAX_VOCAB}")
+            raise w.fail(
+                f"vocabulary has {vocab.shape[0]} states; a visits_kmeans model has 1..{MAX_VOCAB}"
+            )
         width = vocab.shape[0]
     if method in BAG_METHODS:
         from pcpg_dist.cluster_features import MAX_STATES, BagVocabulary
@@ -635,13 +713,17 @@ def load_model(directory: str | Path) -> ClusterModel:
         n_actions = meta["bag_n_actions"]
         bs = w.get("bag_states", (None, d))
         if not 1 <= bs.shape[0] <= MAX_STATES:
-            raise w.fail(f"bag_states has {bs.shape[0]} states; a {method} model has 1..{MAX_STATES}")
+            raise w.fail(
+                f"bag_states has {bs.shape[0]} states; a {method} model has 1..{MAX_STATES}"
+            )
         keys = w.get("bag_sa_keys", (None,), _INTS).numpy().astype(np.int64)
         top = bs.shape[0] * n_actions
         if keys.size and (keys.min() < 0 or keys.max() >= top):
             bad = int(keys.min() if keys.min() < 0 else keys.max())
-            raise w.fail(f"bag_sa_keys holds {bad}, outside 0..{top - 1} (bag_states x bag_n_actions "
-                         f"{n_actions} in {CONFIG_FILE})")
+            raise w.fail(
+                f"bag_sa_keys holds {bad}, outside 0..{top - 1} (bag_states x bag_n_actions "
+                f"{n_actions} in {CONFIG_FILE})"
+            )
         if (np.diff(keys) <= 0).any():
             raise w.fail("bag_sa_keys must be strictly increasing")
         bag = BagVocabulary(np.ascontiguousarray(bs.numpy(), np.float32), keys, n_actions)
@@ -669,10 +751,22 @@ def load_model(directory: str | Path) -> ClusterModel:
         raise w.fail("centroids of a policy_mix model are the k x k identity")
     ae = policy = None
     if make_ae is not None:
-        ae = w.module(make_ae, "ae.", "state_dim, config.hidden_size, config.latent_size and config.pooling")
+        ae = w.module(
+            make_ae, "ae.", "state_dim, config.hidden_size, config.latent_size and config.pooling"
+        )
     if make_policy is not None:
         policy = w.module(make_policy, "pm.", "state_dim, config.hidden_size, k and n_actions")
     return ClusterModel(
-        method, config, state_dim, mean, std, centroids, ae, tuple(meta.get("feature_names") or ()),
-        None if vocab is None else vocab.numpy(), bag, policy, greedy,
+        method,
+        config,
+        state_dim,
+        mean,
+        std,
+        centroids,
+        ae,
+        tuple(meta.get("feature_names") or ()),
+        None if vocab is None else vocab.numpy(),
+        bag,
+        policy,
+        greedy,
     )

@@ -210,8 +210,16 @@ def _mostly_distinct_states(states: np.ndarray) -> bool:
     return len(first) > 0.5 * len(states)
 
 
-def _mixture_of_policies(x: sparse.csr_matrix, w: np.ndarray, vocab, init: np.ndarray, k: int,
-                         max_iter: int = 100, smoothing: float = 0.5, tol: float = 1e-7) -> np.ndarray:
+def _mixture_of_policies(
+    x: sparse.csr_matrix,
+    w: np.ndarray,
+    vocab,
+    init: np.ndarray,
+    k: int,
+    max_iter: int = 100,
+    smoothing: float = 0.5,
+    tol: float = 1e-7,
+) -> np.ndarray:
     """EM for k policies pi_c(a | s) over the state-action columns of distinct bag rows ``x``
     (weights ``w``), started from hard labels ``init``; returns the final hard labels.
 
@@ -219,7 +227,7 @@ def _mixture_of_policies(x: sparse.csr_matrix, w: np.ndarray, vocab, init: np.nd
     generative story of PBTG-like data (each style = one noisy policy).
     """
     v = len(vocab.states)
-    sa = x[:, v: v + len(vocab.sa_keys)].tocsr()
+    sa = x[:, v : v + len(vocab.sa_keys)].tocsr()
     sa.data = (sa.data > 0).astype(np.float64)  # counts of the binary pairs, not the cosine scale
     state_of = vocab.sa_keys // vocab.n_actions
     _, state_of = np.unique(state_of, return_inverse=True)
@@ -249,8 +257,9 @@ def _weighted_means(x, w: np.ndarray, labels: np.ndarray, k: int) -> np.ndarray:
     return sums / np.maximum(np.asarray(onehot.sum(axis=1)), 1e-12)
 
 
-def _sample_distances(x: sparse.csr_matrix, sample: int, seed: int,
-                      row_of: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def _sample_distances(
+    x: sparse.csr_matrix, sample: int, seed: int, row_of: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """(indices, euclidean distances) of the rows sklearn's ``silhouette_score(sample_size=sample,
     random_state=seed)`` would draw: the same silhouette, from one Gram product over the sample's
     *distinct* rows (``row_of[i]`` = a representative row of row i, from :func:`dedup_rows`)
@@ -275,8 +284,14 @@ def _silhouette_precomputed(dist: np.ndarray, labels: np.ndarray) -> float | Non
     return float(silhouette_score(dist, labels, metric="precomputed"))
 
 
-def _fit_bag(dataset, states: np.ndarray, offsets: np.ndarray, cfg: ClusterConfig, seed: int,
-             metrics: dict[str, float]):
+def _fit_bag(
+    dataset,
+    states: np.ndarray,
+    offsets: np.ndarray,
+    cfg: ClusterConfig,
+    seed: int,
+    metrics: dict[str, float],
+):
     """bag_kmeans / bag_mop / greedy_mix / bag_auto on visitation rows; returns (labels, x, model).
 
     Every one starts from weighted k-means on the distinct bag rows; bag_mop refines that by a
@@ -303,17 +318,27 @@ def _fit_bag(dataset, states: np.ndarray, offsets: np.ndarray, cfg: ClusterConfi
         steps = greedy_mix.Steps.of_dataset(dataset, states, vocab.states)
         # starts: k-means with k, k + 1 and k + 2 clusters, from three seeds (greedy_mix.py says why)
         starts = [km.labels_[inv]] + [
-            KMeans(n_clusters=kk, n_init=cfg.kmeans_n_init, random_state=seed + r).fit(
-                xu, sample_weight=w).labels_[inv]
-            for r in range(3) for kk in (k, k + 1, k + 2) if kk <= len(first) and (r, kk) != (0, k)]
+            KMeans(n_clusters=kk, n_init=cfg.kmeans_n_init, random_state=seed + r)
+            .fit(xu, sample_weight=w)
+            .labels_[inv]
+            for r in range(3)
+            for kk in (k, k + 1, k + 2)
+            if kk <= len(first) and (r, kk) != (0, k)
+        ]
         fit = greedy_mix.fit(steps, starts, cfg.k, seed=seed)
         labels, greedy = fit.labels, (fit.votes, fit.log_share, fit.noise)
         margins = _margins(greedy_mix.fit_scores(steps, fit), labels)
-        metrics.update({"em_rounds": float(fit.sweeps), "greedy_mix_moved": fit.moved,
-                        "greedy_mix_noise": fit.noise, "greedy_mix_noise_start": fit.noise_start,
-                        "greedy_mix_start_clusters": float(fit.start_clusters),
-                        "greedy_mix_split_merges": float(fit.split_merges),
-                        "greedy_mix_loglik_per_step": fit.log_likelihood / max(steps.counts.sum(), 1.0)})
+        metrics.update(
+            {
+                "em_rounds": float(fit.sweeps),
+                "greedy_mix_moved": fit.moved,
+                "greedy_mix_noise": fit.noise,
+                "greedy_mix_noise_start": fit.noise_start,
+                "greedy_mix_start_clusters": float(fit.start_clusters),
+                "greedy_mix_split_merges": float(fit.split_merges),
+                "greedy_mix_loglik_per_step": fit.log_likelihood / max(steps.counts.sum(), 1.0),
+            }
+        )
     else:
         labels = km.labels_[inv]
     idx, dist = _sample_distances(x, cfg.silhouette_sample, seed, first[inv])
@@ -322,8 +347,19 @@ def _fit_bag(dataset, states: np.ndarray, offsets: np.ndarray, cfg: ClusterConfi
         metrics["silhouette"] = s
     centroids = _weighted_means(x, np.ones(len(labels)), labels, cfg.k)
     d = states.shape[1]
-    model = ClusterModel(cfg.method, cfg.model_dump(), d, np.zeros(d), np.ones(d), centroids, None,
-                         tuple(dataset.feature_names), None, vocab, greedy=greedy)
+    model = ClusterModel(
+        cfg.method,
+        cfg.model_dump(),
+        d,
+        np.zeros(d),
+        np.ones(d),
+        centroids,
+        None,
+        tuple(dataset.feature_names),
+        None,
+        vocab,
+        greedy=greedy,
+    )
     return labels.astype(np.int64), x, model, margins
 
 
@@ -358,16 +394,23 @@ def counter_summary(states: np.ndarray, offsets: np.ndarray) -> np.ndarray:
     if cols.size:
         x = states[:, cols].astype(np.float64)
         gain = x[offsets[1:] - 1] - x[offsets[:-1]]
-        feats = np.column_stack([gain, np.add.reduceat(x, offsets[:-1], axis=0)
-                                 / np.diff(offsets)[:, None]])
+        feats = np.column_stack(
+            [gain, np.add.reduceat(x, offsets[:-1], axis=0) / np.diff(offsets)[:, None]]
+        )
     else:
         feats = summary_features(states, offsets)
     mean, std = fit_normaliser(feats)
     return (feats - mean) / std
 
 
-def _fit_policy_mix(dataset, states: np.ndarray, offsets: np.ndarray, cfg: ClusterConfig, seed: int,
-                    metrics: dict[str, float]) -> tuple[np.ndarray, PolicyMixture, np.ndarray, np.ndarray]:
+def _fit_policy_mix(
+    dataset,
+    states: np.ndarray,
+    offsets: np.ndarray,
+    cfg: ClusterConfig,
+    seed: int,
+    metrics: dict[str, float],
+) -> tuple[np.ndarray, PolicyMixture, np.ndarray, np.ndarray]:
     """Hard EM for a mixture of k policies over whole trajectories (call inside a forked torch RNG).
 
     Start: k-means on :func:`counter_summary`. Each round refits the k policy heads (and the shared
@@ -380,10 +423,15 @@ def _fit_policy_mix(dataset, states: np.ndarray, offsets: np.ndarray, cfg: Clust
     inputs = policy_inputs(dataset, states, mean, std)
     s, a, valid, traj = inputs
     if not len(a):
-        raise DataError(f"policy_mix: {dataset.domain}-{dataset.env} has no step with an action "
-                        "(it clusters by the actions taken)")
-    labels = KMeans(n_clusters=cfg.k, n_init=cfg.kmeans_n_init, random_state=seed).fit_predict(
-        counter_summary(states, offsets)).astype(np.int64)
+        raise DataError(
+            f"policy_mix: {dataset.domain}-{dataset.env} has no step with an action "
+            "(it clusters by the actions taken)"
+        )
+    labels = (
+        KMeans(n_clusters=cfg.k, n_init=cfg.kmeans_n_init, random_state=seed)
+        .fit_predict(counter_summary(states, offsets))
+        .astype(np.int64)
+    )
     device = resolve_device(cfg.device, "clustering.device")
     gen = torch.Generator().manual_seed(seed)
     policy = PolicyMixture(states.shape[1], cfg.hidden_size, cfg.k, dataset.n_actions)
@@ -412,8 +460,9 @@ def _fit_policy_mix(dataset, states: np.ndarray, offsets: np.ndarray, cfg: Clust
         if moved < cfg.em_tol:
             break
     # the prior stays the one the final labels were drawn with, so predict() gives them back
-    metrics.update({"em_rounds": float(rounds), "em_last_moved": moved,
-                    "policy_nll": float(loss.detach())})
+    metrics.update(
+        {"em_rounds": float(rounds), "em_last_moved": moved, "policy_nll": float(loss.detach())}
+    )
     return labels, policy.cpu(), mean, std
 
 
@@ -433,9 +482,11 @@ def cluster(dataset, cfg: ClusterConfig, seed: int) -> Clustering:
         )
     metrics: dict[str, float] = {}
     if cfg.method == "greedy_mix" and _mostly_distinct_states(states):
-        raise DataError(f"clustering.method greedy_mix: most states of {dataset.domain}-{dataset.env} "
-                        "occur once (continuous states), so a per-state policy cannot be estimated; "
-                        "use bag_auto, policy_mix or lstm_dec")
+        raise DataError(
+            f"clustering.method greedy_mix: most states of {dataset.domain}-{dataset.env} "
+            "occur once (continuous states), so a per-state policy cannot be estimated; "
+            "use bag_auto, policy_mix or lstm_dec"
+        )
     if cfg.method == "bag_auto" and _mostly_distinct_states(states):
         # Continuous states (Mario): every state is new, a visitation bag says nothing; the
         # sequence model is the one that can still see a style there.
@@ -450,26 +501,57 @@ def cluster(dataset, cfg: ClusterConfig, seed: int) -> Clustering:
         latents = visit_features(states, offsets, vocab)
         km = KMeans(n_clusters=cfg.k, n_init=cfg.kmeans_n_init, random_state=seed).fit(latents)
         d = states.shape[1]
-        model = ClusterModel(cfg.method, config, d, np.zeros(d), np.ones(d), km.cluster_centers_, None,
-                             tuple(dataset.feature_names), vocab)
+        model = ClusterModel(
+            cfg.method,
+            config,
+            d,
+            np.zeros(d),
+            np.ones(d),
+            km.cluster_centers_,
+            None,
+            tuple(dataset.feature_names),
+            vocab,
+        )
     elif cfg.method == "policy_mix":
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(seed)
-            labels, policy, mean, std = _fit_policy_mix(dataset, states, offsets, cfg, seed, metrics)
-        model = ClusterModel(cfg.method, config, states.shape[1], mean, std,
-                             np.eye(cfg.k, dtype=np.float32), None, tuple(dataset.feature_names),
-                             policy=policy)
+            labels, policy, mean, std = _fit_policy_mix(
+                dataset, states, offsets, cfg, seed, metrics
+            )
+        model = ClusterModel(
+            cfg.method,
+            config,
+            states.shape[1],
+            mean,
+            std,
+            np.eye(cfg.k, dtype=np.float32),
+            None,
+            tuple(dataset.feature_names),
+            policy=policy,
+        )
         latents = model.features(dataset)
         with torch.no_grad():
-            margins = _margins(trajectory_scores(policy, policy_inputs(dataset, states, mean, std),
-                                                 n).T.double().numpy(), labels)
+            margins = _margins(
+                trajectory_scores(policy, policy_inputs(dataset, states, mean, std), n)
+                .T.double()
+                .numpy(),
+                labels,
+            )
     elif cfg.method == "summary_kmeans":
         feats = summary_features(states, offsets)
         mean, std = fit_normaliser(feats)
         norm = ((feats - mean) / std).astype(np.float32)
         centroids = _kmeans(norm, cfg.k, seed, cfg.kmeans_n_init)
-        model = ClusterModel(cfg.method, config, states.shape[1], mean, std, centroids, None,
-                             tuple(dataset.feature_names))
+        model = ClusterModel(
+            cfg.method,
+            config,
+            states.shape[1],
+            mean,
+            std,
+            centroids,
+            None,
+            tuple(dataset.feature_names),
+        )
         latents = norm
     else:
         # Torch's global RNG is untouched (local generator); fork it anyway so nothing inside
@@ -477,8 +559,16 @@ def cluster(dataset, cfg: ClusterConfig, seed: int) -> Clustering:
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(seed)
             ae, mean, std, centroids = _fit_lstm(states, offsets, cfg, seed, metrics)
-        model = ClusterModel(cfg.method, config, states.shape[1], mean, std, centroids, ae,
-                             tuple(dataset.feature_names))
+        model = ClusterModel(
+            cfg.method,
+            config,
+            states.shape[1],
+            mean,
+            std,
+            centroids,
+            ae,
+            tuple(dataset.feature_names),
+        )
         latents = model.features(dataset)
     if labels is None:
         labels = model.assign(latents)

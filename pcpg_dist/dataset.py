@@ -37,7 +37,9 @@ from pcpg_dist.errors import DataError, first_line
 SCHEMA_VERSION = 2  # 2: `valid` is a list of booleans (was an int64 bitmask, capped at 63 actions)
 MANIFEST = "manifest.json"
 MAX_ACTIONS = 1_000_000
-MAX_STYLES = 100_000  # style ids index count tables (np.bincount): a style of 10**12 would be terabytes
+MAX_STYLES = (
+    100_000  # style ids index count tables (np.bincount): a style of 10**12 would be terabytes
+)
 MAX_MANIFEST_BYTES = 64 << 20  # a manifest lists files and a config: kilobytes
 # mkstemp creates 0600 files; written files get what open() would give them under the user's umask.
 _UMASK = os.umask(0o022)
@@ -76,31 +78,43 @@ class Dataset:
         rows, n = len(self.actions), len(self.trajectory_ids)
         where = f"dataset {self.domain}-{self.env}"
         if self.states.ndim != 2 or len(self.states) != rows:
-            raise DataError(f"{where}: states must have shape (rows={rows}, d), got {self.states.shape}")
+            raise DataError(
+                f"{where}: states must have shape (rows={rows}, d), got {self.states.shape}"
+            )
         if len(self.rewards) != rows:
             raise DataError(f"{where}: rewards has {len(self.rewards)} rows, expected {rows}")
         if self.n_actions < 1:
             raise DataError(f"{where}: n_actions must be >= 1, got {self.n_actions}")
         if self.valid.dtype != bool or self.valid.shape != (rows, self.n_actions):
-            raise DataError(f"{where}: valid must be a bool mask of shape (rows={rows}, n_actions="
-                            f"{self.n_actions}), got {self.valid.dtype} {self.valid.shape}")
+            raise DataError(
+                f"{where}: valid must be a bool mask of shape (rows={rows}, n_actions="
+                f"{self.n_actions}), got {self.valid.dtype} {self.valid.shape}"
+            )
         for name in ("styles", "success", "epsilon", "skill", "source_ids"):
             if getattr(self, name) is not None and len(getattr(self, name)) != n:
-                raise DataError(f"{where}: {name} has {len(getattr(self, name))} entries, expected {n}")
+                raise DataError(
+                    f"{where}: {name} has {len(getattr(self, name))} entries, expected {n}"
+                )
         if n and (self.styles.min() < -1 or self.styles.max() >= MAX_STYLES):
             bad = int(np.argmax((self.styles < -1) | (self.styles >= MAX_STYLES)))
-            raise DataError(f"{where}: trajectory {int(self.trajectory_ids[bad])} has style {int(self.styles[bad])}; "
-                            f"styles are 0, 1, 2, ... (below {MAX_STYLES}) or -1 (unknown)")
+            raise DataError(
+                f"{where}: trajectory {int(self.trajectory_ids[bad])} has style {int(self.styles[bad])}; "
+                f"styles are 0, 1, 2, ... (below {MAX_STYLES}) or -1 (unknown)"
+            )
         if len(self.offsets) != n + 1 or self.offsets[0] != 0 or self.offsets[-1] != rows:
             raise DataError(f"{where}: offsets must run from 0 to {rows} with {n + 1} entries")
         lengths = np.diff(self.offsets)
         if n and lengths.min() < 1:
             bad = int(self.trajectory_ids[np.argmin(lengths)])
-            raise DataError(f"{where}: trajectory {bad} has zero length; every trajectory needs a state")
+            raise DataError(
+                f"{where}: trajectory {bad} has zero length; every trajectory needs a state"
+            )
         if rows and not np.isfinite(self.states).all():
             row = int(np.nonzero(~np.isfinite(self.states).all(axis=1))[0][0])
             traj = int(self.trajectory_ids[np.searchsorted(self.offsets, row, side="right") - 1])
-            raise DataError(f"{where}: trajectory {traj} has a NaN or infinite state feature (row {row})")
+            raise DataError(
+                f"{where}: trajectory {traj} has a NaN or infinite state feature (row {row})"
+            )
         final = np.zeros(rows, bool)
         final[self.offsets[1:] - 1] = True
         if n and (self.actions[final] != -1).any():
@@ -109,12 +123,18 @@ class Dataset:
         if bad.any():
             row = int(np.argmax(bad))
             traj = int(self.trajectory_ids[np.searchsorted(self.offsets, row, side="right") - 1])
-            raise DataError(f"{where}: trajectory {traj} (row {row}) takes action {int(self.actions[row])}, "
-                            f"outside 0..{self.n_actions - 1}")
+            raise DataError(
+                f"{where}: trajectory {traj} (row {row}) takes action {int(self.actions[row])}, "
+                f"outside 0..{self.n_actions - 1}"
+            )
         if self.feature_names and len(self.feature_names) != self.state_dim:
-            raise DataError(f"{where}: {len(self.feature_names)} feature names for {self.state_dim} features")
+            raise DataError(
+                f"{where}: {len(self.feature_names)} feature names for {self.state_dim} features"
+            )
         if self.action_names and len(self.action_names) != self.n_actions:
-            raise DataError(f"{where}: {len(self.action_names)} action names for {self.n_actions} actions")
+            raise DataError(
+                f"{where}: {len(self.action_names)} action names for {self.n_actions} actions"
+            )
 
     # ----------------------------------------------------------------- shape
     @property
@@ -139,7 +159,9 @@ class Dataset:
         """Undiscounted return (sum of rewards) of each trajectory."""
         if not self.n_rows:
             return np.zeros(0)
-        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is inf, which Step B reports
+        with np.errstate(
+            over="ignore", invalid="ignore"
+        ):  # an overflow is inf, which Step B reports
             return np.add.reduceat(self.rewards, self.offsets[:-1])
 
     @property
@@ -168,15 +190,28 @@ class Dataset:
             raise DataError(f"subset index out of range 0..{self.n_trajectories - 1}")
         lengths = self.lengths[idx]
         starts = self.offsets[idx]
-        rows = (np.repeat(starts - np.cumsum(np.r_[0, lengths[:-1]]), lengths) + np.arange(lengths.sum())
-                if idx.size else np.zeros(0, np.int64))
+        rows = (
+            np.repeat(starts - np.cumsum(np.r_[0, lengths[:-1]]), lengths)
+            + np.arange(lengths.sum())
+            if idx.size
+            else np.zeros(0, np.int64)
+        )
         return Dataset(
-            domain=self.domain, env=self.env, n_actions=self.n_actions,
-            states=self.states[rows], actions=self.actions[rows], valid=self.valid[rows],
-            rewards=self.rewards[rows], offsets=np.r_[0, np.cumsum(lengths)].astype(np.int64),
-            trajectory_ids=self.trajectory_ids[idx], styles=self.styles[idx],
-            success=self.success[idx], epsilon=self.epsilon[idx], feature_names=self.feature_names,
-            action_names=self.action_names, skill=None if self.skill is None else self.skill[idx],
+            domain=self.domain,
+            env=self.env,
+            n_actions=self.n_actions,
+            states=self.states[rows],
+            actions=self.actions[rows],
+            valid=self.valid[rows],
+            rewards=self.rewards[rows],
+            offsets=np.r_[0, np.cumsum(lengths)].astype(np.int64),
+            trajectory_ids=self.trajectory_ids[idx],
+            styles=self.styles[idx],
+            success=self.success[idx],
+            epsilon=self.epsilon[idx],
+            feature_names=self.feature_names,
+            action_names=self.action_names,
+            skill=None if self.skill is None else self.skill[idx],
             source_ids=None if self.source_ids is None else self.source_ids[idx],
         )
 
@@ -197,12 +232,14 @@ class Dataset:
             if p.state_dim != first.state_dim or p.n_actions != first.n_actions:
                 raise DataError(
                     f"cannot join {p.domain}-{p.env} (d={p.state_dim}, actions={p.n_actions}) with "
-                    f"{first.domain}-{first.env} (d={first.state_dim}, actions={first.n_actions})")
+                    f"{first.domain}-{first.env} (d={first.state_dim}, actions={first.n_actions})"
+                )
         lengths = np.concatenate([p.lengths for p in parts])
         ids = np.concatenate([p.trajectory_ids for p in parts])
         envs = {p.env for p in parts}
         return Dataset(
-            domain=first.domain, env=first.env if len(envs) == 1 else "+".join(sorted(envs)),
+            domain=first.domain,
+            env=first.env if len(envs) == 1 else "+".join(sorted(envs)),
             n_actions=first.n_actions,
             states=np.concatenate([p.states for p in parts]),
             actions=np.concatenate([p.actions for p in parts]),
@@ -213,19 +250,31 @@ class Dataset:
             styles=np.concatenate([p.styles for p in parts]),
             success=np.concatenate([p.success for p in parts]),
             epsilon=np.concatenate([p.epsilon for p in parts]),
-            feature_names=first.feature_names, action_names=first.action_names,
-            skill=(np.concatenate([p.skill for p in parts]) if all(p.skill is not None for p in parts)
-                   else None),
-            source_ids=(np.concatenate([p.source_ids for p in parts])
-                        if all(p.source_ids is not None for p in parts) else None),
+            feature_names=first.feature_names,
+            action_names=first.action_names,
+            skill=(
+                np.concatenate([p.skill for p in parts])
+                if all(p.skill is not None for p in parts)
+                else None
+            ),
+            source_ids=(
+                np.concatenate([p.source_ids for p in parts])
+                if all(p.source_ids is not None for p in parts)
+                else None
+            ),
         )
 
     @staticmethod
     def from_trajectories(
-        domain: str, env: str, n_actions: int,
+        domain: str,
+        env: str,
+        n_actions: int,
         trajectories: Sequence[dict[str, np.ndarray]],
-        styles: Sequence[int], success: Sequence[bool], epsilon: Sequence[float] | None = None,
-        feature_names: tuple[str, ...] = (), action_names: tuple[str, ...] = (),
+        styles: Sequence[int],
+        success: Sequence[bool],
+        epsilon: Sequence[float] | None = None,
+        feature_names: tuple[str, ...] = (),
+        action_names: tuple[str, ...] = (),
     ) -> Dataset:
         """Build from per-trajectory dicts with ``states`` (T+1, d), ``actions`` (T,),
         ``valid`` (T+1, n_actions) bool (or, for up to 63 actions, (T+1,) integer bitmasks) and
@@ -236,11 +285,15 @@ class Dataset:
             a, r = np.asarray(tr["actions"], np.int64), np.asarray(tr["rewards"], np.float64)
             where = f"dataset {domain}-{env}, trajectory {i}"
             if s.ndim != 2 or a.ndim != 1 or len(s) != len(a) + 1:
-                raise DataError(f"{where}: states of shape {s.shape} and actions of shape {a.shape}; a "
-                                f"trajectory of T actions has states of shape (T + 1, d), the last after "
-                                f"the last action")
+                raise DataError(
+                    f"{where}: states of shape {s.shape} and actions of shape {a.shape}; a "
+                    f"trajectory of T actions has states of shape (T + 1, d), the last after "
+                    f"the last action"
+                )
             if r.shape != a.shape:
-                raise DataError(f"{where}: rewards of shape {r.shape}, expected {a.shape} (one per action)")
+                raise DataError(
+                    f"{where}: rewards of shape {r.shape}, expected {a.shape} (one per action)"
+                )
             try:
                 valid.append(_mask_rows(tr["valid"], len(s), n_actions))
             except DataError as e:
@@ -252,16 +305,20 @@ class Dataset:
         n = len(trajectories)
         d = states[0].shape[1] if states else 0
         return Dataset(
-            domain=domain, env=env, n_actions=n_actions,
+            domain=domain,
+            env=env,
+            n_actions=n_actions,
             states=np.concatenate(states) if states else np.zeros((0, d), np.float32),
             actions=np.concatenate(actions) if n else np.zeros(0, np.int64),
             valid=np.concatenate(valid) if n else np.zeros((0, n_actions), bool),
             rewards=np.concatenate(rewards) if n else np.zeros(0),
             offsets=np.r_[0, np.cumsum(lengths)].astype(np.int64),
             trajectory_ids=np.arange(n, dtype=np.int64),
-            styles=np.asarray(styles, np.int64), success=np.asarray(success, bool),
+            styles=np.asarray(styles, np.int64),
+            success=np.asarray(success, bool),
             epsilon=np.full(n, np.nan) if epsilon is None else np.asarray(epsilon, np.float64),
-            feature_names=feature_names, action_names=action_names,
+            feature_names=feature_names,
+            action_names=action_names,
         )
 
     # ----------------------------------------------------------------- Arrow
@@ -276,8 +333,9 @@ class Dataset:
         for j in range(self.state_dim):
             cols[f"s{j}"] = pa.array(self.states[:, j], pa.float32())
         cols["action"] = pa.array(self.actions, pa.int64())
-        cols["valid"] = pa.FixedSizeListArray.from_arrays(pa.array(self.valid.reshape(-1), pa.bool_()),
-                                                          self.n_actions)
+        cols["valid"] = pa.FixedSizeListArray.from_arrays(
+            pa.array(self.valid.reshape(-1), pa.bool_()), self.n_actions
+        )
         cols["reward"] = pa.array(self.rewards, pa.float64())
         cols["success"] = pa.array(self.success[per_row], pa.bool_())
         cols["epsilon"] = pa.array(self.epsilon[per_row], pa.float64())
@@ -285,50 +343,83 @@ class Dataset:
             cols["skill"] = pa.array(self.skill[per_row], pa.float64())
         if self.source_ids is not None:
             cols["source_id"] = pa.array(self.source_ids[per_row], pa.string())
-        meta = {"pcpg": json.dumps({
-            "schema_version": SCHEMA_VERSION, "domain": self.domain, "env": self.env,
-            "n_actions": self.n_actions, "feature_names": list(self.feature_names),
-            "action_names": list(self.action_names)})}
+        meta = {
+            "pcpg": json.dumps(
+                {
+                    "schema_version": SCHEMA_VERSION,
+                    "domain": self.domain,
+                    "env": self.env,
+                    "n_actions": self.n_actions,
+                    "feature_names": list(self.feature_names),
+                    "action_names": list(self.action_names),
+                }
+            )
+        }
         return pa.table(cols).replace_schema_metadata(meta)
 
     @staticmethod
     def from_table(table: pa.Table, source: str = "<table>") -> Dataset:
         meta_raw = (table.schema.metadata or {}).get(b"pcpg")
         if meta_raw is None:
-            raise DataError(f"{source}: not a pcpg dataset (no 'pcpg' schema metadata); a step table of your own "
-                            f"logs becomes pcpg datasets with `pcpg generate CONFIG --out DIR` (domain: "
-                            f"trajectories, docs/bring-your-own-data.md)")
+            raise DataError(
+                f"{source}: not a pcpg dataset (no 'pcpg' schema metadata); a step table of your own "
+                f"logs becomes pcpg datasets with `pcpg generate CONFIG --out DIR` (domain: "
+                f"trajectories, docs/bring-your-own-data.md)"
+            )
         try:
             meta = json.loads(meta_raw)
             domain, env, n_actions = meta["domain"], meta["env"], int(meta["n_actions"])
             feature_names = tuple(str(x) for x in meta.get("feature_names") or ())
             action_names = tuple(str(x) for x in meta.get("action_names") or ())
         except (ValueError, KeyError, TypeError, OverflowError, RecursionError) as e:
-            raise DataError(f"{source}: unreadable 'pcpg' schema metadata ({str(e)[:200]})") from None
+            raise DataError(
+                f"{source}: unreadable 'pcpg' schema metadata ({str(e)[:200]})"
+            ) from None
         for key, value in (("domain", domain), ("env", env)):  # both become file and folder names
-            if not isinstance(value, str) or not SAFE_NAME.match(value) or ".." in value or len(value) > 200:
-                raise DataError(f"{source}: 'pcpg' metadata {key} {str(value)[:80]!r} is not a plain name "
-                                f"(letters, digits, '_', '.', '+', '-'; no '/', no '..')")
+            if (
+                not isinstance(value, str)
+                or not SAFE_NAME.match(value)
+                or ".." in value
+                or len(value) > 200
+            ):
+                raise DataError(
+                    f"{source}: 'pcpg' metadata {key} {str(value)[:80]!r} is not a plain name "
+                    f"(letters, digits, '_', '.', '+', '-'; no '/', no '..')"
+                )
         if meta.get("schema_version") != SCHEMA_VERSION:
-            raise DataError(f"{source}: dataset schema {meta.get('schema_version')} (this pcpg reads "
-                            f"{SCHEMA_VERSION}); regenerate it with this version")
+            raise DataError(
+                f"{source}: dataset schema {meta.get('schema_version')} (this pcpg reads "
+                f"{SCHEMA_VERSION}); regenerate it with this version"
+            )
         if not 1 <= n_actions <= MAX_ACTIONS:
             raise DataError(f"{source}: n_actions {n_actions} outside 1..{MAX_ACTIONS}")
         check_action_memory(table.num_rows, n_actions, source, "n_actions in its metadata")
         names = table.column_names
         d = sum(1 for c in names if c.startswith("s") and c[1:].isascii() and c[1:].isdigit())
-        expected = {"trajectory": pa.int64(), "t": pa.int64(), "env": pa.string(), "style": pa.int64(),
-                    **{f"s{j}": pa.float32() for j in range(d)}, "action": pa.int64(),
-                    "valid": pa.list_(pa.bool_(), n_actions), "reward": pa.float64(), "success": pa.bool_(),
-                    "epsilon": pa.float64()}
+        expected = {
+            "trajectory": pa.int64(),
+            "t": pa.int64(),
+            "env": pa.string(),
+            "style": pa.int64(),
+            **{f"s{j}": pa.float32() for j in range(d)},
+            "action": pa.int64(),
+            "valid": pa.list_(pa.bool_(), n_actions),
+            "reward": pa.float64(),
+            "success": pa.bool_(),
+            "epsilon": pa.float64(),
+        }
         for col, typ in expected.items():
             if col not in names:
                 raise DataError(f"{source}: missing column '{col}' (expected {typ})")
             if table.schema.field(col).type != typ:
-                raise DataError(f"{source}: column '{col}' has type {table.schema.field(col).type}, expected {typ}")
+                raise DataError(
+                    f"{source}: column '{col}' has type {table.schema.field(col).type}, expected {typ}"
+                )
         if "source_id" in names and table.schema.field("source_id").type != pa.string():
-            raise DataError(f"{source}: column 'source_id' has type {table.schema.field('source_id').type}, "
-                            f"expected string")
+            raise DataError(
+                f"{source}: column 'source_id' has type {table.schema.field('source_id').type}, "
+                f"expected string"
+            )
         for col in ("trajectory", "t", "style", "action", "valid", "success", "source_id"):
             if col in names and table.column(col).null_count:
                 raise DataError(f"{source}: column '{col}' has null values")
@@ -348,18 +439,29 @@ class Dataset:
             return table.column(name).to_numpy(zero_copy_only=False).astype(dtype)[order]
 
         valid = bool_lists(table.column("valid"), n_actions, source)[order]
-        states = (np.stack([col(f"s{j}", np.float32) for j in range(d)], axis=1)
-                  if d else np.zeros((len(traj), 0), np.float32))
+        states = (
+            np.stack([col(f"s{j}", np.float32) for j in range(d)], axis=1)
+            if d
+            else np.zeros((len(traj), 0), np.float32)
+        )
         try:
             return Dataset(
-                domain=domain, env=env, n_actions=n_actions, states=states,
-                actions=col("action", np.int64), valid=valid,
-                rewards=col("reward", np.float64), offsets=offsets, trajectory_ids=traj[starts],
-                styles=col("style", np.int64)[starts], success=col("success", bool)[starts],
+                domain=domain,
+                env=env,
+                n_actions=n_actions,
+                states=states,
+                actions=col("action", np.int64),
+                valid=valid,
+                rewards=col("reward", np.float64),
+                offsets=offsets,
+                trajectory_ids=traj[starts],
+                styles=col("style", np.int64)[starts],
+                success=col("success", bool)[starts],
                 epsilon=col("epsilon", np.float64)[starts],
                 skill=col("skill", np.float64)[starts] if "skill" in names else None,
                 source_ids=col("source_id", object)[starts] if "source_id" in names else None,
-                feature_names=feature_names, action_names=action_names,
+                feature_names=feature_names,
+                action_names=action_names,
             )
         except DataError as e:
             raise DataError(f"{source}: {e}") from None
@@ -370,11 +472,15 @@ def _mask_rows(valid: np.ndarray, rows: int, n_actions: int) -> np.ndarray:
     v = np.asarray(valid)
     if v.ndim == 1 and np.issubdtype(v.dtype, np.integer):
         if n_actions > 63:
-            raise DataError(f"integer valid bitmasks hold at most 63 actions, not {n_actions}: pass a "
-                            f"(rows, n_actions) bool mask")
+            raise DataError(
+                f"integer valid bitmasks hold at most 63 actions, not {n_actions}: pass a "
+                f"(rows, n_actions) bool mask"
+            )
         v = (v[:, None].astype(np.int64) >> np.arange(n_actions)) & 1
     if v.shape != (rows, n_actions):
-        raise DataError(f"valid must have shape ({rows}, {n_actions}) (one mask per state), got {v.shape}")
+        raise DataError(
+            f"valid must have shape ({rows}, {n_actions}) (one mask per state), got {v.shape}"
+        )
     return v.astype(bool)
 
 
@@ -389,9 +495,12 @@ def check_action_memory(rows: int, n_actions: int, source: str, origin: str) -> 
     from pcpg_dist.config.stages import check_memory
 
     try:
-        check_memory(float(rows) * n_actions * ACTION_CELL_BYTES, f"{rows} steps x {n_actions} actions "
-                     f"({origin})", "the number of actions: actions are numbered 0..n-1, so log them as "
-                     "0, 1, 2, ... for the moves your game has")
+        check_memory(
+            float(rows) * n_actions * ACTION_CELL_BYTES,
+            f"{rows} steps x {n_actions} actions ({origin})",
+            "the number of actions: actions are numbered 0..n-1, so log them as "
+            "0, 1, 2, ... for the moves your game has",
+        )
     except ValueError as e:
         raise DataError(f"{source}: {e}") from None
 
@@ -411,18 +520,26 @@ def bool_lists(column: pa.ChunkedArray | pa.Array, n_actions: int, source: str) 
     elif pa.types.is_list(arr.type) or pa.types.is_large_list(arr.type):
         sizes = np.diff(arr.offsets.to_numpy())
     else:
-        raise DataError(f"{source}: column 'valid' has type {arr.type}; expected a list of booleans per row")
+        raise DataError(
+            f"{source}: column 'valid' has type {arr.type}; expected a list of booleans per row"
+        )
     if not pa.types.is_boolean(arr.type.value_type):
         raise DataError(f"{source}: column 'valid' holds {arr.type.value_type}; expected booleans")
     if rows and (sizes != n_actions).any():
         row = int(np.nonzero(sizes != n_actions)[0][0])
-        raise DataError(f"{source}: column 'valid', row {row}: {int(sizes[row])} entries, expected "
-                        f"{n_actions} (one per action)")
+        raise DataError(
+            f"{source}: column 'valid', row {row}: {int(sizes[row])} entries, expected "
+            f"{n_actions} (one per action)"
+        )
     values = arr.flatten()
-    if values.null_count:  # every list has n_actions entries (checked above): entry i is in row i // n_actions
+    if (
+        values.null_count
+    ):  # every list has n_actions entries (checked above): entry i is in row i // n_actions
         row = int(np.flatnonzero(values.is_null().to_numpy(zero_copy_only=False))[0]) // n_actions
-        raise DataError(f"{source}: column 'valid', row {row}: a null entry in the list; every entry must be "
-                        f"true or false")
+        raise DataError(
+            f"{source}: column 'valid', row {row}: a null entry in the list; every entry must be "
+            f"true or false"
+        )
     return values.to_numpy(zero_copy_only=False).astype(bool).reshape(rows, n_actions)
 
 
@@ -434,8 +551,10 @@ def confined(base: Path, name: str, what: str = "name") -> Path:
     """``base / name`` for a name that came from data (an env, a manifest entry): one plain file or
     folder name, never a path that could leave ``base``; a DataError otherwise."""
     if not isinstance(name, str) or not SAFE_NAME.match(name) or ".." in name or len(name) > 200:
-        raise DataError(f"{what} {str(name)[:80]!r} is not a plain name (letters, digits, '_', '.', '+', "
-                        f"'-'; no '/', no '..'): refusing to use it as a path under {base}")
+        raise DataError(
+            f"{what} {str(name)[:80]!r} is not a plain name (letters, digits, '_', '.', '+', "
+            f"'-'; no '/', no '..'): refusing to use it as a path under {base}"
+        )
     return Path(base) / name
 
 
@@ -468,8 +587,11 @@ def _temp_beside(path: Path) -> tuple[int, str]:
     if path.is_dir():
         raise IsADirectoryError(errno.EISDIR, "it is a folder; name a file", str(path))
     if path.exists() and not path.is_file():  # a FIFO or a device: the rename would replace it
-        raise OSError(errno.EINVAL, "it is not a regular file (a FIFO, socket or device); name a regular file",
-                      str(path))
+        raise OSError(
+            errno.EINVAL,
+            "it is not a regular file (a FIFO, socket or device); name a regular file",
+            str(path),
+        )
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         return tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
@@ -513,12 +635,18 @@ DECODE_COPIES = 4  # Arrow table, NumPy columns, sorted copies, the Dataset: pea
 
 
 #: what pcpg reads where it reads its own datasets (for the message on a file that is not Parquet)
-DATASET_READS = ("this reads pcpg datasets, which `pcpg generate CONFIG --out DIR` writes from a Parquet step "
-                 "table of your own logs (domain: trajectories, docs/bring-your-own-data.md)")
+DATASET_READS = (
+    "this reads pcpg datasets, which `pcpg generate CONFIG --out DIR` writes from a Parquet step "
+    "table of your own logs (domain: trajectories, docs/bring-your-own-data.md)"
+)
 #: how pandas reads a text table, by the file's suffix
-TEXT_READERS = {".csv": "pandas.read_csv(path)", ".tsv": "pandas.read_csv(path, sep='\\t')",
-                ".json": "pandas.read_json(path)", ".jsonl": "pandas.read_json(path, lines=True)",
-                ".ndjson": "pandas.read_json(path, lines=True)"}
+TEXT_READERS = {
+    ".csv": "pandas.read_csv(path)",
+    ".tsv": "pandas.read_csv(path, sep='\\t')",
+    ".json": "pandas.read_json(path)",
+    ".jsonl": "pandas.read_json(path, lines=True)",
+    ".ndjson": "pandas.read_json(path, lines=True)",
+}
 
 
 def unreadable_parquet(path: Path, error: Exception, reads: str = DATASET_READS) -> DataError:
@@ -527,8 +655,10 @@ def unreadable_parquet(path: Path, error: Exception, reads: str = DATASET_READS)
     reader = TEXT_READERS.get(Path(path).suffix.lower())
     if reader is None:
         return DataError(f"{path}: not a readable Parquet file ({first_line(error)})")
-    return DataError(f"{path}: not a Parquet file: {reads}; a {Path(path).suffix.lower()[1:].upper()} file "
-                     f"converts to Parquet with {reader}.to_parquet(...)")
+    return DataError(
+        f"{path}: not a Parquet file: {reads}; a {Path(path).suffix.lower()[1:].upper()} file "
+        f"converts to Parquet with {reader}.to_parquet(...)"
+    )
 
 
 def check_parquet_memory(files: Sequence[Path], source: str, reads: str = DATASET_READS) -> None:
@@ -546,17 +676,23 @@ def check_parquet_memory(files: Sequence[Path], source: str, reads: str = DATASE
         need += max(raw, meta.num_rows * max(meta.num_columns, 1) * 8) * DECODE_COPIES
         rows += meta.num_rows
     if need > machine_memory() // 2:
-        raise DataError(f"{source}: {rows} rows need about {gib(need)} of memory to load, more than half of "
-                        f"this machine's {gib(machine_memory())}; split the data into smaller files or "
-                        f"environments, or use a machine with more memory")
+        raise DataError(
+            f"{source}: {rows} rows need about {gib(need)} of memory to load, more than half of "
+            f"this machine's {gib(machine_memory())}; split the data into smaller files or "
+            f"environments, or use a machine with more memory"
+        )
 
 
 def read_parquet(path: Path, expected_sha256: str | None = None) -> Dataset:
     path = Path(path)
     if not path.is_file():
-        raise DataError(f"{path}: dataset file " + ("is not a regular file" if path.exists() else "not found"))
+        raise DataError(
+            f"{path}: dataset file " + ("is not a regular file" if path.exists() else "not found")
+        )
     if expected_sha256 is not None and sha256_file(path) != expected_sha256:
-        raise DataError(f"{path}: content hash does not match {MANIFEST} (file changed or corrupted)")
+        raise DataError(
+            f"{path}: content hash does not match {MANIFEST} (file changed or corrupted)"
+        )
     check_parquet_memory([path], str(path))
     try:
         table = pq.read_table(path)
@@ -574,10 +710,17 @@ def write_datasets(directory: Path, datasets: Sequence[Dataset], manifest: dict)
     files = {}
     for ds in datasets:
         name = confined(directory, file_name(ds.domain, ds.env), "dataset file name").name
-        files[name] = {"sha256": write_parquet(ds, directory / name), "rows": ds.n_rows,
-                       "trajectories": ds.n_trajectories, "domain": ds.domain, "env": ds.env}
+        files[name] = {
+            "sha256": write_parquet(ds, directory / name),
+            "rows": ds.n_rows,
+            "trajectories": ds.n_trajectories,
+            "domain": ds.domain,
+            "env": ds.env,
+        }
     full = {"schema_version": SCHEMA_VERSION, **manifest, "files": files}
-    atomic_write_bytes(directory / MANIFEST, json.dumps(full, indent=2, sort_keys=True, default=str).encode())
+    atomic_write_bytes(
+        directory / MANIFEST, json.dumps(full, indent=2, sort_keys=True, default=str).encode()
+    )
     return directory / MANIFEST
 
 
@@ -586,15 +729,21 @@ def read_manifest(directory: Path) -> dict:
     if not path.is_file():
         raise DataError(f"{path}: manifest not found (is {directory} a pcpg dataset directory?)")
     if path.stat().st_size > MAX_MANIFEST_BYTES:
-        raise DataError(f"{path}: {path.stat().st_size} bytes; a manifest holds at most {MAX_MANIFEST_BYTES}")
+        raise DataError(
+            f"{path}: {path.stat().st_size} bytes; a manifest holds at most {MAX_MANIFEST_BYTES}"
+        )
     try:
         manifest = json.loads(path.read_bytes().decode("utf-8"))
         manifest["files"]  # noqa: B018 - presence check
     except (ValueError, KeyError, TypeError, IndexError, RecursionError) as e:
-        raise DataError(f"{path}: unreadable manifest ({type(e).__name__}: {str(e)[:200]})") from None
+        raise DataError(
+            f"{path}: unreadable manifest ({type(e).__name__}: {str(e)[:200]})"
+        ) from None
     if not isinstance(manifest, dict) or not isinstance(manifest["files"], dict):
-        raise DataError(f"{path}: 'files' must map file names to their hashes (a JSON object), got "
-                        f"{type(manifest['files']).__name__}")
+        raise DataError(
+            f"{path}: 'files' must map file names to their hashes (a JSON object), got "
+            f"{type(manifest['files']).__name__}"
+        )
     return manifest
 
 
@@ -608,12 +757,18 @@ def load_datasets(directory: Path) -> dict[str, Dataset]:
             raise DataError(f"{directory / MANIFEST}: entry {str(name)[:80]!r} must be a mapping")
         path = confined(directory, name, "manifest file")
         if path.is_symlink() and not path.resolve().is_relative_to(directory.resolve()):
-            raise DataError(f"{path}: a link to {path.resolve()}, outside {directory}; refusing to read it")
+            raise DataError(
+                f"{path}: a link to {path.resolve()}, outside {directory}; refusing to read it"
+            )
         ds = read_parquet(path, expected_sha256=info.get("sha256"))
         if ds.n_rows != info.get("rows"):
-            raise DataError(f"{directory / name}: {ds.n_rows} rows, manifest says {str(info.get('rows'))[:40]}")
+            raise DataError(
+                f"{directory / name}: {ds.n_rows} rows, manifest says {str(info.get('rows'))[:40]}"
+            )
         if ds.env in out:
-            raise DataError(f"{directory / name}: environment {ds.env!r} appears in two files of the manifest")
+            raise DataError(
+                f"{directory / name}: environment {ds.env!r} appears in two files of the manifest"
+            )
         out[ds.env] = ds
     return out
 

@@ -11,7 +11,9 @@ def first_line(error: BaseException, limit: int = 200) -> str:
     """An exception's text for a one-line message: its first line, control characters escaped
     (thrift's raw bytes in Arrow's errors), cut to ``limit``; the type's name if it has no text."""
     lines = str(error).strip().splitlines()
-    text = "".join(c if c.isprintable() else repr(c)[1:-1] for c in (lines[0] if lines else "")[:limit])
+    text = "".join(
+        c if c.isprintable() else repr(c)[1:-1] for c in (lines[0] if lines else "")[:limit]
+    )
     return text or type(error).__name__
 
 
@@ -61,7 +63,9 @@ def catch_sigterm() -> None:
 
     def on_sigterm(signum, frame):
         global sigterm_received
-        sigterm_received = True  # Ray turns an exception raised in its calls into a plain KeyboardInterrupt
+        sigterm_received = (
+            True  # Ray turns an exception raised in its calls into a plain KeyboardInterrupt
+        )
         raise Terminated()
 
     if threading.current_thread() is threading.main_thread():

@@ -61,8 +61,10 @@ class Scorer:
 
     def __init__(self, dataset: Dataset, test_idx: np.ndarray, trained: TrainedCells):
         if dataset.state_dim != trained.state_dim:
-            raise DataError(f"dataset {dataset.env} has state width {dataset.state_dim}, the "
-                            f"models expect {trained.state_dim}")
+            raise DataError(
+                f"dataset {dataset.env} has state width {dataset.state_dim}, the "
+                f"models expect {trained.state_dim}"
+            )
         self.test_idx = np.asarray(test_idx, np.int64)
         test = dataset.subset(self.test_idx)
         rows = test.step_rows
@@ -104,8 +106,10 @@ def _cell_table(trained: TrainedCells) -> dict[tuple, int]:
     for i, s in enumerate(trained.specs):
         ident = (s.kind, s.k, float(s.p), s.seed, float(s.c))
         if ident in table:
-            raise DataError(f"cells {trained.specs[table[ident]].key} and {s.key} are the same "
-                            f"(kind, k, p, seed, c): pass one environment's ensemble")
+            raise DataError(
+                f"cells {trained.specs[table[ident]].key} and {s.key} are the same "
+                f"(kind, k, p, seed, c): pass one environment's ensemble"
+            )
         table[ident] = i
     return table
 
@@ -129,9 +133,16 @@ def style_of_clusters(dataset: Dataset, labels: np.ndarray, k: int) -> list[int]
 
 # ---------------------------------------------------------------------- the evaluation
 def evaluate(
-    dataset: Dataset, labels: np.ndarray, test_idx: np.ndarray, trained: TrainedCells,
-    rank_cfg: RankConfig, cfg: EvalConfig, out_dir: str | Path | None = None,
-    hooks: DomainHooks | None = None, score: ScoreFn | None = None, k: int | None = None,
+    dataset: Dataset,
+    labels: np.ndarray,
+    test_idx: np.ndarray,
+    trained: TrainedCells,
+    rank_cfg: RankConfig,
+    cfg: EvalConfig,
+    out_dir: str | Path | None = None,
+    hooks: DomainHooks | None = None,
+    score: ScoreFn | None = None,
+    k: int | None = None,
     margins: np.ndarray | None = None,
 ) -> EvalResult:
     """Tables, metrics and figures of one environment's ensemble; written to ``out_dir``.
@@ -184,8 +195,13 @@ def evaluate(
         nc_test = threshold_all(test_idx, scores, ids, [p])[p]
         for seed in seeds:
             # a cluster without an agent (no training trajectory) is scored with No Clustering's
-            pcpg = [(cells.get(("pcpg", c, p, seed, 0.0), cells.get(("nc", -1, p, seed, 0.0))), h_test[(c, p)])
-                    for c in range(k)]
+            pcpg = [
+                (
+                    cells.get(("pcpg", c, p, seed, 0.0), cells.get(("nc", -1, p, seed, 0.0))),
+                    h_test[(c, p)],
+                )
+                for c in range(k)
+            ]
             pcpg = [(cell, idx) for cell, idx in pcpg if cell is not None]
             if pcpg:
                 pc.append(scorer.pooled(pcpg))
@@ -193,10 +209,21 @@ def evaluate(
                 nc.append(scorer.accuracy(cells[("nc", -1, p, seed, 0.0)], union))
                 nc_own.append(scorer.accuracy(cells[("nc", -1, p, seed, 0.0)], nc_test))
         rnd = scorer.random_accuracy(union)
-        for method, vals in (("pcpg", pc), ("no_clustering", nc), ("no_clustering_own_subset", nc_own)):
+        for method, vals in (
+            ("pcpg", pc),
+            ("no_clustering", nc),
+            ("no_clustering_own_subset", nc_own),
+        ):
             if vals:
-                rows.append({"method": method, "p": p, "mean": _mean_std(vals)[0],
-                             "std": _mean_std(vals)[1], "seeds": len(vals)})
+                rows.append(
+                    {
+                        "method": method,
+                        "p": p,
+                        "mean": _mean_std(vals)[0],
+                        "std": _mean_std(vals)[1],
+                        "seeds": len(vals),
+                    }
+                )
         rows.append({"method": "random", "p": p, "mean": rnd, "std": 0.0, "seeds": 0})
         maj = majority_accuracy(union)
         rows.append({"method": "majority", "p": p, "mean": maj, "std": 0.0, "seeds": 0})
@@ -207,24 +234,43 @@ def evaluate(
             put(f"baseline/accuracy/p{fmt(p)}", nc)
         metrics[f"random/accuracy/p{fmt(p)}"] = rnd
         for c in range(k):
-            vals = [scorer.accuracy(cells[("pcpg", c, p, s, 0.0)], h_test[(c, p)]) for s in seeds
-                    if ("pcpg", c, p, s, 0.0) in cells]
+            vals = [
+                scorer.accuracy(cells[("pcpg", c, p, s, 0.0)], h_test[(c, p)])
+                for s in seeds
+                if ("pcpg", c, p, s, 0.0) in cells
+            ]
             if vals:
                 put(f"pcpg/accuracy/k{c}/p{fmt(p)}", vals)
     metrics["random/accuracy"] = scorer.random_accuracy(test_idx)
     metrics["majority/accuracy"] = majority_accuracy(test_idx)
     tables["accuracy"] = pd.DataFrame(rows)
-    if not (dataset.styles < 0).any():  # which true style each cluster stands for (Tables 3-5 by style)
+    if not (
+        dataset.styles < 0
+    ).any():  # which true style each cluster stands for (Tables 3-5 by style)
         sizes = np.bincount(labels, minlength=k)
         majority = style_of_clusters(dataset, labels, k)
-        tables["cluster_style"] = pd.DataFrame({
-            "k": np.arange(k), "style": majority, "trajectories": sizes[:k],
-            "purity": [float(np.mean(dataset.styles[labels == c] == majority[c])) if sizes[c] else np.nan
-                       for c in range(k)]})
-    if any(f"pcpg/accuracy/p{fmt(p)}" in metrics and f"baseline/accuracy/p{fmt(p)}" in metrics
-           for p in ps):
-        wins = [metrics[f"pcpg/accuracy/p{fmt(p)}"] > metrics[f"baseline/accuracy/p{fmt(p)}"]
-                for p in ps if f"baseline/accuracy/p{fmt(p)}" in metrics]
+        tables["cluster_style"] = pd.DataFrame(
+            {
+                "k": np.arange(k),
+                "style": majority,
+                "trajectories": sizes[:k],
+                "purity": [
+                    float(np.mean(dataset.styles[labels == c] == majority[c]))
+                    if sizes[c]
+                    else np.nan
+                    for c in range(k)
+                ],
+            }
+        )
+    if any(
+        f"pcpg/accuracy/p{fmt(p)}" in metrics and f"baseline/accuracy/p{fmt(p)}" in metrics
+        for p in ps
+    ):
+        wins = [
+            metrics[f"pcpg/accuracy/p{fmt(p)}"] > metrics[f"baseline/accuracy/p{fmt(p)}"]
+            for p in ps
+            if f"baseline/accuracy/p{fmt(p)}" in metrics
+        ]
         metrics["pcpg/wins_over_baseline"] = float(np.mean(wins))
 
     # ---- Table 4 and Fig. 7: cross accuracy and model-vs-subset correlation, over the clusters
@@ -255,7 +301,10 @@ def evaluate(
             tables[f"{name}_std"] = pd.DataFrame(per_seed.std(axis=0), index=names, columns=names)
         m = cross.mean(axis=(0, 1))
         off = ~np.eye(n_used, dtype=bool)
-        put("cross/diagonal_mean", list(np.diagonal(cross.mean(axis=1), axis1=1, axis2=2).mean(axis=1)))
+        put(
+            "cross/diagonal_mean",
+            list(np.diagonal(cross.mean(axis=1), axis1=1, axis2=2).mean(axis=1)),
+        )
         metrics["cross/offdiagonal_mean"] = float(m[off].mean()) if n_used > 1 else float("nan")
         metrics["cross/diagonal_is_row_max"] = float(np.mean(m.argmax(axis=1) == np.arange(n_used)))
         metrics["correlation/diagonal_mean"] = float(np.diagonal(corr.mean(axis=(0, 1))).mean())
@@ -264,13 +313,24 @@ def evaluate(
     # Fig. 6 a domain without a simulator (Mario) can have; beside rollouts it shows what they copy.
     h_train = threshold(labels, train_idx, scores, ids, ps, k, last)
     nc_train = threshold_all(train_idx, scores, ids, ps)
+
     def length_row(method: str, c: int, p: float, idx: np.ndarray) -> dict:
         kept = dataset.lengths[idx] - 1  # steps (actions taken), the unit of the rollouts' length
-        return {"method": method, "k": c, "p": p, "mean": float(kept.mean()),
-                "std": float(kept.std()), "n": len(idx)}
+        return {
+            "method": method,
+            "k": c,
+            "p": p,
+            "mean": float(kept.mean()),
+            "std": float(kept.std()),
+            "n": len(idx),
+        }
 
-    subset_rows = [length_row("pcpg", c, p, h_train[(c, p)])
-                   for c in range(k) for p in ps if len(h_train[(c, p)])]
+    subset_rows = [
+        length_row("pcpg", c, p, h_train[(c, p)])
+        for c in range(k)
+        for p in ps
+        if len(h_train[(c, p)])
+    ]
     subset_rows += [length_row("nc", -1, p, nc_train[p]) for p in ps]
     tables["subset_length"] = pd.DataFrame(subset_rows)
     for row in subset_rows:
@@ -280,21 +340,53 @@ def evaluate(
     # ---- rollouts: Table 3, Fig. 5/6, Fig. 8
     rollout_sets: dict[tuple, Dataset] = {}
     if hooks.rollout is not None:
-        _rollouts(dataset, labels, k, seeds, ps, cells, trained, cfg, hooks, tables, metrics,
-                  rollout_sets, put)
+        _rollouts(
+            dataset,
+            labels,
+            k,
+            seeds,
+            ps,
+            cells,
+            trained,
+            cfg,
+            hooks,
+            tables,
+            metrics,
+            rollout_sets,
+            put,
+        )
 
     # ---- Fig. 9 / Table 5: corruption study
     if any(kind == "corrupt" for kind, *_ in cells):
-        _corruption(dataset, labels, k, seeds, cells, scorer, train_idx, test_idx, scores, last,
-                    rank_cfg, cfg, hooks, tables, metrics, put)
+        _corruption(
+            dataset,
+            labels,
+            k,
+            seeds,
+            cells,
+            scorer,
+            train_idx,
+            test_idx,
+            scores,
+            last,
+            rank_cfg,
+            cfg,
+            hooks,
+            tables,
+            metrics,
+            put,
+        )
 
     figures: dict[str, Path] = {}
     if out_dir is not None:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
         for name, df in tables.items():
-            df.to_csv(out / f"{name}.csv", index=name in ("cross_accuracy", "cross_accuracy_std",
-                                                        "correlation", "correlation_std"))
+            df.to_csv(
+                out / f"{name}.csv",
+                index=name
+                in ("cross_accuracy", "cross_accuracy_std", "correlation", "correlation_std"),
+            )
             df.reset_index().to_json(out / f"{name}.json", orient="records", indent=1)
         (out / "metrics.json").write_text(json.dumps(metrics, indent=1, sort_keys=True))
         if cfg.figures:
@@ -307,7 +399,11 @@ def evaluate(
 def over_seeds(runs: pd.DataFrame, col: str) -> pd.DataFrame:
     """Mean and std of ``col`` per agent (method, k, p) over its seeds; the std with ddof 0, as
     every std pcpg reports (the metrics' ``/std``), so a CSV and metrics.json never disagree."""
-    return runs.groupby(["method", "k", "p"])[col].agg(mean="mean", std=lambda x: x.std(ddof=0)).reset_index()
+    return (
+        runs.groupby(["method", "k", "p"])[col]
+        .agg(mean="mean", std=lambda x: x.std(ddof=0))
+        .reset_index()
+    )
 
 
 def rollout_rng(base: int, key: str) -> np.random.Generator:
@@ -316,18 +412,29 @@ def rollout_rng(base: int, key: str) -> np.random.Generator:
     return np.random.default_rng([base, zlib.crc32(key.encode())])
 
 
-def _rollouts(dataset, labels, k, seeds, ps, cells, trained, cfg, hooks, tables, metrics,
-              rollout_sets, put) -> None:
+def _rollouts(
+    dataset, labels, k, seeds, ps, cells, trained, cfg, hooks, tables, metrics, rollout_sets, put
+) -> None:
     mode = "greedy" if cfg.greedy else "sampled"
     styles = style_of_clusters(dataset, labels, k)
     rows = []
     for (kind, c, p, seed, _), i in sorted(cells.items(), key=lambda x: x[1]):
         if kind not in ("pcpg", "nc"):
             continue
-        ds = hooks.rollout(trained.policy(i, cfg.greedy), cfg.rollouts_per_policy,
-                           rollout_rng(cfg.rollout_seed, trained.specs[i].key))
-        row = {"method": kind, "k": c, "p": p, "seed": seed, "actions": mode,
-               "length": float((ds.lengths - 1).mean()), "success": float(ds.success.mean())}
+        ds = hooks.rollout(
+            trained.policy(i, cfg.greedy),
+            cfg.rollouts_per_policy,
+            rollout_rng(cfg.rollout_seed, trained.specs[i].key),
+        )
+        row = {
+            "method": kind,
+            "k": c,
+            "p": p,
+            "seed": seed,
+            "actions": mode,
+            "length": float((ds.lengths - 1).mean()),
+            "success": float(ds.success.mean()),
+        }
         if hooks.returns is None:  # no per-style rewards: the environment's own return is the score
             row["return"] = float(ds.returns.mean())
         if hooks.returns is not None and kind == "pcpg":
@@ -343,12 +450,16 @@ def _rollouts(dataset, labels, k, seeds, ps, cells, trained, cfg, hooks, tables,
     for (method, c, p), grp in runs.groupby(["method", "k", "p"]):
         who = f"k{c}" if method == "pcpg" else "nc"
         put(f"rollout/length/{who}/p{fmt(p)}", list(grp["length"]))
-        put(f"rollout/success/{who}/p{fmt(p)}", list(grp["success"]))  # share of rollouts that succeed
+        put(
+            f"rollout/success/{who}/p{fmt(p)}", list(grp["success"])
+        )  # share of rollouts that succeed
         if "return" in grp:
             put(f"rollout/return/{who}/p{fmt(p)}", list(grp["return"]))
     if hooks.returns is None or hooks.optimal_return is None:
         return
-    rnd = hooks.rollout(random_policy, cfg.rollouts_per_policy, rollout_rng(cfg.rollout_seed, "random"))
+    rnd = hooks.rollout(
+        random_policy, cfg.rollouts_per_policy, rollout_rng(cfg.rollout_seed, "random")
+    )
     dist_rows = []
     by_style: dict[tuple[int, float], list[float]] = {}  # two clusters of one majority style pool
     for c in range(k):
@@ -364,9 +475,19 @@ def _rollouts(dataset, labels, k, seeds, ps, cells, trained, cfg, hooks, tables,
                 continue
             dists = list(np.abs(own["return_own_style"].to_numpy() - best))
             by_style.setdefault((style, p), []).extend(dists)
-            dist_rows.append({"k": c, "style": style, "p": p, "optimal": best, "actions": mode,
-                              "pcpg_mean": float(np.mean(dists)), "pcpg_std": float(np.std(dists)),
-                              "random": rnd_dist, "headline": p == cfg.reward_p})
+            dist_rows.append(
+                {
+                    "k": c,
+                    "style": style,
+                    "p": p,
+                    "optimal": best,
+                    "actions": mode,
+                    "pcpg_mean": float(np.mean(dists)),
+                    "pcpg_std": float(np.std(dists)),
+                    "random": rnd_dist,
+                    "headline": p == cfg.reward_p,
+                }
+            )
     for (style, p), dists in by_style.items():
         put(f"reward_distance/style{style}/p{fmt(p)}", dists)
         if p == cfg.reward_p:
@@ -374,47 +495,103 @@ def _rollouts(dataset, labels, k, seeds, ps, cells, trained, cfg, hooks, tables,
     tables["reward_distance"] = pd.DataFrame(dist_rows)
 
 
-def _corruption(dataset, labels, k, seeds, cells, scorer, train_idx, test_idx, scores, last,
-                rank_cfg, cfg, hooks, tables, metrics, put) -> None:
+def _corruption(
+    dataset,
+    labels,
+    k,
+    seeds,
+    cells,
+    scorer,
+    train_idx,
+    test_idx,
+    scores,
+    last,
+    rank_cfg,
+    cfg,
+    hooks,
+    tables,
+    metrics,
+    put,
+) -> None:
     ids = dataset.trajectory_ids
     levels = sorted({c for kind, _, _, _, c in cells if kind == "corrupt"})
     ps = sorted({p for kind, _, p, _, _ in cells if kind == "corrupt"})
     h_true = threshold(labels, test_idx, scores, ids, ps, k, last)
     acc_rows, reward_rows = [], []
     # one return per true style's reward (k clusters may be more or fewer than the styles)
-    n_rewards = int(dataset.styles.max()) + 1 if len(dataset.styles) and dataset.styles.max() >= 0 else k
-    all_returns = ([hooks.returns(dataset, r) for r in range(n_rewards)]
-                   if hooks.returns is not None else None)
+    n_rewards = (
+        int(dataset.styles.max()) + 1 if len(dataset.styles) and dataset.styles.max() >= 0 else k
+    )
+    all_returns = (
+        [hooks.returns(dataset, r) for r in range(n_rewards)] if hooks.returns is not None else None
+    )
     for level in levels:
         acc, acc_true = [], []
         for seed in seeds:
-            bad = corrupt_labels(labels, level, k, corruption_rng(rank_cfg.corruption_seed, seed, level),
-                                 rank_cfg.corruption_mode)
+            bad = corrupt_labels(
+                labels,
+                level,
+                k,
+                corruption_rng(rank_cfg.corruption_seed, seed, level),
+                rank_cfg.corruption_mode,
+            )
             h_bad = threshold(bad, test_idx, scores, ids, ps, k, last)
             h_train = threshold(bad, train_idx, scores, ids, ps, k, last)
-            pairs = [(cells[("corrupt", c, p, seed, level)], h_bad[(c, p)], h_true[(c, p)])
-                     for c in range(k) for p in ps if ("corrupt", c, p, seed, level) in cells]
+            pairs = [
+                (cells[("corrupt", c, p, seed, level)], h_bad[(c, p)], h_true[(c, p)])
+                for c in range(k)
+                for p in ps
+                if ("corrupt", c, p, seed, level) in cells
+            ]
             acc.append(scorer.pooled([(i, h) for i, h, _ in pairs]))
             acc_true.append(scorer.pooled([(i, h) for i, _, h in pairs]))
             if all_returns is not None:
                 for c in range(k):
                     for p in ps:
                         members = h_train[(c, p)]
-                        reward_rows.append({"c": level, "seed": seed, "k": c, "p": p, **{
-                            f"R{r + 1}": float(all_returns[r][members].mean()) if len(members)
-                            else float("nan") for r in range(n_rewards)}})
+                        reward_rows.append(
+                            {
+                                "c": level,
+                                "seed": seed,
+                                "k": c,
+                                "p": p,
+                                **{
+                                    f"R{r + 1}": float(all_returns[r][members].mean())
+                                    if len(members)
+                                    else float("nan")
+                                    for r in range(n_rewards)
+                                },
+                            }
+                        )
         put(f"corruption/accuracy/c{fmt(level)}", acc)
         put(f"corruption/accuracy_true_subsets/c{fmt(level)}", acc_true)
-        acc_rows.append({"c": level, "mean": _mean_std(acc)[0], "std": _mean_std(acc)[1],
-                         "true_subsets_mean": _mean_std(acc_true)[0],
-                         "true_subsets_std": _mean_std(acc_true)[1]})
-    nc = [scorer.pooled([(cells[("nc", -1, p, s, 0.0)],
-                          np.unique(np.concatenate([h_true[(c, p)] for c in range(k)])))])
-          for s in seeds for p in ps if ("nc", -1, p, s, 0.0) in cells]
+        acc_rows.append(
+            {
+                "c": level,
+                "mean": _mean_std(acc)[0],
+                "std": _mean_std(acc)[1],
+                "true_subsets_mean": _mean_std(acc_true)[0],
+                "true_subsets_std": _mean_std(acc_true)[1],
+            }
+        )
+    nc = [
+        scorer.pooled(
+            [
+                (
+                    cells[("nc", -1, p, s, 0.0)],
+                    np.unique(np.concatenate([h_true[(c, p)] for c in range(k)])),
+                )
+            ]
+        )
+        for s in seeds
+        for p in ps
+        if ("nc", -1, p, s, 0.0) in cells
+    ]
     if nc:
         put("corruption/baseline/accuracy", nc)
     tables["corruption_accuracy"] = pd.DataFrame(acc_rows).assign(
-        baseline_mean=_mean_std(nc)[0] if nc else np.nan)
+        baseline_mean=_mean_std(nc)[0] if nc else np.nan
+    )
     if reward_rows:
         raw = pd.DataFrame(reward_rows)
         cols = [f"R{r + 1}" for r in range(n_rewards)]
@@ -435,8 +612,11 @@ def summarize(results: dict[str, EvalResult], out_dir: str | Path | None = None)
             metrics[f"{env}/{name}"] = value
     tables = {}
     for name in sorted({t for r in results.values() for t in r.tables}):
-        parts = [r.tables[name].reset_index().assign(env=env) for env, r in results.items()
-                 if name in r.tables]
+        parts = [
+            r.tables[name].reset_index().assign(env=env)
+            for env, r in results.items()
+            if name in r.tables
+        ]
         tables[name] = pd.concat(parts, ignore_index=True)
     if out_dir is not None:
         out = Path(out_dir)

@@ -42,11 +42,22 @@ METHODS = {
 
 STYLE = {
     "axes.prop_cycle": cycler(color=OKABE_ITO[:6]),
-    "font.size": 9, "axes.titlesize": 10, "axes.labelsize": 9, "legend.fontsize": 8,
-    "xtick.labelsize": 8, "ytick.labelsize": 8,
-    "axes.grid": True, "grid.alpha": 0.3, "axes.spines.top": False, "axes.spines.right": False,
-    "legend.frameon": False, "lines.linewidth": 1.6, "lines.markersize": 5,
-    "errorbar.capsize": 3, "savefig.dpi": 120, "image.cmap": "cividis",
+    "font.size": 9,
+    "axes.titlesize": 10,
+    "axes.labelsize": 9,
+    "legend.fontsize": 8,
+    "xtick.labelsize": 8,
+    "ytick.labelsize": 8,
+    "axes.grid": True,
+    "grid.alpha": 0.3,
+    "axes.spines.top": False,
+    "axes.spines.right": False,
+    "legend.frameon": False,
+    "lines.linewidth": 1.6,
+    "lines.markersize": 5,
+    "errorbar.capsize": 3,
+    "savefig.dpi": 120,
+    "image.cmap": "cividis",
 }
 
 P_LABEL = "p (top fraction of each subset kept)"
@@ -95,8 +106,10 @@ def method_legend(ax) -> tuple[list, list[str]]:
     """An axis's legend entries in the methods' fixed order (PCPG first), others after."""
     handles, labels = ax.get_legend_handles_labels()
     order = [m["label"] for m in METHODS.values()]
-    ranked = sorted(zip(handles, labels, strict=True),
-                    key=lambda hl: order.index(hl[1]) if hl[1] in order else len(order))
+    ranked = sorted(
+        zip(handles, labels, strict=True),
+        key=lambda hl: order.index(hl[1]) if hl[1] in order else len(order),
+    )
     return [h for h, _ in ranked], [lab for _, lab in ranked]
 
 
@@ -121,8 +134,14 @@ def _text_colour(rgba) -> str:
     return "black" if 0.2126 * r + 0.7152 * g + 0.0722 * b > 0.45 else "white"
 
 
-def heatmap(matrix: pd.DataFrame, path: Path, title: str, vmin: float | None = None,
-            vmax: float | None = None, cmap: str = "cividis") -> Path:
+def heatmap(
+    matrix: pd.DataFrame,
+    path: Path,
+    title: str,
+    vmin: float | None = None,
+    vmax: float | None = None,
+    cmap: str = "cividis",
+) -> Path:
     """Table 4 / Fig. 7: models (rows) against subsets (columns), values written in."""
     values = matrix.to_numpy(dtype=float)
     k = max(values.shape)
@@ -144,8 +163,7 @@ def heatmap(matrix: pd.DataFrame, path: Path, title: str, vmin: float | None = N
         return _save(fig, path)
 
 
-def rollout_length(length: pd.DataFrame, path: Path, mode: str,
-                   ylabel: str | None = None) -> Path:
+def rollout_length(length: pd.DataFrame, path: Path, mode: str, ylabel: str | None = None) -> Path:
     """Fig. 5/6: mean rollout (or kept-trajectory) length vs p per style and for No Clustering."""
     with style():
         fig, ax = plt.subplots(figsize=(4.8, 3.4))
@@ -153,8 +171,15 @@ def rollout_length(length: pd.DataFrame, path: Path, mode: str,
         markers = "o^vD<>px"
         for i, c in enumerate(clusters):
             d = length[(length.method != "nc") & (length.k == c)].sort_values("p")
-            ax.errorbar(d.p, d["mean"], yerr=d["std"].fillna(0), color=OKABE_ITO[(i + 2) % 6],
-                        marker=markers[i % len(markers)], ls="-", label=f"π k{c}")
+            ax.errorbar(
+                d.p,
+                d["mean"],
+                yerr=d["std"].fillna(0),
+                color=OKABE_ITO[(i + 2) % 6],
+                marker=markers[i % len(markers)],
+                ls="-",
+                label=f"π k{c}",
+            )
         d = length[length.method == "nc"].sort_values("p")
         if len(d):
             method_line(ax, "no_clustering", d.p, d["mean"], d["std"].fillna(0))
@@ -169,11 +194,21 @@ def corruption(acc: pd.DataFrame, path: Path) -> Path:
     with style():
         fig, ax = plt.subplots(figsize=(4.8, 3.4))
         d = acc.sort_values("c")
-        ax.errorbar(d.c, d["mean"], yerr=d["std"], color=METHODS["pcpg"]["color"], marker="o",
-                    label="PCPG (corrupted labels)")
+        ax.errorbar(
+            d.c,
+            d["mean"],
+            yerr=d["std"],
+            color=METHODS["pcpg"]["color"],
+            marker="o",
+            label="PCPG (corrupted labels)",
+        )
         if "baseline_mean" in d and d["baseline_mean"].notna().all():
-            ax.axhline(float(d["baseline_mean"].iloc[0]), ls="--", color=METHODS["no_clustering"]["color"],
-                       label="No Clustering")
+            ax.axhline(
+                float(d["baseline_mean"].iloc[0]),
+                ls="--",
+                color=METHODS["no_clustering"]["color"],
+                label="No Clustering",
+            )
         ax.set_xticks(sorted(d.c.unique()))
         ax.set_xlabel("fraction of corrupted labels c")
         ax.set_ylabel("test accuracy")
@@ -181,8 +216,9 @@ def corruption(acc: pd.DataFrame, path: Path) -> Path:
         return _save(fig, path)
 
 
-def drawn_rollouts(rollouts: dict[tuple[int, int], Dataset], draw: Callable[..., None],
-                   path: Path, mode: str) -> Path:
+def drawn_rollouts(
+    rollouts: dict[tuple[int, int], Dataset], draw: Callable[..., None], path: Path, mode: str
+) -> Path:
     """Fig. 8: one rollout of each style's policy, drawn by the domain."""
     items = sorted(rollouts.items())
     with style():
@@ -194,25 +230,46 @@ def drawn_rollouts(rollouts: dict[tuple[int, int], Dataset], draw: Callable[...,
         return _save(fig, path)
 
 
-def write_all(tables: dict[str, pd.DataFrame], out: Path,
-              rollouts: dict[tuple[int, int], Dataset], draw: Callable[..., None] | None,
-              greedy: bool) -> dict[str, Path]:
+def write_all(
+    tables: dict[str, pd.DataFrame],
+    out: Path,
+    rollouts: dict[tuple[int, int], Dataset],
+    draw: Callable[..., None] | None,
+    greedy: bool,
+) -> dict[str, Path]:
     """Every figure whose table exists; returns name -> PNG path."""
     mode = "greedy" if greedy else "sampled"
     figs = {}
     if "accuracy" in tables:
         figs["accuracy_vs_p"] = accuracy_vs_p(tables["accuracy"], out / "accuracy_vs_p.png")
     if "cross_accuracy" in tables:
-        figs["cross_accuracy"] = heatmap(tables["cross_accuracy"], out / "cross_accuracy.png",
-                                         "accuracy of π_k on H_k' (mean over p)", 0, 1)
+        figs["cross_accuracy"] = heatmap(
+            tables["cross_accuracy"],
+            out / "cross_accuracy.png",
+            "accuracy of π_k on H_k' (mean over p)",
+            0,
+            1,
+        )
     if "correlation" in tables:
-        figs["correlation"] = heatmap(tables["correlation"], out / "correlation.png",
-                                      "corr(per-trajectory accuracy, in H_k')", -1, 1, "RdBu_r")
+        figs["correlation"] = heatmap(
+            tables["correlation"],
+            out / "correlation.png",
+            "corr(per-trajectory accuracy, in H_k')",
+            -1,
+            1,
+            "RdBu_r",
+        )
     if "rollout_length" in tables:
-        figs["rollout_length"] = rollout_length(tables["rollout_length"], out / "rollout_length.png", mode)
+        figs["rollout_length"] = rollout_length(
+            tables["rollout_length"], out / "rollout_length.png", mode
+        )
     if "subset_length" in tables:
-        figs["subset_length"] = rollout_length(tables["subset_length"], out / "subset_length.png",
-                                               mode, "kept trajectory length (steps)")
+        figs["subset_length"] = rollout_length(
+            tables["subset_length"],
+            out / "subset_length.png",
+            mode,
+            "kept trajectory length (steps)",
+        )
     if "corruption_accuracy" in tables:
         figs["corruption"] = corruption(tables["corruption_accuracy"], out / "corruption.png")
     if rollouts and draw is not None:

@@ -23,7 +23,9 @@ def generate(cfg: ExperimentConfig, show_progress: bool = True) -> dict[str, Dat
     return contract.generate(cfg, show_progress)
 
 
-def generate_to(cfg: ExperimentConfig, out_dir: Path, show_progress: bool = True) -> dict[str, Dataset]:
+def generate_to(
+    cfg: ExperimentConfig, out_dir: Path, show_progress: bool = True
+) -> dict[str, Dataset]:
     """Generate and write ``out_dir/<domain>-<env>.parquet`` + ``manifest.json``."""
     t0 = time.perf_counter()
     datasets = generate(cfg, show_progress)
@@ -31,14 +33,22 @@ def generate_to(cfg: ExperimentConfig, out_dir: Path, show_progress: bool = True
     return datasets
 
 
-def write_to(cfg: ExperimentConfig, datasets: dict[str, Dataset], out_dir: Path,
-             seconds: float | None = None) -> Path:
+def write_to(
+    cfg: ExperimentConfig, datasets: dict[str, Dataset], out_dir: Path, seconds: float | None = None
+) -> Path:
     """Write the datasets and their manifest (config, seeds, provenance) to ``out_dir``."""
-    return write_datasets(out_dir, list(datasets.values()), {
-        "config": cfg.model_dump(mode="json"), "config_hash": cfg.hash(), "base_seed": cfg.seed,
-        **contract.manifest(cfg, datasets),
-        "generate_seconds": None if seconds is None else round(seconds, 3), **provenance(),
-    })
+    return write_datasets(
+        out_dir,
+        list(datasets.values()),
+        {
+            "config": cfg.model_dump(mode="json"),
+            "config_hash": cfg.hash(),
+            "base_seed": cfg.seed,
+            **contract.manifest(cfg, datasets),
+            "generate_seconds": None if seconds is None else round(seconds, 3),
+            **provenance(),
+        },
+    )
 
 
 def units(cfg: ExperimentConfig, datasets: dict[str, Dataset]) -> list[Unit]:

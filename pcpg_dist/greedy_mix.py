@@ -77,16 +77,24 @@ class Steps:
         return self.valid.shape[0]
 
     @staticmethod
-    def build(state_ids: np.ndarray, actions: np.ndarray, valid_rows: np.ndarray, row_traj: np.ndarray,
-              n: int, n_states: int, n_actions: int) -> Steps:
+    def build(
+        state_ids: np.ndarray,
+        actions: np.ndarray,
+        valid_rows: np.ndarray,
+        row_traj: np.ndarray,
+        n: int,
+        n_states: int,
+        n_actions: int,
+    ) -> Steps:
         """From per-row state ids (-1 = unknown state, skipped), actions (-1 = none), valid masks."""
         step = (actions >= 0) & (state_ids >= 0)
         s, a = state_ids[step], actions[step].astype(np.int64)
         valid = np.zeros((n_states, n_actions), bool)
         valid[s] = np.asarray(valid_rows, bool)[step]
         valid[s, a] = True  # an action taken is valid, whatever the mask says
-        counts = sparse.csr_matrix((np.ones(len(s)), (row_traj[step], s * n_actions + a)),
-                                   shape=(n, n_states * n_actions))
+        counts = sparse.csr_matrix(
+            (np.ones(len(s)), (row_traj[step], s * n_actions + a)), shape=(n, n_states * n_actions)
+        )
         counts.sum_duplicates()
         return Steps(counts, valid, int(n_actions))
 
@@ -95,9 +103,15 @@ class Steps:
         """A dataset's steps over the distinct states of a bag vocabulary (other states skipped)."""
         from pcpg_dist.cluster_features import _state_columns
 
-        return Steps.build(_state_columns(states, vocab_states), np.asarray(dataset.actions, np.int64),
-                           dataset.valid, dataset.row_trajectory, dataset.n_trajectories,
-                           len(vocab_states), int(dataset.n_actions))
+        return Steps.build(
+            _state_columns(states, vocab_states),
+            np.asarray(dataset.actions, np.int64),
+            dataset.valid,
+            dataset.row_trajectory,
+            dataset.n_trajectories,
+            len(vocab_states),
+            int(dataset.n_actions),
+        )
 
 
 def _marginal(v: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -114,8 +128,9 @@ def _lam(steps: Steps, eps: float) -> np.ndarray:
 def _weights(steps: Steps, eps: float) -> sparse.csr_matrix:
     """Each trajectory's (state, action) counts times the vote weight lam(eps, n(s))."""
     c = steps.counts.tocoo()
-    w = sparse.csr_matrix((c.data * _lam(steps, eps)[c.col // steps.n_actions], (c.row, c.col)),
-                          shape=c.shape)
+    w = sparse.csr_matrix(
+        (c.data * _lam(steps, eps)[c.col // steps.n_actions], (c.row, c.col)), shape=c.shape
+    )
     w.sort_indices()
     return w
 
@@ -150,8 +165,9 @@ def _cluster_terms(steps: Steps, counts: np.ndarray, eps: float) -> np.ndarray:
     return _marginal(v, steps.valid[seen][None]).sum(1)
 
 
-def _log_likelihood(steps: Steps, per_state: np.ndarray, counts: np.ndarray, size_terms: float,
-                    eps: float) -> float:
+def _log_likelihood(
+    steps: Steps, per_state: np.ndarray, counts: np.ndarray, size_terms: float, eps: float
+) -> float:
     """The module doc's formula from its parts: sum over steps of log(eps / n(s)), the clusters' F
     terms, the size prior."""
     stray = float((per_state * np.log(eps / np.maximum(steps.valid.sum(1), 1))).sum())
@@ -160,11 +176,18 @@ def _log_likelihood(steps: Steps, per_state: np.ndarray, counts: np.ndarray, siz
 
 def log_likelihood(steps: Steps, mult: np.ndarray, labels: np.ndarray, k: int, eps: float) -> float:
     """The collapsed log-likelihood of a labelling at noise ``eps`` (the module doc's formula)."""
-    return _log_likelihood(steps, _steps_per_state(steps, mult), cluster_counts(steps, labels, mult, k),
-                           _size_terms(np.bincount(labels, mult, minlength=k)), eps)
+    return _log_likelihood(
+        steps,
+        _steps_per_state(steps, mult),
+        cluster_counts(steps, labels, mult, k),
+        _size_terms(np.bincount(labels, mult, minlength=k)),
+        eps,
+    )
 
 
-def profile_log_likelihood(steps: Steps, mult: np.ndarray, labels: np.ndarray, k: int) -> tuple[float, float]:
+def profile_log_likelihood(
+    steps: Steps, mult: np.ndarray, labels: np.ndarray, k: int
+) -> tuple[float, float]:
     """``(max over eps of log_likelihood, that eps)`` on :data:`NOISE_GRID`."""
     per_state, counts = _steps_per_state(steps, mult), cluster_counts(steps, labels, mult, k)
     size = _size_terms(np.bincount(labels, mult, minlength=k))
@@ -257,16 +280,18 @@ def _per_state(weights: sparse.csr_matrix, n_actions: int):
     return indptr, (pairs % n_states).astype(np.int64), pw
 
 
-def ascend(steps: Steps, mult: np.ndarray, labels: np.ndarray, k: int, eps: float,
-           max_sweeps: int) -> tuple[np.ndarray, int]:
+def ascend(
+    steps: Steps, mult: np.ndarray, labels: np.ndarray, k: int, eps: float, max_sweeps: int
+) -> tuple[np.ndarray, int]:
     """The coordinate ascent of the module doc at noise ``eps``: ``(labels, sweeps)``."""
     w = _weights(steps, eps)
     labels = np.array(labels, np.int64)
     v = votes(steps, labels, mult, k, eps)
     sizes = np.bincount(labels, mult, minlength=k).astype(np.float64)
     indptr, pstate, pw = _per_state(w, steps.n_actions)
-    sweeps = _ascend(indptr, pstate, pw, steps.valid, v, labels, np.asarray(mult, np.float64), sizes,
-                     max_sweeps)
+    sweeps = _ascend(
+        indptr, pstate, pw, steps.valid, v, labels, np.asarray(mult, np.float64), sizes, max_sweeps
+    )
     return labels, sweeps
 
 
@@ -284,18 +309,33 @@ class GreedyMixFit:
     split_merges: int = 0  # split-and-merge moves accepted after the best start
 
 
-def _merge_gain(steps: Steps, counts: np.ndarray, terms: np.ndarray, sizes: np.ndarray, a: int, b: int,
-                eps: float) -> tuple[float, float]:
+def _merge_gain(
+    steps: Steps,
+    counts: np.ndarray,
+    terms: np.ndarray,
+    sizes: np.ndarray,
+    a: int,
+    b: int,
+    eps: float,
+) -> tuple[float, float]:
     """``(change in log-likelihood, merged cluster's F term)`` of merging clusters a and b: only the
     pair's F terms and size terms change."""
     merged = float(_cluster_terms(steps, (counts[a] + counts[b])[None], eps)[0])
     total = sizes.sum()
-    delta = (merged - terms[a] - terms[b] + _size_term(sizes[a] + sizes[b], total)
-             - _size_term(sizes[a], total) - _size_term(sizes[b], total))
+    delta = (
+        merged
+        - terms[a]
+        - terms[b]
+        + _size_term(sizes[a] + sizes[b], total)
+        - _size_term(sizes[a], total)
+        - _size_term(sizes[b], total)
+    )
     return delta, merged
 
 
-def merge_down(steps: Steps, mult: np.ndarray, labels: np.ndarray, k: int, eps: float) -> np.ndarray:
+def merge_down(
+    steps: Steps, mult: np.ndarray, labels: np.ndarray, k: int, eps: float
+) -> np.ndarray:
     """Merge clusters pairwise, each time the pair whose merge keeps the likelihood highest, until k.
 
     Only the merged pair's terms change, so each candidate costs one cluster's F over the states.
@@ -323,9 +363,17 @@ def merge_down(steps: Steps, mult: np.ndarray, labels: np.ndarray, k: int, eps: 
     return labels
 
 
-def split_merge(steps: Steps, mult: np.ndarray, labels: np.ndarray, k: int, eps: float,
-                max_sweeps: int = 100, seed: int = 0, max_rounds: int = 10,
-                max_pairs: int = 6) -> tuple[np.ndarray, tuple[float, float], int]:
+def split_merge(
+    steps: Steps,
+    mult: np.ndarray,
+    labels: np.ndarray,
+    k: int,
+    eps: float,
+    max_sweeps: int = 100,
+    seed: int = 0,
+    max_rounds: int = 10,
+    max_pairs: int = 6,
+) -> tuple[np.ndarray, tuple[float, float], int]:
     """Split-and-merge moves from a converged labelling (SMEM, Ueda et al. 2000), for the group
     that no single move shifts and that no start happened to free.
 
@@ -348,8 +396,11 @@ def split_merge(steps: Steps, mult: np.ndarray, labels: np.ndarray, k: int, eps:
         counts = cluster_counts(steps, labels, mult, k)
         terms = _cluster_terms(steps, counts, eps)
         sizes = np.bincount(labels, mult, minlength=k).astype(np.float64)
-        gains = [(_merge_gain(steps, counts, terms, sizes, a, b, eps)[0], a, b)
-                 for a in range(k) for b in range(a + 1, k)]
+        gains = [
+            (_merge_gain(steps, counts, terms, sizes, a, b, eps)[0], a, b)
+            for a in range(k)
+            for b in range(a + 1, k)
+        ]
         top, halves = None, {}  # a cluster outside the merged pair splits the same way every time
         for _, a, b in sorted(gains, key=lambda t: -t[0])[:max_pairs]:
             merged = np.where(labels == b, a, labels)  # label b is free now
@@ -361,8 +412,11 @@ def split_merge(steps: Steps, mult: np.ndarray, labels: np.ndarray, k: int, eps:
                 if group not in halves:
                     with warnings.catch_warnings():  # members whose rows are all proportional
                         warnings.simplefilter("ignore", ConvergenceWarning)
-                        halves[group] = KMeans(n_clusters=2, n_init=3, random_state=seed).fit(
-                            rows[members], sample_weight=mult[members]).labels_
+                        halves[group] = (
+                            KMeans(n_clusters=2, n_init=3, random_state=seed)
+                            .fit(rows[members], sample_weight=mult[members])
+                            .labels_
+                        )
                 half = halves[group]
                 if half.min() == half.max():
                     continue
@@ -381,9 +435,15 @@ def split_merge(steps: Steps, mult: np.ndarray, labels: np.ndarray, k: int, eps:
     return labels, best, accepted
 
 
-def fit(steps: Steps, starts: list[np.ndarray], k: int, max_sweeps: int = 100,
-        noise_levels: tuple[float, ...] = NOISE_LEVELS, seed: int = 0,
-        split_merge_rounds: int = 10) -> GreedyMixFit:
+def fit(
+    steps: Steps,
+    starts: list[np.ndarray],
+    k: int,
+    max_sweeps: int = 100,
+    noise_levels: tuple[float, ...] = NOISE_LEVELS,
+    seed: int = 0,
+    split_merge_rounds: int = 10,
+) -> GreedyMixFit:
     """Refine the start labellings (each (n,), with k or more clusters) as the module doc says;
     a start with more than k clusters is refined at its own size, merged down to k
     (:func:`merge_down`) and refined again. The result with the highest profile likelihood over
@@ -407,7 +467,9 @@ def fit(steps: Steps, starts: list[np.ndarray], k: int, max_sweeps: int = 100,
         for eps in noise_levels:
             labels, sweeps = ascend(uniq, mult, start, max(size, k), eps, max_sweeps)
             if size > k:
-                labels, more = ascend(uniq, mult, merge_down(uniq, mult, labels, k, eps), k, eps, max_sweeps)
+                labels, more = ascend(
+                    uniq, mult, merge_down(uniq, mult, labels, k, eps), k, eps, max_sweeps
+                )
                 sweeps += more
             key = labels.tobytes()
             if key not in scored:  # several starts and levels often end in the same labelling
@@ -418,8 +480,9 @@ def fit(steps: Steps, starts: list[np.ndarray], k: int, max_sweeps: int = 100,
     ll, eps_hat, eps0, size, labels, sweeps = best
     split_merges = 0
     if split_merge_rounds > 0 and k > 1 and len(first) > k:
-        labels, (ll, eps_hat), split_merges = split_merge(uniq, mult, labels, k, eps0, max_sweeps,
-                                                          seed, split_merge_rounds)
+        labels, (ll, eps_hat), split_merges = split_merge(
+            uniq, mult, labels, k, eps0, max_sweeps, seed, split_merge_rounds
+        )
     # number the clusters as the first start does (most shared trajectories), so the labels of
     # a refined start stay comparable with it
     first_start = np.asarray(starts[0], np.int64)
@@ -432,12 +495,27 @@ def fit(steps: Steps, starts: list[np.ndarray], k: int, max_sweeps: int = 100,
     v = votes(uniq, labels, mult, k, eps_hat)
     sizes = np.bincount(labels, mult, minlength=k)
     out = labels[inv]
-    return GreedyMixFit(out, v, np.log(np.maximum(sizes, 1e-3) / mult.sum()), eps_hat, eps0, size,
-                        sweeps, float((out != first_start).mean()), ll, split_merges)
+    return GreedyMixFit(
+        out,
+        v,
+        np.log(np.maximum(sizes, 1e-3) / mult.sum()),
+        eps_hat,
+        eps0,
+        size,
+        sweeps,
+        float((out != first_start).mean()),
+        ll,
+        split_merges,
+    )
 
 
-def scores(steps: Steps, weights: sparse.csr_matrix, v: np.ndarray, log_share: np.ndarray,
-           own: np.ndarray | None = None) -> np.ndarray:
+def scores(
+    steps: Steps,
+    weights: sparse.csr_matrix,
+    v: np.ndarray,
+    log_share: np.ndarray,
+    own: np.ndarray | None = None,
+) -> np.ndarray:
     """(n, k) gain in collapsed log-likelihood from adding each trajectory to each cluster's votes.
 
     ``own``: each trajectory's cluster in the fit that made ``v``; its own cluster is then scored
@@ -451,8 +529,9 @@ def scores(steps: Steps, weights: sparse.csr_matrix, v: np.ndarray, log_share: n
         base = v[c][state]
         if own is not None:
             base = base - np.where((own[traj] == c)[:, None], d, 0.0)
-        out[:, c] = np.bincount(traj, _marginal(base + d, valid) - _marginal(base, valid),
-                                minlength=weights.shape[0])
+        out[:, c] = np.bincount(
+            traj, _marginal(base + d, valid) - _marginal(base, valid), minlength=weights.shape[0]
+        )
     return out + log_share[None, :]
 
 

@@ -101,5 +101,7 @@ class CheckedJournalBackend(JournalFileBackend):
             with open(self._file_path, "rb") as f:
                 line = next(itertools.islice(f, number - 1, None), b"")
             problem = _line_problem(line)
-        return DataError(f"cannot open the Optuna journal {self._file_path}: not an Optuna journal "
-                         f"(line {number}: {problem}); give a new file or another --optuna-storage")
+        return DataError(
+            f"cannot open the Optuna journal {self._file_path}: not an Optuna journal "
+            f"(line {number}: {problem}); give a new file or another --optuna-storage"
+        )

@@ -45,10 +45,16 @@ PROTOCOL: tuple[tuple[str, object, tuple[str, ...] | None], ...] = (
 PAPER_MEANS = {"bc.batch_size": "none (full batch)"}
 
 #: a protocol setting added after runs were logged: a recorded config without it ran with its default
-ABSENT_MEANS = {"ranking.style_margin": RankConfig.model_fields["style_margin"].default,
-                "bc.init": BCConfig.model_fields["init"].default,
-                "mario.event": "id",  # runs before the setting (2026-11-21) read the event id as a number
-                **{f"mario.{name}": MarioLoadConfig.model_fields[name].default for name in ("counters", "increments")}}
+ABSENT_MEANS = {
+    "ranking.style_margin": RankConfig.model_fields["style_margin"].default,
+    "bc.init": BCConfig.model_fields["init"].default,
+    "mario.event": "id",  # runs before the setting (2026-11-21) read the event id as a number
+    **{
+        f"mario.{name}": MarioLoadConfig.model_fields[name].default
+        for name in ("counters", "increments")
+    },
+}
+
 
 # ----------------------------------------------------------------------------- content
 def paper_numbers(domain: str | None) -> dict[str, str]:
@@ -105,8 +111,13 @@ def plain(v) -> str:
 
 
 def _ps(metrics: dict) -> list[float]:
-    return sorted({float(k.split("/p")[1]) for k in metrics
-                   if k.startswith("pcpg/accuracy/p") and k.count("/") == 2})
+    return sorted(
+        {
+            float(k.split("/p")[1])
+            for k in metrics
+            if k.startswith("pcpg/accuracy/p") and k.count("/") == 2
+        }
+    )
 
 
 def headline(metrics: dict) -> dict:
@@ -115,16 +126,28 @@ def headline(metrics: dict) -> dict:
     for p in _ps(metrics):
         pc, nc = metrics.get(f"pcpg/accuracy/p{p:g}"), metrics.get(f"baseline/accuracy/p{p:g}")
         diff = pc - nc if pc is not None and nc is not None else None
-        rows.append({"p": fmt(p, 2).rstrip("0").rstrip("."), "pcpg": fmt(pc), "nc": fmt(nc),
-                     "diff": "—" if diff is None else f"{diff:+.3f}", "ahead": diff is not None and diff > 0})
+        rows.append(
+            {
+                "p": fmt(p, 2).rstrip("0").rstrip("."),
+                "pcpg": fmt(pc),
+                "nc": fmt(nc),
+                "diff": "—" if diff is None else f"{diff:+.3f}",
+                "ahead": diff is not None and diff > 0,
+            }
+        )
     wins = sum(r["ahead"] for r in rows)
     compared = sum(r["diff"] != "—" for r in rows)
     acc, ceil = metrics.get("clustering/accuracy"), metrics.get("clustering/ceiling")
     gap = metrics.get("clustering/gap_to_ceiling")
-    return {"rows": rows, "wins": wins, "compared": compared,
-            "accuracy": None if acc is None else f"{acc:.3f}", "ceiling": None if ceil is None else f"{ceil:.3f}",
-            "gap": None if gap is None else f"{gap:+.3f}",
-            "random": fmt(metrics.get("random/accuracy"))}
+    return {
+        "rows": rows,
+        "wins": wins,
+        "compared": compared,
+        "accuracy": None if acc is None else f"{acc:.3f}",
+        "ceiling": None if ceil is None else f"{ceil:.3f}",
+        "gap": None if gap is None else f"{gap:+.3f}",
+        "random": fmt(metrics.get("random/accuracy")),
+    }
 
 
 # ----------------------------------------------------------------------------- the paper's items
@@ -158,8 +181,10 @@ def length_summary(tables: list[pd.DataFrame]) -> str:
 
     pc = mean_by_p(d)
     at_top = d[d.p == d.p.max()]["mean"]
-    text = (f"PCPG mean length {pc.iloc[0]:.1f} at p={pc.index[0]:g} to {pc.iloc[-1]:.1f} at "
-            f"p={pc.index[-1]:g}; styles at p={d.p.max():g} from {at_top.min():.1f} to {at_top.max():.1f}")
+    text = (
+        f"PCPG mean length {pc.iloc[0]:.1f} at p={pc.index[0]:g} to {pc.iloc[-1]:.1f} at "
+        f"p={pc.index[-1]:g}; styles at p={d.p.max():g} from {at_top.min():.1f} to {at_top.max():.1f}"
+    )
     nc = every[every.method == "nc"]
     if len(nc):
         nc_p = mean_by_p(nc)
@@ -182,7 +207,9 @@ def _by_style(summary: Path, env: str, matrix: pd.DataFrame) -> pd.DataFrame | N
     for col in ("k", "style"):
         values = table[0][col].to_numpy(float)
         if not (np.isfinite(values) & (values == np.round(values))).all():
-            raise DataError(f"{summary / env / 'cluster_style.csv'}: column {col!r} must hold whole numbers")
+            raise DataError(
+                f"{summary / env / 'cluster_style.csv'}: column {col!r} must hold whole numbers"
+            )
     style = {f"k{int(k)}": int(s) for k, s in zip(table[0]["k"], table[0]["style"], strict=True)}
     names = list(matrix.index)
     order = sorted(names, key=lambda n: style.get(n, -1))
@@ -195,13 +222,17 @@ def _by_style(summary: Path, env: str, matrix: pd.DataFrame) -> pd.DataFrame | N
 
 def _matrices(summary: Path, envs: list[str], name: str) -> dict[str, pd.DataFrame]:
     """Each environment's k x k table ``name`` (cross_accuracy, correlation), rows by cluster."""
-    return {env: t[0].set_index(t[0].columns[0]).astype(float)
-            for env in envs if (t := _env_tables(summary, [env], name))}
+    return {
+        env: t[0].set_index(t[0].columns[0]).astype(float)
+        for env in envs
+        if (t := _env_tables(summary, [env], name))
+    }
 
 
 def _row_max(mats: dict[str, pd.DataFrame]) -> str:
     """In how many rows, over the environments, the diagonal cell is the row's maximum (a NaN
     cell, e.g. the correlation of a constant column, is the maximum of nothing)."""
+
     def top(m: np.ndarray) -> int:
         return sum(bool(np.isfinite(m[i, i]) and m[i, i] >= np.nanmax(m[i])) for i in range(len(m)))
 
@@ -222,11 +253,16 @@ def cross_summary(summary: Path, envs: list[str]) -> str:
         m = sum(a.to_numpy() for a in aligned) / len(aligned)
         note = f" (styles R1 to R{len(m)}: clusters matched to styles)"
     elif len(mats) == 1:
-        m, note = next(iter(mats.values())).to_numpy(), " (by cluster: not matched to styles one to one)"
+        m, note = (
+            next(iter(mats.values())).to_numpy(),
+            " (by cluster: not matched to styles one to one)",
+        )
     else:
         diag = [float(np.mean(np.diagonal(m.to_numpy()))) for m in mats.values()]
-        return (f"diagonal mean {np.mean(diag):.2f}, {_row_max(mats)} (clusters not matched to styles "
-                f"one to one, so not averaged cell by cell)")
+        return (
+            f"diagonal mean {np.mean(diag):.2f}, {_row_max(mats)} (clusters not matched to styles "
+            f"one to one, so not averaged cell by cell)"
+        )
     off = [m[i, j] for i in range(m.shape[0]) for j in range(m.shape[1]) if i != j]
     text = "diagonal " + " / ".join(f"{m[i, i]:.2f}" for i in range(min(m.shape)))
     return text + (f"; off-diagonal {min(off):.2f} to {max(off):.2f}" if off else "") + note
@@ -245,13 +281,27 @@ def paper_rows(domain: str, metrics: dict, summary: Path, envs: list[str]) -> li
 
     rows = []
     h = headline(metrics)
-    rows.append(PaperRow("Clustering accuracy", "clustering",
-                         said("clustering accuracy", "not reported for this domain"),
-                         "—" if h["accuracy"] is None else h["accuracy"]
-                         + ("" if h["ceiling"] is None else f" (supervised ceiling {h['ceiling']})")))
-    rows.append(PaperRow("Fig. 4: accuracy vs p", "fig4", said("", "PCPG above No Clustering at every p"),
-                         f"PCPG above No Clustering at {h['wins']} of {h['compared']} p values"
-                         if h["compared"] else "—"))
+    rows.append(
+        PaperRow(
+            "Clustering accuracy",
+            "clustering",
+            said("clustering accuracy", "not reported for this domain"),
+            "—"
+            if h["accuracy"] is None
+            else h["accuracy"]
+            + ("" if h["ceiling"] is None else f" (supervised ceiling {h['ceiling']})"),
+        )
+    )
+    rows.append(
+        PaperRow(
+            "Fig. 4: accuracy vs p",
+            "fig4",
+            said("", "PCPG above No Clustering at every p"),
+            f"PCPG above No Clustering at {h['wins']} of {h['compared']} p values"
+            if h["compared"]
+            else "—",
+        )
+    )
     dist = [metrics.get(f"reward_distance/style{s}") for s in range(16)]
     rnd = [metrics.get(f"random/reward_distance/style{s}") for s in range(16)]
 
@@ -262,29 +312,67 @@ def paper_rows(domain: str, metrics: dict, summary: Path, envs: list[str]) -> li
     lengths = _env_tables(summary, envs, "rollout_length")
     # rollouts without distances: the domain has no per-style rewards or optimal returns to measure them
     absent = "— (no reward-distance hooks for this domain)" if lengths else "— (no rollouts)"
-    rows.append(PaperRow("Table 3: reward distance to the optimum, PCPG", f"{first}-reward",
-                         said("reward distance, PCPG (Table 3)", "not reported for this domain"),
-                         by_style(dist) or absent))
-    rows.append(PaperRow("Table 3: reward distance to the optimum, random", f"{first}-reward",
-                         said("reward distance, random (Table 3)", "not reported for this domain"),
-                         by_style(rnd) or absent))
+    rows.append(
+        PaperRow(
+            "Table 3: reward distance to the optimum, PCPG",
+            f"{first}-reward",
+            said("reward distance, PCPG (Table 3)", "not reported for this domain"),
+            by_style(dist) or absent,
+        )
+    )
+    rows.append(
+        PaperRow(
+            "Table 3: reward distance to the optimum, random",
+            f"{first}-reward",
+            said("reward distance, random (Table 3)", "not reported for this domain"),
+            by_style(rnd) or absent,
+        )
+    )
     ours = cross_summary(summary, envs)
-    rows.append(PaperRow("Table 4: accuracy of π_k on H_k' (mean over p)", f"{first}-cross",
-                         said("cross-accuracy diagonal (Table 4)", "strongest on the diagonal"), ours))
-    rows.append(PaperRow("Figs. 5 and 6: rollout length vs p", f"{first}-rollout_length",
-                         said("", "longer with higher p; styles converge to different lengths, "
-                                  "No Clustering to one"),
-                         length_summary(lengths) if lengths else "— (no rollouts)"))
+    rows.append(
+        PaperRow(
+            "Table 4: accuracy of π_k on H_k' (mean over p)",
+            f"{first}-cross",
+            said("cross-accuracy diagonal (Table 4)", "strongest on the diagonal"),
+            ours,
+        )
+    )
+    rows.append(
+        PaperRow(
+            "Figs. 5 and 6: rollout length vs p",
+            f"{first}-rollout_length",
+            said(
+                "",
+                "longer with higher p; styles converge to different lengths, No Clustering to one",
+            ),
+            length_summary(lengths) if lengths else "— (no rollouts)",
+        )
+    )
     corr = metrics.get("correlation/diagonal_mean")
-    rows.append(PaperRow("Fig. 7: model vs subset correlation", f"{first}-correlation",
-                         said("", "each model correlates most with its own subset"),
-                         "—" if corr is None else f"mean diagonal correlation {corr:.2f}" + (
-                             f"; the diagonal is {_row_max(c)}" if (c := _matrices(summary, envs, "correlation"))
-                             else "")))
+    rows.append(
+        PaperRow(
+            "Fig. 7: model vs subset correlation",
+            f"{first}-correlation",
+            said("", "each model correlates most with its own subset"),
+            "—"
+            if corr is None
+            else f"mean diagonal correlation {corr:.2f}"
+            + (
+                f"; the diagonal is {_row_max(c)}"
+                if (c := _matrices(summary, envs, "correlation"))
+                else ""
+            ),
+        )
+    )
     drawn = any(inside(summary / e / "rollouts.png", summary) for e in envs)
-    rows.append(PaperRow("Fig. 8: one rollout per style", f"{first}-rollouts",
-                         said("", "one rollout per style drawn on the grid"),
-                         "drawn below" if drawn else "— (the domain draws no rollouts)"))
+    rows.append(
+        PaperRow(
+            "Fig. 8: one rollout per style",
+            f"{first}-rollouts",
+            said("", "one rollout per style drawn on the grid"),
+            "drawn below" if drawn else "— (the domain draws no rollouts)",
+        )
+    )
     corruption = _env_tables(summary, envs, "corruption_accuracy")
     ours = "—"
     if corruption:
@@ -293,18 +381,34 @@ def paper_rows(domain: str, metrics: dict, summary: Path, envs: list[str]) -> li
         nc = metrics.get("corruption/baseline/accuracy")
         if nc is not None:
             ours += f" (No Clustering {nc:.3f})"
-    rows.append(PaperRow("Fig. 9: accuracy vs label corruption", f"{first}-corruption",
-                         said("", "falls toward No Clustering as c rises; the spread grows"), ours))
+    rows.append(
+        PaperRow(
+            "Fig. 9: accuracy vs label corruption",
+            f"{first}-corruption",
+            said("", "falls toward No Clustering as c rises; the spread grows"),
+            ours,
+        )
+    )
     rewards = _env_tables(summary, envs, "corruption_reward")
     ours = "—"
     if rewards:  # the spread across one environment's clusters, then the mean over environments
         rcols = [c for c in rewards[0].columns if c.startswith("R") and not c.endswith("_std")]
-        spread = pd.concat([d.groupby("c")[[c for c in rcols if c in d]].std(ddof=0).mean(axis=1)
-                            for d in rewards], axis=1).mean(axis=1)
+        spread = pd.concat(
+            [
+                d.groupby("c")[[c for c in rcols if c in d]].std(ddof=0).mean(axis=1)
+                for d in rewards
+            ],
+            axis=1,
+        ).mean(axis=1)
         ours = "spread of subset rewards across an environment's clusters: " + " ; ".join(
-            f"c={c:g}: {v:.1f}" for c, v in spread.items())
-    rows.append(PaperRow("Table 5: subset rewards under label corruption", f"{first}-corruption_reward",
-                         said("", "subsets' rewards become alike as c rises"), ours))
+            f"c={c:g}: {v:.1f}" for c, v in spread.items()
+        )
+    rows.append(
+        PaperRow(
+            "Table 5: subset rewards under label corruption",
+            f"{first}-corruption_reward",
+            said("", "subsets' rewards become alike as c rises"),
+            ours,
+        )
+    )
     return rows
-
-

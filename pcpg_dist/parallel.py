@@ -72,9 +72,13 @@ def stage_gpus(device: str, gpus_per_task: float, node_gpus: float, key: str) ->
     if device == "cpu" or (device == "auto" and node_gpus <= 0):
         return 0.0
     if node_gpus <= 0:
-        raise ConfigError(f"{key} is 'cuda' but no Ray node has a GPU; use 'cpu', or 'auto' "
-                          "(a GPU where the cluster has one)")
+        raise ConfigError(
+            f"{key} is 'cuda' but no Ray node has a GPU; use 'cpu', or 'auto' "
+            "(a GPU where the cluster has one)"
+        )
     if gpus_per_task > node_gpus:
-        raise ConfigError(f"runner.gpus_per_task: {gpus_per_task:g} GPUs per task, but the largest "
-                          f"Ray node has {node_gpus:g}; set it to at most {node_gpus:g}")
+        raise ConfigError(
+            f"runner.gpus_per_task: {gpus_per_task:g} GPUs per task, but the largest "
+            f"Ray node has {node_gpus:g}; set it to at most {node_gpus:g}"
+        )
     return float(gpus_per_task)

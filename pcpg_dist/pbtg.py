@@ -48,8 +48,21 @@ def _pick(valid_row: np.ndarray, q_row: np.ndarray, explore: bool) -> int:
 
 
 @numba.njit(cache=True)
-def _q_learning(next_state, reward, terminal, valid, start, episodes, max_steps, gamma, lr,
-                eps_start, eps_end, initial_q, seed):
+def _q_learning(
+    next_state,
+    reward,
+    terminal,
+    valid,
+    start,
+    episodes,
+    max_steps,
+    gamma,
+    lr,
+    eps_start,
+    eps_end,
+    initial_q,
+    seed,
+):
     np.random.seed(seed)
     n_states, n_actions = next_state.shape
     q = np.full((n_states, n_actions), initial_q)
@@ -102,27 +115,62 @@ def _sample(next_state, terminal, valid, q, start, noise, max_steps, seed):
 
 def q_learning(tables: GridTables, reward_index: int, cfg: PBTGConfig, seed: int) -> np.ndarray:
     """Tabular Q-learning for R_{reward_index + 1}; returns Q (S, A)."""
-    return _q_learning(tables.next_state, tables.reward[reward_index], tables.terminal, tables.valid,
-                       tables.start, cfg.episodes, cfg.max_steps, cfg.gamma, cfg.learning_rate,
-                       cfg.epsilon_start, cfg.epsilon_end, cfg.initial_q, seed)
+    return _q_learning(
+        tables.next_state,
+        tables.reward[reward_index],
+        tables.terminal,
+        tables.valid,
+        tables.start,
+        cfg.episodes,
+        cfg.max_steps,
+        cfg.gamma,
+        cfg.learning_rate,
+        cfg.epsilon_start,
+        cfg.epsilon_end,
+        cfg.initial_q,
+        seed,
+    )
 
 
-def sample_trajectories(layout: Layout, q: np.ndarray, reward_index: int, n: int, cfg: PBTGConfig,
-                        rng: np.random.Generator) -> Dataset:
+def sample_trajectories(
+    layout: Layout,
+    q: np.ndarray,
+    reward_index: int,
+    n: int,
+    cfg: PBTGConfig,
+    rng: np.random.Generator,
+) -> Dataset:
     """``n`` trajectories of the perturbed greedy policy of ``q``; style = reward_index."""
     t = layout.tables
     noise = rng.uniform(cfg.noise_min, cfg.noise_max, n)
-    states, actions, lengths = _sample(t.next_state, t.terminal, t.valid, q, t.start, noise,
-                                       cfg.max_steps, int(rng.integers(2**31)))
+    states, actions, lengths = _sample(
+        t.next_state,
+        t.terminal,
+        t.valid,
+        q,
+        t.start,
+        noise,
+        cfg.max_steps,
+        int(rng.integers(2**31)),
+    )
     steps = actions >= 0
     rewards = np.zeros(len(states))
     rewards[steps] = t.reward[reward_index, states[steps], actions[steps]]
     offsets = np.r_[0, np.cumsum(lengths)].astype(np.int64)
     return Dataset(
-        domain="gridworld", env=layout.name, n_actions=N_ACTIONS, states=t.features[states],
-        actions=actions, valid=t.valid[states], rewards=rewards, offsets=offsets,
-        trajectory_ids=np.arange(n, dtype=np.int64), styles=np.full(n, reward_index, np.int64),
-        success=t.goal[states[offsets[1:] - 1]], epsilon=noise, feature_names=FEATURES,
+        domain="gridworld",
+        env=layout.name,
+        n_actions=N_ACTIONS,
+        states=t.features[states],
+        actions=actions,
+        valid=t.valid[states],
+        rewards=rewards,
+        offsets=offsets,
+        trajectory_ids=np.arange(n, dtype=np.int64),
+        styles=np.full(n, reward_index, np.int64),
+        success=t.goal[states[offsets[1:] - 1]],
+        epsilon=noise,
+        feature_names=FEATURES,
     )
 
 
@@ -132,12 +180,21 @@ def generate_pair(layout: Layout, reward_index: int, cfg: PBTGConfig, base_seed:
 
     Sampling inside the pair keeps Ray transfers small and the result a function of the key only.
     """
-    q_seed, sample_seed, pick_seed = pair_seed(base_seed, layout.name, reward_index).generate_state(3)
+    q_seed, sample_seed, pick_seed = pair_seed(base_seed, layout.name, reward_index).generate_state(
+        3
+    )
     q = q_learning(layout.tables, reward_index, cfg, int(q_seed))
-    pool = sample_trajectories(layout, q, reward_index, cfg.trajectories_per_style, cfg,
-                               np.random.default_rng(int(sample_seed)))
-    pick = np.random.default_rng(int(pick_seed)).choice(pool.n_trajectories, cfg.dataset_per_style,
-                                                          replace=False)
+    pool = sample_trajectories(
+        layout,
+        q,
+        reward_index,
+        cfg.trajectories_per_style,
+        cfg,
+        np.random.default_rng(int(sample_seed)),
+    )
+    pick = np.random.default_rng(int(pick_seed)).choice(
+        pool.n_trajectories, cfg.dataset_per_style, replace=False
+    )
     return pool.subset(np.sort(pick))
 
 

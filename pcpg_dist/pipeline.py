@@ -49,9 +49,11 @@ def partial_styles_note(unit: Unit) -> str | None:
     unknown = int((styles < 0).sum())
     if not unknown or unknown == len(styles):
         return None
-    return (f"{unit.name}: {unknown} of {len(styles)} trajectories have style -1 (unknown): the scores "
-            f"against the true styles (clustering accuracy, ARI, NMI, the supervised ceiling, the "
-            f"corruption study) need every trajectory labelled and are left out")
+    return (
+        f"{unit.name}: {unknown} of {len(styles)} trajectories have style -1 (unknown): the scores "
+        f"against the true styles (clustering accuracy, ARI, NMI, the supervised ceiling, the "
+        f"corruption study) need every trajectory labelled and are left out"
+    )
 
 
 def cluster_unit(unit: Unit, cluster_cfg, seed: int, ceiling: bool = True) -> UnitClustering:
@@ -60,22 +62,40 @@ def cluster_unit(unit: Unit, cluster_cfg, seed: int, ceiling: bool = True) -> Un
     from pcpg_dist.clustering import cluster, clustering_metrics
 
     result = cluster(unit.clustered, cluster_cfg, seed)
-    metrics = {f"clustering/{k}": float(v) for k, v in result.metrics.items() if isinstance(v, int | float)}
+    metrics = {
+        f"clustering/{k}": float(v) for k, v in result.metrics.items() if isinstance(v, int | float)
+    }
     if has_styles(unit):
         from pcpg_dist.ceiling import gap_to_ceiling, supervised_ceiling
 
         sup = clustering_metrics(unit.dataset.styles, result.labels)
-        metrics.update({f"clustering/{k}": float(v) for k, v in sup.items() if isinstance(v, int | float)})
+        metrics.update(
+            {f"clustering/{k}": float(v) for k, v in sup.items() if isinstance(v, int | float)}
+        )
         top = supervised_ceiling(unit.dataset, seed=seed) if ceiling else float("nan")
-        if np.isfinite(top):  # what a classifier given the true styles reaches (pcpg_dist/ceiling.py)
+        if np.isfinite(
+            top
+        ):  # what a classifier given the true styles reaches (pcpg_dist/ceiling.py)
             metrics["clustering/ceiling"] = top
-            metrics["clustering/gap_to_ceiling"] = gap_to_ceiling(top, metrics["clustering/accuracy"])
+            metrics["clustering/gap_to_ceiling"] = gap_to_ceiling(
+                top, metrics["clustering/accuracy"]
+            )
     metrics["clustering/fit_seconds"] = result.fit_seconds
-    return UnitClustering(np.asarray(result.labels, np.int64), metrics, result.model, result.margins)
+    return UnitClustering(
+        np.asarray(result.labels, np.int64), metrics, result.model, result.margins
+    )
 
 
-def plan_unit(unit: Unit, labels: np.ndarray, cfg, *, rank_cfg=None, seeds=None, corruption: bool = True,
-              margins: np.ndarray | None = None):
+def plan_unit(
+    unit: Unit,
+    labels: np.ndarray,
+    cfg,
+    *,
+    rank_cfg=None,
+    seeds=None,
+    corruption: bool = True,
+    margins: np.ndarray | None = None,
+):
     """Step B: every training cell of the unit (PCPG, No Clustering, corrupted labels), ranked by
     the domain's skill score (and the clustering's ``margins`` with ``ranking.style_margin``).
     Corruption cells need true styles to mean anything."""
@@ -83,20 +103,49 @@ def plan_unit(unit: Unit, labels: np.ndarray, cfg, *, rank_cfg=None, seeds=None,
 
     rank_cfg = rank_cfg or cfg.ranking
     corrupt = cfg.evaluation.corruption_levels if corruption and has_styles(unit) else ()
-    return plan_cells(unit.dataset, labels, unit.train_idx, rank_cfg, cfg.seeds if seeds is None else seeds,
-                      k=cfg.clustering.k, score=contract.score(cfg), corruption_levels=corrupt,
-                      corruption_ps=cfg.evaluation.corruption_ps, margins=margins)
+    return plan_cells(
+        unit.dataset,
+        labels,
+        unit.train_idx,
+        rank_cfg,
+        cfg.seeds if seeds is None else seeds,
+        k=cfg.clustering.k,
+        score=contract.score(cfg),
+        corruption_levels=corrupt,
+        corruption_ps=cfg.evaluation.corruption_ps,
+        margins=margins,
+    )
 
 
-def evaluate_unit(unit: Unit, labels: np.ndarray, trained, cfg, out_dir: str | Path | None = None, *,
-                  rank_cfg=None, eval_cfg=None, rollouts: bool = True, extras: bool = True,
-                  margins: np.ndarray | None = None) -> dict[str, float]:
+def evaluate_unit(
+    unit: Unit,
+    labels: np.ndarray,
+    trained,
+    cfg,
+    out_dir: str | Path | None = None,
+    *,
+    rank_cfg=None,
+    eval_cfg=None,
+    rollouts: bool = True,
+    extras: bool = True,
+    margins: np.ndarray | None = None,
+) -> dict[str, float]:
     """Accuracy tables, cross accuracy, rollouts and the domain's extras; finite metrics only."""
     from pcpg_dist.evaluation import evaluate
 
-    result = evaluate(unit.dataset, labels, unit.test_idx, trained, rank_cfg or cfg.ranking,
-                      eval_cfg or cfg.evaluation, out_dir=out_dir, hooks=contract.hooks(cfg, unit.name) if rollouts else None,
-                      score=contract.score(cfg), k=cfg.clustering.k, margins=margins)
+    result = evaluate(
+        unit.dataset,
+        labels,
+        unit.test_idx,
+        trained,
+        rank_cfg or cfg.ranking,
+        eval_cfg or cfg.evaluation,
+        out_dir=out_dir,
+        hooks=contract.hooks(cfg, unit.name) if rollouts else None,
+        score=contract.score(cfg),
+        k=cfg.clustering.k,
+        margins=margins,
+    )
     metrics = {k: float(v) for k, v in result.metrics.items() if np.isfinite(v)}
     if extras and out_dir is not None:
         metrics.update(contract.extras(cfg, unit, labels, trained, Path(out_dir)))
@@ -108,6 +157,10 @@ def run_unit(unit: Unit, cfg, out_dir: str | Path | None = None) -> UnitResult:
     from pcpg_dist.bc import train_plan
 
     clustering = cluster_unit(unit, cfg.clustering, cfg.seed)
-    trained = train_plan(plan_unit(unit, clustering.labels, cfg, margins=clustering.margins), cfg.bc)
-    metrics = evaluate_unit(unit, clustering.labels, trained, cfg, out_dir, margins=clustering.margins)
+    trained = train_plan(
+        plan_unit(unit, clustering.labels, cfg, margins=clustering.margins), cfg.bc
+    )
+    metrics = evaluate_unit(
+        unit, clustering.labels, trained, cfg, out_dir, margins=clustering.margins
+    )
     return UnitResult(clustering, {**clustering.metrics, **metrics})

@@ -49,14 +49,20 @@ def setup_output(quiet: bool = False, verbose: bool = False, private_ray: bool =
     pcpg.setLevel(level)
     pcpg.propagate = False
     library = logging.getLevelName(max(level, logging.WARNING) if not verbose else logging.INFO)
-    os.environ.setdefault("MLFLOW_LOGGING_LEVEL", library)  # read when mlflow configures its loggers
+    os.environ.setdefault(
+        "MLFLOW_LOGGING_LEVEL", library
+    )  # read when mlflow configures its loggers
     for name in ("mlflow", "alembic"):
-        logging.getLogger(name).setLevel(os.environ["MLFLOW_LOGGING_LEVEL"] if name == "mlflow" else library)
+        logging.getLogger(name).setLevel(
+            os.environ["MLFLOW_LOGGING_LEVEL"] if name == "mlflow" else library
+        )
     if private_ray or _has_ray_token():  # a joined cluster: token mode where a token is at hand, as
         os.environ.setdefault("RAY_AUTH_MODE", "token")  # `ray start` does (ray.init does not)
-    for name, start in ((_RAY_AUTH_LOGGER, _RAY_TOKEN_NOTICE),
-                        # ray:// (Ray Client) connects from a thread, where Ray cannot set its handler
-                        ("ray._private.worker", "SIGTERM handler is not set because current thread")):
+    for name, start in (
+        (_RAY_AUTH_LOGGER, _RAY_TOKEN_NOTICE),
+        # ray:// (Ray Client) connects from a thread, where Ray cannot set its handler
+        ("ray._private.worker", "SIGTERM handler is not set because current thread"),
+    ):
         logger = logging.getLogger(name)
         if not any(isinstance(f, _DropMessage) and f.start == start for f in logger.filters):
             logger.addFilter(_DropMessage(start))
@@ -69,17 +75,27 @@ def _has_ray_token() -> bool:
 
 
 @contextmanager
-def progress_bar(description: str, total: int, enabled: bool = True) -> Iterator[Callable[..., None]]:
+def progress_bar(
+    description: str, total: int, enabled: bool = True
+) -> Iterator[Callable[..., None]]:
     """Yield ``advance(n=1, description=None)`` (a new description says e.g. what tasks wait for);
     shows a bar on a terminal, a final line otherwise."""
     if not enabled:
         yield lambda n=1, description=None: None
         return
-    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
-                  TimeElapsedColumn(), console=console, transient=False) as progress:
+    with Progress(
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        console=console,
+        transient=False,
+    ) as progress:
         task = progress.add_task(description, total=total)
 
         def advance(n: float = 1, description: str | None = None) -> None:
-            progress.update(task, advance=n, **({"description": description} if description else {}))
+            progress.update(
+                task, advance=n, **({"description": description} if description else {})
+            )
 
         yield advance

@@ -11,7 +11,17 @@ from pathlib import Path
 
 import pcpg_dist
 
-PACKAGES = ("torch", "ray", "mlflow", "optuna", "numpy", "scikit-learn", "pyarrow", "pydantic", "numba")
+PACKAGES = (
+    "torch",
+    "ray",
+    "mlflow",
+    "optuna",
+    "numpy",
+    "scikit-learn",
+    "pyarrow",
+    "pydantic",
+    "numba",
+)
 _ROOT = Path(pcpg_dist.__file__).resolve().parent.parent
 
 
@@ -19,10 +29,21 @@ _ROOT = Path(pcpg_dist.__file__).resolve().parent.parent
 def git_commit() -> str:
     """HEAD of the checkout the package runs from (with '+dirty' if it has changes), or 'unknown'."""
     try:
-        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=_ROOT, capture_output=True, text=True,
-                              timeout=5, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=_ROOT,
-                               capture_output=True, text=True, timeout=5).stdout.strip()
+        head = subprocess.run(
+            ["git", "rev-parse", "HEAD"],
+            cwd=_ROOT,
+            capture_output=True,
+            text=True,
+            timeout=5,
+            check=True,
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"],
+            cwd=_ROOT,
+            capture_output=True,
+            text=True,
+            timeout=5,
+        ).stdout.strip()
         return head + ("+dirty" if dirty else "")
     except (OSError, subprocess.SubprocessError):
         return "unknown"
@@ -67,10 +88,20 @@ def machine() -> dict[str, str]:
     """The machine a run ran on, as the report's table shows it (strings, readable units)."""
     import os
 
-    return {"platform": platform.platform(), "architecture": platform.machine(), "cpu": _cpu_model(),
-            "cpus": str(os.cpu_count()), "memory": _memory(), "node": platform.node()}
+    return {
+        "platform": platform.platform(),
+        "architecture": platform.machine(),
+        "cpu": _cpu_model(),
+        "cpus": str(os.cpu_count()),
+        "memory": _memory(),
+        "node": platform.node(),
+    }
 
 
 def provenance() -> dict:
-    return {"git_commit": git_commit(), "uv_lock": uv_lock_hash(), "versions": versions(),
-            "machine": machine()}
+    return {
+        "git_commit": git_commit(),
+        "uv_lock": uv_lock_hash(),
+        "versions": versions(),
+        "machine": machine(),
+    }

@@ -46,8 +46,10 @@ def split_trajectories(n: int, test_fraction: float, seed: int) -> tuple[np.ndar
     n_test = min(n - 1, int(round(test_fraction * n)))
     if test_fraction > 0:
         if n < 2:
-            raise DataError(f"ranking.test_fraction: {n} trajectory cannot be split into training "
-                            "and test trajectories (need at least 2)")
+            raise DataError(
+                f"ranking.test_fraction: {n} trajectory cannot be split into training "
+                "and test trajectories (need at least 2)"
+            )
         n_test = max(1, n_test)
     perm = np.random.default_rng(seed).permutation(n)
     return np.sort(perm[n_test:]), np.sort(perm[:n_test])
@@ -61,8 +63,13 @@ def n_kept(n: int, p: float) -> int:
     return max(1, min(n, math.ceil(p * n - 1e-9)))
 
 
-def top_p(indices: np.ndarray, scores: np.ndarray, p: float, ids: np.ndarray,
-          last: np.ndarray | None = None) -> np.ndarray:
+def top_p(
+    indices: np.ndarray,
+    scores: np.ndarray,
+    p: float,
+    ids: np.ndarray,
+    last: np.ndarray | None = None,
+) -> np.ndarray:
     """The top ``p`` fraction of ``indices`` by ``scores[indices]``, ties broken by smaller id.
 
     ``scores``, ``ids`` and ``last`` are indexed by trajectory position (0..n-1); trajectories
@@ -80,9 +87,11 @@ def top_p(indices: np.ndarray, scores: np.ndarray, p: float, ids: np.ndarray,
 
 
 def _no_margins(dataset: Dataset) -> str:
-    return (f"ranking.style_margin: the clustering of {dataset.domain}-{dataset.env} gives no likelihood "
-            "margins (bag_auto falls back to lstm_dec on its continuous states): use clustering.method "
-            "policy_mix, or set ranking.style_margin to 0")
+    return (
+        f"ranking.style_margin: the clustering of {dataset.domain}-{dataset.env} gives no likelihood "
+        "margins (bag_auto falls back to lstm_dec on its continuous states): use clustering.method "
+        "policy_mix, or set ranking.style_margin to 0"
+    )
 
 
 def check_margins_come(cfg, datasets: Sequence[Dataset]) -> None:
@@ -106,7 +115,9 @@ def ranked_last(margins: np.ndarray | None, cfg: RankConfig, dataset: Dataset) -
         raise DataError(_no_margins(dataset))
     margins = np.asarray(margins, dtype=np.float64)
     if margins.shape != (dataset.n_trajectories,):
-        raise DataError(f"style margins must have shape ({dataset.n_trajectories},), got {margins.shape}")
+        raise DataError(
+            f"style margins must have shape ({dataset.n_trajectories},), got {margins.shape}"
+        )
     return margins < cfg.style_margin
 
 
@@ -114,22 +125,31 @@ def score_dataset(dataset: Dataset, cfg: RankConfig, score: ScoreFn | None = Non
     """Scores from a domain's own ``score`` callable, or Performance (Eq. 3) by default."""
     values = performance(dataset, cfg.beta) if score is None else np.asarray(score(dataset), float)
     if values.shape != (dataset.n_trajectories,):
-        raise DataError(f"domain {dataset.domain!r}: its score function returned shape {values.shape} for "
-                        f"{dataset.env}; it must return one number per trajectory, shape "
-                        f"({dataset.n_trajectories},)")
+        raise DataError(
+            f"domain {dataset.domain!r}: its score function returned shape {values.shape} for "
+            f"{dataset.env}; it must return one number per trajectory, shape "
+            f"({dataset.n_trajectories},)"
+        )
     if not np.isfinite(values).all():
         bad = np.flatnonzero(~np.isfinite(values))
-        raise DataError(f"{dataset.domain}-{dataset.env}: the skill score of trajectory "
-                        f"{dataset.trajectory_ids[bad[0]]} is {values[bad[0]]} ({len(bad)} of "
-                        f"{dataset.n_trajectories} trajectories not finite); Step B ranks by finite scores: "
-                        f"check the domain's score setting and the values it adds up (rewards near "
-                        f"float64's limit overflow when summed)")
+        raise DataError(
+            f"{dataset.domain}-{dataset.env}: the skill score of trajectory "
+            f"{dataset.trajectory_ids[bad[0]]} is {values[bad[0]]} ({len(bad)} of "
+            f"{dataset.n_trajectories} trajectories not finite); Step B ranks by finite scores: "
+            f"check the domain's score setting and the values it adds up (rewards near "
+            f"float64's limit overflow when summed)"
+        )
     return values
 
 
 def threshold(
-    labels: np.ndarray, indices: np.ndarray, scores: np.ndarray, ids: np.ndarray,
-    ps: Sequence[float], k: int | None = None, last: np.ndarray | None = None,
+    labels: np.ndarray,
+    indices: np.ndarray,
+    scores: np.ndarray,
+    ids: np.ndarray,
+    ps: Sequence[float],
+    k: int | None = None,
+    last: np.ndarray | None = None,
 ) -> dict[tuple[int, float], np.ndarray]:
     """H_{k,p}: for every cluster label k (0..k-1) and p, the top p of ``indices`` with that label
     (``last``: see :func:`top_p`)."""
@@ -143,14 +163,16 @@ def threshold(
     return out
 
 
-def threshold_all(indices: np.ndarray, scores: np.ndarray, ids: np.ndarray,
-                  ps: Sequence[float]) -> dict[float, np.ndarray]:
+def threshold_all(
+    indices: np.ndarray, scores: np.ndarray, ids: np.ndarray, ps: Sequence[float]
+) -> dict[float, np.ndarray]:
     """The No Clustering baseline's subsets: the top p of all of ``indices``."""
     return {float(p): top_p(indices, scores, p, ids) for p in ps}
 
 
-def corrupt_labels(labels: np.ndarray, c: float, k: int, rng: np.random.Generator,
-                   mode: str = "wrong") -> np.ndarray:
+def corrupt_labels(
+    labels: np.ndarray, c: float, k: int, rng: np.random.Generator, mode: str = "wrong"
+) -> np.ndarray:
     """Replace exactly ``round(c n)`` labels by a *different* label drawn uniformly
     (``mode="wrong"``), or by a label drawn uniformly among all k (``mode="random"``).
 
@@ -216,12 +238,15 @@ class Cell:
     def __post_init__(self) -> None:
         n, key = len(self.actions), self.spec.key
         if n == 0:
-            raise DataError(f"cell {key}: no training steps (the subset H is empty); "
-                            f"check the clustering and p")
+            raise DataError(
+                f"cell {key}: no training steps (the subset H is empty); check the clustering and p"
+            )
         if self.states.ndim != 2 or self.states.shape[0] != n:
             raise DataError(f"cell {key}: states must have shape ({n}, d), got {self.states.shape}")
         if self.valid.ndim != 2 or self.valid.shape[0] != n or self.valid.dtype != bool:
-            raise DataError(f"cell {key}: valid must have shape ({n}, n_actions), got {self.valid.shape} {self.valid.dtype}")
+            raise DataError(
+                f"cell {key}: valid must have shape ({n}, n_actions), got {self.valid.shape} {self.valid.dtype}"
+            )
         if self.weights.shape != (n,) or (self.weights <= 0).any():
             raise DataError(f"cell {key}: weights must be {n} positive counts")
         d = self.states.shape[1]
@@ -231,8 +256,10 @@ class Cell:
             raise DataError(f"cell {key}: actions must lie in 0..{self.valid.shape[1] - 1}")
         if not self.valid[np.arange(n), self.actions].all():
             row = int(np.nonzero(~self.valid[np.arange(n), self.actions])[0][0])
-            raise DataError(f"cell {key}: row {row} takes action {int(self.actions[row])}, "
-                            f"which its valid mask forbids")
+            raise DataError(
+                f"cell {key}: row {row} takes action {int(self.actions[row])}, "
+                f"which its valid mask forbids"
+            )
 
     @property
     def key(self) -> str:
@@ -251,9 +278,13 @@ class Cell:
         return int(self.valid.shape[1])
 
 
-def dedupe_rows(states: np.ndarray, valid: np.ndarray, actions: np.ndarray,
-                weights: np.ndarray | None = None, return_inverse: bool = False,
-                ) -> tuple[np.ndarray, ...]:
+def dedupe_rows(
+    states: np.ndarray,
+    valid: np.ndarray,
+    actions: np.ndarray,
+    weights: np.ndarray | None = None,
+    return_inverse: bool = False,
+) -> tuple[np.ndarray, ...]:
     """Collapse equal (state, valid, action) rows into one row whose weight is their total.
 
     A weighted mean of per-row losses over distinct rows equals the mean over raw rows (and so
@@ -262,12 +293,22 @@ def dedupe_rows(states: np.ndarray, valid: np.ndarray, actions: np.ndarray,
     """
     weights = np.ones(len(actions)) if weights is None else np.asarray(weights, np.float64)
     states = np.ascontiguousarray(states, np.float32)
-    key = np.concatenate([states.view(np.int32).astype(np.int64), valid.astype(np.int64),
-                          actions[:, None].astype(np.int64)], axis=1)
+    key = np.concatenate(
+        [
+            states.view(np.int32).astype(np.int64),
+            valid.astype(np.int64),
+            actions[:, None].astype(np.int64),
+        ],
+        axis=1,
+    )
     uniq, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
     inverse = inverse.reshape(-1)
-    out = (states[first], valid[first], actions[first],
-           np.bincount(inverse, weights=weights, minlength=len(uniq)))
+    out = (
+        states[first],
+        valid[first],
+        actions[first],
+        np.bincount(inverse, weights=weights, minlength=len(uniq)),
+    )
     return (*out, inverse) if return_inverse else out
 
 
@@ -277,10 +318,19 @@ def fmt(x: float) -> str:
 
 
 def plan_cells(
-    dataset: Dataset, labels: np.ndarray, train_idx: np.ndarray, cfg: RankConfig,
-    seeds: Sequence[int], *, k: int | None = None, score: ScoreFn | None = None,
-    baseline: bool = True, corruption_levels: Sequence[float] = (),
-    corruption_ps: Sequence[float] = (1.0,), dedupe: bool = True, prefix: str = "",
+    dataset: Dataset,
+    labels: np.ndarray,
+    train_idx: np.ndarray,
+    cfg: RankConfig,
+    seeds: Sequence[int],
+    *,
+    k: int | None = None,
+    score: ScoreFn | None = None,
+    baseline: bool = True,
+    corruption_levels: Sequence[float] = (),
+    corruption_ps: Sequence[float] = (1.0,),
+    dedupe: bool = True,
+    prefix: str = "",
     margins: np.ndarray | None = None,
 ) -> list[Cell]:
     """Every training cell of one environment: PCPG (k, p, seed), No Clustering (p, seed), and
@@ -316,14 +366,19 @@ def plan_cells(
     # rows and counts are then one bincount
     if dedupe:
         d_states, d_valid, d_actions, _, inverse = dedupe_rows(
-            dataset.states[steps], dataset.valid_mask[steps], dataset.actions[steps],
-            return_inverse=True)
+            dataset.states[steps],
+            dataset.valid_mask[steps],
+            dataset.actions[steps],
+            return_inverse=True,
+        )
     cache: dict[bytes, tuple[np.ndarray, ...]] = {}
 
     def rows_of(idx: np.ndarray, what: str) -> tuple[np.ndarray, ...]:
         if idx.size == 0:
-            raise DataError(f"dataset {dataset.domain}-{dataset.env}: subset {what} is empty "
-                            f"(no training trajectory carries that label)")
+            raise DataError(
+                f"dataset {dataset.domain}-{dataset.env}: subset {what} is empty "
+                f"(no training trajectory carries that label)"
+            )
         h = idx.tobytes()
         if h not in cache:
             member = np.zeros(dataset.n_trajectories, bool)
@@ -335,8 +390,12 @@ def plan_cells(
                 cache[h] = (d_states[keep], d_valid[keep], d_actions[keep], counts[keep])
             else:
                 r = steps[sel]
-                cache[h] = (dataset.states[r], dataset.valid_mask[r], dataset.actions[r],
-                            np.ones(len(r)))
+                cache[h] = (
+                    dataset.states[r],
+                    dataset.valid_mask[r],
+                    dataset.actions[r],
+                    np.ones(len(r)),
+                )
         return cache[h]
 
     def make(spec: CellSpec, idx: np.ndarray) -> Cell:
@@ -350,14 +409,25 @@ def plan_cells(
     for seed in seeds:
         for (c, p), idx in subsets.items():
             if idx.size:
-                cells.append(make(CellSpec(f"{prefix}k{c}-p{fmt(p)}-s{seed}", "pcpg", c, p, seed), idx))
+                cells.append(
+                    make(CellSpec(f"{prefix}k{c}-p{fmt(p)}-s{seed}", "pcpg", c, p, seed), idx)
+                )
         if baseline:
             for p, idx in threshold_all(train_idx, scores, ids, cfg.ps).items():
-                cells.append(make(CellSpec(f"{prefix}nc-p{fmt(p)}-s{seed}", "nc", -1, p, seed), idx))
+                cells.append(
+                    make(CellSpec(f"{prefix}nc-p{fmt(p)}-s{seed}", "nc", -1, p, seed), idx)
+                )
         for level in corruption_levels:
-            bad = corrupt_labels(labels, level, k, corruption_rng(cfg.corruption_seed, seed, level),
-                                 cfg.corruption_mode)
-            for (c, p), idx in threshold(bad, train_idx, scores, ids, corruption_ps, k, last).items():
+            bad = corrupt_labels(
+                labels,
+                level,
+                k,
+                corruption_rng(cfg.corruption_seed, seed, level),
+                cfg.corruption_mode,
+            )
+            for (c, p), idx in threshold(
+                bad, train_idx, scores, ids, corruption_ps, k, last
+            ).items():
                 key = f"{prefix}corrupt{fmt(level)}-k{c}-p{fmt(p)}-s{seed}"
                 if idx.size:
                     cells.append(make(CellSpec(key, "corrupt", c, p, seed, float(level)), idx))

@@ -33,8 +33,9 @@ def _disable_uv_hook() -> None:
     """The flag is read from ray_constants at init time; set it there too if ray was imported."""
     from ray._private import ray_constants
 
-    ray_constants.RAY_ENABLE_UV_RUN_RUNTIME_ENV = os.environ["RAY_ENABLE_UV_RUN_RUNTIME_ENV"] not in (
-        "0", "false", "False")
+    ray_constants.RAY_ENABLE_UV_RUN_RUNTIME_ENV = os.environ[
+        "RAY_ENABLE_UV_RUN_RUNTIME_ENV"
+    ] not in ("0", "false", "False")
 
 
 @contextlib.contextmanager
@@ -73,8 +74,11 @@ def package_runtime_env() -> dict[str, Any]:
     """What a cluster's workers need from the driver: this package's code (not its caches)."""
     import pcpg_dist
 
-    return {"py_modules": [str(Path(pcpg_dist.__file__).parent)], "env_vars": dict(THREAD_ENV),
-            "excludes": ["__pycache__", "*.pyc"]}
+    return {
+        "py_modules": [str(Path(pcpg_dist.__file__).parent)],
+        "env_vars": dict(THREAD_ENV),
+        "excludes": ["__pycache__", "*.pyc"],
+    }
 
 
 def init_ray(address: str | None = None, num_cpus: int | None = None) -> None:
@@ -89,8 +93,12 @@ def init_ray(address: str | None = None, num_cpus: int | None = None) -> None:
         _check_port(address)
     try:
         if address:
-            ray.init(address=address, log_to_driver=False, runtime_env=package_runtime_env(),
-                     logging_level=logging.WARNING)
+            ray.init(
+                address=address,
+                log_to_driver=False,
+                runtime_env=package_runtime_env(),
+                logging_level=logging.WARNING,
+            )
         else:
             # address="local": never join a `ray start` cluster by accident (it would refuse
             # num_cpus); 127.0.0.1: a private instance is not reachable from the network.
@@ -98,10 +106,16 @@ def init_ray(address: str | None = None, num_cpus: int | None = None) -> None:
             for attempt in range(3):
                 try:
                     with _private_node():
-                        ray.init(address="local", num_cpus=num_cpus or available_cpus(), include_dashboard=False,
-                                 object_store_memory=300_000_000, log_to_driver=False,
-                                 runtime_env={"env_vars": dict(THREAD_ENV)}, logging_level=logging.WARNING,
-                                 _node_ip_address="127.0.0.1")
+                        ray.init(
+                            address="local",
+                            num_cpus=num_cpus or available_cpus(),
+                            include_dashboard=False,
+                            object_store_memory=300_000_000,
+                            log_to_driver=False,
+                            runtime_env={"env_vars": dict(THREAD_ENV)},
+                            logging_level=logging.WARNING,
+                            _node_ip_address="127.0.0.1",
+                        )
                     break
                 except Exception as e:  # noqa: BLE001 - Ray raises a bare Exception for this
                     # Ray gives a new node a fixed 30 s to register; a busy laptop can miss it.
@@ -111,14 +125,20 @@ def init_ray(address: str | None = None, num_cpus: int | None = None) -> None:
     except (ConnectionError, RuntimeError, ValueError) as e:
         hint = ""
         if address and isinstance(e, ConnectionError):  # Ray does not say when it is the token
-            hint = ("; if the cluster uses token auth, this driver needs its token (RAY_AUTH_TOKEN_PATH, "
-                    "RAY_AUTH_TOKEN or ~/.ray/auth_token, with RAY_AUTH_MODE=token); one started with "
-                    "RAY_AUTH_MODE=disabled needs that here too")
-        raise ServiceError(f"cannot start or join Ray at {address or 'local'}: {first_line(e, 300)}{hint}") from None
+            hint = (
+                "; if the cluster uses token auth, this driver needs its token (RAY_AUTH_TOKEN_PATH, "
+                "RAY_AUTH_TOKEN or ~/.ray/auth_token, with RAY_AUTH_MODE=token); one started with "
+                "RAY_AUTH_MODE=disabled needs that here too"
+            )
+        raise ServiceError(
+            f"cannot start or join Ray at {address or 'local'}: {first_line(e, 300)}{hint}"
+        ) from None
     except Exception as e:
         if "timed out during startup" in str(e):
-            raise ServiceError("Ray did not start within its 30 s limit three times (is the machine "
-                               "overloaded?); retry when it is less busy") from None
+            raise ServiceError(
+                "Ray did not start within its 30 s limit three times (is the machine "
+                "overloaded?); retry when it is less busy"
+            ) from None
         raise
     catch_sigterm()  # after ray.init: its core worker's handler would abort with a stack dump
 
@@ -137,20 +157,30 @@ def _check_port(address: str, timeout: float = 5.0) -> None:
     except ValueError:
         host = port = None
     if not host or not port:
-        raise ServiceError(f"--ray-address {address[:200]!r}: expected HOST:PORT, ray://HOST:PORT or auto")
-    if "://" in address and url.scheme != "ray":  # http://HEAD:8265 is the dashboard's (ray job submit)
-        raise ServiceError(f"--ray-address {address[:200]!r}: expected HOST:PORT (the head's port, "
-                           f"`ray start --head --port`), ray://HOST:PORT or auto, not a {url.scheme}:// URL")
+        raise ServiceError(
+            f"--ray-address {address[:200]!r}: expected HOST:PORT, ray://HOST:PORT or auto"
+        )
+    if (
+        "://" in address and url.scheme != "ray"
+    ):  # http://HEAD:8265 is the dashboard's (ray job submit)
+        raise ServiceError(
+            f"--ray-address {address[:200]!r}: expected HOST:PORT (the head's port, "
+            f"`ray start --head --port`), ray://HOST:PORT or auto, not a {url.scheme}:// URL"
+        )
     try:
         with socket.create_connection((host, port), timeout=timeout) as conn:
             speaks_grpc = _answers_http2(conn, timeout)
     except OSError as e:
-        raise ServiceError(f"no Ray cluster answers at {address[:200]} ({e}); start one with `ray start --head` "
-                           f"there or check --ray-address / RAY_ADDRESS") from None
+        raise ServiceError(
+            f"no Ray cluster answers at {address[:200]} ({e}); start one with `ray start --head` "
+            f"there or check --ray-address / RAY_ADDRESS"
+        ) from None
     if not speaks_grpc and os.environ.get("RAY_USE_TLS", "0").lower() not in ("1", "true"):
         # an MLflow, database or web port: ray.init would wait there without end, printing its C++ log
-        raise ServiceError(f"{address[:200]} answers, but not as a Ray head does (no gRPC): is it another "
-                           f"service's port? the head's is `ray start --head --port` (default 6379)")
+        raise ServiceError(
+            f"{address[:200]} answers, but not as a Ray head does (no gRPC): is it another "
+            f"service's port? the head's is `ray start --head --port` (default 6379)"
+        )
 
 
 def _answers_http2(conn, timeout: float) -> bool:
@@ -175,9 +205,15 @@ def node_capacities() -> list[dict[str, float]]:
     """CPUs, GPUs and task memory (bytes) of every live node."""
     import ray
 
-    return [{"CPU": float(n["Resources"].get("CPU", 0)), "GPU": float(n["Resources"].get("GPU", 0)),
-             "memory": float(n["Resources"].get("memory", 0))}
-            for n in ray.nodes() if n.get("Alive")]
+    return [
+        {
+            "CPU": float(n["Resources"].get("CPU", 0)),
+            "GPU": float(n["Resources"].get("GPU", 0)),
+            "memory": float(n["Resources"].get("memory", 0)),
+        }
+        for n in ray.nodes()
+        if n.get("Alive")
+    ]
 
 
 def node_gpus() -> float:
@@ -185,19 +221,25 @@ def node_gpus() -> float:
     return max((n["GPU"] for n in node_capacities()), default=0.0)
 
 
-def check_resources(num_cpus: int, memory_bytes: float = 0.0, key: str = "runner.cpus_per_task") -> None:
+def check_resources(
+    num_cpus: int, memory_bytes: float = 0.0, key: str = "runner.cpus_per_task"
+) -> None:
     """Fail in one line before anything starts when no node can ever run a task of this size."""
     nodes = node_capacities()
     most_cpus = max((n["CPU"] for n in nodes), default=0.0)
     if num_cpus > most_cpus:
-        raise ConfigError(f"{key}: {num_cpus} CPUs per task, but the largest Ray node has "
-                          f"{most_cpus:g}; set {key} to at most {int(most_cpus) or 1}"
-                          + ("" if most_cpus else " and start a node with CPUs"))
+        raise ConfigError(
+            f"{key}: {num_cpus} CPUs per task, but the largest Ray node has "
+            f"{most_cpus:g}; set {key} to at most {int(most_cpus) or 1}"
+            + ("" if most_cpus else " and start a node with CPUs")
+        )
     most_mem = max((n["memory"] for n in nodes), default=0.0)
     if memory_bytes and most_mem and memory_bytes > most_mem:
-        raise ConfigError(f"one task needs about {memory_bytes / 2**30:.1f} GiB (estimated from the "
-                          f"config), but the largest Ray node offers {most_mem / 2**30:.1f} GiB; use "
-                          f"less data per environment or a node with more memory")
+        raise ConfigError(
+            f"one task needs about {memory_bytes / 2**30:.1f} GiB (estimated from the "
+            f"config), but the largest Ray node offers {most_mem / 2**30:.1f} GiB; use "
+            f"less data per environment or a node with more memory"
+        )
 
 
 def _waiting_for(num_cpus: int, in_flight: int, num_gpus: float = 0.0) -> str:
@@ -216,10 +258,17 @@ def _waiting_for(num_cpus: int, in_flight: int, num_gpus: float = 0.0) -> str:
 
 
 # --------------------------------------------------------------------------- running tasks
-def run_tasks(fn: Callable[..., Any], calls: Sequence[tuple], description: str,
-              num_cpus: int = 1, max_retries: int = 3, on_result: Callable[[int, Any], None] | None = None,
-              show_progress: bool = True, max_in_flight: int | None = None,
-              num_gpus: float | Sequence[float] = 0.0) -> list[Any]:
+def run_tasks(
+    fn: Callable[..., Any],
+    calls: Sequence[tuple],
+    description: str,
+    num_cpus: int = 1,
+    max_retries: int = 3,
+    on_result: Callable[[int, Any], None] | None = None,
+    show_progress: bool = True,
+    max_in_flight: int | None = None,
+    num_gpus: float | Sequence[float] = 0.0,
+) -> list[Any]:
     """Run ``fn(*args)`` for every ``args`` in ``calls`` as Ray tasks; results in call order.
 
     ``num_gpus`` (one for all calls, or one per call): GPUs a task asks for: Ray then runs it on a
@@ -241,7 +290,11 @@ def run_tasks(fn: Callable[..., Any], calls: Sequence[tuple], description: str,
         return []
     check_resources(num_cpus)
     remote = ray.remote(num_cpus=num_cpus, max_retries=max_retries)(fn)
-    gpus = [float(num_gpus)] * len(calls) if isinstance(num_gpus, int | float) else [float(g) for g in num_gpus]
+    gpus = (
+        [float(num_gpus)] * len(calls)
+        if isinstance(num_gpus, int | float)
+        else [float(g) for g in num_gpus]
+    )
     limit = max(1, max_in_flight or len(calls))
     results: list[Any] = [None] * len(calls)
     index: dict[Any, int] = {}
@@ -262,8 +315,14 @@ def run_tasks(fn: Callable[..., Any], calls: Sequence[tuple], description: str,
                 done, _ = ray.wait(list(index), num_returns=1, timeout=2.0)
                 if not done:
                     if time.monotonic() - idle_since > 5 and show_progress:
-                        waiting = _waiting_for(num_cpus, len(index), max((gpus[i] for i in index.values()), default=0.0))
-                        advance(0, description=f"{description} ({waiting})" if waiting else description)
+                        waiting = _waiting_for(
+                            num_cpus,
+                            len(index),
+                            max((gpus[i] for i in index.values()), default=0.0),
+                        )
+                        advance(
+                            0, description=f"{description} ({waiting})" if waiting else description
+                        )
                     continue
                 idle_since = time.monotonic()
                 for ref in done:

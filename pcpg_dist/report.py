@@ -53,19 +53,50 @@ from pcpg_dist.run_folders import check_outside_run
 #: per-environment sections: (key, title, paper reference, figure, tables)
 ENV_SECTIONS = (
     ("accuracy", "Accuracy vs p", "Fig. 4", "accuracy_vs_p.png", ("accuracy",)),
-    ("cross", "Accuracy of π_k on H_k' (mean over p)", "Table 4", "cross_accuracy.png", ("cross_accuracy",)),
+    (
+        "cross",
+        "Accuracy of π_k on H_k' (mean over p)",
+        "Table 4",
+        "cross_accuracy.png",
+        ("cross_accuracy",),
+    ),
     ("correlation", "Model vs subset correlation", "Fig. 7", "correlation.png", ("correlation",)),
     ("reward", "Reward distance to the optimum", "Table 3", None, ("reward_distance",)),
-    ("rollout_length", "Rollout length vs p", "Figs. 5 and 6", "rollout_length.png", ("rollout_length",)),
-    ("subset_length", "Kept-trajectory length vs p (from the data)", "Figs. 5 and 6", "subset_length.png",
-     ("subset_length",)),
+    (
+        "rollout_length",
+        "Rollout length vs p",
+        "Figs. 5 and 6",
+        "rollout_length.png",
+        ("rollout_length",),
+    ),
+    (
+        "subset_length",
+        "Kept-trajectory length vs p (from the data)",
+        "Figs. 5 and 6",
+        "subset_length.png",
+        ("subset_length",),
+    ),
     ("rollouts", "One rollout per style", "Fig. 8", "rollouts.png", ()),
-    ("corruption", "Accuracy vs label corruption", "Fig. 9", "corruption.png", ("corruption_accuracy",)),
-    ("corruption_reward", "Subset rewards under label corruption", "Table 5", None, ("corruption_reward",)),
+    (
+        "corruption",
+        "Accuracy vs label corruption",
+        "Fig. 9",
+        "corruption.png",
+        ("corruption_accuracy",),
+    ),
+    (
+        "corruption_reward",
+        "Subset rewards under label corruption",
+        "Table 5",
+        None,
+        ("corruption_reward",),
+    ),
 )
 
 
-def _env_sections(summary: Path, env: str, rows: dict[str, PaperRow]) -> tuple[list[Section], list[Section]]:
+def _env_sections(
+    summary: Path, env: str, rows: dict[str, PaperRow]
+) -> tuple[list[Section], list[Section]]:
     """An environment's sections (``rows``: the paper's and this run's line of each, by section key)
     and what it has beyond them."""
     folder = summary / env
@@ -97,14 +128,24 @@ def _env_sections(summary: Path, env: str, rows: dict[str, PaperRow]) -> tuple[l
     more = []  # what the domain adds beyond the paper's items, and the raw per-seed tables
     for name, path in pngs.items():
         if name not in used_png:
-            more.append(Section(f"{env}-{path.stem}-figure", path.stem.replace("_", " "),
-                                figure=figure_of(path, summary, f"{env}: {path.stem}")))
+            more.append(
+                Section(
+                    f"{env}-{path.stem}-figure",
+                    path.stem.replace("_", " "),
+                    figure=figure_of(path, summary, f"{env}: {path.stem}"),
+                )
+            )
     for name, path in csvs.items():
         if name not in used_csv:
             df = read_csv(path)
             if df is not None and len(df):
-                more.append(Section(f"{env}-{name}", name.replace("_", " "),
-                                    tables=[table_of(df, name, f"{env}/{name}.csv")]))
+                more.append(
+                    Section(
+                        f"{env}-{name}",
+                        name.replace("_", " "),
+                        tables=[table_of(df, name, f"{env}/{name}.csv")],
+                    )
+                )
     return sections, more
 
 
@@ -116,8 +157,16 @@ def _by_ref(rows: list[PaperRow]) -> dict[str, PaperRow]:
     """``paper_rows`` by the paper's item ("Fig. 4", "Table 4", ...); Table 3's two rows (PCPG,
     random) as one."""
     out = {_ref_key(r.item): r for r in rows}
-    out["Table 3"] = PaperRow("Table 3", "", *(f"{a}; random {b}" for a, b in zip(
-        (rows[2].paper, rows[2].ours), (rows[3].paper, rows[3].ours), strict=True)))
+    out["Table 3"] = PaperRow(
+        "Table 3",
+        "",
+        *(
+            f"{a}; random {b}"
+            for a, b in zip(
+                (rows[2].paper, rows[2].ours), (rows[3].paper, rows[3].ours), strict=True
+            )
+        ),
+    )
     return out
 
 
@@ -125,10 +174,12 @@ def _stage_rows(run: dict, n_envs: int) -> tuple[list[list[str]], list[str]]:
     """(stage, seconds, work done, source) rows and the stages served wholly from the cache
     (``run`` as :func:`read_run` checked it)."""
     computed, seconds = run.get("computed", {}), run.get("stage_seconds", {})
-    work = {"generate": ("data", ("data set generated", "data sets generated")),
-            "cluster": ("clustering", (f"of {n_envs} clusterings computed",) * 2),
-            "train": ("train_groups", ("group of cells trained", "groups of cells trained")),
-            "evaluate": ("evaluations", (f"of {n_envs} evaluations computed",) * 2)}
+    work = {
+        "generate": ("data", ("data set generated", "data sets generated")),
+        "cluster": ("clustering", (f"of {n_envs} clusterings computed",) * 2),
+        "train": ("train_groups", ("group of cells trained", "groups of cells trained")),
+        "evaluate": ("evaluations", (f"of {n_envs} evaluations computed",) * 2),
+    }
     listed = run.get("cached_stages")
     if listed is not None:  # the runner's own record (it keeps a cached stage's first timing)
         cached = list(listed)
@@ -139,7 +190,9 @@ def _stage_rows(run: dict, n_envs: int) -> tuple[list[list[str]], list[str]]:
         key, (one, many) = work.get(stage, ("", ("", "")))
         done = f"{computed[key]} {one if computed[key] == 1 else many}" if key in computed else "—"
         if stage in cached:
-            source = "cache (seconds of the run that computed it)" if listed is not None else "cache"
+            source = (
+                "cache (seconds of the run that computed it)" if listed is not None else "cache"
+            )
         else:
             source = "computed"
         rows.append([stage, fmt(float(secs), 1), done, source])
@@ -181,10 +234,21 @@ def build(summary: Path, reproduce_target: str | None = None) -> Report:
     paper = paper_rows(domain, metrics, summary, envs)
     by_ref = _by_ref(paper)
     top: list[Section] = []
-    fig4 = Section("fig4", "Accuracy vs p across environments", "Fig. 4", by_ref["Fig. 4"].paper,
-                   by_ref["Fig. 4"].ours, figure_of(summary / "accuracy_vs_p.png", summary, "accuracy vs p"))
-    clus = Section("clustering", "Clustering (Step A)", "", by_ref["Clustering accuracy"].paper,
-                   by_ref["Clustering accuracy"].ours)
+    fig4 = Section(
+        "fig4",
+        "Accuracy vs p across environments",
+        "Fig. 4",
+        by_ref["Fig. 4"].paper,
+        by_ref["Fig. 4"].ours,
+        figure_of(summary / "accuracy_vs_p.png", summary, "accuracy vs p"),
+    )
+    clus = Section(
+        "clustering",
+        "Clustering (Step A)",
+        "",
+        by_ref["Clustering accuracy"].paper,
+        by_ref["Clustering accuracy"].ours,
+    )
     for sec, stem in ((fig4, "accuracy_vs_p"), (clus, "clustering")):
         path = summary / f"{stem}.csv"
         if inside(path, summary) and (df := read_csv(path)) is not None and len(df):
@@ -193,36 +257,66 @@ def build(summary: Path, reproduce_target: str | None = None) -> Report:
 
     def rows_of(env: str) -> dict[str, PaperRow]:
         """This environment's own figures beside the paper's (the run-wide ones head the page)."""
-        own = _by_ref(paper_rows(domain, {k[len(env) + 1:]: v for k, v in metrics.items()
-                                          if k.startswith(f"{env}/")}, summary, [env]))
+        own = _by_ref(
+            paper_rows(
+                domain,
+                {k[len(env) + 1 :]: v for k, v in metrics.items() if k.startswith(f"{env}/")},
+                summary,
+                [env],
+            )
+        )
         # the kept data shares the rollouts' paper figures, not their numbers: its line comes
         # from its own table (this environment's kept lengths)
         kept = PaperRow("", "", own["Figs. 5 and 6"].paper, kept_lengths(summary, [env]))
-        return {key: own[ref] for key, _, ref, *_ in ENV_SECTIONS if ref in own} | {"subset_length": kept}
+        return {key: own[ref] for key, _, ref, *_ in ENV_SECTIONS if ref in own} | {
+            "subset_length": kept
+        }
 
     env_parts = [(env, *_env_sections(summary, env, rows_of(env))) for env in envs]
-    anchors = {sec.anchor for sec in top} | {sec.anchor for _, secs, more in env_parts for sec in secs + more}
+    anchors = {sec.anchor for sec in top} | {
+        sec.anchor for _, secs, more in env_parts for sec in secs + more
+    }
     for row in paper:
         if row.anchor not in anchors:
             row.anchor = ""  # nothing to link to (e.g. no rollouts in this domain)
     stages, cached = _stage_rows(run, len(envs))
     prov = run.get("provenance", {})
     target = reproduce_target or str(summary.resolve().parent)
-    facts = [("command", str(run.get("command", "—"))), ("git commit", str(prov.get("git_commit", "—"))),
-             ("uv.lock sha256", str(prov.get("uv_lock", "—"))), ("config hash", str(run.get("config_hash", "—"))),
-             ("base seed", str(cfg.get("seed", "—"))), ("repetition seeds", plain(cfg.get("seeds"))),
-             ("MLflow parent run", str(run.get("parent_run_id") or "not tracked"))]
+    facts = [
+        ("command", str(run.get("command", "—"))),
+        ("git commit", str(prov.get("git_commit", "—"))),
+        ("uv.lock sha256", str(prov.get("uv_lock", "—"))),
+        ("config hash", str(run.get("config_hash", "—"))),
+        ("base seed", str(cfg.get("seed", "—"))),
+        ("repetition seeds", plain(cfg.get("seeds"))),
+        ("MLflow parent run", str(run.get("parent_run_id") or "not tracked")),
+    ]
 
     def pairs(d) -> list[tuple[str, str]]:
-        return [(str(k), str(v)) for k, v in d.items()] if isinstance(d, dict) else [("value", str(d))]
+        return (
+            [(str(k), str(v)) for k, v in d.items()] if isinstance(d, dict) else [("value", str(d))]
+        )
 
     return Report(
-        title=f"pcpg-dist report: {name}", name=name, domain=domain, run=run, cfg=cfg,
-        in_paper=domain in PAPER_DOMAINS, differences=protocol_differences(cfg), headline=headline(metrics),
-        paper=paper, summary_sections=top, envs=env_parts, stages=stages, cached=cached,
-        reproduce=f"pcpg reproduce {shlex.quote(target)}", provenance=facts,
-        versions=pairs(prov.get("versions", {})), machine=pairs(prov.get("machine", {})),
-        config_json=json.dumps(cfg, indent=1))
+        title=f"pcpg-dist report: {name}",
+        name=name,
+        domain=domain,
+        run=run,
+        cfg=cfg,
+        in_paper=domain in PAPER_DOMAINS,
+        differences=protocol_differences(cfg),
+        headline=headline(metrics),
+        paper=paper,
+        summary_sections=top,
+        envs=env_parts,
+        stages=stages,
+        cached=cached,
+        reproduce=f"pcpg reproduce {shlex.quote(target)}",
+        provenance=facts,
+        versions=pairs(prov.get("versions", {})),
+        machine=pairs(prov.get("machine", {})),
+        config_json=json.dumps(cfg, indent=1),
+    )
 
 
 # ----------------------------------------------------------------------------- rendering
@@ -237,8 +331,13 @@ def _md_escape(value) -> str:
 def _environment():
     from jinja2 import Environment, PackageLoader, StrictUndefined, select_autoescape
 
-    env = Environment(loader=PackageLoader("pcpg_dist", "templates"), undefined=StrictUndefined,
-                      autoescape=select_autoescape(["html.j2"]), trim_blocks=True, lstrip_blocks=True)
+    env = Environment(
+        loader=PackageLoader("pcpg_dist", "templates"),
+        undefined=StrictUndefined,
+        autoescape=select_autoescape(["html.j2"]),
+        trim_blocks=True,
+        lstrip_blocks=True,
+    )
     env.filters["md"] = _md_escape
     return env
 
@@ -247,9 +346,11 @@ def check_out_dir(summary: Path, out_dir: Path) -> None:
     """The report goes outside the summary folder: every folder in there is read as an environment."""
     summary_at, out_at = Path(summary).resolve(), Path(out_dir).resolve()
     if out_at == summary_at or summary_at in out_at.parents:
-        raise ConfigError(f"--out {out_dir}: inside the run's summary folder {summary}, where the next report "
-                          f"would read its figures as an environment; choose a folder outside it "
-                          f"(default: {Path(summary).parent / 'report'})")
+        raise ConfigError(
+            f"--out {out_dir}: inside the run's summary folder {summary}, where the next report "
+            f"would read its figures as an environment; choose a folder outside it "
+            f"(default: {Path(summary).parent / 'report'})"
+        )
     check_outside_run(out_dir)
 
 
@@ -269,7 +370,9 @@ def render(summary: Path, out_dir: Path, reproduce_target: str | None = None) ->
     for sections in [report.summary_sections] + [s + m for _, s, m in report.envs]:
         for sec in sections:
             if sec.figure is not None:
-                figures[sec.figure.file.replace("/", "_")] = (summary / sec.figure.file).read_bytes()
+                figures[sec.figure.file.replace("/", "_")] = (
+                    summary / sec.figure.file
+                ).read_bytes()
     (out_dir / "figures").mkdir(parents=True, exist_ok=True)
     for name, data in figures.items():
         atomic_write_bytes(out_dir / "figures" / name, data)
@@ -301,10 +404,18 @@ def export_pdf(html_path: Path, pdf_path: Path | None = None, timeout: float = 1
     pdf_path = Path(pdf_path or html_path.with_suffix(".pdf")).resolve()
     exe = chromium()
     if exe is None:
-        raise ServiceError("--pdf needs Chromium (apt-get install -y chromium); or open report.html in a "
-                           "browser and print it")
-    cmd = [exe, "--headless", "--disable-gpu", "--no-pdf-header-footer", f"--print-to-pdf={pdf_path}",
-           html_path.as_uri()]
+        raise ServiceError(
+            "--pdf needs Chromium (apt-get install -y chromium); or open report.html in a "
+            "browser and print it"
+        )
+    cmd = [
+        exe,
+        "--headless",
+        "--disable-gpu",
+        "--no-pdf-header-footer",
+        f"--print-to-pdf={pdf_path}",
+        html_path.as_uri(),
+    ]
     if hasattr(os, "geteuid") and os.geteuid() == 0:
         cmd.insert(1, "--no-sandbox")  # Chromium refuses to run as root with its sandbox
     try:
@@ -329,7 +440,9 @@ class Source:
 
 def is_sweep_folder(path: Path) -> bool:
     """A `pcpg sweep` output folder (``<workdir>/<name>/sweep``), also one written before sweep.json."""
-    return (path / "sweep.json").is_file() or ((path / "summary.csv").is_file() and (path / "points").is_dir())
+    return (path / "sweep.json").is_file() or (
+        (path / "summary.csv").is_file() and (path / "points").is_dir()
+    )
 
 
 def resolve(target: str, tracking_uri: str | None, workdir: Path) -> Source:
@@ -364,24 +477,37 @@ def _download(run_id: str, artifact_path: str | None, dst: Path, uri: str) -> st
 
     dst.mkdir(parents=True, exist_ok=True)
     try:
-        return mlflow.artifacts.download_artifacts(run_id=run_id, artifact_path=artifact_path, dst_path=str(dst),
-                                                   tracking_uri=uri)
+        return mlflow.artifacts.download_artifacts(
+            run_id=run_id, artifact_path=artifact_path, dst_path=str(dst), tracking_uri=uri
+        )
     except (MlflowException, OSError) as e:
         first = first_line(e)
         what = f"no {artifact_path!r} artifacts" if artifact_path else "no artifacts"
-        raise ServiceError(f"MLflow run {run_id} at {uri} has {what} to report ({first}); is it a pcpg run "
-                           "that finished?") from None
+        raise ServiceError(
+            f"MLflow run {run_id} at {uri} has {what} to report ({first}); is it a pcpg run "
+            "that finished?"
+        ) from None
 
 
 def sweep_refusal(target: str, tracking_uri: str | None, command: str) -> None:
     """Raise a one-line :class:`ConfigError` when ``target`` is a whole sweep (its folder, or its MLflow
     run): ``command`` works on one run, so name one of the sweep's points instead."""
     path = Path(target)
-    if not (path / "run.json").is_file() and not (path / "summary" / "run.json").is_file() and is_sweep_folder(path):
-        points = sorted(p.name for p in (path / "points").iterdir() if p.is_dir()) if (path / "points").is_dir() else []
+    if (
+        not (path / "run.json").is_file()
+        and not (path / "summary" / "run.json").is_file()
+        and is_sweep_folder(path)
+    ):
+        points = (
+            sorted(p.name for p in (path / "points").iterdir() if p.is_dir())
+            if (path / "points").is_dir()
+            else []
+        )
         example = f", e.g. {path / 'points' / points[0]}" if points else ""
-        raise ConfigError(f"{target} is the folder of a whole pcpg sweep; {command} takes one run: give one of "
-                          f"its points' folders ({path / 'points'}/<point>{example}) or a point's MLflow run id")
+        raise ConfigError(
+            f"{target} is the folder of a whole pcpg sweep; {command} takes one run: give one of "
+            f"its points' folders ({path / 'points'}/<point>{example}) or a point's MLflow run id"
+        )
     if path.exists():
         return
     from pcpg_dist.tracking import find_run, sweep_points_of
@@ -391,13 +517,16 @@ def sweep_refusal(target: str, tracking_uri: str | None, command: str) -> None:
         return
     points = sweep_points_of(run.info.run_id, uri)
     example = f", e.g. {points[0].info.run_id} ({points[0].info.run_name})" if points else ""
-    raise ConfigError(f"{target} is the MLflow run of a whole pcpg sweep ({run.info.run_name}); {command} takes "
-                      f"one run: give one of the sweep's point runs{example} or a point's folder "
-                      "(<workdir>/<name>/sweep/points/<point>)")
+    raise ConfigError(
+        f"{target} is the MLflow run of a whole pcpg sweep ({run.info.run_name}); {command} takes "
+        f"one run: give one of the sweep's point runs{example} or a point's folder "
+        "(<workdir>/<name>/sweep/points/<point>)"
+    )
 
 
-def resolve_summary(target: str, tracking_uri: str | None, workdir: Path,
-                    command: str = "pcpg reproduce") -> tuple[Path, str | None]:
+def resolve_summary(
+    target: str, tracking_uri: str | None, workdir: Path, command: str = "pcpg reproduce"
+) -> tuple[Path, str | None]:
     """The ``summary`` folder of one run (see :func:`resolve`); a whole sweep is refused in one line."""
     sweep_refusal(target, tracking_uri, command)
     source = resolve(target, tracking_uri, workdir)
@@ -410,13 +539,19 @@ SWEEP_STD = "/std"
 
 def sweep_metric_label(key: str) -> str:
     """A readable name for a sweep's headline metric (``pcpg/accuracy/p0.5`` -> ``PCPG, p=0.5``)."""
-    fixed = {"clustering/accuracy": "clustering accuracy", "clustering/ceiling": "supervised ceiling",
-             "clustering/gap_to_ceiling": "gap to the ceiling (ceiling − accuracy)",
-             "cross/diagonal_mean": "cross-accuracy diagonal (Table 4)"}
+    fixed = {
+        "clustering/accuracy": "clustering accuracy",
+        "clustering/ceiling": "supervised ceiling",
+        "clustering/gap_to_ceiling": "gap to the ceiling (ceiling − accuracy)",
+        "cross/diagonal_mean": "cross-accuracy diagonal (Table 4)",
+    }
     if key in fixed:
         return fixed[key]
-    for prefix, label in (("pcpg/accuracy/p", "PCPG"), ("baseline/accuracy/p", "No Clustering"),
-                          ("pcpg_lead/p", "PCPG lead over No Clustering")):
+    for prefix, label in (
+        ("pcpg/accuracy/p", "PCPG"),
+        ("baseline/accuracy/p", "No Clustering"),
+        ("pcpg_lead/p", "PCPG lead over No Clustering"),
+    ):
         if key.startswith(prefix):
             return f"{label}, p={key.removeprefix(prefix)}"
     return key.replace("_", " ")
@@ -425,10 +560,19 @@ def sweep_metric_label(key: str) -> str:
 def _sweep_columns(keys: list[str]) -> list[str]:
     """The metric columns in reading order: per p (largest first) PCPG, No Clustering and the lead,
     then clustering accuracy, ceiling, gap and the cross-accuracy diagonal, then anything else."""
-    ps = sorted({k.removeprefix("pcpg/accuracy/p") for k in keys if k.startswith("pcpg/accuracy/p")},
-                key=lambda p: -float(p) if p.replace(".", "", 1).isdigit() else 0)
-    order = [k for p in ps for k in (f"pcpg/accuracy/p{p}", f"baseline/accuracy/p{p}", f"pcpg_lead/p{p}")]
-    order += ["clustering/accuracy", "clustering/ceiling", "clustering/gap_to_ceiling", "cross/diagonal_mean"]
+    ps = sorted(
+        {k.removeprefix("pcpg/accuracy/p") for k in keys if k.startswith("pcpg/accuracy/p")},
+        key=lambda p: -float(p) if p.replace(".", "", 1).isdigit() else 0,
+    )
+    order = [
+        k for p in ps for k in (f"pcpg/accuracy/p{p}", f"baseline/accuracy/p{p}", f"pcpg_lead/p{p}")
+    ]
+    order += [
+        "clustering/accuracy",
+        "clustering/ceiling",
+        "clustering/gap_to_ceiling",
+        "cross/diagonal_mean",
+    ]
     shown = [k for k in order if k in keys]
     return shown + [k for k in keys if k not in shown]
 
@@ -440,7 +584,11 @@ def _sweep_cell(row: dict, key: str) -> str:
     signed = key.startswith("pcpg_lead/") or key == "clustering/gap_to_ceiling"
     text = "—" if math.isnan(v) else f"{v:+.3f}" if signed else f"{v:.3f}"
     sd = row.get(key + SWEEP_STD)
-    return f"{text} ± {sd:.3f}" if isinstance(sd, float) and not math.isnan(sd) and text != "—" else text
+    return (
+        f"{text} ± {sd:.3f}"
+        if isinstance(sd, float) and not math.isnan(sd) and text != "—"
+        else text
+    )
 
 
 @dataclass
@@ -474,13 +622,19 @@ def build_sweep(folder: Path, out_dir: Path) -> SweepPage:
     if not inside(table, folder):
         raise DataError(f"{folder}: no summary.csv (a regular file) beside {SWEEP_JSON}")
     rows = _read_rows(table, axes)
-    keys = [k for k in dict.fromkeys(k for r in rows for k in r)
-            if k not in axes and k != "point" and not k.endswith(SWEEP_STD)]
+    keys = [
+        k
+        for k in dict.fromkeys(k for r in rows for k in r)
+        if k not in axes and k != "point" and not k.endswith(SWEEP_STD)
+    ]
     metrics = _sweep_columns(keys)
     points_dir = folder / "points"
     # a point's folder is one listed in points/ (never a path read from summary.csv)
-    listed = ({p.name: p for p in points_dir.iterdir() if p.is_dir() and not p.is_symlink()}
-              if points_dir.is_dir() and not points_dir.is_symlink() else {})
+    listed = (
+        {p.name: p for p in points_dir.iterdir() if p.is_dir() and not p.is_symlink()}
+        if points_dir.is_dir() and not points_dir.is_symlink()
+        else {}
+    )
     link_base = Path(os.path.relpath(folder.resolve(), out_dir.resolve()))
     shown, run = [], None
     for r in rows:
@@ -493,10 +647,20 @@ def build_sweep(folder: Path, out_dir: Path) -> SweepPage:
                 run = read_run(point / "summary" / "run.json")
             except DataError:
                 run = None
-        shown.append({"cells": [plain(r.get(a, "")) for a in axes] + [_sweep_cell(r, k) for k in metrics],
-                      "report": report, "point": str(r.get("point", ""))})
-    headers = [*axes, *(sweep_metric_label(k) + (" ± std" if any(k + SWEEP_STD in r for r in rows) else "")
-                        for k in metrics)]
+        shown.append(
+            {
+                "cells": [plain(r.get(a, "")) for a in axes] + [_sweep_cell(r, k) for k in metrics],
+                "report": report,
+                "point": str(r.get("point", "")),
+            }
+        )
+    headers = [
+        *axes,
+        *(
+            sweep_metric_label(k) + (" ± std" if any(k + SWEEP_STD in r for r in rows) else "")
+            for k in metrics
+        ),
+    ]
 
     def num(r, k):
         v = r.get(k)
@@ -504,8 +668,11 @@ def build_sweep(folder: Path, out_dir: Path) -> SweepPage:
 
     ps = [k.removeprefix("pcpg/accuracy/p") for k in metrics if k.startswith("pcpg/accuracy/p")]
     headline_lines = []
-    scored = [(sum(num(r, f"pcpg/accuracy/p{p}") or 0.0 for p in ps) / max(len(ps), 1), i)
-              for i, r in enumerate(rows) if ps and all(num(r, f"pcpg/accuracy/p{p}") is not None for p in ps)]
+    scored = [
+        (sum(num(r, f"pcpg/accuracy/p{p}") or 0.0 for p in ps) / max(len(ps), 1), i)
+        for i, r in enumerate(rows)
+        if ps and all(num(r, f"pcpg/accuracy/p{p}") is not None for p in ps)
+    ]
     if scored:
         _, best = max(scored, key=lambda t: (t[0], -t[1]))  # the first of equals
         r = rows[best]
@@ -513,23 +680,41 @@ def build_sweep(folder: Path, out_dir: Path) -> SweepPage:
         parts = []
         for p in ps:
             lead = num(r, f"pcpg_lead/p{p}")
-            parts.append(f"{num(r, f'pcpg/accuracy/p{p}'):.3f} at p={p}"
-                         + (f" (lead over No Clustering {lead:+.3f})" if lead is not None else ""))
-        headline_lines.append(f"Best point (highest PCPG accuracy, mean over p): {where}: PCPG " + "; ".join(parts) + ".")
+            parts.append(
+                f"{num(r, f'pcpg/accuracy/p{p}'):.3f} at p={p}"
+                + (f" (lead over No Clustering {lead:+.3f})" if lead is not None else "")
+            )
+        headline_lines.append(
+            f"Best point (highest PCPG accuracy, mean over p): {where}: PCPG "
+            + "; ".join(parts)
+            + "."
+        )
     leads = [num(r, f"pcpg_lead/p{p}") for r in rows for p in ps]
     leads = [v for v in leads if v is not None]
     if leads:
-        headline_lines.append(f"PCPG is more accurate than No Clustering at {sum(v > 0 for v in leads)} of "
-                              f"{len(leads)} (point, p) pairs; its lead ranges from {min(leads):+.3f} to "
-                              f"{max(leads):+.3f}.")
-    acc = [(num(r, "clustering/accuracy"), i) for i, r in enumerate(rows) if num(r, "clustering/accuracy") is not None]
+        headline_lines.append(
+            f"PCPG is more accurate than No Clustering at {sum(v > 0 for v in leads)} of "
+            f"{len(leads)} (point, p) pairs; its lead ranges from {min(leads):+.3f} to "
+            f"{max(leads):+.3f}."
+        )
+    acc = [
+        (num(r, "clustering/accuracy"), i)
+        for i, r in enumerate(rows)
+        if num(r, "clustering/accuracy") is not None
+    ]
     if acc:
         v, i = max(acc, key=lambda t: (t[0], -t[1]))
         gap = num(rows[i], "clustering/gap_to_ceiling")
-        headline_lines.append(f"Best clustering accuracy {v:.3f} at " + ", ".join(f"{a}={plain(rows[i].get(a))}"
-                                                                              for a in axes)
-                              + (f" (gap to the ceiling {gap:+.3f}: the ceiling minus clustering accuracy)"
-                                 if gap is not None else "") + ".")
+        headline_lines.append(
+            f"Best clustering accuracy {v:.3f} at "
+            + ", ".join(f"{a}={plain(rows[i].get(a))}" for a in axes)
+            + (
+                f" (gap to the ceiling {gap:+.3f}: the ceiling minus clustering accuracy)"
+                if gap is not None
+                else ""
+            )
+            + "."
+        )
 
     safe = {re.sub(r"[^A-Za-z0-9._-]+", "_", k): k for k in keys}
     safe_axes = {re.sub(r"[^A-Za-z0-9._-]+", "_", a): a for a in axes}
@@ -538,35 +723,61 @@ def build_sweep(folder: Path, out_dir: Path) -> SweepPage:
     for name in record["figures"]:
         path = folder / name
         if not inside(path, folder) or path.stat().st_size > MAX_IMAGE_BYTES:
-            raise DataError(f"{folder}: figure {name} named in {SWEEP_JSON} is not a regular PNG file there "
-                            f"(at most {MAX_IMAGE_BYTES} bytes)")
+            raise DataError(
+                f"{folder}: figure {name} named in {SWEEP_JSON} is not a regular PNG file there "
+                f"(at most {MAX_IMAGE_BYTES} bytes)"
+            )
         stem = name.removesuffix(".png")
         metric_part, _, axis_part = stem.partition("__vs__")
         metric, axis = safe.get(metric_part, metric_part), safe_axes.get(axis_part, axis_part)
         others = [a for a in axes if a != axis]
         # as the figure drew them (sweep.draw_sweep): bars only where a point has a std over seeds
         bars = any((num(r, metric + SWEEP_STD) or 0.0) > 0 for r in rows)
-        caption = (f"{sweep_metric_label(metric)} against {axis}"
-                   + (f"; one line per value of {', '.join(others)}" if others else "")
-                   + ("; error bars: std over seeds, mean over environments." if bars
-                      else "; no error bars: no std over seeds."))
+        caption = (
+            f"{sweep_metric_label(metric)} against {axis}"
+            + (f"; one line per value of {', '.join(others)}" if others else "")
+            + (
+                "; error bars: std over seeds, mean over environments."
+                if bars
+                else "; no error bars: no std over seeds."
+            )
+        )
         by_axis.setdefault(axis, []).append(
-            {"title": f"{sweep_metric_label(metric)} vs {axis}", "caption": caption, "name": name,
-             "uri": "data:image/png;base64," + base64.b64encode(path.read_bytes()).decode(),
-             "order": order.get(metric, len(order))})
+            {
+                "title": f"{sweep_metric_label(metric)} vs {axis}",
+                "caption": caption,
+                "name": name,
+                "uri": "data:image/png;base64," + base64.b64encode(path.read_bytes()).decode(),
+                "order": order.get(metric, len(order)),
+            }
+        )
     figures = [(a, sorted(f, key=lambda f: f["order"])) for a, f in by_axis.items() if f]
     command = "—"
     provenance: list[tuple[str, str]] = []
     if run is not None:
         command = re.sub(r"\s*\[point [^\]]*\]$", "", str(run.get("command", "—")))
         prov = run.get("provenance", {})
-        provenance = [("git commit", str(prov.get("git_commit", "—"))), ("uv.lock sha256", str(prov.get("uv_lock", "—"))),
-                      ("base seed", str(run.get("config", {}).get("seed", "—"))),
-                      ("repetition seeds", plain(run.get("config", {}).get("seeds")))]
+        provenance = [
+            ("git commit", str(prov.get("git_commit", "—"))),
+            ("uv.lock sha256", str(prov.get("uv_lock", "—"))),
+            ("base seed", str(run.get("config", {}).get("seed", "—"))),
+            ("repetition seeds", plain(run.get("config", {}).get("seeds"))),
+        ]
     provenance.append(("points", str(len(rows))))
-    return SweepPage(title=f"Sweep: {record['name']}", description=record["description"], headline=headline_lines,
-                     headers=headers, rows=shown, figures=figures, command=command, provenance=provenance,
-                     fixed=[(str(k), json.dumps(v) if isinstance(v, dict) else plain(v)) for k, v in record["fixed"].items()])
+    return SweepPage(
+        title=f"Sweep: {record['name']}",
+        description=record["description"],
+        headline=headline_lines,
+        headers=headers,
+        rows=shown,
+        figures=figures,
+        command=command,
+        provenance=provenance,
+        fixed=[
+            (str(k), json.dumps(v) if isinstance(v, dict) else plain(v))
+            for k, v in record["fixed"].items()
+        ],
+    )
 
 
 def render_sweep(folder: Path, out_dir: Path) -> Path:

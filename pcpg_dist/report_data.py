@@ -24,16 +24,32 @@ MAX_ROWS = 30  # rows of a table shown on the page; the file has them all
 MAX_IMAGE_BYTES = 8_000_000  # a figure larger than this is not inlined (the file is named instead)
 
 #: readable column headers; anything else shows with underscores as spaces
-HEADERS = {"env": "environment", "pcpg": "PCPG", "no_clustering": "No Clustering",
-           "no_clustering_own_subset": "No Clustering (own subset)", "majority": "majority class",
-           "k": "cluster k", "c": "corrupted fraction c", "n": "trajectories",
-           "pcpg_mean": "PCPG distance", "random": "random", "gap_to_ceiling": "gap to ceiling (ceiling − accuracy)",
-           "fit_seconds": "fit seconds", "true_subsets": "on the true subsets",
-           "baseline_mean": "No Clustering", "headline": "headline p"}
+HEADERS = {
+    "env": "environment",
+    "pcpg": "PCPG",
+    "no_clustering": "No Clustering",
+    "no_clustering_own_subset": "No Clustering (own subset)",
+    "majority": "majority class",
+    "k": "cluster k",
+    "c": "corrupted fraction c",
+    "n": "trajectories",
+    "pcpg_mean": "PCPG distance",
+    "random": "random",
+    "gap_to_ceiling": "gap to ceiling (ceiling − accuracy)",
+    "fit_seconds": "fit seconds",
+    "true_subsets": "on the true subsets",
+    "baseline_mean": "No Clustering",
+    "headline": "headline p",
+}
 #: columns shown first (after the row label) in a table, by file stem
 LEADING = {"clustering": ("accuracy", "ceiling", "gap_to_ceiling")}
-METHOD_NAMES = {"pcpg": "PCPG", "nc": "No Clustering", "no_clustering": "No Clustering",
-                "no_clustering_own_subset": "No Clustering (own subset)", "majority": "majority class"}
+METHOD_NAMES = {
+    "pcpg": "PCPG",
+    "nc": "No Clustering",
+    "no_clustering": "No Clustering",
+    "no_clustering_own_subset": "No Clustering (own subset)",
+    "majority": "majority class",
+}
 
 
 # ----------------------------------------------------------------------------- page model
@@ -113,9 +129,14 @@ def _as_float(v) -> float | None:
 
 
 #: the fields of run.json the report and reproduce use, when present: (type, what it holds)
-RUN_FIELDS = {"config": (dict, "an object"), "provenance": (dict, "an object"),
-              "computed": (dict, "an object of counts"), "stage_seconds": (dict, "an object of seconds"),
-              "cached_stages": (list, "a list of stage names"), "batch_points": (int, "a count of points")}
+RUN_FIELDS = {
+    "config": (dict, "an object"),
+    "provenance": (dict, "an object"),
+    "computed": (dict, "an object of counts"),
+    "stage_seconds": (dict, "an object of seconds"),
+    "cached_stages": (list, "a list of stage names"),
+    "batch_points": (int, "a count of points"),
+}
 
 
 def read_run(path: Path) -> dict:
@@ -126,15 +147,21 @@ def read_run(path: Path) -> dict:
             raise DataError(f"{path}: {key!r} is {reprlib.repr(run[key])}; expected {what}")
     for stage, n in run.get("computed", {}).items():
         if not (isinstance(n, int) and not isinstance(n, bool) and n >= 0):
-            raise DataError(f"{path}: computed {reprlib.repr(stage)} is {reprlib.repr(n)}; expected a count "
-                            "(an integer >= 0)")
+            raise DataError(
+                f"{path}: computed {reprlib.repr(stage)} is {reprlib.repr(n)}; expected a count "
+                "(an integer >= 0)"
+            )
     for stage, secs in run.get("stage_seconds", {}).items():
         if _as_float(secs) is None:
-            raise DataError(f"{path}: stage_seconds {reprlib.repr(stage)} is {reprlib.repr(secs)}; expected "
-                            "a number of seconds")
+            raise DataError(
+                f"{path}: stage_seconds {reprlib.repr(stage)} is {reprlib.repr(secs)}; expected "
+                "a number of seconds"
+            )
     for stage in run.get("cached_stages", []):
         if not isinstance(stage, str):
-            raise DataError(f"{path}: cached_stages holds {reprlib.repr(stage)}; expected stage names")
+            raise DataError(
+                f"{path}: cached_stages holds {reprlib.repr(stage)}; expected stage names"
+            )
     return run
 
 
@@ -147,14 +174,18 @@ def read_metrics(path: Path) -> dict[str, float | None]:
     for key, value in read_json(path).items():
         metrics[key] = None if value is None else _as_float(value)
         if value is not None and metrics[key] is None:
-            raise DataError(f"{path}: metric {reprlib.repr(key)} is {reprlib.repr(value)}; expected a number "
-                            "(or null)")
+            raise DataError(
+                f"{path}: metric {reprlib.repr(key)} is {reprlib.repr(value)}; expected a number "
+                "(or null)"
+            )
         if key.startswith(ACCURACY_AT_P) and key.count("/") == 2:
             try:
                 float(key.removeprefix(ACCURACY_AT_P))
             except ValueError:
-                raise DataError(f"{path}: metric {reprlib.repr(key)}: the text after {ACCURACY_AT_P!r} should "
-                                "be a number (the p)") from None
+                raise DataError(
+                    f"{path}: metric {reprlib.repr(key)}: the text after {ACCURACY_AT_P!r} should "
+                    "be a number (the p)"
+                ) from None
     return metrics
 
 
@@ -205,8 +236,10 @@ def _check_numbers(df: pd.DataFrame, col: str, path: Path) -> None:
     bad = values.isna() & df[col].notna()
     if bad.any():
         i = int(bad.to_numpy().argmax())
-        raise DataError(f"{path}: column {reprlib.repr(str(col))}, line {i + 2}: {_cell_repr(df[col].iloc[i])} "
-                        "is not a number")
+        raise DataError(
+            f"{path}: column {reprlib.repr(str(col))}, line {i + 2}: {_cell_repr(df[col].iloc[i])} "
+            "is not a number"
+        )
     df[col] = values.astype(float)
 
 
@@ -214,7 +247,9 @@ def _check_unique(df: pd.DataFrame, cols: list, path: Path) -> None:
     repeated = df.duplicated(subset=cols)
     if repeated.any():
         i = int(repeated.to_numpy().argmax())
-        row = ", ".join(f"{'label' if is_matrix_column(c) else c} {_cell_repr(df[c].iloc[i])}" for c in cols)
+        row = ", ".join(
+            f"{'label' if is_matrix_column(c) else c} {_cell_repr(df[c].iloc[i])}" for c in cols
+        )
         raise DataError(f"{path}: line {i + 2} repeats the row for {row}; each may appear once")
 
 
@@ -224,7 +259,9 @@ def check_table(df: pd.DataFrame, path: Path) -> pd.DataFrame:
     cols = [str(c) for c in df.columns]
     if path.stem in MATRICES or (cols and is_matrix_column(cols[0])):
         if len(cols) < 2:
-            raise DataError(f"{path}: a matrix needs row labels and at least one column; found {reprlib.repr(cols)}")
+            raise DataError(
+                f"{path}: a matrix needs row labels and at least one column; found {reprlib.repr(cols)}"
+            )
         _check_unique(df, [df.columns[0]], path)
         for col in df.columns[1:]:
             _check_numbers(df, col, path)
@@ -232,10 +269,17 @@ def check_table(df: pd.DataFrame, path: Path) -> pd.DataFrame:
     spec = TABLE_SPECS.get(path.stem, TableSpec())
     missing = [c for c in spec.columns + spec.numbers if c not in cols]
     if missing:
-        raise DataError(f"{path}: no column {missing[0]!r} (found {reprlib.repr(cols)}); this table needs "
-                        f"{', '.join(spec.columns + spec.numbers)}")
-    prefixed = [c for c in cols if spec.number_prefix and c.startswith(spec.number_prefix)
-                and c.removeprefix(spec.number_prefix).isdigit()]
+        raise DataError(
+            f"{path}: no column {missing[0]!r} (found {reprlib.repr(cols)}); this table needs "
+            f"{', '.join(spec.columns + spec.numbers)}"
+        )
+    prefixed = [
+        c
+        for c in cols
+        if spec.number_prefix
+        and c.startswith(spec.number_prefix)
+        and c.removeprefix(spec.number_prefix).isdigit()
+    ]
     for col in [*spec.numbers, *prefixed]:
         _check_numbers(df, col, path)
     if spec.unique:
@@ -260,7 +304,11 @@ def figure_of(path: Path, root: Path, alt: str) -> Figure | None:
     data = path.read_bytes()
     if not data.startswith(b"\x89PNG\r\n\x1a\n"):
         return None  # only real PNG images are inlined
-    uri = "" if len(data) > MAX_IMAGE_BYTES else "data:image/png;base64," + base64.b64encode(data).decode()
+    uri = (
+        ""
+        if len(data) > MAX_IMAGE_BYTES
+        else "data:image/png;base64," + base64.b64encode(data).decode()
+    )
     return Figure(str(path.relative_to(root)), uri, alt)
 
 
@@ -273,8 +321,10 @@ FRACTION, LENGTH, COUNT = 3, 1, 0
 #: tables whose measured columns are lengths or rewards (numbers of steps, returns): 1 decimal
 LENGTH_TABLES = ("rollout_length", "subset_length", "reward_distance", "corruption_reward")
 _LENGTH_NAME = re.compile(r"length|return|reward|optimal")
-_COUNT_NAME = re.compile(r"(^|[_/ ])(n|k|count|seeds?|styles?|epochs?|rounds?|iterations?|trajectories|clusters)"
-                         r"([_/ ]|$)|_run$|_used$")
+_COUNT_NAME = re.compile(
+    r"(^|[_/ ])(n|k|count|seeds?|styles?|epochs?|rounds?|iterations?|trajectories|clusters)"
+    r"([_/ ]|$)|_run$|_used$"
+)
 #: axis columns shown as the config writes them (0.25, 1), never padded
 AS_WRITTEN = ("p", "c", "reward_p")
 
@@ -306,10 +356,15 @@ def digits_of(values, name: str = "", table: str = "") -> int:
         return FRACTION
     name = str(name).lower()
     if table in LENGTH_TABLES or _LENGTH_NAME.search(name):
-        if all(isinstance(v, int | np.integer) and not isinstance(v, bool) for v in values) and name != "mean":
+        if (
+            all(isinstance(v, int | np.integer) and not isinstance(v, bool) for v in values)
+            and name != "mean"
+        ):
             return COUNT  # an index (k, style) in a lengths table
         return LENGTH
-    if all(v.is_integer() for v in nums) and (_COUNT_NAME.search(name) or max(abs(v) for v in nums) > 1):
+    if all(v.is_integer() for v in nums) and (
+        _COUNT_NAME.search(name) or max(abs(v) for v in nums) > 1
+    ):
         return COUNT
     return FRACTION
 
@@ -357,8 +412,13 @@ def table_of(df: pd.DataFrame, name: str, file: str = "", std: pd.DataFrame | No
                 s = std.loc[label, col] if known else None
                 cells.append(_pm(float(row[col]), None if s is None else float(s), digits))
             rows.append(cells)
-        return Table(name, ["model π_k \\ subset"] + [f"H {c}" for c in df.columns], rows[:MAX_ROWS],
-                     max(0, len(rows) - MAX_ROWS), file)
+        return Table(
+            name,
+            ["model π_k \\ subset"] + [f"H {c}" for c in df.columns],
+            rows[:MAX_ROWS],
+            max(0, len(rows) - MAX_ROWS),
+            file,
+        )
     prefix = _common_prefix([str(c) for c in df.columns])
     if prefix:  # e.g. clustering/ari, clustering/nmi: the table's caption already says clustering
         df = df.rename(columns=lambda c: str(c).removeprefix(prefix))
@@ -368,7 +428,10 @@ def table_of(df: pd.DataFrame, name: str, file: str = "", std: pd.DataFrame | No
     cols = [str(c) for c in df.columns]
     pairs: dict[str, str] = {}
     for c in cols:
-        for mean, sd in ((c, f"{c}_std"), (c, c[: -len("_mean")] + "_std" if c.endswith("_mean") else "")):
+        for mean, sd in (
+            (c, f"{c}_std"),
+            (c, c[: -len("_mean")] + "_std" if c.endswith("_mean") else ""),
+        ):
             if sd in cols and c not in pairs.values():
                 pairs[mean] = sd
         if c == "mean" and "std" in cols:
@@ -381,13 +444,18 @@ def table_of(df: pd.DataFrame, name: str, file: str = "", std: pd.DataFrame | No
     digits = {c: digits_of(df[c].tolist(), c, name) for c in shown}
     rows = []
     for rec in df.to_dict("records"):
-        rows.append([_pm(rec[c], rec[pairs[c]], digits[c]) if c in pairs else _cell(c, rec[c], digits[c])
-                     for c in shown])
-    if len(headers) > 8 and len(rows) <= 4:  # few rows of many columns (a metrics row per env): turn
+        rows.append(
+            [
+                _pm(rec[c], rec[pairs[c]], digits[c]) if c in pairs else _cell(c, rec[c], digits[c])
+                for c in shown
+            ]
+        )
+    if (
+        len(headers) > 8 and len(rows) <= 4
+    ):  # few rows of many columns (a metrics row per env): turn
         # it on its side, so it reads down the page instead of overflowing it
         rows = [[h, *(r[i] for r in rows)] for i, h in enumerate(headers) if i > 0]
-        headers = [headers[0]] + [r0[0] for r0 in
-                                  [[_cell(shown[0], v)] for v in df[shown[0]]]]
+        headers = [headers[0]] + [r0[0] for r0 in [[_cell(shown[0], v)] for v in df[shown[0]]]]
     return Table(name, headers, rows[:MAX_ROWS], max(0, len(rows) - MAX_ROWS), file)
 
 
@@ -408,5 +476,3 @@ def accuracy_pivot(df: pd.DataFrame) -> pd.DataFrame:
         if method not in ("random", "majority"):
             wide[f"{method}_std"] = wide.p.map(d["std"])
     return wide
-
-

@@ -70,7 +70,9 @@ def _number(v) -> float | None:
         return None
 
 
-def compare_metrics(logged: dict, new: dict, rtol: float = RTOL, atol: float = ATOL) -> list[Comparison]:
+def compare_metrics(
+    logged: dict, new: dict, rtol: float = RTOL, atol: float = ATOL
+) -> list[Comparison]:
     """Every result metric of either side, in name order, with its match status."""
     out = []
     for name in sorted(k for k in set(logged) | set(new) if _is_result(k)):
@@ -96,8 +98,10 @@ def _fresh(workdir: Path | None, name: str) -> Path:
         return Path(tempfile.mkdtemp(prefix=f"pcpg-reproduce-{name}-"))
     workdir = Path(workdir)
     if workdir.exists() and any(workdir.iterdir()):
-        raise ConfigError(f"--workdir {workdir}: not empty; a reproduction runs in a fresh folder "
-                          "(give a new or empty folder)")
+        raise ConfigError(
+            f"--workdir {workdir}: not empty; a reproduction runs in a fresh folder "
+            "(give a new or empty folder)"
+        )
     workdir.mkdir(parents=True, exist_ok=True)
     return workdir
 
@@ -120,21 +124,30 @@ def code_notes(run: dict, cfg) -> list[str]:
     prov = run.get("provenance", {})  # an object: read_run checked it
     logged_commit, now = prov.get("git_commit", "unknown"), git_commit()
     if logged_commit != now:
-        notes.append(f"code: logged at commit {logged_commit}, reproducing at {now}; differences may "
-                     "come from the code change")
+        notes.append(
+            f"code: logged at commit {logged_commit}, reproducing at {now}; differences may "
+            "come from the code change"
+        )
     logged_versions = prov.get("versions") if isinstance(prov.get("versions"), dict) else {}
-    changed = [f"{k} {v} -> {versions().get(k)}" for k, v in logged_versions.items()
-               if versions().get(k, v) != v]
+    changed = [
+        f"{k} {v} -> {versions().get(k)}"
+        for k, v in logged_versions.items()
+        if versions().get(k, v) != v
+    ]
     if changed:
         notes.append("package versions changed: " + ", ".join(changed))
     from pcpg_dist.runner import CODE_VERSION
 
     if str(run.get("code_version", CODE_VERSION)) != str(CODE_VERSION):
-        notes.append(f"cache code version: logged {run.get('code_version')}, now {CODE_VERSION} (a stage's "
-                     "numbers were meant to change)")
+        notes.append(
+            f"cache code version: logged {run.get('code_version')}, now {CODE_VERSION} (a stage's "
+            "numbers were meant to change)"
+        )
     if run.get("config_hash") not in (None, cfg.hash()):
-        notes.append(f"config hash: logged {run.get('config_hash')}, now {cfg.hash()} (a default or "
-                     "the config schema changed since)")
+        notes.append(
+            f"config hash: logged {run.get('config_hash')}, now {cfg.hash()} (a default or "
+            "the config schema changed since)"
+        )
     return notes
 
 
@@ -152,15 +165,25 @@ def input_note(run: dict, cfg) -> tuple[str | None, bool]:
     if logged == now:
         return None, False
     if run.get("config_hash") not in (None, cfg.hash()):
-        return (f"input key: logged {logged}, now {now}; the config hash changed too (above), so this "
-                "may be the settings' schema rather than the data"), False
-    return (f"input data changed: the logged run read data of key {logged}, the files and settings "
-            f"named by its config give {now} today (a log file edited or replaced since?); the "
-            "metrics below compare runs on different data"), True
+        return (
+            f"input key: logged {logged}, now {now}; the config hash changed too (above), so this "
+            "may be the settings' schema rather than the data"
+        ), False
+    return (
+        f"input data changed: the logged run read data of key {logged}, the files and settings "
+        f"named by its config give {now} today (a log file edited or replaced since?); the "
+        "metrics below compare runs on different data"
+    ), True
 
 
-def reproduce(summary: Path, workdir: Path | None = None, rtol: float = RTOL, atol: float = ATOL,
-              show_progress: bool = False, source: str | None = None) -> Reproduction:
+def reproduce(
+    summary: Path,
+    workdir: Path | None = None,
+    rtol: float = RTOL,
+    atol: float = ATOL,
+    show_progress: bool = False,
+    source: str | None = None,
+) -> Reproduction:
     """Rerun the run recorded in ``summary`` (Ray initialised by the caller) and compare;
     ``source``: what the user named (a run id, a folder) for the new run's recorded command."""
     from pcpg_dist.runner import run_experiment
@@ -172,10 +195,21 @@ def reproduce(summary: Path, workdir: Path | None = None, rtol: float = RTOL, at
     note, changed = input_note(run, cfg)
     notes = code_notes(run, cfg) + ([note] if note else [])
     out = _fresh(workdir, cfg.name)
-    result = run_experiment(cfg, workdir=out, track=False, show_progress=show_progress,
-                            command=f"pcpg reproduce {source or summary}")
-    return Reproduction(compare_metrics(logged, result.metrics, rtol, atol), result.out_dir, rtol, atol, notes,
-                        input_changed=changed)
+    result = run_experiment(
+        cfg,
+        workdir=out,
+        track=False,
+        show_progress=show_progress,
+        command=f"pcpg reproduce {source or summary}",
+    )
+    return Reproduction(
+        compare_metrics(logged, result.metrics, rtol, atol),
+        result.out_dir,
+        rtol,
+        atol,
+        notes,
+        input_changed=changed,
+    )
 
 
 def _shown(v: float | None) -> str:
@@ -193,11 +227,21 @@ def print_reproduction(rep: Reproduction, file: TextIO | None = None) -> None:
         if c.status in ("within", "differs") and c.logged is not None and c.new is not None:
             line += f"  (diff {c.new - c.logged:+.3g})"
         print(line, file=file)
-    counts = {s: sum(c.status == s for c in rep.comparisons) for s in ("exact", "within", "differs", "missing", "extra")}
-    verdict = "REPRODUCED" if rep.ok else "NOT REPRODUCED" + (" (input data changed)" if rep.input_changed else "")
-    print(f"{verdict}: {len(rep.comparisons)} metrics, {counts['exact']} exact, {counts['within']} within "
-          f"tolerance (|new - logged| <= {rep.atol:g} + {rep.rtol:g} * |logged|), {counts['differs']} differ, "
-          f"{counts['missing']} missing, {counts['extra']} new; outputs in {rep.out_dir}", file=file)
+    counts = {
+        s: sum(c.status == s for c in rep.comparisons)
+        for s in ("exact", "within", "differs", "missing", "extra")
+    }
+    verdict = (
+        "REPRODUCED"
+        if rep.ok
+        else "NOT REPRODUCED" + (" (input data changed)" if rep.input_changed else "")
+    )
+    print(
+        f"{verdict}: {len(rep.comparisons)} metrics, {counts['exact']} exact, {counts['within']} within "
+        f"tolerance (|new - logged| <= {rep.atol:g} + {rep.rtol:g} * |logged|), {counts['differs']} differ, "
+        f"{counts['missing']} missing, {counts['extra']} new; outputs in {rep.out_dir}",
+        file=file,
+    )
 
 
 def cli_reproduce(args) -> int:
@@ -205,8 +249,14 @@ def cli_reproduce(args) -> int:
     from pcpg_dist.ray_utils import init_ray
     from pcpg_dist.report import resolve_summary
 
-    if args.rtol < 0 or args.atol < 0 or not (math.isfinite(args.rtol) and math.isfinite(args.atol)):
-        raise ConfigError(f"--rtol {args.rtol} / --atol {args.atol}: tolerances must be finite and >= 0")
+    if (
+        args.rtol < 0
+        or args.atol < 0
+        or not (math.isfinite(args.rtol) and math.isfinite(args.atol))
+    ):
+        raise ConfigError(
+            f"--rtol {args.rtol} / --atol {args.atol}: tolerances must be finite and >= 0"
+        )
     # a run's summary fetched from MLflow lands in a private folder removed afterwards (it was a
     # fixed /tmp/pcpg-reproduce-logged shared by every user of the machine, never cleaned)
     with tempfile.TemporaryDirectory(prefix="pcpg-reproduce-") as downloads:
@@ -216,6 +266,8 @@ def cli_reproduce(args) -> int:
         read_metrics(summary / "metrics.json")
         workdir = _fresh(Path(args.workdir) if args.workdir else None, cfg.name)
         init_ray(args.ray_address)
-        rep = reproduce(summary, workdir, args.rtol, args.atol, show_progress=not args.quiet, source=args.run)
+        rep = reproduce(
+            summary, workdir, args.rtol, args.atol, show_progress=not args.quiet, source=args.run
+        )
     print_reproduction(rep)
     return 0 if rep.ok else 1

@@ -43,7 +43,9 @@ from pcpg_dist.ranking import check_margins_come
 from pcpg_dist.ray_utils import run_tasks
 from pcpg_dist.run_folders import check_unit_name
 
-CODE_VERSION = "2"  # bump when a stage's numbers or files change for the same config (2: bool valid masks)
+CODE_VERSION = (
+    "2"  # bump when a stage's numbers or files change for the same config (2: bool valid masks)
+)
 CLUSTER_VERSION = "2"  # bump when only Step A's files change (2: result.json holds the margins)
 EVAL_VERSION = "3"  # bump when only the evaluation's metrics or tables change (3: cluster_style, kept length in steps)
 STAGES = ("generate", "cluster", "train", "evaluate")
@@ -76,7 +78,9 @@ class Point:
     # filled while running
     units: dict[str, Unit] = field(default_factory=dict)
     refs: dict[str, Any] = field(default_factory=dict)
-    digests: dict[str, str] = field(default_factory=dict)  # what each unit's clusterer reads, hashed
+    digests: dict[str, str] = field(
+        default_factory=dict
+    )  # what each unit's clusterer reads, hashed
     dkey: str = ""
     ikey: str = ""  # the inputs' key, recorded in run.json (data_keys)
     ckeys: dict[str, str] = field(default_factory=dict)
@@ -106,8 +110,9 @@ def input_key(cfg: ExperimentConfig) -> str:
     return data_keys(cfg)[1]
 
 
-def load_or_generate(cfg: ExperimentConfig, cache: Cache, show_progress: bool,
-                     key: str | None = None) -> tuple[dict[str, Dataset], str]:
+def load_or_generate(
+    cfg: ExperimentConfig, cache: Cache, show_progress: bool, key: str | None = None
+) -> tuple[dict[str, Dataset], str]:
     """The config's datasets, generated once and cached under ``key`` (its :func:`data_key`)."""
     from pcpg_dist.generate import write_to
 
@@ -152,7 +157,12 @@ def cluster_task(unit: Unit, cluster_cfg, seed: int, threads: int) -> dict:
             result.model.save(Path(tmp))
             model = files_of(tmp)
     margins = None if result.margins is None else result.margins.tolist()
-    return {"labels": result.labels.tolist(), "margins": margins, "metrics": result.metrics, "model": model}
+    return {
+        "labels": result.labels.tolist(),
+        "margins": margins,
+        "metrics": result.metrics,
+        "model": model,
+    }
 
 
 def train_task(cells: list, bc_cfg, threads: int, init: list | None = None):
@@ -164,8 +174,14 @@ def train_task(cells: list, bc_cfg, threads: int, init: list | None = None):
     return train_cells(cells, bc_cfg, init)
 
 
-def evaluate_task(unit: Unit, labels: np.ndarray, trained, cfg: ExperimentConfig, threads: int,
-                  margins: np.ndarray | None = None) -> dict:
+def evaluate_task(
+    unit: Unit,
+    labels: np.ndarray,
+    trained,
+    cfg: ExperimentConfig,
+    threads: int,
+    margins: np.ndarray | None = None,
+) -> dict:
     """Evaluate one unit (a Ray task): its metrics and its tables and figures as bytes."""
     from pcpg_dist.pipeline import evaluate_unit
 
@@ -218,17 +234,30 @@ def _collect_agents(target: Path, models: dict[str, list[Path]]) -> Path:
     return target
 
 
-def _run_stage(description: str, fn: Callable, jobs: dict[str, tuple], num_cpus: int,
-               save: Callable[[str, Any], None], show_progress: bool,
-               gpus: dict[str, float] | None = None) -> int:
+def _run_stage(
+    description: str,
+    fn: Callable,
+    jobs: dict[str, tuple],
+    num_cpus: int,
+    save: Callable[[str, Any], None],
+    show_progress: bool,
+    gpus: dict[str, float] | None = None,
+) -> int:
     """Run one task per key of ``jobs`` (keys shared by several points run once); ``save`` each.
     ``gpus``: what each key's task asks for (none where missing)."""
     keys = list(jobs)
     calls = [jobs[k] for k in keys]
     limit = _in_flight(num_cpus, max((_nbytes(c) for c in calls), default=0)) if calls else 1
-    run_tasks(fn, calls, description, num_cpus=num_cpus, on_result=lambda i, res: save(keys[i], res),
-              show_progress=show_progress and bool(calls), max_in_flight=limit,
-              num_gpus=[(gpus or {}).get(k, 0.0) for k in keys])
+    run_tasks(
+        fn,
+        calls,
+        description,
+        num_cpus=num_cpus,
+        on_result=lambda i, res: save(keys[i], res),
+        show_progress=show_progress and bool(calls),
+        max_in_flight=limit,
+        num_gpus=[(gpus or {}).get(k, 0.0) for k in keys],
+    )
     return len(calls)
 
 
@@ -240,7 +269,9 @@ def cluster_gpus(cfg: ExperimentConfig, node_gpus: float) -> float:
 
     if cfg.clustering.device == "cpu" or cfg.clustering.method not in NEURAL_CLUSTERERS:
         return 0.0
-    return stage_gpus(cfg.clustering.device, cfg.runner.gpus_per_task, node_gpus, "clustering.device")
+    return stage_gpus(
+        cfg.clustering.device, cfg.runner.gpus_per_task, node_gpus, "clustering.device"
+    )
 
 
 def trains_a_network(cluster_cfg, dataset) -> bool:
@@ -271,16 +302,33 @@ def bc_gpus(cfg: ExperimentConfig, node_gpus: float) -> float:
 
 
 # --------------------------------------------------------------------------- the run
-def run_experiment(cfg: ExperimentConfig, workdir: Path = Path("runs"), tracking_uri: str | None = None,
-                   track: bool = True, show_progress: bool = True, command: str = "") -> RunResult:
+def run_experiment(
+    cfg: ExperimentConfig,
+    workdir: Path = Path("runs"),
+    tracking_uri: str | None = None,
+    track: bool = True,
+    show_progress: bool = True,
+    command: str = "",
+) -> RunResult:
     """Run (or resume) a whole experiment; Ray must be initialised by the caller."""
     out = Path(workdir).resolve() / cfg.name
-    return run_points([Point(cfg, out, command=command)], out / "cache", tracking_uri=tracking_uri,
-                      track=track, show_progress=show_progress)[0]
+    return run_points(
+        [Point(cfg, out, command=command)],
+        out / "cache",
+        tracking_uri=tracking_uri,
+        track=track,
+        show_progress=show_progress,
+    )[0]
 
 
-def run_points(points: list[Point], cache_root: Path, tracking_uri: str | None = None, track: bool = True,
-               show_progress: bool = True, sweep_parent_id: str | None = None) -> list[RunResult]:
+def run_points(
+    points: list[Point],
+    cache_root: Path,
+    tracking_uri: str | None = None,
+    track: bool = True,
+    show_progress: bool = True,
+    sweep_parent_id: str | None = None,
+) -> list[RunResult]:
     """Run (or resume) several configs together, stage by stage, sharing units by content key.
 
     One process at a time works on a cache: a second `pcpg run` of the same folder waits for the
@@ -301,7 +349,9 @@ def run_points(points: list[Point], cache_root: Path, tracking_uri: str | None =
         console.print(f"waiting for another pcpg process working on {cache_root.parent} ...")
         lock.acquire()
     try:
-        return _run_points(points, Cache(cache_root), tracking_uri, track, show_progress, sweep_parent_id)
+        return _run_points(
+            points, Cache(cache_root), tracking_uri, track, show_progress, sweep_parent_id
+        )
     except BaseException:  # bad input, an OSError, Ctrl-C: whatever it was, leave no empty folders
         if created and not cache_root.exists():  # failed before anything was cached
             Path(lock.lock_file).unlink(missing_ok=True)
@@ -313,8 +363,14 @@ def run_points(points: list[Point], cache_root: Path, tracking_uri: str | None =
         lock.release()
 
 
-def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, track: bool,
-                show_progress: bool, sweep_parent_id: str | None) -> list[RunResult]:
+def _run_points(
+    points: list[Point],
+    cache: Cache,
+    tracking_uri: str | None,
+    track: bool,
+    show_progress: bool,
+    sweep_parent_id: str | None,
+) -> list[RunResult]:
     import ray
 
     from pcpg_dist.bc import TrainedCells, finetune_config, split_for_init
@@ -347,8 +403,11 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
                 confined(p.out, name, "unit name")  # unit names become folder and run names
                 check_unit_name(name)
             check_margins_come(p.cfg, [u.clustered for u in units.values()])
-            unit_sets[ukey] = (units, {n: ray.put(u) for n, u in units.items()},
-                               {n: content_digest(u.clustered) for n, u in units.items()})
+            unit_sets[ukey] = (
+                units,
+                {n: ray.put(u) for n, u in units.items()},
+                {n: content_digest(u.clustered) for n, u in units.items()},
+            )
         p.units, p.refs, p.digests = unit_sets[ukey]
     times["generate"] = time.perf_counter() - t0
     # one task holds a unit, its copies in the stage's arrays, and a torch runtime (~600 MB)
@@ -359,7 +418,9 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
         from pcpg_dist.tracking import Tracker
 
         for p in points:
-            extra = {"parent_run_id": sweep_parent_id, "params": p.params} if sweep_parent_id else {}
+            extra = (
+                {"parent_run_id": sweep_parent_id, "params": p.params} if sweep_parent_id else {}
+            )
             p.tracker = Tracker.start(p.cfg, tracking_uri, p.out, **extra)
     try:
         threads = max(p.cfg.runner.cpus_per_task for p in points)
@@ -372,20 +433,37 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
             for e, u in p.units.items():
                 # the input's digest, not only the settings: a domain may derive it from any of
                 # them (Mario's valid mask comes from the training episodes, so from the split)
-                p.ckeys[e] = k = content_key(CODE_VERSION, CLUSTER_VERSION, p.dkey, e, p.cfg.clustering,
-                                             p.cfg.seed, u.cluster_input_note, p.digests[e])
+                p.ckeys[e] = k = content_key(
+                    CODE_VERSION,
+                    CLUSTER_VERSION,
+                    p.dkey,
+                    e,
+                    p.cfg.clustering,
+                    p.cfg.seed,
+                    u.cluster_input_note,
+                    p.digests[e],
+                )
                 if k not in jobs and cache.done("cluster", k) is None:
                     jobs[k] = (p.refs[e], p.cfg.clustering, p.cfg.seed, p.cfg.runner.cpus_per_task)
                     gpus[k] = unit_cluster_gpus(p.gpus[0], p.cfg.clustering, u.clustered)
 
         def save_cluster(key: str, res: dict) -> None:
-            files = {"result.json": json.dumps({k: res[k] for k in ("labels", "margins", "metrics")}).encode(),
-                     **{f"model/{n}": b for n, b in res["model"].items()}}
+            files = {
+                "result.json": json.dumps(
+                    {k: res[k] for k in ("labels", "margins", "metrics")}
+                ).encode(),
+                **{f"model/{n}": b for n, b in res["model"].items()},
+            }
             cache.store("cluster", key, files, {"stage": "cluster"})
 
-        computed["clustering"] = _run_stage("Step A: clustering", cluster_task, jobs, threads, save_cluster,
-                                            show_progress, gpus)
-        clusters = {k: cache.read_json("cluster", k, "result.json") for p in points for k in p.ckeys.values()}
+        computed["clustering"] = _run_stage(
+            "Step A: clustering", cluster_task, jobs, threads, save_cluster, show_progress, gpus
+        )
+        clusters = {
+            k: cache.read_json("cluster", k, "result.json")
+            for p in points
+            for k in p.ckeys.values()
+        }
         times["cluster"] = time.perf_counter() - t0
 
         # ---- Steps B + C: plan every cell, train in groups. With bc.init no_clustering a second
@@ -395,8 +473,9 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
         jobs = {}
         # ranking and cutting a unit into cells runs here, in the driver: on 40,000 trajectories
         # that is ~15 s, which showed as a frozen Step A bar
-        with progress_bar("Step B: ranking", total=sum(len(p.units) for p in points),
-                          enabled=show_progress) as advance:
+        with progress_bar(
+            "Step B: ranking", total=sum(len(p.units) for p in points), enabled=show_progress
+        ) as advance:
             for p in points:
                 cfg = p.cfg
                 for e, u in p.units.items():
@@ -415,17 +494,28 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
         def train_gpus() -> dict[str, float]:
             return {k: p.gpus[1] for p in points for _, k, _ in p.groups}
 
-        computed["train_groups"] = _run_stage("Step C: BC groups", train_task, jobs, threads, save_group,
-                                              show_progress, train_gpus())
+        computed["train_groups"] = _run_stage(
+            "Step C: BC groups", train_task, jobs, threads, save_group, show_progress, train_gpus()
+        )
         if later:
             jobs = {}
             for p, e, rest, base_keys in later:
                 # read only when some group of this unit is not cached yet
-                base = functools.cache(lambda keys=tuple(base_keys): TrainedCells.concat(
-                    [TrainedCells.load(cache.path("train", k) / "cells") for k in keys]))
+                base = functools.cache(
+                    lambda keys=tuple(base_keys): TrainedCells.concat(
+                        [TrainedCells.load(cache.path("train", k) / "cells") for k in keys]
+                    )
+                )
                 _add_groups(p, e, rest, cache, jobs, finetune_config(p.cfg.bc), base_keys, base)
-            computed["train_groups"] += _run_stage("Step C: BC groups from No Clustering", train_task, jobs,
-                                                   threads, save_group, show_progress, train_gpus())
+            computed["train_groups"] += _run_stage(
+                "Step C: BC groups from No Clustering",
+                train_task,
+                jobs,
+                threads,
+                save_group,
+                show_progress,
+                train_gpus(),
+            )
         times["train"] = time.perf_counter() - t0
 
         # ---- Evaluation per environment (MLflow child runs are logged after the summary)
@@ -434,26 +524,46 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
         for p in points:
             for e in p.units:
                 tkeys = [k for ge, k, _ in p.groups if ge == e]
-                p.ekeys[e] = k = content_key(CODE_VERSION, EVAL_VERSION, tkeys, p.cfg.evaluation, p.cfg.ranking)
+                p.ekeys[e] = k = content_key(
+                    CODE_VERSION, EVAL_VERSION, tkeys, p.cfg.evaluation, p.cfg.ranking
+                )
                 if k not in jobs and cache.done("evaluate", k) is None:
-                    trained = TrainedCells.concat([TrainedCells.load(cache.path("train", t) / "cells")
-                                                   for t in tkeys])
+                    trained = TrainedCells.concat(
+                        [TrainedCells.load(cache.path("train", t) / "cells") for t in tkeys]
+                    )
                     labels, margins = _clusters_of(clusters[p.ckeys[e]])
-                    jobs[k] = (p.refs[e], labels, trained, p.cfg, p.cfg.runner.cpus_per_task, margins)
+                    jobs[k] = (
+                        p.refs[e],
+                        labels,
+                        trained,
+                        p.cfg,
+                        p.cfg.runner.cpus_per_task,
+                        margins,
+                    )
 
         def save_eval(key: str, res: dict) -> None:
             cache.store("evaluate", key, res["files"], {"stage": "evaluate"})
 
-        computed["evaluations"] = _run_stage("Evaluation", evaluate_task, jobs, threads, save_eval, show_progress)
+        computed["evaluations"] = _run_stage(
+            "Evaluation", evaluate_task, jobs, threads, save_eval, show_progress
+        )
         times["evaluate"] = time.perf_counter() - t0
 
         # every local result first (summary, agents, report), so all of it is kept when the
         # tracking server is down; then the MLflow runs, one bar for every point's environments
-        results = [_finish_point(p, cache, clusters, dict(times), computed, len(points)) for p in points]
-        unlogged = {id(p): [e for e in p.units if not p.tracker.env_logged(e, p.ekeys[e])]
-                    if p.tracker is not None else [] for p in points}
+        results = [
+            _finish_point(p, cache, clusters, dict(times), computed, len(points)) for p in points
+        ]
+        unlogged = {
+            id(p): [e for e in p.units if not p.tracker.env_logged(e, p.ekeys[e])]
+            if p.tracker is not None
+            else []
+            for p in points
+        }
         total = sum(len(v) for v in unlogged.values())
-        with progress_bar("MLflow child runs", total=total, enabled=show_progress and bool(total)) as advance:
+        with progress_bar(
+            "MLflow child runs", total=total, enabled=show_progress and bool(total)
+        ) as advance:
             for p, result in zip(points, results, strict=True):
                 _log_point(p, cache, clusters, result, unlogged[id(p)], advance)
         return results
@@ -467,25 +577,47 @@ def _run_points(points: list[Point], cache: Cache, tracking_uri: str | None, tra
 def _clusters_of(result: dict) -> tuple[np.ndarray, np.ndarray | None]:
     """A cached clustering's labels and margins (None from a clusterer without a likelihood)."""
     margins = result.get("margins")
-    return (np.asarray(result["labels"], np.int64),
-            None if margins is None else np.asarray(margins, np.float64))
+    return (
+        np.asarray(result["labels"], np.int64),
+        None if margins is None else np.asarray(margins, np.float64),
+    )
 
 
-def _add_groups(p: Point, unit: str, cells: list, cache: Cache, jobs: dict[str, tuple], bc_cfg,
-                base_keys: list[str], base: Callable[[], Any] | None = None) -> None:
+def _add_groups(
+    p: Point,
+    unit: str,
+    cells: list,
+    cache: Cache,
+    jobs: dict[str, tuple],
+    bc_cfg,
+    base_keys: list[str],
+    base: Callable[[], Any] | None = None,
+) -> None:
     """Cut ``cells`` into groups of ``runner.group_size``: each a content-keyed training job
     (unless cached); with ``base`` (returns the No Clustering agents) each cell starts from its own."""
     from pcpg_dist.bc import init_from
 
     cfg = p.cfg
     for g in range(0, len(cells), cfg.runner.group_size):
-        chunk = cells[g: g + cfg.runner.group_size]
-        key = content_key(CODE_VERSION, p.ckeys[unit], cfg.ranking, cfg.bc, cfg.evaluation.corruption_levels,
-                          cfg.evaluation.corruption_ps, [c.key for c in chunk], base_keys)
+        chunk = cells[g : g + cfg.runner.group_size]
+        key = content_key(
+            CODE_VERSION,
+            p.ckeys[unit],
+            cfg.ranking,
+            cfg.bc,
+            cfg.evaluation.corruption_levels,
+            cfg.evaluation.corruption_ps,
+            [c.key for c in chunk],
+            base_keys,
+        )
         p.groups.append((unit, key, chunk))
         if key not in jobs and cache.done("train", key) is None:
-            jobs[key] = (chunk, bc_cfg, cfg.runner.cpus_per_task,
-                         None if base is None else init_from(chunk, base()))
+            jobs[key] = (
+                chunk,
+                bc_cfg,
+                cfg.runner.cpus_per_task,
+                None if base is None else init_from(chunk, base()),
+            )
 
 
 STAGING = ".finishing"  # RUN/.finishing: the next summary, agents and report while they are written
@@ -504,8 +636,14 @@ def _swap_in(out: Path, staging: Path, names: tuple[str, ...]) -> None:
         (staging / name).rename(out / name)
 
 
-def _finish_point(p: Point, cache: Cache, clusters: dict, times: dict[str, float],
-                  computed: dict[str, int], batch: int = 1) -> RunResult:
+def _finish_point(
+    p: Point,
+    cache: Cache,
+    clusters: dict,
+    times: dict[str, float],
+    computed: dict[str, int],
+    batch: int = 1,
+) -> RunResult:
     """Across one point's environments: summary tables, figures, agents and report (local only).
     ``batch``: the points whose stages ran together (a sweep's); their times and counts are shared."""
     from pcpg_dist.provenance import provenance
@@ -524,13 +662,19 @@ def _finish_point(p: Point, cache: Cache, clusters: dict, times: dict[str, float
     cluster_metrics = {e: clusters[p.ckeys[e]]["metrics"] for e in envs}
     eval_dirs = {e: cache.path("evaluate", p.ekeys[e]) for e in envs}
     metrics = write_summary(cfg, staging / "summary", eval_dirs, per_env, cluster_metrics)
-    models = {e: [cache.path("train", k) / "cells" for ge, k, _ in p.groups if ge == e] for e in envs}
+    models = {
+        e: [cache.path("train", k) / "cells" for ge, k, _ in p.groups if ge == e] for e in envs
+    }
     _collect_agents(staging / "agents", models)
     times["summary"] = time.perf_counter() - t0
 
     # A stage served wholly from the cache keeps the timing of the run that computed it.
-    stage_done = {"generate": computed["data"], "cluster": computed["clustering"],
-                  "train": computed["train_groups"], "evaluate": computed["evaluations"]}
+    stage_done = {
+        "generate": computed["data"],
+        "cluster": computed["clustering"],
+        "train": computed["train_groups"],
+        "evaluate": computed["evaluations"],
+    }
     cached = [s for s in STAGES if not stage_done[s]]
     try:
         before = json.loads((out / "summary" / "run.json").read_text()).get("stage_seconds", {})
@@ -539,15 +683,32 @@ def _finish_point(p: Point, cache: Cache, clusters: dict, times: dict[str, float
     for s in cached:
         if isinstance(before.get(s), int | float):
             times[s] = before[s]
-    result = RunResult(out_dir=out, metrics=metrics, clustering=cluster_metrics, stage_seconds=times,
-                       computed=computed, cached_stages=cached,
-                       parent_run_id=p.tracker.parent_id if p.tracker else None)
-    run_info = {"config": cfg.model_dump(mode="json"), "config_hash": cfg.hash(),
-                "command": p.command or f"pcpg run <config of {cfg.name}>", "overrides": p.params,
-                "provenance": provenance(), "stage_seconds": times, "cached_stages": cached,
-                "parent_run_id": result.parent_run_id, "computed": computed, "code_version": CODE_VERSION,
-                "input_key": p.ikey, "batch_points": batch}
-    atomic_write_bytes(staging / "summary" / "run.json", json.dumps(run_info, indent=1, default=str).encode())
+    result = RunResult(
+        out_dir=out,
+        metrics=metrics,
+        clustering=cluster_metrics,
+        stage_seconds=times,
+        computed=computed,
+        cached_stages=cached,
+        parent_run_id=p.tracker.parent_id if p.tracker else None,
+    )
+    run_info = {
+        "config": cfg.model_dump(mode="json"),
+        "config_hash": cfg.hash(),
+        "command": p.command or f"pcpg run <config of {cfg.name}>",
+        "overrides": p.params,
+        "provenance": provenance(),
+        "stage_seconds": times,
+        "cached_stages": cached,
+        "parent_run_id": result.parent_run_id,
+        "computed": computed,
+        "code_version": CODE_VERSION,
+        "input_key": p.ikey,
+        "batch_points": batch,
+    }
+    atomic_write_bytes(
+        staging / "summary" / "run.json", json.dumps(run_info, indent=1, default=str).encode()
+    )
     _swap_in(out, staging, ("agents", "summary"))
     render(out / "summary", staging / "report")
     _swap_in(out, staging, ("report",))
@@ -556,8 +717,14 @@ def _finish_point(p: Point, cache: Cache, clusters: dict, times: dict[str, float
     return result
 
 
-def _log_point(p: Point, cache: Cache, clusters: dict, result: RunResult, unlogged: list[str],
-               advance: Callable[..., None]) -> None:
+def _log_point(
+    p: Point,
+    cache: Cache,
+    clusters: dict,
+    result: RunResult,
+    unlogged: list[str],
+    advance: Callable[..., None],
+) -> None:
     """One point's MLflow runs, after every local result is written: child runs for the
     ``unlogged`` environments (``advance()`` after each), then the parent. A rerun logs only the
     environments without a FINISHED child run, recomputing nothing."""
@@ -568,9 +735,13 @@ def _log_point(p: Point, cache: Cache, clusters: dict, result: RunResult, unlogg
     t0 = time.perf_counter()
     for e in unlogged:
         models = [cache.path("train", k) / "cells" for ge, k, _ in p.groups if ge == e]
-        log_environment(p.tracker.child_info(e, p.ekeys[e], clusters[p.ckeys[e]]["metrics"]), e,
-                        str(cache.path("evaluate", p.ekeys[e])), cache.read_json("evaluate", p.ekeys[e], "metrics.json"),
-                        [str(m.with_suffix(".pt")) for m in models])
+        log_environment(
+            p.tracker.child_info(e, p.ekeys[e], clusters[p.ckeys[e]]["metrics"]),
+            e,
+            str(cache.path("evaluate", p.ekeys[e])),
+            cache.read_json("evaluate", p.ekeys[e], "metrics.json"),
+            [str(m.with_suffix(".pt")) for m in models],
+        )
         advance()
     p.tracker.finish(result, agents_dir=p.out / "agents", report_dir=p.out / "report")
     result.stage_seconds["tracking"] = time.perf_counter() - t0

@@ -31,8 +31,9 @@ class StrictModel(BaseModel):
     Pydantic's lax mode reads ``true`` as 1 in a number field, so ``bc.epochs: true`` would train
     one epoch: true/false is refused in every number field (ints still fill float fields)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, strict=False, validate_default=True,
-                              allow_inf_nan=False)
+    model_config = ConfigDict(
+        extra="forbid", frozen=True, strict=False, validate_default=True, allow_inf_nan=False
+    )
 
     @field_validator("*", mode="before")
     @classmethod

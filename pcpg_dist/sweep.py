@@ -41,7 +41,9 @@ from pcpg_dist.dataset import atomic_write_bytes
 from pcpg_dist.errors import ConfigError, DataError
 
 STD = "/std"
-SWEEP_JSON = "sweep.json"  # the sweep-level record beside summary.csv: axes, fixed overrides, figures
+SWEEP_JSON = (
+    "sweep.json"  # the sweep-level record beside summary.csv: axes, fixed overrides, figures
+)
 SWEEP_FORMAT = 1
 
 
@@ -59,14 +61,25 @@ class SweepResult:
 
 def ps_of(keys) -> list[str]:
     """The p values of ``pcpg/accuracy/p…`` among ``keys``, as written, largest first."""
-    return sorted({k.rsplit("/p", 1)[1] for k in keys if re.fullmatch(r"pcpg/accuracy/p[0-9.]+", k)},
-                  key=float, reverse=True)
+    return sorted(
+        {k.rsplit("/p", 1)[1] for k in keys if re.fullmatch(r"pcpg/accuracy/p[0-9.]+", k)},
+        key=float,
+        reverse=True,
+    )
 
 
 def headline_keys(metrics: dict[str, float]) -> list[str]:
     """What a sweep compares: clustering quality, PCPG and No Clustering at every p and PCPG's lead."""
-    keys = [k for k in ("clustering/accuracy", "clustering/ceiling", "clustering/gap_to_ceiling",
-                        "cross/diagonal_mean") if k in metrics]
+    keys = [
+        k
+        for k in (
+            "clustering/accuracy",
+            "clustering/ceiling",
+            "clustering/gap_to_ceiling",
+            "cross/diagonal_mean",
+        )
+        if k in metrics
+    ]
     for p in ps_of(metrics):
         keys += [f"pcpg/accuracy/p{p}", f"baseline/accuracy/p{p}", f"pcpg_lead/p{p}"]
     return keys
@@ -89,25 +102,37 @@ def headline(metrics: dict[str, float]) -> dict[str, float]:
 
 
 BATCHED_STAGES = ("generate", "cluster", "train", "evaluate")
-STAGE_NOTE = ("Stage times (`time/<stage>_seconds`, `time/sweep_seconds`) are logged here only: the points' stages "
-              "run batched together (shared data and clusterings), so no point has a time of its own; they are "
-              "those of the last call that computed points.")
+STAGE_NOTE = (
+    "Stage times (`time/<stage>_seconds`, `time/sweep_seconds`) are logged here only: the points' stages "
+    "run batched together (shared data and clusterings), so no point has a time of its own; they are "
+    "those of the last call that computed points."
+)
 
 
 def _p_keys(rows: list[dict[str, Any]]) -> list[str]:
     """The p values of the rows' ``pcpg/accuracy/p<x>`` keys, largest first (as written in the keys)."""
-    found = {k.rsplit("/p", 1)[1] for r in rows for k in r if re.fullmatch(r"pcpg/accuracy/p[0-9.e-]+", k)}
+    found = {
+        k.rsplit("/p", 1)[1]
+        for r in rows
+        for k in r
+        if re.fullmatch(r"pcpg/accuracy/p[0-9.e-]+", k)
+    }
     return sorted(found, key=float, reverse=True)
 
 
-def best_points(axes: dict[str, list], rows: list[dict[str, Any]]) -> tuple[dict[str, float], dict[str, str]]:
+def best_points(
+    axes: dict[str, list], rows: list[dict[str, Any]]
+) -> tuple[dict[str, float], dict[str, str]]:
     """The sweep run's headline: ``best/<metric>`` for clustering accuracy, PCPG accuracy at the
     largest p and PCPG's lead at the smallest p, and for each the point that has it (its MLflow
     run name; ``(+n tied)`` when other points have the same value)."""
     from pcpg_dist.tracking import point_label
 
     ps = _p_keys(rows)
-    keys = ["clustering/accuracy", *([f"pcpg/accuracy/p{ps[0]}", f"pcpg_lead/p{ps[-1]}"] if ps else [])]
+    keys = [
+        "clustering/accuracy",
+        *([f"pcpg/accuracy/p{ps[0]}", f"pcpg_lead/p{ps[-1]}"] if ps else []),
+    ]
     best, where = {}, {}
     for key in keys:
         have = [r for r in rows if isinstance(r.get(key), int | float) and math.isfinite(r[key])]
@@ -116,16 +141,22 @@ def best_points(axes: dict[str, list], rows: list[dict[str, Any]]) -> tuple[dict
         top = max(r[key] for r in have)
         tied = [r for r in have if r[key] == top]
         best[f"best/{key}"] = float(top)
-        where[key] = point_label({a: _fmt(tied[0][a]) for a in axes}) + (f" (+{len(tied) - 1} tied)" if len(tied) > 1 else "")
+        where[key] = point_label({a: _fmt(tied[0][a]) for a in axes}) + (
+            f" (+{len(tied) - 1} tied)" if len(tied) > 1 else ""
+        )
     return best, where
 
 
-def point_slug(axes: dict[str, Any], fixed: dict[str, Any] | None = None, config_hash: str = "") -> str:
+def point_slug(
+    axes: dict[str, Any], fixed: dict[str, Any] | None = None, config_hash: str = ""
+) -> str:
     """A stable folder name for a point: its axis values, readable and made safe, plus a short hash
     of everything that sets its config apart (axes, fixed overrides, the config's own hash)."""
     from pcpg_dist.run_folders import slug
 
-    text = "_".join(f"{k}={json.dumps(v) if isinstance(v, list | dict) else v}" for k, v in axes.items())
+    text = "_".join(
+        f"{k}={json.dumps(v) if isinstance(v, list | dict) else v}" for k, v in axes.items()
+    )
     return slug(text, [axes, fixed or {}, config_hash], fallback="point")
 
 
@@ -141,7 +172,11 @@ def _finished(out: Path, cfg, track: bool, uri: str | None) -> tuple[dict, str] 
         metrics = json.loads((out / "summary" / "metrics.json").read_text())
     except (OSError, ValueError):
         return None
-    if not isinstance(run, dict) or run.get("config_hash") != cfg.hash() or not isinstance(metrics, dict):
+    if (
+        not isinstance(run, dict)
+        or run.get("config_hash") != cfg.hash()
+        or not isinstance(metrics, dict)
+    ):
         return None
     if track and not _run_finished(uri, run.get("parent_run_id")):
         return None
@@ -181,8 +216,13 @@ class SweepPlan:
         return self.root / "sweep"
 
 
-def plan_sweep(config: str | Path, axes_args: list[str], overrides: list[str] | None = None,
-               workdir: Path = Path("runs"), command: str = "") -> SweepPlan:
+def plan_sweep(
+    config: str | Path,
+    axes_args: list[str],
+    overrides: list[str] | None = None,
+    workdir: Path = Path("runs"),
+    command: str = "",
+) -> SweepPlan:
     """Validate the sweep (every point's config) and name its points' folders; nothing runs."""
     from pcpg_dist.config.experiment import parse_config
     from pcpg_dist.runner import Point
@@ -194,45 +234,81 @@ def plan_sweep(config: str | Path, axes_args: list[str], overrides: list[str] | 
     base = parse_config(raw, source=str(config), base_dir=config.parent)
     axes, combos = sweep_points(section, axes_args, base.domain)
     if both := sorted(set(fixed) & set(axes)):  # the axis would silently win
-        raise ConfigError(f"{both[0]!r} is both a sweep axis and a single value ({both[0]}={reprlib.repr(fixed[both[0]])}); "
-                          f"give it once")
+        raise ConfigError(
+            f"{both[0]!r} is both a sweep axis and a single value ({both[0]}={reprlib.repr(fixed[both[0]])}); "
+            f"give it once"
+        )
     root = Path(workdir).resolve() / base.name
     points = []
     for combo in combos:
-        cfg = parse_config(apply_overrides(raw, combo), source=f"{config} with {_describe(combo)}",
-                           base_dir=config.parent)
-        points.append(Point(cfg, root / "sweep" / "points" / point_slug(combo, fixed, cfg.hash()),
-                            params={k: _fmt(v) for k, v in combo.items()},
-                            command=f"{command} [point {_describe(combo)}]" if command else ""))
-    description = (f"Sweep of {base.name} ({config.name}) over {', '.join(axes)}: {len(points)} points "
-                   f"({' x '.join(str(len(v)) for v in axes.values())})"
-                   + (f"; fixed: {_describe(fixed)}" if fixed else ""))
+        cfg = parse_config(
+            apply_overrides(raw, combo),
+            source=f"{config} with {_describe(combo)}",
+            base_dir=config.parent,
+        )
+        points.append(
+            Point(
+                cfg,
+                root / "sweep" / "points" / point_slug(combo, fixed, cfg.hash()),
+                params={k: _fmt(v) for k, v in combo.items()},
+                command=f"{command} [point {_describe(combo)}]" if command else "",
+            )
+        )
+    description = (
+        f"Sweep of {base.name} ({config.name}) over {', '.join(axes)}: {len(points)} points "
+        f"({' x '.join(str(len(v)) for v in axes.values())})"
+        + (f"; fixed: {_describe(fixed)}" if fixed else "")
+    )
     return SweepPlan(base, axes, fixed, combos, points, root, description)
 
 
-def run_sweep(config: str | Path, axes_args: list[str], overrides: list[str] | None = None,
-              workdir: Path = Path("runs"), tracking_uri: str | None = None, track: bool = True,
-              show_progress: bool = True, command: str = "") -> SweepResult:
+def run_sweep(
+    config: str | Path,
+    axes_args: list[str],
+    overrides: list[str] | None = None,
+    workdir: Path = Path("runs"),
+    tracking_uri: str | None = None,
+    track: bool = True,
+    show_progress: bool = True,
+    command: str = "",
+) -> SweepResult:
     """Run (or resume) a sweep over ``axes_args`` (``KEY=v1,v2``) and the file's ``sweep:`` section."""
     from pcpg_dist.runner import run_points
 
     t0 = time.perf_counter()
     plan = plan_sweep(config, axes_args, overrides, workdir, command)
-    base, axes, combos, points, root, out = plan.base, plan.axes, plan.combos, plan.points, plan.root, plan.out
+    base, axes, combos, points, root, out = (
+        plan.base,
+        plan.axes,
+        plan.combos,
+        plan.points,
+        plan.root,
+        plan.out,
+    )
     description = plan.description
     tracker = None
     if track:
         from pcpg_dist.tracking import SweepTracker
 
-        sweep_key = hashlib.sha256(json.dumps([base.hash(), [[_describe(c)] for c in combos]],
-                                              sort_keys=True).encode()).hexdigest()[:16]
+        sweep_key = hashlib.sha256(
+            json.dumps([base.hash(), [[_describe(c)] for c in combos]], sort_keys=True).encode()
+        ).hexdigest()[:16]
         tracker = SweepTracker.start(base.name, sweep_key, axes, description, tracking_uri)
     try:
         done = {id(p): _finished(p.out, p.cfg, track, tracking_uri) for p in points}
         todo = [p for p in points if done[id(p)] is None]
-        results = run_points(todo, root / "cache", tracking_uri=tracking_uri, track=track,
-                             show_progress=show_progress,
-                             sweep_parent_id=tracker.parent_id if tracker else None) if todo else []
+        results = (
+            run_points(
+                todo,
+                root / "cache",
+                tracking_uri=tracking_uri,
+                track=track,
+                show_progress=show_progress,
+                sweep_parent_id=tracker.parent_id if tracker else None,
+            )
+            if todo
+            else []
+        )
         if tracker is not None:  # reused points are this sweep's too (one child per point)
             for p in points:
                 if done[id(p)] is not None:
@@ -242,27 +318,54 @@ def run_sweep(config: str | Path, axes_args: list[str], overrides: list[str] | N
         rows = []
         for p, combo in zip(points, combos, strict=True):
             m = metrics_of[id(p)] if done[id(p)] is None else done[id(p)][0]
-            rows.append({**{k: _fmt(v) if isinstance(v, list | dict) else v for k, v in combo.items()},
-                         "point": p.out.name, **headline(m)})
+            rows.append(
+                {
+                    **{k: _fmt(v) if isinstance(v, list | dict) else v for k, v in combo.items()},
+                    "point": p.out.name,
+                    **headline(m),
+                }
+            )
         files = write_sweep_files(out, plan, rows)
         figures = [f for f in files if f.suffix == ".png"]
         if tracker is not None:
             best, where = best_points(axes, rows)
-            note = description + "".join(f"\n\n{line}" for line in [
-                "Best points: " + "; ".join(f"{_readable(k)} {best[f'best/{k}']:.3f} at `{w}`" for k, w in where.items())
-                if where else "", STAGE_NOTE])
+            note = description + "".join(
+                f"\n\n{line}"
+                for line in [
+                    "Best points: "
+                    + "; ".join(
+                        f"{_readable(k)} {best[f'best/{k}']:.3f} at `{w}`" for k, w in where.items()
+                    )
+                    if where
+                    else "",
+                    STAGE_NOTE,
+                ]
+            )
             timings = {}
-            if results:  # the stages this call computed, all its points batched: the sweep's, not a point's
-                timings = {f"time/{s}_seconds": results[0].stage_seconds[s] for s in BATCHED_STAGES
-                           if s in results[0].stage_seconds and s not in results[0].cached_stages}
+            if (
+                results
+            ):  # the stages this call computed, all its points batched: the sweep's, not a point's
+                timings = {
+                    f"time/{s}_seconds": results[0].stage_seconds[s]
+                    for s in BATCHED_STAGES
+                    if s in results[0].stage_seconds and s not in results[0].cached_stages
+                }
                 timings["time/sweep_seconds"] = time.perf_counter() - t0
             tracker.finish(best, files, best_points=where, timings=timings, note=note)
     except BaseException:
         if tracker is not None:
             tracker.fail()
         raise
-    return SweepResult(out, axes, rows, figures, time.perf_counter() - t0, ran=len(todo), computed=computed,
-                       parent_run_id=tracker.parent_id if tracker else None)
+    return SweepResult(
+        out,
+        axes,
+        rows,
+        figures,
+        time.perf_counter() - t0,
+        ran=len(todo),
+        computed=computed,
+        parent_run_id=tracker.parent_id if tracker else None,
+    )
 
 
 def write_sweep_files(out: Path, plan: SweepPlan, rows: list[dict[str, Any]]) -> list[Path]:
@@ -273,8 +376,15 @@ def write_sweep_files(out: Path, plan: SweepPlan, rows: list[dict[str, Any]]) ->
     out.mkdir(parents=True, exist_ok=True)
     figures = draw_sweep(out, plan.axes, rows)
     csv_path = _write_table(out, plan.axes, rows)
-    record = {"format": SWEEP_FORMAT, "name": plan.base.name, "description": plan.description,
-              "axes": plan.axes, "fixed": plan.fixed, "points": len(rows), "figures": [f.name for f in figures]}
+    record = {
+        "format": SWEEP_FORMAT,
+        "name": plan.base.name,
+        "description": plan.description,
+        "axes": plan.axes,
+        "fixed": plan.fixed,
+        "points": len(rows),
+        "figures": [f.name for f in figures],
+    }
     meta = out / SWEEP_JSON
     atomic_write_bytes(meta, json.dumps(record, indent=1, default=str).encode())
     report = render_sweep_report(out, out)
@@ -292,8 +402,10 @@ def _describe(combo: dict[str, Any]) -> str:
 def _write_table(out: Path, axes: dict[str, list], rows: list[dict[str, Any]]) -> Path:
     import pandas as pd
 
-    metric_cols = sorted({k for r in rows for k in r if k not in axes and k != "point"},
-                         key=lambda k: (k.removesuffix(STD), k.endswith(STD)))
+    metric_cols = sorted(
+        {k for r in rows for k in r if k not in axes and k != "point"},
+        key=lambda k: (k.removesuffix(STD), k.endswith(STD)),
+    )
     table = pd.DataFrame(rows, columns=[*axes, *metric_cols, "point"])
     path = out / "summary.csv"
     atomic_write_bytes(path, table.to_csv(index=False, float_format="%.6g").encode())
@@ -305,16 +417,28 @@ def _numeric(values: list) -> bool:
 
 
 # Readable names for the figures (the raw key stays in brackets on the axis).
-AXIS_LABELS = {"pbtg.noise_max": "largest per-trajectory action noise", "pbtg.noise_min": "smallest action noise",
-               "clustering.k": "k (clusters)", "clustering.method": "clustering method",
-               "bc.epochs": "BC epochs", "bc.hidden_size": "BC hidden size", "bc.lr": "BC learning rate",
-               "pbtg.trajectories_per_style": "trajectories per style",
-               "pbtg.dataset_per_style": "dataset trajectories per style"}
-_METRIC_LABELS = {"clustering/accuracy": "clustering accuracy", "clustering/ceiling": "supervised ceiling",
-                  "clustering/gap_to_ceiling": "gap to the supervised ceiling",
-                  "cross/diagonal_mean": "cross-accuracy diagonal (mean)"}
-_PER_P = {"pcpg/accuracy/p": "PCPG accuracy", "baseline/accuracy/p": "No Clustering accuracy",
-          "pcpg_lead/p": "PCPG lead over No Clustering"}
+AXIS_LABELS = {
+    "pbtg.noise_max": "largest per-trajectory action noise",
+    "pbtg.noise_min": "smallest action noise",
+    "clustering.k": "k (clusters)",
+    "clustering.method": "clustering method",
+    "bc.epochs": "BC epochs",
+    "bc.hidden_size": "BC hidden size",
+    "bc.lr": "BC learning rate",
+    "pbtg.trajectories_per_style": "trajectories per style",
+    "pbtg.dataset_per_style": "dataset trajectories per style",
+}
+_METRIC_LABELS = {
+    "clustering/accuracy": "clustering accuracy",
+    "clustering/ceiling": "supervised ceiling",
+    "clustering/gap_to_ceiling": "gap to the supervised ceiling",
+    "cross/diagonal_mean": "cross-accuracy diagonal (mean)",
+}
+_PER_P = {
+    "pcpg/accuracy/p": "PCPG accuracy",
+    "baseline/accuracy/p": "No Clustering accuracy",
+    "pcpg_lead/p": "PCPG lead over No Clustering",
+}
 
 
 def _readable(metric: str) -> str:
@@ -343,9 +467,21 @@ def draw_sweep(out: Path, axes: dict[str, list], rows: list[dict[str, Any]]) -> 
 
     from pcpg_dist.tracking import short_keys
 
-    metrics = [k for k in dict.fromkeys(k for r in rows for k in r)
-               if k not in axes and k != "point" and not k.endswith(STD)]
-    palette = ["#0072B2", "#E69F00", "#009E73", "#CC79A7", "#56B4E9", "#D55E00", "#F0E442", "#000000"]
+    metrics = [
+        k
+        for k in dict.fromkeys(k for r in rows for k in r)
+        if k not in axes and k != "point" and not k.endswith(STD)
+    ]
+    palette = [
+        "#0072B2",
+        "#E69F00",
+        "#009E73",
+        "#CC79A7",
+        "#56B4E9",
+        "#D55E00",
+        "#F0E442",
+        "#000000",
+    ]
     markers = ["o", "s", "^", "D", "v", "P", "X", "*"]
     short = short_keys(list(axes))
     paths = []
@@ -362,39 +498,71 @@ def draw_sweep(out: Path, axes: dict[str, list], rows: list[dict[str, Any]]) -> 
             lines: dict[tuple, list] = {}
             for key, members in groups.items():
                 by_x = {_fmt(r[axis]): r for r in members}
-                pts = [(x, by_x[_fmt(v)]) for x, v in zip(xs, values, strict=True) if _fmt(v) in by_x]
-                lines[key] = [(x, r.get(metric, math.nan), r.get(metric + STD, 0.0)) for x, r in pts]
-            same = {key: [other for other in lines if other != key and lines[other] == lines[key]] for key in lines}
+                pts = [
+                    (x, by_x[_fmt(v)]) for x, v in zip(xs, values, strict=True) if _fmt(v) in by_x
+                ]
+                lines[key] = [
+                    (x, r.get(metric, math.nan), r.get(metric + STD, 0.0)) for x, r in pts
+                ]
+            same = {
+                key: [other for other in lines if other != key and lines[other] == lines[key]]
+                for key in lines
+            }
             has_std = False
             n = len(lines)
             for gi, (key, pts) in enumerate(lines.items()):
                 shift = (gi - (n - 1) / 2) * width * 0.04 if n > 1 else 0.0
-                err = [e if isinstance(e, int | float) and math.isfinite(e) else 0.0 for _, _, e in pts]
+                err = [
+                    e if isinstance(e, int | float) and math.isfinite(e) else 0.0 for _, _, e in pts
+                ]
                 has_std |= any(e > 0 for e in err)
-                label = ", ".join(f"{short[o]}={k}" for o, k in zip(others, key, strict=True)) or None
+                label = (
+                    ", ".join(f"{short[o]}={k}" for o, k in zip(others, key, strict=True)) or None
+                )
                 if label and same[key]:
-                    label += " (same as " + "; ".join(", ".join(f"{short[o]}={k}" for o, k in zip(others, twin, strict=True))
-                                                     for twin in same[key]) + ")"
-                ax.errorbar([x + shift for x, _, _ in pts], [y for _, y, _ in pts], yerr=err, marker=markers[gi % len(markers)],
-                            capsize=3, label=label, color=palette[gi % len(palette)], alpha=0.9)
+                    label += (
+                        " (same as "
+                        + "; ".join(
+                            ", ".join(f"{short[o]}={k}" for o, k in zip(others, twin, strict=True))
+                            for twin in same[key]
+                        )
+                        + ")"
+                    )
+                ax.errorbar(
+                    [x + shift for x, _, _ in pts],
+                    [y for _, y, _ in pts],
+                    yerr=err,
+                    marker=markers[gi % len(markers)],
+                    capsize=3,
+                    label=label,
+                    color=palette[gi % len(palette)],
+                    alpha=0.9,
+                )
             ax.set_xticks(xs, [_fmt(v) for v in values])
             ax.set_xlabel(_axis_label(axis))
             ax.set_ylabel(_readable(metric))
             ax.grid(alpha=0.3)
             if len(lines) > 1:
                 ax.legend(fontsize=7, loc="best")
-            bars = "error bars: std over seeds, mean over environments" if has_std else "no error bars: no std over seeds"
-            ax.set_title(f"{_readable(metric)} vs {AXIS_LABELS.get(axis, axis)}\n({bars})", fontsize=10)
+            bars = (
+                "error bars: std over seeds, mean over environments"
+                if has_std
+                else "no error bars: no std over seeds"
+            )
+            ax.set_title(
+                f"{_readable(metric)} vs {AXIS_LABELS.get(axis, axis)}\n({bars})", fontsize=10
+            )
             fig.tight_layout()
-            path = out / f"{re.sub(r'[^A-Za-z0-9._-]+', '_', metric)}__vs__{re.sub(r'[^A-Za-z0-9._-]+', '_', axis)}.png"
+            path = (
+                out
+                / f"{re.sub(r'[^A-Za-z0-9._-]+', '_', metric)}__vs__{re.sub(r'[^A-Za-z0-9._-]+', '_', axis)}.png"
+            )
             png = io.BytesIO()
             fig.savefig(png, format="png")
             plt.close(fig)
             atomic_write_bytes(path, png.getvalue())
             paths.append(path)
     return paths
-
-
 
 
 def read_sweep_record(folder: Path) -> dict[str, Any]:
@@ -405,19 +573,29 @@ def read_sweep_record(folder: Path) -> dict[str, Any]:
     if not path.is_file():
         report = Path(folder) / "report.html"
         older = f"; its report, as that sweep wrote it, is {report}" if report.is_file() else ""
-        raise DataError(f"{folder}: no {SWEEP_JSON}, so not a sweep folder written by this pcpg{older} (rerunning the "
-                        "same pcpg sweep command writes it; finished units come from the cache)")
+        raise DataError(
+            f"{folder}: no {SWEEP_JSON}, so not a sweep folder written by this pcpg{older} (rerunning the "
+            "same pcpg sweep command writes it; finished units come from the cache)"
+        )
     record = read_json(path)
     checks = {"name": str, "description": str, "axes": dict, "fixed": dict, "figures": list}
     for key, kind in checks.items():
         if not isinstance(record.get(key), kind):
-            raise DataError(f"{path}: {key!r} is {reprlib.repr(record.get(key))}; expected {kind.__name__}")
+            raise DataError(
+                f"{path}: {key!r} is {reprlib.repr(record.get(key))}; expected {kind.__name__}"
+            )
     for axis, values in record["axes"].items():
         if not isinstance(values, list):
-            raise DataError(f"{path}: axis {reprlib.repr(axis)} holds {reprlib.repr(values)}; expected a list")
-    for name in record["figures"]:  # plain file names beside sweep.json: a figure never comes from elsewhere
+            raise DataError(
+                f"{path}: axis {reprlib.repr(axis)} holds {reprlib.repr(values)}; expected a list"
+            )
+    for name in record[
+        "figures"
+    ]:  # plain file names beside sweep.json: a figure never comes from elsewhere
         if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._=-]*\.png", name):
-            raise DataError(f"{path}: figure {reprlib.repr(name)} is not a PNG file name of this folder")
+            raise DataError(
+                f"{path}: figure {reprlib.repr(name)} is not a PNG file name of this folder"
+            )
     return record
 
 
@@ -442,7 +620,9 @@ def _read_rows(path: Path, axes: dict[str, list]) -> list[dict[str, Any]]:
             try:
                 row[col] = float(value)
             except ValueError:
-                raise DataError(f"{path}: line {i}, {col!r} is {reprlib.repr(value)}; expected a number") from None
+                raise DataError(
+                    f"{path}: line {i}, {col!r} is {reprlib.repr(value)}; expected a number"
+                ) from None
         rows.append(row)
     return rows
 

@@ -59,7 +59,12 @@ os.environ.setdefault("MLFLOW_HTTP_REQUEST_MAX_RETRIES", "2")
 log = logging.getLogger(__name__)
 
 ROLE, UNIT, CONFIG_HASH = "pcpg.role", "pcpg.unit_key", "pcpg.config_hash"
-SWEEP_KEY, LOGGED, ARTIFACTS, AGENTS = "pcpg.sweep_key", "pcpg.logged", "pcpg.artifacts_logged", "pcpg.agents_logged"
+SWEEP_KEY, LOGGED, ARTIFACTS, AGENTS = (
+    "pcpg.sweep_key",
+    "pcpg.logged",
+    "pcpg.artifacts_logged",
+    "pcpg.agents_logged",
+)
 NOTE, PARENT, RUN_NAME = "mlflow.note.content", "mlflow.parentRunId", "mlflow.runName"
 SAME_AS = "pcpg.same_as"  # a sweep's copy of a point another sweep ran (SweepTracker.add_reused)
 # The MLflow 3 UI opens an experiment without this tag on its GenAI overview; the classic-ML
@@ -112,8 +117,10 @@ def store_lock(uri: str, key: str, timeout: float = LOCK_TIMEOUT) -> Iterator[No
         with FileLock(str(path), timeout=timeout):
             yield
     except Timeout:
-        raise ServiceError(f"waited {timeout:.0f} s for the MLflow store lock {path} ({key}); another pcpg "
-                           f"process holds it: let it finish or end it") from None
+        raise ServiceError(
+            f"waited {timeout:.0f} s for the MLflow store lock {path} ({key}); another pcpg "
+            f"process holds it: let it finish or end it"
+        ) from None
 
 
 _prepared: set[str] = set()
@@ -122,7 +129,10 @@ _prepared: set[str] = set()
 @contextlib.contextmanager
 def _quiet_migration() -> Iterator[None]:
     """MLflow and alembic log each schema step at INFO: nothing a user acts on."""
-    loggers = [logging.getLogger(n) for n in ("mlflow.store.db.utils", "alembic", "alembic.runtime.migration")]
+    loggers = [
+        logging.getLogger(n)
+        for n in ("mlflow.store.db.utils", "alembic", "alembic.runtime.migration")
+    ]
     levels = [lg.level for lg in loggers]
     for lg in loggers:
         lg.setLevel(logging.WARNING)
@@ -194,8 +204,13 @@ def _repair_sqlite_store(uri: str, db: Path, error: Exception) -> None:
         for extra in ("-journal", "-wal", "-shm"):
             with contextlib.suppress(FileNotFoundError):
                 os.replace(f"{db}{extra}", f"{aside}{extra}")
-        log.warning("the MLflow store %s was left half-created by an interrupted run (%s); it held no runs, "
-                    "so it was moved to %s and created afresh", db, reason, aside.name)
+        log.warning(
+            "the MLflow store %s was left half-created by an interrupted run (%s); it held no runs, "
+            "so it was moved to %s and created afresh",
+            db,
+            reason,
+            aside.name,
+        )
         _open_sqlite_store(uri)
         return
     backup = db.with_name(f"{db.name}.backup-{stamp}")
@@ -208,12 +223,19 @@ def _repair_sqlite_store(uri: str, db: Path, error: Exception) -> None:
             _upgrade_db(engine)
             engine.dispose()
         _open_sqlite_store(uri)
-        log.warning("the MLflow store %s had an unfinished schema migration (%s); finished it (copy kept "
-                    "at %s)", db, reason, backup.name)
+        log.warning(
+            "the MLflow store %s had an unfinished schema migration (%s); finished it (copy kept "
+            "at %s)",
+            db,
+            reason,
+            backup.name,
+        )
     except Exception as e:  # noqa: BLE001 - whatever the migration raised, one line
         again = first_line(e)
-        raise ServiceError(f"the MLflow store {db} ({runs} runs) is damaged and could not be migrated ({again}); "
-                           f"a copy is at {backup}: move {db.name} away to start a fresh store") from None
+        raise ServiceError(
+            f"the MLflow store {db} ({runs} runs) is damaged and could not be migrated ({again}); "
+            f"a copy is at {backup}: move {db.name} away to start a fresh store"
+        ) from None
 
 
 def _artifact_root(uri: str) -> str | None:
@@ -227,8 +249,10 @@ def check_store_holds(target: str, uri: str) -> None:
     holds no run (opening it would leave a 1 MB empty ``mlflow.db`` behind)."""
     db = _sqlite_path(uri)
     if db is not None and not db.is_file():
-        raise DataError(f"{target!r} is neither a run's output folder nor an MLflow run: no such folder, and "
-                        f"no MLflow store at {uri}")
+        raise DataError(
+            f"{target!r} is neither a run's output folder nor an MLflow run: no such folder, and "
+            f"no MLflow store at {uri}"
+        )
 
 
 HEALTH_TIMEOUT = 8.0  # s an MLflow server's /health may take before pcpg calls it hung
@@ -240,38 +264,56 @@ def check_tracking_uri(uri: str, timeout: float = HEALTH_TIMEOUT) -> None:
     refuses them), or a ``sqlite:///`` path that is not an MLflow database (pcpg would otherwise
     repair it as a half-created store, moving the user's file aside)."""
     scheme = uri.partition("://")[0].lower() if "://" in uri else ""
-    forms = ("use sqlite:///PATH/mlflow.db, http(s)://HOST:PORT or postgresql+psycopg2://USER@HOST:PORT/DB, "
-             "or --no-tracking")
+    forms = (
+        "use sqlite:///PATH/mlflow.db, http(s)://HOST:PORT or postgresql+psycopg2://USER@HOST:PORT/DB, "
+        "or --no-tracking"
+    )
     if scheme in ("http", "https"):
         try:
             if (status := _health(uri, timeout)) != 200:
                 raise ServiceError(f"MLflow server at {_shown(uri)} answered {status} on /health")
-        except http.client.HTTPException as e:  # something answers, not in HTTP (a Ray or database port)
-            raise ServiceError(f"{_shown(uri)} does not answer in HTTP ({type(e).__name__}): is it the MLflow "
-                               f"server's port? set MLFLOW_TRACKING_URI to the server's http://HOST:PORT") from None
+        except (
+            http.client.HTTPException
+        ) as e:  # something answers, not in HTTP (a Ray or database port)
+            raise ServiceError(
+                f"{_shown(uri)} does not answer in HTTP ({type(e).__name__}): is it the MLflow "
+                f"server's port? set MLFLOW_TRACKING_URI to the server's http://HOST:PORT"
+            ) from None
         except (urllib.error.URLError, OSError, TimeoutError, ValueError) as e:
             reason = getattr(e, "reason", e)
-            raise ServiceError(f"MLflow tracking server {_shown(uri)} is unreachable ({reason}); start it or set "
-                               f"MLFLOW_TRACKING_URI to a reachable server (unset = local sqlite)") from None
+            raise ServiceError(
+                f"MLflow tracking server {_shown(uri)} is unreachable ({reason}); start it or set "
+                f"MLFLOW_TRACKING_URI to a reachable server (unset = local sqlite)"
+            ) from None
     elif scheme == "sqlite":
         if (db := _sqlite_path(uri)) is not None:
             _check_sqlite_store(uri, db)
     elif scheme == "postgresql":
-        raise ServiceError(f"tracking URI {_shown(uri)}: write postgresql+psycopg2://... (SQLAlchemy reads a "
-                           f"bare postgresql:// as the psycopg 3 driver, which pcpg does not ship)")
+        raise ServiceError(
+            f"tracking URI {_shown(uri)}: write postgresql+psycopg2://... (SQLAlchemy reads a "
+            f"bare postgresql:// as the psycopg 3 driver, which pcpg does not ship)"
+        )
     elif scheme.split("+")[0] in ("postgresql", "mysql", "mssql"):
         _check_port(uri, timeout)
         _check_database(uri, timeout)
     elif uri.startswith("databricks"):
         return
-    elif scheme == "" and re.fullmatch(r"[A-Za-z0-9.-]+:\d+(/.*)?", uri):  # HOST:PORT, the scheme left out
-        raise ServiceError(f"tracking URI {_shown(uri)} has no scheme: write http://{uri} for an MLflow server; {forms}")
+    elif scheme == "" and re.fullmatch(
+        r"[A-Za-z0-9.-]+:\d+(/.*)?", uri
+    ):  # HOST:PORT, the scheme left out
+        raise ServiceError(
+            f"tracking URI {_shown(uri)} has no scheme: write http://{uri} for an MLflow server; {forms}"
+        )
     elif scheme in ("", "file"):
         if os.environ.get("MLFLOW_ALLOW_FILE_STORE", "").lower() not in ("1", "true"):
-            raise ServiceError(f"tracking URI {_shown(uri)} is a folder store, which MLflow 3 no longer accepts; "
-                               f"{forms}")
+            raise ServiceError(
+                f"tracking URI {_shown(uri)} is a folder store, which MLflow 3 no longer accepts; "
+                f"{forms}"
+            )
     else:
-        raise ServiceError(f"tracking URI {_shown(uri)}: MLflow stores runs at no {scheme}:// address; {forms}")
+        raise ServiceError(
+            f"tracking URI {_shown(uri)}: MLflow stores runs at no {scheme}:// address; {forms}"
+        )
 
 
 def _shown(uri: str) -> str:
@@ -286,11 +328,15 @@ def _check_port(uri: str, timeout: float) -> None:
 
     try:
         url = urllib.parse.urlsplit(uri)
-        host, port = url.hostname or "localhost", url.port or {"mysql": 3306, "mssql": 1433}.get(
-            url.scheme.split("+")[0], 5432)
+        host, port = (
+            url.hostname or "localhost",
+            url.port or {"mysql": 3306, "mssql": 1433}.get(url.scheme.split("+")[0], 5432),
+        )
         socket.create_connection((host, port), timeout=timeout).close()
     except (OSError, ValueError) as e:
-        raise ServiceError(f"tracking database {_shown(uri)} is unreachable ({e}); start it or fix the URI") from None
+        raise ServiceError(
+            f"tracking database {_shown(uri)} is unreachable ({e}); start it or fix the URI"
+        ) from None
 
 
 def _check_database(uri: str, timeout: float) -> None:
@@ -304,17 +350,23 @@ def _check_database(uri: str, timeout: float) -> None:
     try:
         engine = sqlalchemy.create_engine(uri, connect_args=args)
     except (NoSuchModuleError, ImportError) as e:
-        raise ServiceError(f"tracking URI {_shown(uri)}: its driver is not installed ({first_line(e, 200)}); "
-                           f"pcpg ships postgresql+psycopg2://") from None
+        raise ServiceError(
+            f"tracking URI {_shown(uri)}: its driver is not installed ({first_line(e, 200)}); "
+            f"pcpg ships postgresql+psycopg2://"
+        ) from None
     except (SQLAlchemyError, ValueError) as e:
-        raise ServiceError(f"tracking URI {_shown(uri)} is not a database URL SQLAlchemy reads ({first_line(e, 200)})") from None
+        raise ServiceError(
+            f"tracking URI {_shown(uri)} is not a database URL SQLAlchemy reads ({first_line(e, 200)})"
+        ) from None
     try:
         with engine.connect():
             pass
     except SQLAlchemyError as e:
         cause = first_line(getattr(e, "orig", None) or e, 300)
-        raise ServiceError(f"tracking database {_shown(uri)} refused the connection ({cause}); create the "
-                           f"database or user, or fix the URI") from None
+        raise ServiceError(
+            f"tracking database {_shown(uri)} refused the connection ({cause}); create the "
+            f"database or user, or fix the URI"
+        ) from None
     finally:
         engine.dispose()
 
@@ -324,18 +376,24 @@ def _check_sqlite_store(uri: str, db: Path) -> None:
     if not db.exists():
         return
     if not db.is_file():
-        raise ServiceError(f"tracking URI {_shown(uri)}: {db} is not a regular file; a sqlite:/// URI names "
-                           f"an MLflow database file (created if missing)")
+        raise ServiceError(
+            f"tracking URI {_shown(uri)}: {db} is not a regular file; a sqlite:/// URI names "
+            f"an MLflow database file (created if missing)"
+        )
     with db.open("rb") as f:
         head = f.read(16)
     if head and head != b"SQLite format 3\x00":
-        raise ServiceError(f"tracking URI {_shown(uri)}: {db} is not an SQLite database; point the URI at an "
-                           f"MLflow database or a new file")
+        raise ServiceError(
+            f"tracking URI {_shown(uri)}: {db} is not an SQLite database; point the URI at an "
+            f"MLflow database or a new file"
+        )
     try:
         con = sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=30)
         try:
-            tables = {t: {c[1] for c in con.execute(f"PRAGMA table_info('{t}')")}
-                      for (t,) in con.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+            tables = {
+                t: {c[1] for c in con.execute(f"PRAGMA table_info('{t}')")}
+                for (t,) in con.execute("SELECT name FROM sqlite_master WHERE type = 'table'")
+            }
         finally:
             con.close()
     except sqlite3.Error:
@@ -343,11 +401,17 @@ def _check_sqlite_store(uri: str, db: Path) -> None:
     # A store whatever its MLflow version, or one left half-created, has these columns where it has
     # these tables; another program's database (its own 'runs' table, say) does not.
     own = {"runs": "run_uuid", "experiments": "experiment_id", "alembic_version": "version_num"}
-    foreign = [t for t in tables if not t.startswith("sqlite_") and t not in own and not tables.keys() & own]
+    foreign = [
+        t
+        for t in tables
+        if not t.startswith("sqlite_") and t not in own and not tables.keys() & own
+    ]
     foreign += [t for t, col in own.items() if t in tables and col not in tables[t]]
     if foreign:
-        raise ServiceError(f"tracking URI {_shown(uri)}: {db} is an SQLite database of another program (table "
-                           f"{foreign[0]!r} is not MLflow's); point the URI at an MLflow database or a new file")
+        raise ServiceError(
+            f"tracking URI {_shown(uri)}: {db} is an SQLite database of another program (table "
+            f"{foreign[0]!r} is not MLflow's); point the URI at an MLflow database or a new file"
+        )
 
 
 def _client(uri: str):
@@ -369,16 +433,21 @@ def _retry(fn, *args, attempts: int = 5, **kwargs):
         try:
             return fn(*args, **kwargs)
         except (MlflowException, OSError) as e:
-            if getattr(e, "error_code", "") in ("INVALID_PARAMETER_VALUE", "RESOURCE_ALREADY_EXISTS"):
+            if getattr(e, "error_code", "") in (
+                "INVALID_PARAMETER_VALUE",
+                "RESOURCE_ALREADY_EXISTS",
+            ):
                 raise
             uri = getattr(getattr(fn, "__self__", None), "tracking_uri", "(unknown URI)")
             hung = _hangs(uri)
             if i == attempts - 1 or hung:
                 first = _reason(e)
                 what = "accepts connections but does not answer" if hung else "failed"
-                raise ServiceError(f"MLflow tracking server {_shown(uri)} {what} ({first}); local results are kept: "
-                                   f"rerun the same command once it is reachable to log them") from None
-            time.sleep(min(2 ** i, 10))
+                raise ServiceError(
+                    f"MLflow tracking server {_shown(uri)} {what} ({first}); local results are kept: "
+                    f"rerun the same command once it is reachable to log them"
+                ) from None
+            time.sleep(min(2**i, 10))
     return None
 
 
@@ -418,26 +487,34 @@ def _hangs(uri: str) -> bool:
 
 
 # --------------------------------------------------------------------------- logging helpers
-def _log_params(client, run_id: str, params: dict[str, str], have: dict[str, str] | None = None) -> None:
+def _log_params(
+    client, run_id: str, params: dict[str, str], have: dict[str, str] | None = None
+) -> None:
     """Params not yet on the run (MLflow refuses to change a logged param's value)."""
     from mlflow.entities import Param
 
     items = [Param(k, str(v)[:6000]) for k, v in sorted(params.items()) if k not in (have or {})]
     for i in range(0, len(items), PARAM_BATCH):
-        _retry(client.log_batch, run_id, params=items[i: i + PARAM_BATCH])
+        _retry(client.log_batch, run_id, params=items[i : i + PARAM_BATCH])
 
 
-def _log_once(client, run_id: str, points: list[tuple[str, float, int]], tags: dict[str, str]) -> None:
+def _log_once(
+    client, run_id: str, points: list[tuple[str, float, int]], tags: dict[str, str]
+) -> None:
     """Metrics and tags in as few batches as MLflow allows, the tags (the digest) in the last one."""
     from mlflow.entities import Metric, RunTag
 
     now = int(time.time() * 1000)
     items = [Metric(k, float(v), now, int(step)) for k, v, step in points]
-    chunks = [items[i: i + METRIC_BATCH] for i in range(0, len(items), METRIC_BATCH)] or [[]]
+    chunks = [items[i : i + METRIC_BATCH] for i in range(0, len(items), METRIC_BATCH)] or [[]]
     for i, chunk in enumerate(chunks):
         last = i == len(chunks) - 1
-        _retry(client.log_batch, run_id, metrics=chunk,
-               tags=[RunTag(k, v[:5000]) for k, v in tags.items()] if last else [])
+        _retry(
+            client.log_batch,
+            run_id,
+            metrics=chunk,
+            tags=[RunTag(k, v[:5000]) for k, v in tags.items()] if last else [],
+        )
 
 
 def _log_metrics(client, run_id: str, metrics: dict[str, float]) -> None:
@@ -504,7 +581,9 @@ def curves(metrics: dict[str, float]) -> tuple[dict[str, dict[float, float]], di
     return found, scalars
 
 
-def _curve_points(named: dict[str, dict[float, float]]) -> tuple[list[tuple[str, float, int]], dict[str, int]]:
+def _curve_points(
+    named: dict[str, dict[float, float]],
+) -> tuple[list[tuple[str, float, int]], dict[str, int]]:
     points, scales = [], {}
     for key, curve in sorted(named.items()):
         steps, scale = _steps(list(curve))
@@ -516,23 +595,38 @@ def _curve_points(named: dict[str, dict[float, float]]) -> tuple[list[tuple[str,
 # The parent's scalars after PCPG and No Clustering at the largest and smallest p and the
 # clustering trio, most important first (the budget keeps the head of the list).
 _CLUSTERING = ("clustering/accuracy", "clustering/ceiling", "clustering/gap_to_ceiling")
-_HEADLINE = ("clustering/ari", "clustering/nmi", "random/accuracy", "majority/accuracy", "pcpg/wins_over_baseline",
-             "cross/diagonal_mean", "correlation/diagonal_mean", "corruption/baseline/accuracy")
+_HEADLINE = (
+    "clustering/ari",
+    "clustering/nmi",
+    "random/accuracy",
+    "majority/accuracy",
+    "pcpg/wins_over_baseline",
+    "cross/diagonal_mean",
+    "correlation/diagonal_mean",
+    "corruption/baseline/accuracy",
+)
 # Curves over an axis: (source prefix, axis) -> chart key; the MLflow UI draws value against step.
-PARENT_CURVES = {("pcpg/accuracy", "p"): "accuracy_vs_p/pcpg",
-                 ("baseline/accuracy", "p"): "accuracy_vs_p/no_clustering",
-                 ("majority/accuracy", "p"): "accuracy_vs_p/majority_class",
-                 ("corruption/accuracy", "c"): "accuracy_vs_corruption/pcpg",
-                 ("corruption/accuracy_true_subsets", "c"): "accuracy_vs_corruption/pcpg_true_subsets"}
+PARENT_CURVES = {
+    ("pcpg/accuracy", "p"): "accuracy_vs_p/pcpg",
+    ("baseline/accuracy", "p"): "accuracy_vs_p/no_clustering",
+    ("majority/accuracy", "p"): "accuracy_vs_p/majority_class",
+    ("corruption/accuracy", "c"): "accuracy_vs_corruption/pcpg",
+    ("corruption/accuracy_true_subsets", "c"): "accuracy_vs_corruption/pcpg_true_subsets",
+}
 # A headline scalar that can be the very number of a curve or per-p scalar already logged, e.g.
 # `corruption/baseline/accuracy` (No Clustering over the corruption study's p, at c = 0) is
 # `baseline/accuracy/p1` when that study uses p = 1 only, and `majority/accuracy` is the last point of
 # the `accuracy_vs_p/majority_class` curve: each is logged only when it differs.
-_MAYBE_SAME = {"corruption/baseline/accuracy": "baseline/accuracy", "majority/accuracy": "majority/accuracy",
-               "random/accuracy": "random/accuracy"}
+_MAYBE_SAME = {
+    "corruption/baseline/accuracy": "baseline/accuracy",
+    "majority/accuracy": "majority/accuracy",
+    "random/accuracy": "random/accuracy",
+}
 
 
-def parent_metrics(result, timings: bool = True) -> tuple[list[tuple[str, float, int]], dict[str, int]]:
+def parent_metrics(
+    result, timings: bool = True
+) -> tuple[list[tuple[str, float, int]], dict[str, int]]:
     """The parent's (key, value, step) points: at most :data:`MAX_PARENT_METRICS` keys.
 
     Means over environments only (children hold each environment): PCPG and No Clustering at the
@@ -545,17 +639,30 @@ def parent_metrics(result, timings: bool = True) -> tuple[list[tuple[str, float,
     envs = tuple(f"{e}/" for e in getattr(result, "clustering", {}) or {})
     top = {k: v for k, v in result.metrics.items() if not k.startswith(envs)}
     by_axis, scalars = curves(top)
-    named = {PARENT_CURVES[(k.rsplit("/by_", 1)[0], k[-1])]: c for k, c in by_axis.items()
-             if (k.rsplit("/by_", 1)[0], k[-1]) in PARENT_CURVES and len(c) > 1}
+    named = {
+        PARENT_CURVES[(k.rsplit("/by_", 1)[0], k[-1])]: c
+        for k, c in by_axis.items()
+        if (k.rsplit("/by_", 1)[0], k[-1]) in PARENT_CURVES and len(c) > 1
+    }
     points, scales = _curve_points(named)
     ps = sorted(by_axis.get("pcpg/accuracy/by_p", {}), reverse=True)
     ends = list(dict.fromkeys([*ps[:1], *ps[-1:]]))
-    per_p = [f"{m}/accuracy/p{p:g}" for p in [*ends, *(p for p in ps if p not in ends)] for m in ("pcpg", "baseline")]
+    per_p = [
+        f"{m}/accuracy/p{p:g}"
+        for p in [*ends, *(p for p in ps if p not in ends)]
+        for m in ("pcpg", "baseline")
+    ]
     stage_seconds = getattr(result, "stage_seconds", {}) if timings else {}
     timing = [f"time/{k}_seconds" for k in stage_seconds]
     values = {**top, **{f"time/{k}_seconds": v for k, v in stage_seconds.items()}}
-    order = [*per_p[:4], *_CLUSTERING, *per_p[4:], *_HEADLINE, *timing,
-             *sorted(k for k in scalars if k.startswith("reward_distance/"))]
+    order = [
+        *per_p[:4],
+        *_CLUSTERING,
+        *per_p[4:],
+        *_HEADLINE,
+        *timing,
+        *sorted(k for k in scalars if k.startswith("reward_distance/")),
+    ]
     budget = MAX_PARENT_METRICS - len(named)
     chosen: list[str] = []
     for k in dict.fromkeys(order):
@@ -563,8 +670,14 @@ def parent_metrics(result, timings: bool = True) -> tuple[list[tuple[str, float,
             break
         if k not in values or not _finite(values[k]):
             continue
-        if k in _MAYBE_SAME and any(values.get(f"{_MAYBE_SAME[k]}/p{p:g}") == values[k] and (
-                f"{_MAYBE_SAME[k]}/p{p:g}" in chosen or PARENT_CURVES.get((_MAYBE_SAME[k], "p")) in named) for p in ps):
+        if k in _MAYBE_SAME and any(
+            values.get(f"{_MAYBE_SAME[k]}/p{p:g}") == values[k]
+            and (
+                f"{_MAYBE_SAME[k]}/p{p:g}" in chosen
+                or PARENT_CURVES.get((_MAYBE_SAME[k], "p")) in named
+            )
+            for p in ps
+        ):
             continue
         chosen.append(k)
     return [(k, float(values[k]), 0) for k in chosen] + points, scales
@@ -575,8 +688,13 @@ def child_metrics(metrics: dict[str, float]) -> tuple[list[tuple[str, float, int
     by_axis, scalars = curves(metrics)
     ps = sorted(by_axis.get("pcpg/accuracy/by_p", {}), reverse=True)
     if ps:  # the headline p as scalars too, for the runs table and compare views
-        scalars.update({f"{m}/accuracy/p{ps[0]:g}": metrics[f"{m}/accuracy/p{ps[0]:g}"]
-                        for m in ("pcpg", "baseline") if _finite(metrics.get(f"{m}/accuracy/p{ps[0]:g}"))})
+        scalars.update(
+            {
+                f"{m}/accuracy/p{ps[0]:g}": metrics[f"{m}/accuracy/p{ps[0]:g}"]
+                for m in ("pcpg", "baseline")
+                if _finite(metrics.get(f"{m}/accuracy/p{ps[0]:g}"))
+            }
+        )
     points, scales = _curve_points(by_axis)
     return [(k, v, 0) for k, v in sorted(scalars.items())] + points, scales
 
@@ -594,28 +712,49 @@ def describe_run(cfg, result, scales: dict[str, int], command: str) -> str:
     # the result first: the runs table's Description column and the page's summary show the start
     lines = []
     if ps:
-        at = [f"{_fmt(m.get(f'pcpg/accuracy/p{p:g}'))} vs {_fmt(m.get(f'baseline/accuracy/p{p:g}'))} at p = {p:g}"
-              for p in dict.fromkeys([ps[0], ps[-1]])]
-        lines.append(f"PCPG vs No Clustering accuracy: {'; '.join(at)} (mean over environments; random "
-                     f"{_fmt(m.get('random/accuracy'))}).")
+        at = [
+            f"{_fmt(m.get(f'pcpg/accuracy/p{p:g}'))} vs {_fmt(m.get(f'baseline/accuracy/p{p:g}'))} at p = {p:g}"
+            for p in dict.fromkeys([ps[0], ps[-1]])
+        ]
+        lines.append(
+            f"PCPG vs No Clustering accuracy: {'; '.join(at)} (mean over environments; random "
+            f"{_fmt(m.get('random/accuracy'))})."
+        )
     if _finite(m.get("clustering/accuracy")):
-        lines.append(f"Clustering accuracy {_fmt(m['clustering/accuracy'])}"
-                     + (f", gap to the supervised ceiling {_fmt(m['clustering/gap_to_ceiling'])}"
-                        if _finite(m.get("clustering/gap_to_ceiling")) else "") + ".")
+        lines.append(
+            f"Clustering accuracy {_fmt(m['clustering/accuracy'])}"
+            + (
+                f", gap to the supervised ceiling {_fmt(m['clustering/gap_to_ceiling'])}"
+                if _finite(m.get("clustering/gap_to_ceiling"))
+                else ""
+            )
+            + "."
+        )
     elif _finite(m.get("clustering/silhouette")):
-        lines.append(f"Clustering silhouette {_fmt(m['clustering/silhouette'])} (no true styles to compare).")
-    lines += ["", f"**{command or 'pcpg run'}** — experiment `{cfg.name}`, domain {getattr(cfg, 'domain', '?')}, "
-                  f"environments {', '.join(envs) or 'n/a'}, seeds "
-                  f"{', '.join(map(str, getattr(cfg, 'seeds', []) or []))}, config hash `{cfg.hash()}`."]
-    charts = [f"`{k}`: step = {s} × {'p' if k.startswith('accuracy_vs_p') else 'c'}"
-              for k, s in sorted(scales.items()) if s]
+        lines.append(
+            f"Clustering silhouette {_fmt(m['clustering/silhouette'])} (no true styles to compare)."
+        )
+    lines += [
+        "",
+        f"**{command or 'pcpg run'}** — experiment `{cfg.name}`, domain {getattr(cfg, 'domain', '?')}, "
+        f"environments {', '.join(envs) or 'n/a'}, seeds "
+        f"{', '.join(map(str, getattr(cfg, 'seeds', []) or []))}, config hash `{cfg.hash()}`.",
+    ]
+    charts = [
+        f"`{k}`: step = {s} × {'p' if k.startswith('accuracy_vs_p') else 'c'}"
+        for k, s in sorted(scales.items())
+        if s
+    ]
     if charts:
         lines += ["", "Curves: " + "; ".join(charts) + "."]
     cached = getattr(result, "cached_stages", None)
     if cached:
         lines.append(f"Stages served from cache: {', '.join(cached)}.")
-    lines += ["", "Children: one run per environment (its tables, figures, models and curves). Std over "
-              "seeds: `metrics.csv` artifacts. Tables and figures: `summary/`; the report: `report/report.html`."]
+    lines += [
+        "",
+        "Children: one run per environment (its tables, figures, models and curves). Std over "
+        "seeds: `metrics.csv` artifacts. Tables and figures: `summary/`; the report: `report/report.html`.",
+    ]
     return "\n".join(lines)
 
 
@@ -648,11 +787,15 @@ def find_run(target: str, uri: str | None = None):
     except MlflowException:
         exp = client.get_experiment_by_name(target)
         if exp is None:
-            raise ServiceError(f"{target!r} is neither a run's output folder, an MLflow run id nor an "
-                               f"experiment name at {uri}") from None
+            raise ServiceError(
+                f"{target!r} is neither a run's output folder, an MLflow run id nor an "
+                f"experiment name at {uri}"
+            ) from None
         run = newest_top_level_run(client, exp.experiment_id)
         if run is None:
-            raise ServiceError(f"experiment {target!r} at {uri} has no pcpg run or sweep yet") from None
+            raise ServiceError(
+                f"experiment {target!r} at {uri} has no pcpg run or sweep yet"
+            ) from None
         return run, uri
 
 
@@ -664,13 +807,21 @@ def newest_top_level_run(client, exp_id: str):
     for role in (PARENT_ROLE, SWEEP_ROLE):
         token, found = None, None
         while found is None:
-            page = _retry(client.search_runs, [exp_id], filter_string=f"tags.`{ROLE}` = '{role}'",
-                          order_by=["attributes.start_time DESC"], max_results=200, page_token=token)
+            page = _retry(
+                client.search_runs,
+                [exp_id],
+                filter_string=f"tags.`{ROLE}` = '{role}'",
+                order_by=["attributes.start_time DESC"],
+                max_results=200,
+                page_token=token,
+            )
             found = next((r for r in page if PARENT not in r.data.tags), None)
             token = page.token
             if not token:
                 break
-        if found is not None and (newest is None or (found.info.start_time or 0) > (newest.info.start_time or 0)):
+        if found is not None and (
+            newest is None or (found.info.start_time or 0) > (newest.info.start_time or 0)
+        ):
             newest = found
     return newest
 
@@ -680,7 +831,11 @@ def sweep_points_of(sweep_run_id: str, uri: str) -> list:
     ``point``, or ``parent`` when an older pcpg made it)."""
     client = _client(uri)
     exp_id = _retry(client.get_run, sweep_run_id).info.experiment_id
-    runs = [r for role in (POINT_ROLE, PARENT_ROLE) for r in _runs_with(client, exp_id, {ROLE: role, PARENT: sweep_run_id})]
+    runs = [
+        r
+        for role in (POINT_ROLE, PARENT_ROLE)
+        for r in _runs_with(client, exp_id, {ROLE: role, PARENT: sweep_run_id})
+    ]
     return sorted(runs, key=lambda r: (r.info.start_time or 0, r.info.run_id))
 
 
@@ -699,8 +854,12 @@ def open_experiment(name: str, uri: str | None):
             exp = _retry(client.get_experiment_by_name, name)
             if exp is None:
                 try:
-                    _retry(client.create_experiment, name, artifact_location=_artifact_root(uri),
-                           tags=dict([EXPERIMENT_KIND]))
+                    _retry(
+                        client.create_experiment,
+                        name,
+                        artifact_location=_artifact_root(uri),
+                        tags=dict([EXPERIMENT_KIND]),
+                    )
                 except MlflowException as e:  # created on another machine in the meantime
                     if getattr(e, "error_code", "") != "RESOURCE_ALREADY_EXISTS":
                         raise
@@ -719,8 +878,16 @@ def _runs_with(client, exp_id: str, tags: dict[str, str], parent: str | None = .
     return sorted(runs, key=lambda r: (r.info.start_time or 0, r.info.run_id))
 
 
-def _find_or_create(client, uri: str, exp_id: str, key: dict[str, str], parent: str | None,
-                    tags: dict[str, str], params: dict[str, str], legacy: dict[str, str] | None = None):
+def _find_or_create(
+    client,
+    uri: str,
+    exp_id: str,
+    key: dict[str, str],
+    parent: str | None,
+    tags: dict[str, str],
+    params: dict[str, str],
+    legacy: dict[str, str] | None = None,
+):
     """The run with identity ``key`` under ``parent``: found, or created under the identity's lock.
 
     Runs are found by their tags, never by name: a found run whose name differs from
@@ -777,7 +944,11 @@ def point_label(params: dict[str, str]) -> str:
 
 
 def _provenance_tags(out_dir: Path | None = None) -> dict[str, str]:
-    tags = {"pcpg.git_commit": git_commit(), "pcpg.version": pcpg_dist.__version__, "pcpg.uv_lock": uv_lock_hash()}
+    tags = {
+        "pcpg.git_commit": git_commit(),
+        "pcpg.version": pcpg_dist.__version__,
+        "pcpg.uv_lock": uv_lock_hash(),
+    }
     if out_dir is not None:
         tags["pcpg.output_dir"] = str(out_dir)
     return tags
@@ -785,7 +956,9 @@ def _provenance_tags(out_dir: Path | None = None) -> dict[str, str]:
 
 def _command(out_dir: Path) -> str:
     try:
-        return str(json.loads((Path(out_dir) / "summary" / "run.json").read_text()).get("command") or "")
+        return str(
+            json.loads((Path(out_dir) / "summary" / "run.json").read_text()).get("command") or ""
+        )
     except (OSError, ValueError, AttributeError):
         return ""
 
@@ -803,8 +976,14 @@ class Tracker:
     sweep_point: bool = False  # a point of a sweep: stage timings go on the sweep's run, not here
 
     @staticmethod
-    def start(cfg, uri: str | None, out_dir: Path, *, parent_run_id: str | None = None,
-              params: dict[str, str] | None = None) -> Tracker:
+    def start(
+        cfg,
+        uri: str | None,
+        out_dir: Path,
+        *,
+        parent_run_id: str | None = None,
+        params: dict[str, str] | None = None,
+    ) -> Tracker:
         """Find or create the config's parent run (keyed by its content hash).
 
         With ``parent_run_id`` (a sweep) the run is a nested child of that run, in its experiment,
@@ -821,29 +1000,51 @@ class Tracker:
         chash = cfg.hash()
         shown = " ".join(f"{k}={v}" for k, v in (params or {}).items())
         label = point_label(params or {}) if parent_run_id else ""
-        tags = {RUN_NAME: label or f"{cfg.name}-{chash[:8]}", **_provenance_tags(out_dir),
-                NOTE: f"`{cfg.name}`: running (config hash `{chash}`)."}
+        tags = {
+            RUN_NAME: label or f"{cfg.name}-{chash[:8]}",
+            **_provenance_tags(out_dir),
+            NOTE: f"`{cfg.name}`: running (config hash `{chash}`).",
+        }
         if params:
             tags["pcpg.overrides"] = shown
         all_params = {**cfg.flat(), **{k: str(v) for k, v in (params or {}).items()}}
         role = POINT_ROLE if parent_run_id else PARENT_ROLE
         legacy = {ROLE: PARENT_ROLE, CONFIG_HASH: chash} if parent_run_id else None
-        parent, _ = _find_or_create(client, uri, exp_id, {ROLE: role, CONFIG_HASH: chash}, parent_run_id,
-                                    tags, all_params, legacy=legacy)
+        parent, _ = _find_or_create(
+            client,
+            uri,
+            exp_id,
+            {ROLE: role, CONFIG_HASH: chash},
+            parent_run_id,
+            tags,
+            all_params,
+            legacy=legacy,
+        )
         return Tracker(uri, exp_id, parent, chash, cfg, label, bool(parent_run_id))
 
     def _children(self, env: str) -> list:
         return _runs_with(_client(self.uri), self.experiment_id, {"pcpg.env": env}, self.parent_id)
 
     def env_logged(self, env: str, unit_key: str) -> bool:
-        return any(r.info.status == "FINISHED" and r.data.tags.get(UNIT) == unit_key for r in self._children(env))
+        return any(
+            r.info.status == "FINISHED" and r.data.tags.get(UNIT) == unit_key
+            for r in self._children(env)
+        )
 
     def child_info(self, env: str, unit_key: str, cluster_metrics: dict[str, float]) -> dict:
-        return {"uri": self.uri, "experiment_id": self.experiment_id, "parent_id": self.parent_id,
-                "unit_key": unit_key, "config_hash": self.config_hash, "cluster_metrics": cluster_metrics,
-                "label": self.label}
+        return {
+            "uri": self.uri,
+            "experiment_id": self.experiment_id,
+            "parent_id": self.parent_id,
+            "unit_key": unit_key,
+            "config_hash": self.config_hash,
+            "cluster_metrics": cluster_metrics,
+            "label": self.label,
+        }
 
-    def finish(self, result, agents_dir: Path | None = None, report_dir: Path | None = None) -> None:
+    def finish(
+        self, result, agents_dir: Path | None = None, report_dir: Path | None = None
+    ) -> None:
         """Log the headline once: a rerun from cache finds the digest and logs nothing again."""
         client = _client(self.uri)
         run = _retry(client.get_run, self.parent_id)
@@ -853,14 +1054,31 @@ class Tracker:
         # make the run log everything again
         digest = _digest([pt for pt in points if not pt[0].startswith("time/")])
         if tags.get(LOGGED) != digest:
-            note = describe_run(self.cfg, result, scales, _command(result.out_dir)) if self.cfg is not None else ""
-            _log_once(client, self.parent_id, points, {LOGGED: digest, **({NOTE: note} if note else {}),
-                                                        "pcpg.curve_steps": json.dumps(scales)})
+            note = (
+                describe_run(self.cfg, result, scales, _command(result.out_dir))
+                if self.cfg is not None
+                else ""
+            )
+            _log_once(
+                client,
+                self.parent_id,
+                points,
+                {
+                    LOGGED: digest,
+                    **({NOTE: note} if note else {}),
+                    "pcpg.curve_steps": json.dumps(scales),
+                },
+            )
         summary, report = Path(result.out_dir) / "summary", report_dir
         if tags.get(ARTIFACTS) != digest:
             if summary.is_dir():
                 _log_folder(client, self.parent_id, summary, "summary")
-                _retry(client.log_text, self.parent_id, _std_table(result.metrics), "summary/metrics.csv")
+                _retry(
+                    client.log_text,
+                    self.parent_id,
+                    _std_table(result.metrics),
+                    "summary/metrics.csv",
+                )
             if report is not None and report.is_dir():
                 _log_folder(client, self.parent_id, report, "report")
             _retry(client.set_tag, self.parent_id, ARTIFACTS, digest)
@@ -897,9 +1115,13 @@ class Tracker:
             try:
                 with agent_model.quiet_logging(), mlflow.start_run(run_id=self.parent_id):
                     mlflow.pyfunc.log_model(
-                        name="agents", python_model=agent_model.__file__, artifacts={"agents": str(folder)},
+                        name="agents",
+                        python_model=agent_model.__file__,
+                        artifacts={"agents": str(folder)},
                         signature=agent_model.signature(written),
-                        input_example=agent_model.input_example(written), conda_env=agent_model.conda_env())
+                        input_example=agent_model.input_example(written),
+                        conda_env=agent_model.conda_env(),
+                    )
             finally:
                 if before is None:
                     os.environ.pop("MLFLOW_UV_AUTO_DETECT", None)
@@ -911,8 +1133,9 @@ class Tracker:
             _retry(_client(self.uri).set_terminated, self.parent_id, "KILLED", attempts=2)
 
 
-def log_environment(info: dict, env: str, out_dir: str, metrics: dict[str, float],
-                    model_paths: list[str]) -> str:
+def log_environment(
+    info: dict, env: str, out_dir: str, metrics: dict[str, float], model_paths: list[str]
+) -> str:
     """One environment's child run: metrics (curves over p and c), tables, figures, models.
 
     Runs in the driver (any thread). Under the (parent, environment) lock: a FINISHED child with
@@ -934,11 +1157,17 @@ def log_environment(info: dict, env: str, out_dir: str, metrics: dict[str, float
             _retry(client.delete_run, run.info.run_id)
         merged = {**info["cluster_metrics"], **metrics}
         points, scales = child_metrics(merged)
-        tags = {PARENT: parent, RUN_NAME: name, "pcpg.env": env, UNIT: info["unit_key"], ROLE: "environment",
-                CONFIG_HASH: info["config_hash"],
-                NOTE: f"Environment `{env}`: its evaluation tables and figures (`evaluation/`), trained "
-                      f"cells (`models/`), curves over p and c (steps: {json.dumps(scales)}), std over seeds "
-                      f"in `evaluation/metrics.csv`."}
+        tags = {
+            PARENT: parent,
+            RUN_NAME: name,
+            "pcpg.env": env,
+            UNIT: info["unit_key"],
+            ROLE: "environment",
+            CONFIG_HASH: info["config_hash"],
+            NOTE: f"Environment `{env}`: its evaluation tables and figures (`evaluation/`), trained "
+            f"cells (`models/`), curves over p and c (steps: {json.dumps(scales)}), std over seeds "
+            f"in `evaluation/metrics.csv`.",
+        }
         run_id = _retry(client.create_run, info["experiment_id"], tags=tags).info.run_id
         _log_params(client, run_id, {"env": env})
         _log_once(client, run_id, points, {LOGGED: _digest(points)})
@@ -964,22 +1193,34 @@ class SweepTracker:
     sweep_key: str
 
     @staticmethod
-    def start(name: str, sweep_key: str, axes: dict[str, list], description: str,
-              uri: str | None = None) -> SweepTracker:
+    def start(
+        name: str, sweep_key: str, axes: dict[str, list], description: str, uri: str | None = None
+    ) -> SweepTracker:
         """Find (by ``sweep_key``) or create the sweep run in experiment ``name``; idempotent."""
         uri, client, exp_id = open_experiment(name, uri)
         params = {f"sweep.{axis}": ",".join(map(str, values)) for axis, values in axes.items()}
         params["sweep.axes"] = ",".join(axes)
         params["sweep.points"] = str(math.prod(len(v) for v in axes.values()) if axes else 0)
         n = params["sweep.points"]
-        tags = {RUN_NAME: f"sweep {' x '.join(short_keys(list(axes)).values())} ({n} points) {sweep_key[:8]}",
-                NOTE: description, **_provenance_tags()}
-        run_id, _ = _find_or_create(client, uri, exp_id, {ROLE: SWEEP_ROLE, SWEEP_KEY: sweep_key}, None, tags, params)
+        tags = {
+            RUN_NAME: f"sweep {' x '.join(short_keys(list(axes)).values())} ({n} points) {sweep_key[:8]}",
+            NOTE: description,
+            **_provenance_tags(),
+        }
+        run_id, _ = _find_or_create(
+            client, uri, exp_id, {ROLE: SWEEP_ROLE, SWEEP_KEY: sweep_key}, None, tags, params
+        )
         return SweepTracker(uri, exp_id, run_id, sweep_key)
 
-    def finish(self, metrics: dict[str, float] | None, artifacts: list[Path], *,
-               best_points: dict[str, str] | None = None, timings: dict[str, float] | None = None,
-               note: str | None = None) -> None:
+    def finish(
+        self,
+        metrics: dict[str, float] | None,
+        artifacts: list[Path],
+        *,
+        best_points: dict[str, str] | None = None,
+        timings: dict[str, float] | None = None,
+        note: str | None = None,
+    ) -> None:
         """Log the sweep's metrics and artifacts once; a rerun with the same results logs nothing.
 
         ``best_points`` (metric -> the point that has it) become tags ``pcpg.best_point/<metric>``;
@@ -990,8 +1231,13 @@ class SweepTracker:
         client = _client(self.uri)
         run = _retry(client.get_run, self.parent_id)
         points = [(k, float(v), 0) for k, v in sorted((metrics or {}).items()) if _finite(v)]
-        files = sorted((Path(a).name, hashlib.sha256(Path(a).read_bytes()).hexdigest() if Path(a).is_file() else "")
-                       for a in artifacts)
+        files = sorted(
+            (
+                Path(a).name,
+                hashlib.sha256(Path(a).read_bytes()).hexdigest() if Path(a).is_file() else "",
+            )
+            for a in artifacts
+        )
         tags = {f"pcpg.best_point/{k}": v for k, v in sorted((best_points or {}).items())}
         if note:
             tags[NOTE] = note
@@ -999,7 +1245,9 @@ class SweepTracker:
         if run.data.tags.get(LOGGED) != digest:  # metrics and their digest in one batch
             times = [(k, float(v), 0) for k, v in sorted((timings or {}).items()) if _finite(v)]
             _log_once(client, self.parent_id, points + times, {**tags, LOGGED: digest})
-        if run.data.tags.get(ARTIFACTS) != digest:  # files are overwritten, never appended: safe to redo
+        if (
+            run.data.tags.get(ARTIFACTS) != digest
+        ):  # files are overwritten, never appended: safe to redo
             for a in map(Path, artifacts):
                 if a.is_dir():
                     _log_folder(client, self.parent_id, a, a.name)
@@ -1020,15 +1268,26 @@ class SweepTracker:
         if src.data.tags.get(PARENT) == self.parent_id:
             return
         name = src.data.tags.get(RUN_NAME, point_run_id)
-        note = (f"{name}: reused by this sweep from run `{point_run_id}` of an earlier sweep, which "
-                f"computed it; that run holds its environments, figures and agents. Metrics copied.")
-        run_id, finished = _find_or_create(client, self.uri, self.experiment_id,
-                                           {ROLE: POINT_ROLE, SAME_AS: point_run_id}, self.parent_id,
-                                           {RUN_NAME: name, NOTE: note}, dict(src.data.params))
+        note = (
+            f"{name}: reused by this sweep from run `{point_run_id}` of an earlier sweep, which "
+            f"computed it; that run holds its environments, figures and agents. Metrics copied."
+        )
+        run_id, finished = _find_or_create(
+            client,
+            self.uri,
+            self.experiment_id,
+            {ROLE: POINT_ROLE, SAME_AS: point_run_id},
+            self.parent_id,
+            {RUN_NAME: name, NOTE: note},
+            dict(src.data.params),
+        )
         if finished:
             return
-        points = [(k, m.value, m.step) for k in sorted(src.data.metrics)
-                  for m in _retry(client.get_metric_history, point_run_id, k)]
+        points = [
+            (k, m.value, m.step)
+            for k in sorted(src.data.metrics)
+            for m in _retry(client.get_metric_history, point_run_id, k)
+        ]
         _log_once(client, run_id, points, {})
         _retry(client.set_terminated, run_id, "FINISHED")
 

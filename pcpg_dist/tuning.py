@@ -45,6 +45,8 @@ if TYPE_CHECKING:
     from pcpg_dist.domains.base import Unit
 
 DEFAULT_STORAGE = "optuna_journal.log"  # in the working directory
+
+
 # ----------------------------------------------------------------------------- search space
 def suggest(trial: Any, tune: TuneConfig) -> dict[str, int]:
     """Draw one parameter set; a dimension with one value is fixed and not shown to the sampler."""
@@ -55,18 +57,27 @@ def suggest(trial: Any, tune: TuneConfig) -> dict[str, int]:
     def choice(name: str, values: tuple[int, ...]) -> int:
         return values[0] if len(values) == 1 else int(trial.suggest_categorical(name, list(values)))
 
-    return {"k": integer("k", *tune.k_range), "lstm_hidden": choice("lstm_hidden", tune.lstm_hidden_sizes),
-            "latent": choice("latent", tune.latent_sizes),
-            "bc_layers": integer("bc_layers", *tune.bc_layers_range), "bc_width": choice("bc_width", tune.bc_widths)}
+    return {
+        "k": integer("k", *tune.k_range),
+        "lstm_hidden": choice("lstm_hidden", tune.lstm_hidden_sizes),
+        "latent": choice("latent", tune.latent_sizes),
+        "bc_layers": integer("bc_layers", *tune.bc_layers_range),
+        "bc_width": choice("bc_width", tune.bc_widths),
+    }
 
 
 #: the clustering methods each network-size parameter acts on (the others ignore it), and the
 #: tuning field that lists its values
-USED_BY = {"lstm_hidden": ("lstm_dec", "lstm_kmeans", "policy_mix"), "latent": ("lstm_dec", "lstm_kmeans")}
+USED_BY = {
+    "lstm_hidden": ("lstm_dec", "lstm_kmeans", "policy_mix"),
+    "latent": ("lstm_dec", "lstm_kmeans"),
+}
 SIZE_FIELDS = {"lstm_hidden": "lstm_hidden_sizes", "latent": "latent_sizes"}
 
 
-def searched_space(cfg: ExperimentConfig, tune: TuneConfig, units: list[Unit]) -> tuple[TuneConfig, list[str]]:
+def searched_space(
+    cfg: ExperimentConfig, tune: TuneConfig, units: list[Unit]
+) -> tuple[TuneConfig, list[str]]:
     """``tune`` with the sizes the clusterer ignores fixed at the config's own values (a trial
     would otherwise spend the study's budget on a dimension that changes nothing), and their names.
     ``bag_auto`` is resolved on the data: greedy_mix on discrete states, lstm_dec on continuous."""
@@ -75,8 +86,11 @@ def searched_space(cfg: ExperimentConfig, tune: TuneConfig, units: list[Unit]) -
     method = cfg.clustering.method
     if method == "bag_auto":
         method = "lstm_dec" if any(falls_back_to_lstm(u.clustered) for u in units) else "greedy_mix"
-    unused = [p for p, methods in USED_BY.items()
-              if method not in methods and len(getattr(tune, SIZE_FIELDS[p])) > 1]
+    unused = [
+        p
+        for p, methods in USED_BY.items()
+        if method not in methods and len(getattr(tune, SIZE_FIELDS[p])) > 1
+    ]
     fixed = {SIZE_FIELDS[p]: (getattr(cfg.clustering, TARGETS[p][1]),) for p in unused}
     return tune.model_copy(update=fixed), unused
 
@@ -97,10 +111,20 @@ def objective_key(cfg: ExperimentConfig, tune: TuneConfig) -> str:
     from pcpg_dist.cache import content_key
     from pcpg_dist.runner import CODE_VERSION, data_key
 
-    space = tune.model_dump(exclude={"study_name", "n_trials", "parallel_trials", "enqueue",
-                                     "heartbeat_interval", "grace_period", "max_retry"})
-    return content_key(CODE_VERSION, data_key(cfg), cfg.clustering, cfg.bc, cfg.ranking, cfg.seed,
-                       cfg.seeds, space)
+    space = tune.model_dump(
+        exclude={
+            "study_name",
+            "n_trials",
+            "parallel_trials",
+            "enqueue",
+            "heartbeat_interval",
+            "grace_period",
+            "max_retry",
+        }
+    )
+    return content_key(
+        CODE_VERSION, data_key(cfg), cfg.clustering, cfg.bc, cfg.ranking, cfg.seed, cfg.seeds, space
+    )
 
 
 # ----------------------------------------------------------------------------- one trial
@@ -108,12 +132,15 @@ def trial_environments(cfg: ExperimentConfig, tune: TuneConfig, available: list[
     envs = tune.environments or available[:1]
     missing = [e for e in envs if e not in available]
     if missing:
-        raise ConfigError(f"tuning.environments: {missing} not in the data's environments {available}")
+        raise ConfigError(
+            f"tuning.environments: {missing} not in the data's environments {available}"
+        )
     return envs
 
 
-def score_trial(datasets: dict[str, Unit], cfg: ExperimentConfig, tune: TuneConfig,
-                params: dict[str, int]) -> dict[str, Any]:
+def score_trial(
+    datasets: dict[str, Unit], cfg: ExperimentConfig, tune: TuneConfig, params: dict[str, int]
+) -> dict[str, Any]:
     """Cluster -> plan cells -> train -> held-out accuracy for each unit; no true labels.
 
     The same per-unit pipeline as `pcpg run` (:mod:`pcpg_dist.pipeline`): the same preprocessed
@@ -143,20 +170,42 @@ def score_trial(datasets: dict[str, Unit], cfg: ExperimentConfig, tune: TuneConf
         metrics[f"{env}/size_min_frac"] = float(sizes.min() / len(train_idx))
         metrics[f"{env}/silhouette"] = clustering.metrics.get("clustering/silhouette", float("nan"))
         if sizes.min() == 0 or sizes.min() / len(train_idx) < tune.min_cluster_fraction:
-            return {"value": None, "metrics": metrics,
-                    "pruned": f"{env}: smallest cluster holds {int(sizes.min())} of {len(train_idx)} training "
-                              f"trajectories (< min_cluster_fraction {tune.min_cluster_fraction})"}
-        cells = plan_unit(unit, labels, trial_cfg, rank_cfg=rank, seeds=seeds, corruption=False,
-                          margins=clustering.margins)
+            return {
+                "value": None,
+                "metrics": metrics,
+                "pruned": f"{env}: smallest cluster holds {int(sizes.min())} of {len(train_idx)} training "
+                f"trajectories (< min_cluster_fraction {tune.min_cluster_fraction})",
+            }
+        cells = plan_unit(
+            unit,
+            labels,
+            trial_cfg,
+            rank_cfg=rank,
+            seeds=seeds,
+            corruption=False,
+            margins=clustering.margins,
+        )
         trained = train_plan(cells, trial_cfg.bc)
-        ev = evaluate_unit(unit, labels, trained, trial_cfg, rank_cfg=rank, eval_cfg=eval_cfg,
-                           rollouts=False, extras=False, margins=clustering.margins)
+        ev = evaluate_unit(
+            unit,
+            labels,
+            trained,
+            trial_cfg,
+            rank_cfg=rank,
+            eval_cfg=eval_cfg,
+            rollouts=False,
+            extras=False,
+            margins=clustering.margins,
+        )
         acc = float(np.mean([ev[f"pcpg/accuracy/p{fmt(p)}"] for p in rank.ps]))
         base = float(np.mean([ev[f"baseline/accuracy/p{fmt(p)}"] for p in rank.ps]))
         metrics.update({f"{env}/pcpg_accuracy": acc, f"{env}/no_clustering_accuracy": base})
         pcpg.append(acc)
         gain.append(acc - base)
-    metrics["pcpg_accuracy"], metrics["gain_over_no_clustering"] = float(np.mean(pcpg)), float(np.mean(gain))
+    metrics["pcpg_accuracy"], metrics["gain_over_no_clustering"] = (
+        float(np.mean(pcpg)),
+        float(np.mean(gain)),
+    )
     value = metrics["pcpg_accuracy"] - tune.penalty * (k - 1)
     if not math.isfinite(value):
         raise DataError(f"trial {params}: the score is not finite (no test steps?)")
@@ -164,8 +213,13 @@ def score_trial(datasets: dict[str, Unit], cfg: ExperimentConfig, tune: TuneConf
     return {"value": value, "pruned": None, "metrics": metrics}
 
 
-def trial_task(datasets: dict[str, Unit], cfg: ExperimentConfig, tune: TuneConfig,
-               params: dict[str, int], threads: int) -> dict[str, Any]:
+def trial_task(
+    datasets: dict[str, Unit],
+    cfg: ExperimentConfig,
+    tune: TuneConfig,
+    params: dict[str, int],
+    threads: int,
+) -> dict[str, Any]:
     """One trial as a Ray task: in-process and single-threaded unless given more CPUs."""
     from pcpg_dist.parallel import set_threads
 
@@ -198,7 +252,11 @@ class Storage:
 def rdb_url(url: str) -> str:
     """``postgresql://`` names the psycopg2 driver explicitly: SQLAlchemy 2.1 would pick psycopg 3,
     which is not installed (the project ships psycopg2-binary)."""
-    return "postgresql+psycopg2://" + url.removeprefix("postgresql://") if url.startswith("postgresql://") else url
+    return (
+        "postgresql+psycopg2://" + url.removeprefix("postgresql://")
+        if url.startswith("postgresql://")
+        else url
+    )
 
 
 def open_storage(url: str | None, tune: TuneConfig) -> Storage:
@@ -217,12 +275,16 @@ def open_storage(url: str | None, tune: TuneConfig) -> Storage:
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     # heartbeats and the retry callback are marked experimental; they are what team mode needs
     warnings.filterwarnings("ignore", category=optuna.exceptions.ExperimentalWarning)
-    warnings.filterwarnings("ignore", message="Heartbeat of storage is supposed to be used with Study.optimize")
+    warnings.filterwarnings(
+        "ignore", message="Heartbeat of storage is supposed to be used with Study.optimize"
+    )
     if "://" not in url:
         path = Path(url).resolve()
         if path.exists() and not path.is_file():  # /dev/null, a folder, a pipe
-            raise ConfigError(f"cannot open the Optuna journal {path}: not a regular file; give a journal "
-                              f"file path or an RDB URL (postgresql://user@host:5432/db)")
+            raise ConfigError(
+                f"cannot open the Optuna journal {path}: not a regular file; give a journal "
+                f"file path or an RDB URL (postgresql://user@host:5432/db)"
+            )
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             backend = CheckedJournalBackend(str(path))
@@ -230,20 +292,30 @@ def open_storage(url: str | None, tune: TuneConfig) -> Storage:
                 journal = JournalStorage(backend)  # replays the whole file
             except (KeyError, TypeError, ValueError, AssertionError) as e:
                 # a line of the right shape whose fields Optuna's replay cannot use
-                raise backend.not_a_journal(backend.line, f"Optuna cannot replay it: {short(e)}") from None
+                raise backend.not_a_journal(
+                    backend.line, f"Optuna cannot replay it: {short(e)}"
+                ) from None
             backend.check_read_to_end()
         except OSError as e:
             raise ServiceError(f"cannot open the Optuna journal {path}: {e.strerror}") from None
         return Storage(str(path), journal, heartbeat=False)
     url = rdb_url(url)
     try:
-        rdb = RDBStorage(url, engine_kwargs={"pool_pre_ping": True}, heartbeat_interval=tune.heartbeat_interval,
-                         grace_period=tune.grace_period,
-                         heartbeat_stale_trial_callback=RetryHeartbeatStaleTrialCallback(max_retry=tune.max_retry))
+        rdb = RDBStorage(
+            url,
+            engine_kwargs={"pool_pre_ping": True},
+            heartbeat_interval=tune.heartbeat_interval,
+            grace_period=tune.grace_period,
+            heartbeat_stale_trial_callback=RetryHeartbeatStaleTrialCallback(
+                max_retry=tune.max_retry
+            ),
+        )
     except Exception as e:  # noqa: BLE001 - sqlalchemy/driver errors of many kinds
         shown = Storage(url, None, True).shown
-        raise ServiceError(f"cannot open the Optuna storage {shown}: {first_line(e)}; --optuna-storage takes "
-                           f"a journal file path or a database URL (postgresql://USER@HOST:5432/DB)") from None
+        raise ServiceError(
+            f"cannot open the Optuna storage {shown}: {first_line(e)}; --optuna-storage takes "
+            f"a journal file path or a database URL (postgresql://USER@HOST:5432/DB)"
+        ) from None
     return Storage(url, rdb, heartbeat=True)
 
 
@@ -300,14 +372,19 @@ def _state_counts(study: Any) -> dict[str, int]:
 def _finished(study: Any) -> int:
     from optuna.trial import TrialState
 
-    return len(study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.PRUNED,
-                                                        TrialState.FAIL)))
+    return len(
+        study.get_trials(
+            deepcopy=False, states=(TrialState.COMPLETE, TrialState.PRUNED, TrialState.FAIL)
+        )
+    )
 
 
 def _error_text(exc: BaseException) -> str:
     """One line naming the trial's own exception (not Ray's wrapper)."""
     cause = getattr(exc, "cause", None) or exc
-    text = f"{type(cause).__name__}: {cause}".splitlines()[0] if str(cause) else type(cause).__name__
+    text = (
+        f"{type(cause).__name__}: {cause}".splitlines()[0] if str(cause) else type(cause).__name__
+    )
     return text[:500]
 
 
@@ -317,7 +394,9 @@ def tune_settings(cfg: ExperimentConfig, n_trials: int | None = None) -> TuneCon
     if n_trials is None:
         return cfg.tuning
     if type(n_trials) is not int or not 1 <= n_trials <= MAX_COUNT:
-        raise ConfigError(f"--n-trials must be at least 1 (and at most {MAX_COUNT}), got {reprlib.repr(n_trials)}")
+        raise ConfigError(
+            f"--n-trials must be at least 1 (and at most {MAX_COUNT}), got {reprlib.repr(n_trials)}"
+        )
     return cfg.tuning.model_copy(update={"n_trials": n_trials})
 
 
@@ -330,10 +409,18 @@ def _objective_key_of(storage: Storage, name: str) -> str | None:
     return storage.storage.get_study_user_attrs(study_id).get("pcpg.objective_key")
 
 
-def run_study(cfg: ExperimentConfig, storage_url: str | Storage | None = None, workdir: Path = Path("runs"),
-              tracking_uri: str | None = None, track: bool = True, show_progress: bool = True,
-              n_trials: int | None = None, study_name: str | None = None, out: Path | None = None,
-              trial_fn: TrialFn = trial_task) -> TuneResult:
+def run_study(
+    cfg: ExperimentConfig,
+    storage_url: str | Storage | None = None,
+    workdir: Path = Path("runs"),
+    tracking_uri: str | None = None,
+    track: bool = True,
+    show_progress: bool = True,
+    n_trials: int | None = None,
+    study_name: str | None = None,
+    out: Path | None = None,
+    trial_fn: TrialFn = trial_task,
+) -> TuneResult:
     """Create or resume the study, run trials on Ray until it holds ``n_trials`` finished ones,
     and write the best parameters as a config `pcpg run` accepts. Ray must be initialised.
 
@@ -361,31 +448,50 @@ def run_study(cfg: ExperimentConfig, storage_url: str | Storage | None = None, w
     key = objective_key(cfg, tune)
     known = _objective_key_of(storage, name)
     if known is not None and known != key:
-        raise ConfigError(f"study {name!r} in {storage.shown} was run with other data, search space or "
-                          f"objective settings; pass --study-name NEW to start another study")
+        raise ConfigError(
+            f"study {name!r} in {storage.shown} was run with other data, search space or "
+            f"objective settings; pass --study-name NEW to start another study"
+        )
     # the default study's outputs in NAME/tuning, any other study's in a folder of its own (a
     # second study's overwrote the first's there)
     default_out = Path(workdir).resolve() / cfg.name / "tuning"
-    out = Path(out) if out else default_out if name == f"{cfg.name}-tune" else default_out / _study_folder(name)
-    the_units, _ = load_units(cfg, Cache(Path(workdir).resolve() / cfg.name / "cache"), show_progress)
+    out = (
+        Path(out)
+        if out
+        else default_out
+        if name == f"{cfg.name}-tune"
+        else default_out / _study_folder(name)
+    )
+    the_units, _ = load_units(
+        cfg, Cache(Path(workdir).resolve() / cfg.name / "cache"), show_progress
+    )
     datasets = {u.name: u for u in the_units}
     envs = trial_environments(cfg, tune, list(datasets))
     tune, unused = searched_space(cfg, tune, [datasets[e] for e in envs])
-    if any(SIZE_FIELDS[p] in cfg.tuning.model_fields_set for p in unused):  # asked for, not only a default
+    if any(
+        SIZE_FIELDS[p] in cfg.tuning.model_fields_set for p in unused
+    ):  # asked for, not only a default
         logging.getLogger(__name__).warning(
             "tuning: clustering.method %s does not use %s on this data: not searched (kept at the "
-            "config's values)", cfg.clustering.method, ", ".join(unused))
+            "config's values)",
+            cfg.clustering.method,
+            ", ".join(unused),
+        )
 
     # every check of the user's input is behind us: only now is the study created and marked, so
     # a mistake never leaves a study that refuses the corrected command
-    study = optuna.create_study(study_name=name, storage=storage.storage, direction="maximize",
-                                load_if_exists=True)
+    study = optuna.create_study(
+        study_name=name, storage=storage.storage, direction="maximize", load_if_exists=True
+    )
     # a fresh study draws from sampler_seed; one resumed or extended (--n-trials more) from a seed
     # that also counts its trials, else its first draws repeat the earlier call's (same points,
     # answered from their results: budget spent, nothing explored)
     done_before = len(study.get_trials(deepcopy=False))
-    seed = tune.sampler_seed if not done_before else int(
-        np.random.SeedSequence([tune.sampler_seed, done_before]).generate_state(1)[0])
+    seed = (
+        tune.sampler_seed
+        if not done_before
+        else int(np.random.SeedSequence([tune.sampler_seed, done_before]).generate_state(1)[0])
+    )
     study.sampler = optuna.samplers.TPESampler(seed=seed, n_startup_trials=tune.n_startup_trials)
     if known is None:
         study.set_user_attr("pcpg.objective_key", key)
@@ -407,12 +513,16 @@ def run_study(cfg: ExperimentConfig, storage_url: str | Storage | None = None, w
     by_params: dict[tuple, Any] = {}
     last_check = time.monotonic()
     try:
-        with progress_bar(f"Optuna study {name}", total=tune.n_trials, enabled=show_progress) as advance:
+        with progress_bar(
+            f"Optuna study {name}", total=tune.n_trials, enabled=show_progress
+        ) as advance:
             for _ in range(min(_finished(study), tune.n_trials)):
                 advance()
             while True:
-                while (len(in_flight) < tune.parallel_trials
-                       and _finished(study) + sum(map(len, in_flight.values())) < tune.n_trials):
+                while (
+                    len(in_flight) < tune.parallel_trials
+                    and _finished(study) + sum(map(len, in_flight.values())) < tune.n_trials
+                ):
                     trial = study.ask()
                     if storage.heartbeat:
                         storage.storage.record_heartbeat(trial._trial_id)
@@ -428,14 +538,19 @@ def run_study(cfg: ExperimentConfig, storage_url: str | Storage | None = None, w
                         in_flight[ref], by_params[key] = [trial], ref
                 if not in_flight:
                     break
-                done, _ = ray.wait(list(in_flight), num_returns=1,
-                                   timeout=tune.heartbeat_interval if storage.heartbeat else None)
+                done, _ = ray.wait(
+                    list(in_flight),
+                    num_returns=1,
+                    timeout=tune.heartbeat_interval if storage.heartbeat else None,
+                )
                 waiting = [t for ts in in_flight.values() for t in ts]
                 if storage.heartbeat:
                     for t in waiting:
                         storage.storage.record_heartbeat(t._trial_id)
                     if time.monotonic() - last_check > tune.heartbeat_interval:
-                        stale += fail_stale(study, storage, tune, mine={t._trial_id for t in waiting})
+                        stale += fail_stale(
+                            study, storage, tune, mine={t._trial_id for t in waiting}
+                        )
                         last_check = time.monotonic()
                 for ref in done:
                     by_params = {k: r for k, r in by_params.items() if r != ref}
@@ -446,7 +561,9 @@ def run_study(cfg: ExperimentConfig, storage_url: str | Storage | None = None, w
                         tracker.log_finished(study)
     except BaseException:
         retry = RetryHeartbeatStaleTrialCallback(max_retry=tune.max_retry)
-        for trial in (t for ts in in_flight.values() for t in ts):  # interrupted: fail now, rerun on resume
+        for trial in (
+            t for ts in in_flight.values() for t in ts
+        ):  # interrupted: fail now, rerun on resume
             trial.set_user_attr("error", "interrupted: the driver stopped")
             study.tell(trial, state=TrialState.FAIL)
             retry(study, study._storage.get_trial(trial._trial_id))
@@ -459,14 +576,27 @@ def run_study(cfg: ExperimentConfig, storage_url: str | Storage | None = None, w
     if not study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)):
         if tracker is not None:
             tracker.fail("FAILED")  # its MLflow run stayed RUNNING
-        raise DataError(f"study {name!r}: no trial completed ({_state_counts(study)}); see the trials' "
-                        f"'error' / 'pruned_reason' attributes (uv run optuna-dashboard {storage.shown})")
+        raise DataError(
+            f"study {name!r}: no trial completed ({_state_counts(study)}); see the trials' "
+            f"'error' / 'pruned_reason' attributes (uv run optuna-dashboard {storage.shown})"
+        )
     best = study.best_trial
     # what the study chose (fixed dimensions are the config's own values, not a finding)
     best_params = {p: int(v) for p, v in best.params.items()}
-    best_config = write_outputs(cfg, study, {**best.user_attrs.get("params_full", {}), **best_params}, out)
-    result = TuneResult(name, storage.shown, best_params, float(best.value), best_config, _state_counts(study),
-                        tracker.parent_id if tracker else None, stale, out)
+    best_config = write_outputs(
+        cfg, study, {**best.user_attrs.get("params_full", {}), **best_params}, out
+    )
+    result = TuneResult(
+        name,
+        storage.shown,
+        best_params,
+        float(best.value),
+        best_config,
+        _state_counts(study),
+        tracker.parent_id if tracker else None,
+        stale,
+        out,
+    )
     if tracker is not None:
         tracker.finish(result)
     return result
@@ -542,14 +672,22 @@ def best_config_data(cfg: ExperimentConfig, params: dict[str, int], where: Path)
     for name in params:
         section, key = TARGETS[name]
         value = getattr(getattr(tuned, section), key)
-        if value != getattr(getattr(cfg, section), key):  # unchanged (a fixed dimension): as the config has it
+        if value != getattr(
+            getattr(cfg, section), key
+        ):  # unchanged (a fixed dimension): as the config has it
             data.setdefault(section, {})[key] = value
-    if tuned.evaluation.corruption_levels != cfg.evaluation.corruption_levels:  # k = 1: see apply_params
-        data.setdefault("evaluation", {})["corruption_levels"] = list(tuned.evaluation.corruption_levels)
+    if (
+        tuned.evaluation.corruption_levels != cfg.evaluation.corruption_levels
+    ):  # k = 1: see apply_params
+        data.setdefault("evaluation", {})["corruption_levels"] = list(
+            tuned.evaluation.corruption_levels
+        )
     return {k: portable(v) if isinstance(v, dict) else v for k, v in data.items()}
 
 
-def write_outputs(cfg: ExperimentConfig, study: Any, best_params: dict[str, int], out: Path) -> Path:
+def write_outputs(
+    cfg: ExperimentConfig, study: Any, best_params: dict[str, int], out: Path
+) -> Path:
     """``best_config.yaml`` (checked by loading it back), ``trials.csv`` and ``score_vs_k.png``."""
     import yaml
 
@@ -559,9 +697,11 @@ def write_outputs(cfg: ExperimentConfig, study: Any, best_params: dict[str, int]
     out.mkdir(parents=True, exist_ok=True)
     path = out / "best_config.yaml"
     chosen = ", ".join(f"{k}={v}" for k, v in study.best_trial.params.items())
-    header = (f"# Best parameters of Optuna study {study.study_name!r} ({chosen}),\n"
-              f"# score {study.best_value:.4f}: the study's config with only these changed. `pcpg run` it with\n"
-              f"# the study's --workdir to reuse the data the study cached under the same name.\n")
+    header = (
+        f"# Best parameters of Optuna study {study.study_name!r} ({chosen}),\n"
+        f"# score {study.best_value:.4f}: the study's config with only these changed. `pcpg run` it with\n"
+        f"# the study's --workdir to reuse the data the study cached under the same name.\n"
+    )
     data = best_config_data(cfg, best_params, out)
     atomic_write_bytes(path, (header + yaml.safe_dump(data, sort_keys=False)).encode())
     load_config(path)  # what `pcpg run` will do: fail here, not later, if it is not loadable
@@ -583,12 +723,18 @@ def _plot_score_vs_k(study: Any, path: Path) -> None:
     score = np.array([t.value for t in done])
     acc = np.array([t.user_attrs.get("pcpg_accuracy", np.nan) for t in done])
     fig, ax = plt.subplots(figsize=(6, 4.6))
-    jitter = np.random.default_rng(0).uniform(-0.12, 0.12, len(k))  # seeded: same figure for same study
+    jitter = np.random.default_rng(0).uniform(
+        -0.12, 0.12, len(k)
+    )  # seeded: same figure for same study
     ax.scatter(k + jitter, acc, marker="x", color="0.6", label="held-out PCPG accuracy")
     ax.scatter(k + jitter, score, color="C0", label="score = accuracy - penalty (k - 1)")
     for i, kk in enumerate(np.unique(k)):
-        ax.plot([kk - 0.3, kk + 0.3], [score[k == kk].max()] * 2, color="C1",
-                label="best score at this k" if i == 0 else None)
+        ax.plot(
+            [kk - 0.3, kk + 0.3],
+            [score[k == kk].max()] * 2,
+            color="C1",
+            label="best score at this k" if i == 0 else None,
+        )
     ax.set_xlabel("k (clusters)")
     ax.set_ylabel("accuracy / score")
     ax.set_title(f"{study.study_name}: best k = {study.best_trial.params.get('k', '-')}")
@@ -610,20 +756,33 @@ class StudyTracker:
     logged: set[int]
 
     @staticmethod
-    def start(cfg: ExperimentConfig, study_name: str, storage: str, uri: str | None, study: Any) -> StudyTracker:
+    def start(
+        cfg: ExperimentConfig, study_name: str, storage: str, uri: str | None, study: Any
+    ) -> StudyTracker:
         from pcpg_dist.tracking import ROLE, _retry, open_experiment
 
         uri, client, exp_id = open_experiment(cfg.name, uri)
-        found = _retry(client.search_runs, [exp_id], filter_string=f"tags.`{ROLE}` = 'study' and "
-                       f"tags.`pcpg.study` = '{study_name}'", max_results=1)
+        found = _retry(
+            client.search_runs,
+            [exp_id],
+            filter_string=f"tags.`{ROLE}` = 'study' and tags.`pcpg.study` = '{study_name}'",
+            max_results=1,
+        )
         if found:
             parent = found[0].info.run_id
             _retry(client.update_run, parent, status="RUNNING")
         else:
-            tags = {ROLE: "study", "pcpg.study": study_name, "pcpg.optuna_storage": storage,
-                    "mlflow.runName": study_name, "pcpg.config_hash": cfg.hash()}
+            tags = {
+                ROLE: "study",
+                "pcpg.study": study_name,
+                "pcpg.optuna_storage": storage,
+                "mlflow.runName": study_name,
+                "pcpg.config_hash": cfg.hash(),
+            }
             parent = _retry(client.create_run, exp_id, tags=tags).info.run_id
-        children = _retry(client.search_runs, [exp_id], filter_string=f"tags.`mlflow.parentRunId` = '{parent}'")
+        children = _retry(
+            client.search_runs, [exp_id], filter_string=f"tags.`mlflow.parentRunId` = '{parent}'"
+        )
         logged = {int(r.data.tags["pcpg.trial"]) for r in children if "pcpg.trial" in r.data.tags}
         return StudyTracker(uri, exp_id, parent, logged)
 
@@ -634,32 +793,52 @@ class StudyTracker:
         from pcpg_dist.tracking import ROLE, _client, _log_metrics, _log_params, _retry
 
         client = _client(self.uri)
-        for t in study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.PRUNED, TrialState.FAIL)):
+        for t in study.get_trials(
+            deepcopy=False, states=(TrialState.COMPLETE, TrialState.PRUNED, TrialState.FAIL)
+        ):
             if t.number in self.logged:
                 continue
-            tags = {"mlflow.parentRunId": self.parent_id, "mlflow.runName": f"trial-{t.number}",
-                    ROLE: "trial", "pcpg.trial": str(t.number), "pcpg.trial_state": t.state.name}
+            tags = {
+                "mlflow.parentRunId": self.parent_id,
+                "mlflow.runName": f"trial-{t.number}",
+                ROLE: "trial",
+                "pcpg.trial": str(t.number),
+                "pcpg.trial_state": t.state.name,
+            }
             for attr in ("error", "pruned_reason"):
                 if attr in t.user_attrs:
                     tags[f"pcpg.{attr}"] = str(t.user_attrs[attr])[:5000]
             start = int(t.datetime_start.timestamp() * 1000) if t.datetime_start else None
-            run_id = _retry(client.create_run, self.experiment_id, start_time=start, tags=tags).info.run_id
+            run_id = _retry(
+                client.create_run, self.experiment_id, start_time=start, tags=tags
+            ).info.run_id
             _log_params(client, run_id, {**t.user_attrs.get("params_full", {}), **t.params})
             metrics = {k: v for k, v in t.user_attrs.items() if isinstance(v, float)}
             if t.value is not None:
                 metrics["score"] = t.value
             _log_metrics(client, run_id, metrics)
             end = int(t.datetime_complete.timestamp() * 1000) if t.datetime_complete else None
-            _retry(client.set_terminated, run_id, "FAILED" if t.state == TrialState.FAIL else "FINISHED", end)
+            _retry(
+                client.set_terminated,
+                run_id,
+                "FAILED" if t.state == TrialState.FAIL else "FINISHED",
+                end,
+            )
             self.logged.add(t.number)
 
     def finish(self, result: TuneResult) -> None:
         from pcpg_dist.tracking import _client, _log_metrics, _retry
 
         client = _client(self.uri)
-        _log_metrics(client, self.parent_id, {"best/score": result.best_value,
-                                              **{f"best/{k}": float(v) for k, v in result.best_params.items()},
-                                              **{f"trials/{k.lower()}": float(v) for k, v in result.n_trials.items()}})
+        _log_metrics(
+            client,
+            self.parent_id,
+            {
+                "best/score": result.best_value,
+                **{f"best/{k}": float(v) for k, v in result.best_params.items()},
+                **{f"trials/{k.lower()}": float(v) for k, v in result.n_trials.items()},
+            },
+        )
         if result.out_dir is not None:
             _retry(client.log_artifacts, self.parent_id, str(result.out_dir), "tuning")
         _retry(client.set_terminated, self.parent_id, "FINISHED")

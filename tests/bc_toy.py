@@ -56,8 +56,13 @@ def run_episode(choose, rng: np.random.Generator, max_steps: int = 30) -> dict:
         if goal or trap:
             success = goal
             break
-    return {"states": np.array(states), "actions": np.array(actions), "valid": np.array(valid),
-            "rewards": np.array(rewards), "success": success}
+    return {
+        "states": np.array(states),
+        "actions": np.array(actions),
+        "valid": np.array(valid),
+        "rewards": np.array(rewards),
+        "success": success,
+    }
 
 
 def make_dataset(n_per_style: int = 100, seed: int = 0, styles: int = 2) -> Dataset:
@@ -77,8 +82,9 @@ def make_dataset(n_per_style: int = 100, seed: int = 0, styles: int = 2) -> Data
             labels.append(style)
             success.append(tr.pop("success"))
             eps.append(e)
-    return Dataset.from_trajectories("toy", "grid5", 4, trajs, labels, success, eps,
-                                     feature_names=("x", "y", "b1", "b2"))
+    return Dataset.from_trajectories(
+        "toy", "grid5", 4, trajs, labels, success, eps, feature_names=("x", "y", "b1", "b2")
+    )
 
 
 def rollout(policy, n_episodes: int, rng: np.random.Generator, max_steps: int = 30) -> Dataset:

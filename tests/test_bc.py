@@ -37,7 +37,9 @@ def test_agent_learns_its_style(toy):
     # matches ~0.9 of them; a 3x5 MLP clones each style to within a few points of that
     for style in (0, 1):
         test = ds.subset(te[ds.styles[te] == style])
-        ceiling = np.mean([expert(test.states[r], style) == test.actions[r] for r in test.step_rows])
+        ceiling = np.mean(
+            [expert(test.states[r], style) == test.actions[r] for r in test.step_rows]
+        )
         acc = _test_accuracy(model, ds, te, f"k{style}-p1-s0", style)
         assert acc >= 0.8 and acc >= ceiling - 0.06, (acc, ceiling)
         # the other style's policy is clearly worse on this style
@@ -65,7 +67,9 @@ def test_engines_agree_with_autograd_and_torch_adam(toy, activation):
     _, _, cells = toy
     cell = cells[2]
     sizes = (4, 5, 5, 5, 4)
-    params = [torch.tensor(p, dtype=torch.float64, requires_grad=True) for p in init_params(sizes, 0)]
+    params = [
+        torch.tensor(p, dtype=torch.float64, requires_grad=True) for p in init_params(sizes, 0)
+    ]
     opt = torch.optim.Adam(params, lr=0.01)
     for _ in range(3):
         _, grads = weighted_loss_and_grad(cell, [p.detach().numpy() for p in params], activation)
@@ -75,8 +79,12 @@ def test_engines_agree_with_autograd_and_torch_adam(toy, activation):
     for engine in ("numba", "torch"):
         got = train_cells([cell], BCConfig(epochs=3, engine=engine, activation=activation))
         for i in range(4):
-            np.testing.assert_allclose(got.params[f"W{i}"][0], params[2 * i].detach().numpy(), atol=2e-6)
-            np.testing.assert_allclose(got.params[f"b{i}"][0], params[2 * i + 1].detach().numpy(), atol=2e-6)
+            np.testing.assert_allclose(
+                got.params[f"W{i}"][0], params[2 * i].detach().numpy(), atol=2e-6
+            )
+            np.testing.assert_allclose(
+                got.params[f"b{i}"][0], params[2 * i + 1].detach().numpy(), atol=2e-6
+            )
 
 
 def test_dedupe_gives_the_raw_loss_and_gradient(toy):
@@ -99,7 +107,10 @@ def test_dedupe_gives_the_raw_loss_and_gradient(toy):
 
 def test_same_seed_same_params_other_seed_differs(toy):
     _, _, cells = toy
-    a, b = train_cells(cells[:4], BCConfig(epochs=200)), train_cells(cells[:4], BCConfig(epochs=200))
+    a, b = (
+        train_cells(cells[:4], BCConfig(epochs=200)),
+        train_cells(cells[:4], BCConfig(epochs=200)),
+    )
     for name in a.params:
         assert np.array_equal(a.params[name], b.params[name])
     s0 = next(c for c in cells if c.key == "k0-p1-s0")
@@ -133,8 +144,15 @@ def test_wrong_shapes_fail_with_data_error(toy):
     with pytest.raises(DataError, match="valid must have shape"):
         model.act(np.zeros((3, 4), np.float32), np.ones((3, 3), bool), 0)
     c = cells[0]
-    wide = Cell(dataclasses.replace(c.spec, key="wide"), np.zeros((c.n_rows, 5), np.float32), c.valid,
-                c.actions, c.weights, np.zeros(5, np.float32), np.ones(5, np.float32))
+    wide = Cell(
+        dataclasses.replace(c.spec, key="wide"),
+        np.zeros((c.n_rows, 5), np.float32),
+        c.valid,
+        c.actions,
+        c.weights,
+        np.zeros(5, np.float32),
+        np.ones(5, np.float32),
+    )
     with pytest.raises(DataError, match="state width"):
         train_cells([c, wide], BCConfig(epochs=1))
     with pytest.raises(DataError, match="no training steps"):
@@ -177,17 +195,26 @@ def test_an_unreadable_model_file_is_one_line_without_torch_advice(toy, tmp_path
         with pytest.raises(DataError) as info:
             TrainedCells.load(path)
     text = str(info.value)
-    assert text == f"{path}: unreadable model files: not a pcpg model file (torch could not read its tensors)"
+    assert (
+        text
+        == f"{path}: unreadable model files: not a pcpg model file (torch could not read its tensors)"
+    )
     assert not caught
 
 
-@pytest.mark.parametrize("edit, says", [
-    (lambda t, m: t.__setitem__("W0", t["W0"][:, :-1]), "W0 has shape"),
-    (lambda t, m: t.__setitem__("final_loss", t["final_loss"][:0]), "1 specs for 0 weight sets (final_loss"),
-    (lambda t, m: t["b0"].fill_(float("nan")), "b0 holds non-finite values"),
-    (lambda t, m: t["std"].zero_(), "std holds values <= 0"),
-    (lambda t, m: m.__setitem__("sizes", [*m["sizes"][:-1], 9]), "need (1, 5, 9) floats"),
-])
+@pytest.mark.parametrize(
+    "edit, says",
+    [
+        (lambda t, m: t.__setitem__("W0", t["W0"][:, :-1]), "W0 has shape"),
+        (
+            lambda t, m: t.__setitem__("final_loss", t["final_loss"][:0]),
+            "1 specs for 0 weight sets (final_loss",
+        ),
+        (lambda t, m: t["b0"].fill_(float("nan")), "b0 holds non-finite values"),
+        (lambda t, m: t["std"].zero_(), "std holds values <= 0"),
+        (lambda t, m: m.__setitem__("sizes", [*m["sizes"][:-1], 9]), "need (1, 5, 9) floats"),
+    ],
+)
 def test_a_model_whose_tensors_do_not_fit_its_json_is_one_line_at_load(toy, tmp_path, edit, says):
     """TrainedCells.load used to accept tensors of any shape: the fault surfaced later as a
     matmul error, or as NaN logits that silently picked action 0."""
@@ -208,6 +235,7 @@ def test_device_config():
     from pydantic import ValidationError
 
     from pcpg_dist.bc import bc_device
+
     if not torch.cuda.is_available():
         with pytest.raises(ConfigError, match="bc.device is 'cuda' but torch sees no GPU"):
             _resolve("cuda")
@@ -222,6 +250,7 @@ def test_device_config():
 
 def _resolve(name):
     from pcpg_dist.bc import resolve_device
+
     return resolve_device(name, "bc.device")
 
 
@@ -240,11 +269,19 @@ def test_minibatches_learn_and_step_on_each_block(toy):
     half = (cell.n_rows + 1) // 2
     order = np.random.default_rng([cell.spec.seed, 1]).permutation(cell.n_rows)
     sizes = (4, 5, 5, 5, 4)
-    params = [torch.tensor(p, dtype=torch.float64, requires_grad=True) for p in init_params(sizes, cell.spec.seed)]
+    params = [
+        torch.tensor(p, dtype=torch.float64, requires_grad=True)
+        for p in init_params(sizes, cell.spec.seed)
+    ]
     opt = torch.optim.Adam(params, lr=0.01)
     for block in (order[:half], order[half:]):
-        part = dataclasses.replace(cell, states=cell.states[block], valid=cell.valid[block],
-                                   actions=cell.actions[block], weights=cell.weights[block])
+        part = dataclasses.replace(
+            cell,
+            states=cell.states[block],
+            valid=cell.valid[block],
+            actions=cell.actions[block],
+            weights=cell.weights[block],
+        )
         _, grads = weighted_loss_and_grad(part, [p.detach().numpy() for p in params], "tanh")
         share = cell.weights[block].sum() / cell.weights.sum() * cell.n_rows / len(block)
         for p, g in zip(params, grads, strict=True):
@@ -252,7 +289,9 @@ def test_minibatches_learn_and_step_on_each_block(toy):
         opt.step()
     got = train_cells([cell], BCConfig(epochs=1, batch_size=half, dedupe=False))
     for i in range(4):
-        np.testing.assert_allclose(got.params[f"W{i}"][0], params[2 * i].detach().numpy(), atol=2e-6)
+        np.testing.assert_allclose(
+            got.params[f"W{i}"][0], params[2 * i].detach().numpy(), atol=2e-6
+        )
     # it learns the style as full batch (2000 steps) does; same seed, same numbers
     mini = train_cells(cells, BCConfig(epochs=150, batch_size=8))
     again = train_cells(cells, BCConfig(epochs=150, batch_size=8))
@@ -264,6 +303,7 @@ def test_minibatches_learn_and_step_on_each_block(toy):
 
 def test_minibatches_need_the_numba_engine():
     from pydantic import ValidationError
+
     for bad in ({"engine": "torch"}, {"dtype": "float64"}, {"device": "cuda"}):
         with pytest.raises(ValidationError, match="batch_size needs the numba engine"):
             BCConfig(batch_size=64, **bad)
@@ -281,7 +321,9 @@ def test_training_starts_from_given_parameters(toy):
         assert np.array_equal(unchanged.cell_params(0)[i], p)
     tuned = train_cells(cells[1:2], BCConfig(epochs=5), init=[start])
     scratch = train_cells(cells[1:2], BCConfig(epochs=5))
-    assert tuned.final_loss[0] < scratch.final_loss[0]  # five steps from a trained agent beat five from noise
+    assert (
+        tuned.final_loss[0] < scratch.final_loss[0]
+    )  # five steps from a trained agent beat five from noise
     with pytest.raises(DataError, match="starting parameters have shapes"):
         train_cells(cells[1:2], BCConfig(epochs=5, hidden_size=7), init=[start])
     with pytest.raises(DataError, match="2 starting parameter sets for 1 cells"):

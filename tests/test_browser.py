@@ -20,7 +20,9 @@ from pcpg_dist.report import render
 
 ROOT = Path(__file__).resolve().parent.parent
 DATA = Path(__file__).parent / "data" / "report_summary"
-ARTIFACTS = Path(os.environ.get("PCPG_TEST_ARTIFACTS", ROOT / "outputs" / "test-artifacts")) / "browser"
+ARTIFACTS = (
+    Path(os.environ.get("PCPG_TEST_ARTIFACTS", ROOT / "outputs" / "test-artifacts")) / "browser"
+)
 WIDTH = 1280
 
 
@@ -36,7 +38,9 @@ def chromium_path() -> str | None:
 def browser():
     exe = chromium_path()
     if exe is None:
-        pytest.skip("no Chromium found (install the distribution package: apt-get install -y chromium)")
+        pytest.skip(
+            "no Chromium found (install the distribution package: apt-get install -y chromium)"
+        )
     from playwright.sync_api import sync_playwright
 
     with sync_playwright() as pw:
@@ -79,8 +83,15 @@ def test_report_reads_at_laptop_width(page):
 def test_headings_tables_and_figures_are_present(page):
     assert page.locator("h1").inner_text().startswith("pcpg-dist report: ")
     h2 = page.locator("h2").all_inner_texts()
-    for heading in ("Headline", "Beside the paper", "Across environments", "Environment E1",
-                    "Wall time per stage and the cache", "Reproduce", "Provenance"):
+    for heading in (
+        "Headline",
+        "Beside the paper",
+        "Across environments",
+        "Environment E1",
+        "Wall time per stage and the cache",
+        "Reproduce",
+        "Provenance",
+    ):
         assert heading in h2, heading
     assert h2.index("Headline") == 0  # the headline is the first section
     assert page.locator(".banner").first.is_visible()
@@ -143,13 +154,17 @@ def test_protocol_banner_and_sweep_figures_fit_a_phone(browser, report, tmp_path
         assert img is not None and img["width"] >= PHONE - 60  # Fig. 4 takes the phone's width
         sweep = make_sweep(tmp_path)  # two figures: real PNGs of a report's size
         for name in json.loads((sweep / "sweep.json").read_text())["figures"]:
-            (sweep / name).write_bytes((report.parent / "figures" / "accuracy_vs_p.png").read_bytes())
+            (sweep / name).write_bytes(
+                (report.parent / "figures" / "accuracy_vs_p.png").read_bytes()
+            )
         pg.goto(render_sweep(sweep, sweep).as_uri())
         pg.wait_for_load_state("load")
         figs = pg.locator("figure")
         assert figs.count() == 2
         a, b = figs.nth(0).bounding_box(), figs.nth(1).bounding_box()
-        assert b["y"] >= a["y"] + a["height"] - 1 and a["width"] >= PHONE - 60  # stacked, full width
+        assert (
+            b["y"] >= a["y"] + a["height"] - 1 and a["width"] >= PHONE - 60
+        )  # stacked, full width
         assert pg.evaluate("document.documentElement.scrollWidth") <= PHONE
         pg.screenshot(path=str(ARTIFACTS / "sweep_390.png"), full_page=True)
     finally:

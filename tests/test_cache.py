@@ -12,23 +12,34 @@ from pcpg_dist.errors import DataError
 
 def finished(tmp_path) -> Cache:
     cache = Cache(tmp_path / "cache")
-    cache.store("train", "k1", {"cells.pt": b"x" * 1000, "cells.json": b"{}", "sub/t.csv": b"a,b\n"},
-                {"stage": "train"})
+    cache.store(
+        "train",
+        "k1",
+        {"cells.pt": b"x" * 1000, "cells.json": b"{}", "sub/t.csv": b"a,b\n"},
+        {"stage": "train"},
+    )
     return cache
 
 
 def test_a_finished_unit_is_reused(tmp_path):
     cache = finished(tmp_path)
     info = cache.done("train", "k1")
-    assert info["stage"] == "train" and set(info["files"]) == {"cells.pt", "cells.json", "sub/t.csv"}
+    assert info["stage"] == "train" and set(info["files"]) == {
+        "cells.pt",
+        "cells.json",
+        "sub/t.csv",
+    }
     assert cache.rejected == []
 
 
-@pytest.mark.parametrize("damage", [
-    lambda p: p.write_bytes(p.read_bytes()[:500]),            # truncated cells.pt
-    lambda p: p.write_bytes(b"y" * 1000),                      # same size, other bytes
-    lambda p: p.unlink(),                                      # removed
-])
+@pytest.mark.parametrize(
+    "damage",
+    [
+        lambda p: p.write_bytes(p.read_bytes()[:500]),  # truncated cells.pt
+        lambda p: p.write_bytes(b"y" * 1000),  # same size, other bytes
+        lambda p: p.unlink(),  # removed
+    ],
+)
 def test_a_damaged_unit_is_recomputed_never_used(tmp_path, damage):
     cache = finished(tmp_path)
     damage(cache.path("train", "k1") / "cells.pt")

@@ -14,7 +14,9 @@ def test_the_cap_keeps_or_drops_a_count_whole(monkeypatch):
     traj = np.arange(len(ids)) % 4
     bag = ceiling._bag(ids, traj, 4)
     assert bag.shape == (4, 2)  # the ids of counts 5 and 4; the three of count 2 tie at the cap
-    relabelled = ceiling._bag(np.array([{7: 2, 3: 6, 9: 0, 1: 5, 4: 3, 8: 1}[int(i)] for i in ids]), traj, 4)
+    relabelled = ceiling._bag(
+        np.array([{7: 2, 3: 6, 9: 0, 1: 5, 4: 3, 8: 1}[int(i)] for i in ids]), traj, 4
+    )
     assert sorted(map(tuple, bag.T.toarray())) == sorted(map(tuple, relabelled.T.toarray()))
 
 
@@ -26,7 +28,9 @@ def test_ids_tied_at_a_shared_count_fill_the_cap_rather_than_empty_it(monkeypatc
     ids = np.array([0, 0, 0] + [i for i in range(1, 31) for _ in range(2)])
     bag = ceiling._bag(ids, np.arange(len(ids)) % 7, 7)
     assert bag.shape == (7, 20)
-    once = np.array([0, 0, 0] + list(range(1, 31)))  # 30 ids seen once: only the id seen thrice is kept
+    once = np.array(
+        [0, 0, 0] + list(range(1, 31))
+    )  # 30 ids seen once: only the id seen thrice is kept
     assert ceiling._bag(once, np.arange(len(once)) % 7, 7).shape == (7, 1)
 
 

@@ -25,9 +25,16 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def tiny_config(tmp_path: Path) -> Path:
-    data = {"name": "tiny", "seed": 3, "seeds": [0],
-            "gridworld": {"layout_dir": str(ROOT / "pcpg_dist" / "data" / "gridworld"), "environments": ["E1", "E3"]},
-            "pbtg": {"episodes": 3000, "trajectories_per_style": 200, "dataset_per_style": 50}}
+    data = {
+        "name": "tiny",
+        "seed": 3,
+        "seeds": [0],
+        "gridworld": {
+            "layout_dir": str(ROOT / "pcpg_dist" / "data" / "gridworld"),
+            "environments": ["E1", "E3"],
+        },
+        "pbtg": {"episodes": 3000, "trajectories_per_style": 200, "dataset_per_style": 50},
+    }
     path = tmp_path / "tiny.yaml"
     path.write_text(yaml.safe_dump(data))
     return path
@@ -48,10 +55,16 @@ def test_data_is_bit_identical_with_one_or_two_workers(ray_session, tmp_path):
     two = generate(cfg, show_progress=False)  # 1-CPU tasks: two run at once
     layouts = [(e, r) for e in ("E1", "E3") for r in range(4)]
     from pcpg_dist.domains.gridworld_domain import gridworld_layouts
+
     lay = {lt.name: lt for lt in gridworld_layouts(cfg)}
     # 2-CPU tasks on a 2-CPU Ray: one worker at a time, in another order.
-    one = run_tasks(generate_pair, [(lay[e], r, cfg.pbtg, cfg.seed) for e, r in reversed(layouts)],
-                    "one worker", num_cpus=2, show_progress=False)
+    one = run_tasks(
+        generate_pair,
+        [(lay[e], r, cfg.pbtg, cfg.seed) for e, r in reversed(layouts)],
+        "one worker",
+        num_cpus=2,
+        show_progress=False,
+    )
     for (e, r), part in zip(reversed(layouts), one, strict=True):
         whole = two[e]
         sel = whole.subset(np.nonzero(whole.styles == r)[0])
@@ -88,8 +101,12 @@ def test_cli_errors_are_one_line_with_exit_code_2(tmp_path, capsys):
 
 
 def test_console_script_help_lists_commands():
-    out = subprocess.run([sys.executable, "-m", "pcpg_dist.cli", "--help"], capture_output=True, text=True,
-                         check=True).stdout
+    out = subprocess.run(
+        [sys.executable, "-m", "pcpg_dist.cli", "--help"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
     assert "generate" in out
 
 
@@ -105,11 +122,18 @@ def test_domains_lists_the_builtins(capsys):
 
     assert main(["domains"]) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert [ln.split()[0] for ln in lines[:4]] == ["gridworld", "minidungeons", "mario", "trajectories"]
+    assert [ln.split()[0] for ln in lines[:4]] == [
+        "gridworld",
+        "minidungeons",
+        "mario",
+        "trajectories",
+    ]
     assert all(ln.split()[1] == "built-in" for ln in lines[:4])
 
 
-def test_classify_writes_the_models_labels_and_warns_on_another_layout(tmp_path, capsys, monkeypatch):
+def test_classify_writes_the_models_labels_and_warns_on_another_layout(
+    tmp_path, capsys, monkeypatch
+):
     import pandas as pd
 
     from pcpg_dist.clustering import ClusterConfig, cluster
@@ -128,17 +152,39 @@ def test_classify_writes_the_models_labels_and_warns_on_another_layout(tmp_path,
     write_parquet(fresh, tmp_path / "fresh.parquet")
     write_parquet(elsewhere, tmp_path / "elsewhere.parquet")
 
-    assert main(["classify", str(tmp_path / "model"), str(tmp_path / "fresh.parquet"),
-                 "--out", str(tmp_path / "fresh.csv")]) == 0
+    assert (
+        main(
+            [
+                "classify",
+                str(tmp_path / "model"),
+                str(tmp_path / "fresh.parquet"),
+                "--out",
+                str(tmp_path / "fresh.csv"),
+            ]
+        )
+        == 0
+    )
     table = pd.read_csv(tmp_path / "fresh.csv")
     assert table["trajectory"].tolist() == fresh.trajectory_ids.tolist()
     assert (table["predicted_style"].to_numpy() == res.model.predict(fresh)).all()
     out, err = capsys.readouterr()
-    assert "against the true styles" in out and "not fitted on" in out and "WARNING" not in err.upper()
+    assert (
+        "against the true styles" in out and "not fitted on" in out and "WARNING" not in err.upper()
+    )
     assert res.model.unknown_rows(fresh) < 0.1
 
-    assert main(["classify", str(tmp_path / "model"), str(tmp_path / "elsewhere.parquet"),
-                 "--out", str(tmp_path / "elsewhere.csv")]) == 0
+    assert (
+        main(
+            [
+                "classify",
+                str(tmp_path / "model"),
+                str(tmp_path / "elsewhere.parquet"),
+                "--out",
+                str(tmp_path / "elsewhere.csv"),
+            ]
+        )
+        == 0
+    )
     share = res.model.unknown_rows(elsewhere)
     assert share > 0.1
     out, err = capsys.readouterr()
@@ -165,34 +211,76 @@ def test_a_ray_address_where_nothing_answers_is_one_line_at_once(tmp_path):
     web = http.server.ThreadingHTTPServer(("127.0.0.1", 0), http.server.SimpleHTTPRequestHandler)
     threading.Thread(target=web.serve_forever, daemon=True).start()
     other = f"127.0.0.1:{web.server_address[1]}"
-    for address, says in [("127.0.0.1:1", "no Ray cluster answers at 127.0.0.1:1"),
-                          ("ray://127.0.0.1:1", "no Ray cluster answers"), ("foo", "expected HOST:PORT"),
-                          ("http://127.0.0.1:8265", "not a http:// URL"),
-                          (other, f"{other} answers, but not as a Ray head does")]:
-        out = subprocess.run([sys.executable, "-m", "pcpg_dist.cli", "generate", str(ROOT / "experiments" / "quick.yaml"),
-                              "--out", str(tmp_path / "data"), "--ray-address", address],
-                             capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    for address, says in [
+        ("127.0.0.1:1", "no Ray cluster answers at 127.0.0.1:1"),
+        ("ray://127.0.0.1:1", "no Ray cluster answers"),
+        ("foo", "expected HOST:PORT"),
+        ("http://127.0.0.1:8265", "not a http:// URL"),
+        (other, f"{other} answers, but not as a Ray head does"),
+    ]:
+        out = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "pcpg_dist.cli",
+                "generate",
+                str(ROOT / "experiments" / "quick.yaml"),
+                "--out",
+                str(tmp_path / "data"),
+                "--ray-address",
+                address,
+            ],
+            capture_output=True,
+            text=True,
+            timeout=120,
+            cwd=tmp_path,
+        )
         err = out.stderr.strip().splitlines()
-        assert out.returncode == 2 and len(err) == 1 and says in err[0], (address, out.stderr[-2000:])
+        assert out.returncode == 2 and len(err) == 1 and says in err[0], (
+            address,
+            out.stderr[-2000:],
+        )
         assert not (tmp_path / "data").exists()
     web.shutdown()
 
 
 @pytest.mark.slow
 def test_cluster_command_writes_labels_and_margins_per_environment(ray_session, tmp_path):
-    cfg = {"name": "c", "seed": 0, "gridworld": {"layout_dir": str(ROOT / "pcpg_dist" / "data" / "gridworld"),
-                                                 "environments": ["E1"]},
-           "pbtg": {"episodes": 3000, "trajectories_per_style": 60, "dataset_per_style": 40}}
+    cfg = {
+        "name": "c",
+        "seed": 0,
+        "gridworld": {
+            "layout_dir": str(ROOT / "pcpg_dist" / "data" / "gridworld"),
+            "environments": ["E1"],
+        },
+        "pbtg": {"episodes": 3000, "trajectories_per_style": 60, "dataset_per_style": 40},
+    }
     (tmp_path / "c.yaml").write_text(yaml.safe_dump(cfg))
-    assert main(["--quiet", "cluster", str(tmp_path / "c.yaml"), "--out", str(tmp_path / "out")]) == 0
+    assert (
+        main(["--quiet", "cluster", str(tmp_path / "c.yaml"), "--out", str(tmp_path / "out")]) == 0
+    )
     labels = json.loads((tmp_path / "out" / "E1" / "labels.json").read_text())
     margins = json.loads((tmp_path / "out" / "E1" / "margins.json").read_text())
     assert len(labels) == len(margins) == 160 and set(labels) <= {0, 1, 2, 3}
     assert min(margins) > -1.0 and sorted(margins)[80] > 1.0  # the label is (nearly) the argmax
     # a clusterer without a likelihood has no margins to write
-    assert main(["--quiet", "cluster", str(tmp_path / "c.yaml"), "clustering.method=bag_kmeans",
-                 "--out", str(tmp_path / "out")]) == 0
-    assert not any("greedy_mix" in k for k in json.loads((tmp_path / "out" / "E1" / "metrics.json").read_text()))
+    assert (
+        main(
+            [
+                "--quiet",
+                "cluster",
+                str(tmp_path / "c.yaml"),
+                "clustering.method=bag_kmeans",
+                "--out",
+                str(tmp_path / "out"),
+            ]
+        )
+        == 0
+    )
+    assert not any(
+        "greedy_mix" in k
+        for k in json.loads((tmp_path / "out" / "E1" / "metrics.json").read_text())
+    )
     assert not (tmp_path / "out" / "E1" / "margins.json").exists()  # not the earlier clustering's
 
 
@@ -218,7 +306,9 @@ def test_quiet_and_verbose_are_taken_before_or_after_every_command():
 
     sub = next(a for a in build_parser()._actions if a.dest == "command")
     formats = next(a for a in sub.choices["export"]._actions if a.dest == "what")
-    assert set(COMMANDS) == {c for c in sub.choices if c != "export"} | {f"export {f}" for f in formats.choices}
+    assert set(COMMANDS) == {c for c in sub.choices if c != "export"} | {
+        f"export {f}" for f in formats.choices
+    }
     for name, argv in COMMANDS.items():
         plain = parse_args(argv)
         assert not plain.quiet and not plain.verbose, name
@@ -266,9 +356,11 @@ def test_classify_never_overwrites_its_inputs_or_a_special_file(tmp_path, capsys
     fifo = tmp_path / "fifo"
     os.mkfifo(fifo)
     inputs = {p: p.read_bytes() for p in [data, *(tmp_path / "model").iterdir()]}
-    for out, says in [(data, "is the input dataset"),
-                      (tmp_path / "model" / "cluster_model.json", "inside the model folder"),
-                      (fifo, "not a regular file")]:
+    for out, says in [
+        (data, "is the input dataset"),
+        (tmp_path / "model" / "cluster_model.json", "inside the model folder"),
+        (fifo, "not a regular file"),
+    ]:
         assert main(["classify", str(tmp_path / "model"), str(data), "--out", str(out)]) == 2
         err = capsys.readouterr().err
         assert says in err and len(err.strip().splitlines()) == 1, err
@@ -276,8 +368,15 @@ def test_classify_never_overwrites_its_inputs_or_a_special_file(tmp_path, capsys
     # below the CLI too: an atomic write refuses to rename over a FIFO
     with pytest.raises(OSError, match="not a regular file"):
         atomic_write_bytes(fifo, b"x")
-    assert fifo.is_fifo() and sorted(p.name for p in tmp_path.iterdir()) == ["data.parquet", "fifo", "model"]
-    assert main(["classify", str(tmp_path / "model"), str(data), "--out", str(tmp_path / "ok.csv")]) == 0
+    assert fifo.is_fifo() and sorted(p.name for p in tmp_path.iterdir()) == [
+        "data.parquet",
+        "fifo",
+        "model",
+    ]
+    assert (
+        main(["classify", str(tmp_path / "model"), str(data), "--out", str(tmp_path / "ok.csv")])
+        == 0
+    )
 
 
 def test_sweep_prints_its_points_numbers_on_stdout(capsys, tmp_path):
@@ -285,13 +384,28 @@ def test_sweep_prints_its_points_numbers_on_stdout(capsys, tmp_path):
     from pcpg_dist.cli import _print_points
     from pcpg_dist.sweep import SweepResult
 
-    rows = [{"pbtg.noise_max": n, "clustering.k": k, "point": f"p{n}-{k}", "clustering/accuracy": 0.9 + k / 100,
-             "pcpg/accuracy/p1": 0.5 + n, "baseline/accuracy/p1": 0.75, "pcpg/accuracy/p0.1": 0.97,
-             "baseline/accuracy/p0.1": 0.2 + n} for n in (0.1, 0.3) for k in (3, 4)]
-    res = SweepResult(tmp_path, {"pbtg.noise_max": [0.1, 0.3], "clustering.k": [3, 4]}, rows, [], 1.0, 4)
+    rows = [
+        {
+            "pbtg.noise_max": n,
+            "clustering.k": k,
+            "point": f"p{n}-{k}",
+            "clustering/accuracy": 0.9 + k / 100,
+            "pcpg/accuracy/p1": 0.5 + n,
+            "baseline/accuracy/p1": 0.75,
+            "pcpg/accuracy/p0.1": 0.97,
+            "baseline/accuracy/p0.1": 0.2 + n,
+        }
+        for n in (0.1, 0.3)
+        for k in (3, 4)
+    ]
+    res = SweepResult(
+        tmp_path, {"pbtg.noise_max": [0.1, 0.3], "clustering.k": [3, 4]}, rows, [], 1.0, 4
+    )
     _print_points(res)
     out = capsys.readouterr().out
-    assert all(f" {title} " in out for title in ("noise_max", "k", "clust. acc", "PCPG p1", "NC p1", "PCPG p0.1",
-                                                 "NC p0.1")), out
+    assert all(
+        f" {title} " in out
+        for title in ("noise_max", "k", "clust. acc", "PCPG p1", "NC p1", "PCPG p0.1", "NC p0.1")
+    ), out
     row = next(line for line in out.splitlines() if line.startswith("│ 0.3") and " 4 " in line)
     assert [c.strip() for c in row.split("│")[3:8]] == ["0.940", "0.800", "0.750", "0.970", "0.500"]

@@ -249,8 +249,14 @@ def test_bag_auto_falls_back_to_the_lstm_on_continuous_states(walks):
 
 
 # ------------------------------------------------------------------------- tampered model files
-TAMPER_METHODS = ("summary_kmeans", "lstm_kmeans", "visits_kmeans", "bag_kmeans", "greedy_mix",
-                  "policy_mix")
+TAMPER_METHODS = (
+    "summary_kmeans",
+    "lstm_kmeans",
+    "visits_kmeans",
+    "bag_kmeans",
+    "greedy_mix",
+    "policy_mix",
+)
 
 
 @pytest.fixture(scope="module")
@@ -267,8 +273,17 @@ def saved_models(tmp_path_factory):
         trajs.append({**_traj(states), "actions": (s % 4 + np.zeros(t - 1, np.int64)) % 4})
     ds = Dataset.from_trajectories("toy", "ints", 4, trajs, [s % 4 for s in range(40)], [True] * 40)
     root = tmp_path_factory.mktemp("models")
-    small = dict(k=2, hidden_size=8, latent_size=3, pretrain_epochs=2, dec_epochs=0, batch_size=16,
-                 kmeans_n_init=1, em_iterations=1, policy_steps=2)
+    small = dict(
+        k=2,
+        hidden_size=8,
+        latent_size=3,
+        pretrain_epochs=2,
+        dec_epochs=0,
+        batch_size=16,
+        kmeans_n_init=1,
+        em_iterations=1,
+        policy_steps=2,
+    )
     for method in TAMPER_METHODS:
         cluster(ds, ClusterConfig(method=method, **small), seed=0).model.save(root / method)
     write_parquet(ds, root / "data.parquet")
@@ -278,6 +293,7 @@ def saved_models(tmp_path_factory):
 def _set(name, fn):
     def edit(t, meta):
         t[name] = fn(t[name])
+
     return edit
 
 
@@ -295,56 +311,167 @@ def _garbage(path):
 
 # (model, edit of (tensors, meta) or of the .pt path, file named, field named)
 TAMPERED = {
-    "summary mean short": ("summary_kmeans", _set("mean", lambda x: x[:2]), "pt", "mean has shape (2,)"),
+    "summary mean short": (
+        "summary_kmeans",
+        _set("mean", lambda x: x[:2]),
+        "pt",
+        "mean has shape (2,)",
+    ),
     "lstm std short": ("lstm_kmeans", _set("std", lambda x: x[:1]), "pt", "std has shape (1,)"),
     "policy_mix mean short": ("policy_mix", _set("mean", lambda x: x[:1]), "pt", "mean has shape"),
-    "summary centroids wide": ("summary_kmeans", _set("centroids", lambda x: torch.zeros(2, x.shape[1] + 3)),
-                               "pt", "centroids has shape (2, 8)"),
-    "lstm centroids wide": ("lstm_kmeans", _set("centroids", lambda x: torch.zeros(2, 6)), "pt",
-                            "centroids has shape (2, 6)"),
-    "summary no centroids": ("summary_kmeans", _set("centroids", lambda x: x[:0]), "json",
-                             "k 2, but cluster_model.pt holds 0 centroids"),
-    "visits centroids 1-D": ("visits_kmeans", _set("centroids", lambda x: x[0]), "pt", "centroids has shape"),
-    "bag centroids 1-D": ("bag_kmeans", _set("centroids", lambda x: x[0]), "pt", "centroids has shape"),
-    "visits empty vocabulary": ("visits_kmeans", lambda t, m: t.update(vocabulary=t["vocabulary"][:0],
-                                                                      centroids=t["centroids"][:, :0]),
-                                "pt", "vocabulary has 0 states"),
+    "summary centroids wide": (
+        "summary_kmeans",
+        _set("centroids", lambda x: torch.zeros(2, x.shape[1] + 3)),
+        "pt",
+        "centroids has shape (2, 8)",
+    ),
+    "lstm centroids wide": (
+        "lstm_kmeans",
+        _set("centroids", lambda x: torch.zeros(2, 6)),
+        "pt",
+        "centroids has shape (2, 6)",
+    ),
+    "summary no centroids": (
+        "summary_kmeans",
+        _set("centroids", lambda x: x[:0]),
+        "json",
+        "k 2, but cluster_model.pt holds 0 centroids",
+    ),
+    "visits centroids 1-D": (
+        "visits_kmeans",
+        _set("centroids", lambda x: x[0]),
+        "pt",
+        "centroids has shape",
+    ),
+    "bag centroids 1-D": (
+        "bag_kmeans",
+        _set("centroids", lambda x: x[0]),
+        "pt",
+        "centroids has shape",
+    ),
+    "visits empty vocabulary": (
+        "visits_kmeans",
+        lambda t, m: t.update(vocabulary=t["vocabulary"][:0], centroids=t["centroids"][:, :0]),
+        "pt",
+        "vocabulary has 0 states",
+    ),
     "lstm labelled summary": ("lstm_kmeans", _relabel("summary_kmeans"), "pt", "holds tensor 'ae."),
-    "visits labelled summary": ("visits_kmeans", _relabel("summary_kmeans"), "pt", "holds tensor 'vocabulary'"),
-    "summary labelled visits": ("summary_kmeans", _relabel("visits_kmeans"), "pt", "no tensor 'vocabulary'"),
-    "summary std zero": ("summary_kmeans", _set("std", torch.zeros_like), "pt", "std has a value of 0.0"),
-    "lstm std NaN": ("lstm_kmeans", _set("std", lambda x: torch.full_like(x, float("nan"))), "pt",
-                     "std has non-finite values"),
-    "bag centroids NaN": ("bag_kmeans", _set("centroids", lambda x: torch.full_like(x, float("nan"))), "pt",
-                          "centroids has non-finite values"),
-    "summary centroids complex": ("summary_kmeans", _set("centroids", lambda x: x.to(torch.complex64)), "pt",
-                                  "centroids has dtype complex64"),
-    "visits centroids int": ("visits_kmeans", _set("centroids", lambda x: x.to(torch.int64)), "pt",
-                             "centroids has dtype int64"),
+    "visits labelled summary": (
+        "visits_kmeans",
+        _relabel("summary_kmeans"),
+        "pt",
+        "holds tensor 'vocabulary'",
+    ),
+    "summary labelled visits": (
+        "summary_kmeans",
+        _relabel("visits_kmeans"),
+        "pt",
+        "no tensor 'vocabulary'",
+    ),
+    "summary std zero": (
+        "summary_kmeans",
+        _set("std", torch.zeros_like),
+        "pt",
+        "std has a value of 0.0",
+    ),
+    "lstm std NaN": (
+        "lstm_kmeans",
+        _set("std", lambda x: torch.full_like(x, float("nan"))),
+        "pt",
+        "std has non-finite values",
+    ),
+    "bag centroids NaN": (
+        "bag_kmeans",
+        _set("centroids", lambda x: torch.full_like(x, float("nan"))),
+        "pt",
+        "centroids has non-finite values",
+    ),
+    "summary centroids complex": (
+        "summary_kmeans",
+        _set("centroids", lambda x: x.to(torch.complex64)),
+        "pt",
+        "centroids has dtype complex64",
+    ),
+    "visits centroids int": (
+        "visits_kmeans",
+        _set("centroids", lambda x: x.to(torch.int64)),
+        "pt",
+        "centroids has dtype int64",
+    ),
     "k 99": ("summary_kmeans", _meta(k=99), "json", "k 99, but cluster_model.pt holds 2 centroids"),
     "k true": ("summary_kmeans", _meta(k=True), "json", "k True"),
     "bag_n_actions 0": ("bag_kmeans", _meta(bag_n_actions=0), "json", "bag_n_actions 0"),
     "bag_n_actions -3": ("bag_kmeans", _meta(bag_n_actions=-3), "json", "bag_n_actions -3"),
-    "bag_n_actions 1e15": ("bag_kmeans", _meta(bag_n_actions=10**15), "json", "bag_n_actions 1000000000000000"),
-    "bag_sa_keys negative": ("bag_kmeans", _set("bag_sa_keys", lambda x: -x - 5), "pt", "bag_sa_keys holds -"),
-    "bag_sa_keys huge": ("greedy_mix", _set("bag_sa_keys", lambda x: x + 10**12), "pt", "bag_sa_keys holds 1000"),
-    "bag_sa_keys unsorted": ("bag_kmeans", _set("bag_sa_keys", lambda x: x.flip(0)), "pt", "strictly increasing"),
-    "bag_states NaN": ("bag_kmeans", _set("bag_states", lambda x: torch.full_like(x, float("nan"))), "pt",
-                       "bag_states has non-finite values"),
-    "bag_states float16": ("greedy_mix", _set("bag_states", lambda x: x.half()), "pt", "bag_states has dtype float16"),
-    "greedy votes negative": ("greedy_mix", _set("greedy_votes", lambda x: -x - 1), "pt",
-                              "greedy_votes has negative values"),
+    "bag_n_actions 1e15": (
+        "bag_kmeans",
+        _meta(bag_n_actions=10**15),
+        "json",
+        "bag_n_actions 1000000000000000",
+    ),
+    "bag_sa_keys negative": (
+        "bag_kmeans",
+        _set("bag_sa_keys", lambda x: -x - 5),
+        "pt",
+        "bag_sa_keys holds -",
+    ),
+    "bag_sa_keys huge": (
+        "greedy_mix",
+        _set("bag_sa_keys", lambda x: x + 10**12),
+        "pt",
+        "bag_sa_keys holds 1000",
+    ),
+    "bag_sa_keys unsorted": (
+        "bag_kmeans",
+        _set("bag_sa_keys", lambda x: x.flip(0)),
+        "pt",
+        "strictly increasing",
+    ),
+    "bag_states NaN": (
+        "bag_kmeans",
+        _set("bag_states", lambda x: torch.full_like(x, float("nan"))),
+        "pt",
+        "bag_states has non-finite values",
+    ),
+    "bag_states float16": (
+        "greedy_mix",
+        _set("bag_states", lambda x: x.half()),
+        "pt",
+        "bag_states has dtype float16",
+    ),
+    "greedy votes negative": (
+        "greedy_mix",
+        _set("greedy_votes", lambda x: -x - 1),
+        "pt",
+        "greedy_votes has negative values",
+    ),
     "state_dim 4.7": ("summary_kmeans", _meta(state_dim=4.7), "json", "state_dim 4.7"),
     "state_dim '4'": ("summary_kmeans", _meta(state_dim="4"), "json", "state_dim '4'"),
     "policy_mix n_actions 5": ("policy_mix", _meta(n_actions=5), "pt", "pm.heads.weight has shape"),
-    "policy_mix centroids": ("policy_mix", _set("centroids", lambda x: x.flip(0)), "pt", "k x k identity"),
-    "format_version '1'": ("summary_kmeans", _meta(format_version="1"), "json", "format_version '1', expected 1"),
-    "garbage .pt": ("summary_kmeans", _garbage, "pt", "not a pcpg model file (torch could not read its tensors)"),
+    "policy_mix centroids": (
+        "policy_mix",
+        _set("centroids", lambda x: x.flip(0)),
+        "pt",
+        "k x k identity",
+    ),
+    "format_version '1'": (
+        "summary_kmeans",
+        _meta(format_version="1"),
+        "json",
+        "format_version '1', expected 1",
+    ),
+    "garbage .pt": (
+        "summary_kmeans",
+        _garbage,
+        "pt",
+        "not a pcpg model file (torch could not read its tensors)",
+    ),
 }
 
 
 @pytest.mark.parametrize("case", list(TAMPERED))
-def test_tampered_cluster_model_is_one_line_naming_file_and_field(tmp_path, capsys, saved_models, case):
+def test_tampered_cluster_model_is_one_line_naming_file_and_field(
+    tmp_path, capsys, saved_models, case
+):
     """Tensors of the wrong shape, dtype or range, and JSON that disagrees with them: one line
     naming the file and the field, from load_model and `pcpg classify` alike (were tracebacks, or
     exit 0 with other labels)."""
@@ -373,7 +500,16 @@ def test_tampered_cluster_model_is_one_line_naming_file_and_field(tmp_path, caps
     assert "\n" not in str(info.value) and len(str(info.value)) < 400 and not caught
     assert "weights_only" not in str(info.value)
     capsys.readouterr()
-    code = main(["-q", "classify", str(d), str(saved_models / "data.parquet"), "--out", str(tmp_path / "o.csv")])
+    code = main(
+        [
+            "-q",
+            "classify",
+            str(d),
+            str(saved_models / "data.parquet"),
+            "--out",
+            str(tmp_path / "o.csv"),
+        ]
+    )
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and err == [f"pcpg: error: {info.value}"]
     assert not (tmp_path / "o.csv").exists()

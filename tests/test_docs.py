@@ -36,12 +36,16 @@ def anchors(page: Path) -> set[str]:
 
 def links(page: Path) -> list[str]:
     text = _CODE.sub("", _FENCE.sub("", page.read_text()))
-    return [t for t in _LINK.findall(text) if not re.match(r"^[a-z][a-z0-9+.-]*:", t)]  # not http:, mailto:
+    return [
+        t for t in _LINK.findall(text) if not re.match(r"^[a-z][a-z0-9+.-]*:", t)
+    ]  # not http:, mailto:
 
 
 def test_slugs_follow_github():
-    assert slug("Own logs at scale (`benchmarks/bench_trajectories.py`)") == \
-        "own-logs-at-scale-benchmarksbench_trajectoriespy"
+    assert (
+        slug("Own logs at scale (`benchmarks/bench_trajectories.py`)")
+        == "own-logs-at-scale-benchmarksbench_trajectoriespy"
+    )
     assert slug("Step B: ranking — p and k") == "step-b-ranking--p-and-k"
     assert slug("Reproducing a run") == "reproducing-a-run"
 
@@ -53,7 +57,9 @@ def test_relative_links_and_anchors_resolve(page):
         path, _, anchor = target.partition("#")
         dest = (page.parent / path).resolve() if path else page
         if not dest.exists():
-            broken.append(f"{target}: no file {dest.relative_to(ROOT) if dest.is_relative_to(ROOT) else dest}")
+            broken.append(
+                f"{target}: no file {dest.relative_to(ROOT) if dest.is_relative_to(ROOT) else dest}"
+            )
         elif anchor and dest.suffix == ".md" and anchor not in anchors(dest):
             broken.append(f"{target}: no heading with that anchor in {dest.name}")
     assert not broken, f"{page.name}: " + "; ".join(broken)
@@ -64,5 +70,7 @@ def test_the_user_guide_lists_every_config_section():
 
     text = (ROOT / "docs" / "user-guide.md").read_text()
     table = text.split("| section | what it controls |", 1)[1].split("\n\n", 1)[0]
-    listed = {k for row in table.splitlines()[2:] for k in re.findall(r"`(\w+)`", row.split("|")[1])}
+    listed = {
+        k for row in table.splitlines()[2:] for k in re.findall(r"`(\w+)`", row.split("|")[1])
+    }
     assert set(ExperimentConfig.model_fields) <= listed, set(ExperimentConfig.model_fields) - listed

@@ -22,11 +22,22 @@ EVAL = EvalConfig(rollouts_per_policy=10, corruption_levels=(0.0, 0.5))
 def run(tmp_path_factory):
     ds = make_dataset(120, seed=1)
     tr, te = split_trajectories(ds.n_trajectories, RANK.test_fraction, RANK.split_seed)
-    cells = plan_cells(ds, ds.styles, tr, RANK, seeds=[0, 1],
-                       corruption_levels=EVAL.corruption_levels, corruption_ps=EVAL.corruption_ps)
+    cells = plan_cells(
+        ds,
+        ds.styles,
+        tr,
+        RANK,
+        seeds=[0, 1],
+        corruption_levels=EVAL.corruption_levels,
+        corruption_ps=EVAL.corruption_ps,
+    )
     model = train_cells(cells, BCConfig(epochs=1500))
-    hooks = DomainHooks(rollout=rollout, returns=returns, optimal_return=optimal_return,
-                        draw=lambda ax, d: ax.plot(d.states[:, 0], d.states[:, 1]))
+    hooks = DomainHooks(
+        rollout=rollout,
+        returns=returns,
+        optimal_return=optimal_return,
+        draw=lambda ax, d: ax.plot(d.states[:, 0], d.states[:, 1]),
+    )
     out = tmp_path_factory.mktemp("eval")
     return ds, te, model, evaluate(ds, ds.styles, te, model, RANK, EVAL, out, hooks), out
 
@@ -60,8 +71,10 @@ def test_accuracy_matches_brute_force(run):
     idx = te[ds.styles[te] == 1]
     test = ds.subset(idx)
     rows = test.step_rows
-    hits = [model.predict(test.states[r:r + 1], test.valid_mask[r:r + 1], i)[0] == test.actions[r]
-            for r in rows]
+    hits = [
+        model.predict(test.states[r : r + 1], test.valid_mask[r : r + 1], i)[0] == test.actions[r]
+        for r in rows
+    ]
     assert scorer.accuracy(i, idx) == pytest.approx(np.mean(hits))
     assert scorer.random_accuracy(idx) == pytest.approx(np.mean(1 / test.valid_mask[rows].sum(1)))
 
@@ -87,9 +100,13 @@ def test_two_clusters_of_one_style_pool_their_reward_distance(tmp_path):
     """reward_distance/style<s> was the last cluster of style s's figure: the others were dropped."""
     ds = make_dataset(120, seed=1)
     tr, te = split_trajectories(ds.n_trajectories, RANK.test_fraction, RANK.split_seed)
-    labels = np.where(ds.styles == 1, 2, ds.trajectory_ids % 2)  # style 0 split over clusters 0 and 1
+    labels = np.where(
+        ds.styles == 1, 2, ds.trajectory_ids % 2
+    )  # style 0 split over clusters 0 and 1
     rank = RankConfig(ps=(1.0, 0.5))
-    model = train_cells(plan_cells(ds, labels, tr, rank, seeds=[0], k=3), BCConfig(epochs=100))  # soft: sampled rollouts stray
+    model = train_cells(
+        plan_cells(ds, labels, tr, rank, seeds=[0], k=3), BCConfig(epochs=100)
+    )  # soft: sampled rollouts stray
     hooks = DomainHooks(rollout=rollout, returns=returns, optimal_return=optimal_return)
     cfg = EvalConfig(corruption_levels=(), rollouts_per_policy=10, figures=False, greedy=False)
     res = evaluate(ds, labels, te, model, rank, cfg, tmp_path, hooks, k=3)
@@ -121,8 +138,14 @@ def test_outputs_written(run):
         back = pd.read_json(out / f"{name}.json", orient="records")
         assert len(back) == len(df)
     assert json.loads((out / "metrics.json").read_text()) == pytest.approx(res.metrics, nan_ok=True)
-    for name in ("accuracy_vs_p", "cross_accuracy", "correlation", "rollout_length", "corruption",
-                 "rollouts"):
+    for name in (
+        "accuracy_vs_p",
+        "cross_accuracy",
+        "correlation",
+        "rollout_length",
+        "corruption",
+        "rollouts",
+    ):
         png = res.figures[name]
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 5000
 
@@ -159,7 +182,9 @@ def test_table_4_covers_the_clusters_that_have_agents(tmp_path):
     res = evaluate(ds, labels, te, model, rank, EvalConfig(corruption_levels=()), tmp_path, k=3)
     assert res.metrics["cross/clusters"] == 2
     assert list(res.tables["cross_accuracy"].index) == ["k0", "k2"]
-    assert res.metrics["cross/diagonal_mean"] > 0.8 and res.metrics["cross/diagonal_is_row_max"] == 1.0
+    assert (
+        res.metrics["cross/diagonal_mean"] > 0.8 and res.metrics["cross/diagonal_is_row_max"] == 1.0
+    )
 
 
 def test_rollout_tables_and_metrics_give_one_std():
@@ -167,10 +192,18 @@ def test_rollout_tables_and_metrics_give_one_std():
     std for one figure: over seeds, ddof 0 (the CSVs had pandas' ddof 1, sqrt(4/3) larger)."""
     from pcpg_dist.evaluation import _mean_std, over_seeds
 
-    runs = pd.DataFrame({"method": ["nc"] * 4 + ["pcpg"] * 2, "k": [-1] * 4 + [0, 0], "p": 1.0,
-                         "length": [10.0, 12.0, 14.0, 20.0, 7.0, 9.0]})
+    runs = pd.DataFrame(
+        {
+            "method": ["nc"] * 4 + ["pcpg"] * 2,
+            "k": [-1] * 4 + [0, 0],
+            "p": 1.0,
+            "length": [10.0, 12.0, 14.0, 20.0, 7.0, 9.0],
+        }
+    )
     table = over_seeds(runs, "length").set_index("method")
     for method, values in (("nc", [10.0, 12.0, 14.0, 20.0]), ("pcpg", [7.0, 9.0])):
         assert table.loc[method, "mean"] == pytest.approx(np.mean(values))
         assert table.loc[method, "std"] == pytest.approx(np.std(values))  # ddof 0
-        assert (table.loc[method, "mean"], table.loc[method, "std"]) == pytest.approx(_mean_std(values))
+        assert (table.loc[method, "mean"], table.loc[method, "std"]) == pytest.approx(
+            _mean_std(values)
+        )

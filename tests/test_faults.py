@@ -34,8 +34,13 @@ psutil = importlib.import_module("psutil")  # Ray's copy: not a project dependen
 ROOT = Path(__file__).resolve().parent.parent
 NAME = "faults"
 FAULTS = {
-    "name": NAME, "seed": 3, "seeds": [0],
-    "gridworld": {"layout_dir": str(ROOT / "pcpg_dist" / "data" / "gridworld"), "environments": ["E1"]},
+    "name": NAME,
+    "seed": 3,
+    "seeds": [0],
+    "gridworld": {
+        "layout_dir": str(ROOT / "pcpg_dist" / "data" / "gridworld"),
+        "environments": ["E1"],
+    },
     "pbtg": {"episodes": 20000, "trajectories_per_style": 100, "dataset_per_style": 50},
     "clustering": {"k": 4, "pretrain_epochs": 4, "dec_epochs": 2},
     "ranking": {"ps": [1.0, 0.5]},
@@ -48,8 +53,10 @@ SERVER_TIMEOUT = 300
 # `pcpg run` with Ray started first with an explicit CPU count (init_ray is idempotent, so the CLI
 # then uses this Ray): the same command line as `python -m pcpg_dist.cli run ...` otherwise.
 AGENTS = ("ray::DashboardAgent", "ray::RuntimeEnvAgent")  # per-node helpers, not the sweep's
-LAUNCH = ("import sys; from pcpg_dist.ray_utils import init_ray; init_ray(num_cpus=int(sys.argv[1])); "
-          "from pcpg_dist.cli import main; sys.exit(main(sys.argv[2:]))")
+LAUNCH = (
+    "import sys; from pcpg_dist.ray_utils import init_ray; init_ray(num_cpus=int(sys.argv[1])); "
+    "from pcpg_dist.cli import main; sys.exit(main(sys.argv[2:]))"
+)
 
 
 # --------------------------------------------------------------------------- helpers
@@ -61,15 +68,29 @@ def results_only(metrics: dict[str, float]) -> dict[str, float]:
 def sweep_env() -> dict[str, str]:
     # MLflow's HTTP settings are pcpg's defaults: a dead server must be reported well within
     # SWEEP_TIMEOUT with them (MLflow's own, 7 retries a call, took ~20 min).
-    env = {k: v for k, v in os.environ.items()
-           if k not in ("RAY_ADDRESS", "MLFLOW_TRACKING_URI") and not k.startswith("MLFLOW_HTTP_")}
+    env = {
+        k: v
+        for k, v in os.environ.items()
+        if k not in ("RAY_ADDRESS", "MLFLOW_TRACKING_URI") and not k.startswith("MLFLOW_HTTP_")
+    }
     env.update(RAY_AUTH_MODE="disabled", RAY_ENABLE_UV_RUN_RUNTIME_ENV="0", PYTHONUNBUFFERED="1")
     return env
 
 
 def run_argv(cfg: Path, work: Path, uri: str | None, cpus: int = 2) -> list[str]:
     track = ["--tracking-uri", uri] if uri else ["--no-tracking"]
-    return [sys.executable, "-c", LAUNCH, str(cpus), "run", str(cfg), "--workdir", str(work), *track, "--quiet"]
+    return [
+        sys.executable,
+        "-c",
+        LAUNCH,
+        str(cpus),
+        "run",
+        str(cfg),
+        "--workdir",
+        str(work),
+        *track,
+        "--quiet",
+    ]
 
 
 def descendants(pid: int) -> list[psutil.Process]:
@@ -99,8 +120,14 @@ class Sweep:
     def __init__(self, argv: list[str], cwd: Path, log: Path) -> None:
         self.log = log
         self._out = log.open("w")
-        self.proc = subprocess.Popen(argv, cwd=cwd, env=sweep_env(), stdout=self._out,
-                                     stderr=subprocess.STDOUT, start_new_session=True)
+        self.proc = subprocess.Popen(
+            argv,
+            cwd=cwd,
+            env=sweep_env(),
+            stdout=self._out,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
         self.t0 = time.monotonic()
 
     def output(self) -> str:
@@ -120,7 +147,9 @@ class Sweep:
             if value:
                 return value
             if self.proc.poll() is not None:
-                pytest.fail(f"pcpg run ended ({self.proc.returncode}) before {what}:\n{self.output()[-4000:]}")
+                pytest.fail(
+                    f"pcpg run ended ({self.proc.returncode}) before {what}:\n{self.output()[-4000:]}"
+                )
             time.sleep(poll)
         pytest.fail(f"no {what} within {timeout} s:\n{self.output()[-4000:]}")
 
@@ -185,7 +214,9 @@ def reference(cfg_path, tmp_path_factory) -> dict:
     base = tmp_path_factory.mktemp("reference")
     work = base / "runs"
     finished(run_argv(cfg_path, work, None, cpus=2), base, base / "out.log")
-    manifest = json.loads(next((work / NAME / "cache" / "data").glob("*/manifest.json")).read_text())
+    manifest = json.loads(
+        next((work / NAME / "cache" / "data").glob("*/manifest.json")).read_text()
+    )
     metrics = summary_metrics(work)
     # Real numbers, not placeholders: the agents imitate their styles far above chance.
     assert metrics["pcpg/accuracy/p1"] > metrics["random/accuracy"] + 0.2, metrics
@@ -210,7 +241,10 @@ def test_same_seed_same_bits_with_1_or_2_ray_cpus(reference, cfg_path, tmp_path)
     assert parquet_hashes(work) == parquet_hashes(reference["work"])
     assert results_only(summary_metrics(work)) == results_only(reference["metrics"])
     assert {k: v for k, v in run_info(work)["computed"].items() if k != "data"} == {
-        "clustering": 1, "train_groups": 1, "evaluations": 1}
+        "clustering": 1,
+        "train_groups": 1,
+        "evaluations": 1,
+    }
 
 
 # --------------------------------------------------------------------------- 1. a worker dies
@@ -220,24 +254,40 @@ def test_killed_ray_worker_is_retried_with_identical_results(reference, cfg_path
     work = tmp_path / "runs"
     seed_data_cache(reference, work)
     with sweep(run_argv(cfg_path, work, None), tmp_path, tmp_path / "out.log") as s:
+
         def clustering_worker():
-            return next((p for p in descendants(s.proc.pid) if "ray::cluster_task" in cmdline(p)), None)
+            return next(
+                (p for p in descendants(s.proc.pid) if "ray::cluster_task" in cmdline(p)), None
+            )
 
         victim = s.wait_for(clustering_worker, "a ray::cluster_task worker")
         time.sleep(0.5)  # let it get into the work
-        assert "ray::cluster_task" in cmdline(victim) and not unit_done(work, "cluster"), \
+        assert "ray::cluster_task" in cmdline(victim) and not unit_done(work, "cluster"), (
             "the clustering task finished before it could be killed"
+        )
         victim.send_signal(signal.SIGKILL)
         victim.wait(timeout=30)
         # The retry runs in another worker process.
-        retry = s.wait_for(lambda: next((p for p in descendants(s.proc.pid) if p.pid != victim.pid
-                                         and "ray::cluster_task" in cmdline(p)), None), "a retried cluster_task")
+        retry = s.wait_for(
+            lambda: next(
+                (
+                    p
+                    for p in descendants(s.proc.pid)
+                    if p.pid != victim.pid and "ray::cluster_task" in cmdline(p)
+                ),
+                None,
+            ),
+            "a retried cluster_task",
+        )
         assert retry.pid != victim.pid
         code = s.wait()
         assert code == 0, s.output()[-4000:]
     assert results_only(summary_metrics(work)) == results_only(reference["metrics"])
     assert {k: v for k, v in run_info(work)["computed"].items() if k != "data"} == {
-        "clustering": 1, "train_groups": 1, "evaluations": 1}
+        "clustering": 1,
+        "train_groups": 1,
+        "evaluations": 1,
+    }
 
 
 # --------------------------------------------------------------------------- 2. the driver dies
@@ -256,7 +306,9 @@ def test_killed_driver_resumes_without_recomputing_or_duplicating(reference, cfg
         names = {p.pid: cmdline(p).strip() for p in ray_procs}
         os.kill(s.proc.pid, signal.SIGKILL)
         assert s.proc.wait(timeout=30) == -signal.SIGKILL
-    assert not (work / NAME / "summary" / "run.json").exists(), "the driver finished before it was killed"
+    assert not (work / NAME / "summary" / "run.json").exists(), (
+        "the driver finished before it was killed"
+    )
     # The GCS, the raylet and the workers share the driver's fate. Ray's two node agents do not
     # (measured: still alive 30 s later); they hold nothing of the sweep, and are killed here.
     agents = [p for p in ray_procs if names[p.pid] in AGENTS]
@@ -276,7 +328,11 @@ def test_killed_driver_resumes_without_recomputing_or_duplicating(reference, cfg
     runs = client.search_runs([exp.experiment_id], run_view_type=ViewType.ACTIVE_ONLY)
     parents = [r for r in runs if r.data.tags.get("pcpg.role") == "parent"]
     children = [r for r in runs if r.data.tags.get("mlflow.parentRunId") == info["parent_run_id"]]
-    assert len(runs) == 2 and len(parents) == 1 and [c.data.tags["pcpg.env"] for c in children] == ["E1"]
+    assert (
+        len(runs) == 2
+        and len(parents) == 1
+        and [c.data.tags["pcpg.env"] for c in children] == ["E1"]
+    )
     assert parents[0].info.run_id == info["parent_run_id"]
     assert {r.info.status for r in runs} == {"FINISHED"}
     logged = parents[0].data.metrics  # the parent carries the headline metrics (<= 30 keys)
@@ -291,14 +347,31 @@ def test_killed_driver_resumes_without_recomputing_or_duplicating(reference, cfg
 def test_unreachable_server_at_start_is_one_line_exit_2(cfg_path, tmp_path):
     """A tracking URI where nothing listens: exit 2, one line naming the URI, no outputs written."""
     uri = f"http://127.0.0.1:{free_port()}"
-    argv = [sys.executable, "-m", "pcpg_dist.cli", "run", str(cfg_path), "--workdir", str(tmp_path / "runs"),
-            "--tracking-uri", uri, "--quiet"]
+    argv = [
+        sys.executable,
+        "-m",
+        "pcpg_dist.cli",
+        "run",
+        str(cfg_path),
+        "--workdir",
+        str(tmp_path / "runs"),
+        "--tracking-uri",
+        uri,
+        "--quiet",
+    ]
     t0 = time.monotonic()
-    res = subprocess.run(argv, cwd=tmp_path, env=sweep_env(), capture_output=True, text=True, timeout=SWEEP_TIMEOUT)
+    res = subprocess.run(
+        argv, cwd=tmp_path, env=sweep_env(), capture_output=True, text=True, timeout=SWEEP_TIMEOUT
+    )
     elapsed = time.monotonic() - t0
     assert res.returncode == 2, res.stdout + res.stderr
     err = res.stderr.strip()
-    assert err.count("\n") == 0 and err.startswith("pcpg: error:") and uri in err and "unreachable" in err
+    assert (
+        err.count("\n") == 0
+        and err.startswith("pcpg: error:")
+        and uri in err
+        and "unreachable" in err
+    )
     assert not (tmp_path / "runs").exists()
     # The check runs before Ray starts: measured 4-6 s here (python + torch import + an 8 s connect
     # timeout at most). The loose bound only catches a regression to retry loops (minutes).
@@ -313,19 +386,40 @@ class MlflowServer:
         self.proc: subprocess.Popen | None = None
 
     def start(self) -> None:
-        argv = [str(Path(sys.executable).parent / "mlflow"), "server",
-                "--backend-store-uri", f"sqlite:///{self.base / 'mlflow.db'}",
-                "--artifacts-destination", str(self.base / "artifacts"),
-                "--host", "127.0.0.1", "--port", str(self.port), "--workers", "1"]
+        argv = [
+            str(Path(sys.executable).parent / "mlflow"),
+            "server",
+            "--backend-store-uri",
+            f"sqlite:///{self.base / 'mlflow.db'}",
+            "--artifacts-destination",
+            str(self.base / "artifacts"),
+            "--host",
+            "127.0.0.1",
+            "--port",
+            str(self.port),
+            "--workers",
+            "1",
+        ]
         env = {**os.environ, "MLFLOW_SERVER_ENABLE_JOB_EXECUTION": "false"}
         log = (self.base / "server.log").open("a")
-        self.proc = subprocess.Popen(argv, cwd=self.base, env=env, stdout=log, stderr=subprocess.STDOUT,
-                                     start_new_session=True)
+        self.proc = subprocess.Popen(
+            argv,
+            cwd=self.base,
+            env=env,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
         end = time.monotonic() + SERVER_TIMEOUT
         while time.monotonic() < end:
             if self.proc.poll() is not None:
-                pytest.fail(f"mlflow server exited:\n{(self.base / 'server.log').read_text()[-3000:]}")
-            with contextlib.suppress(OSError), urllib.request.urlopen(self.uri + "/health", timeout=5) as resp:
+                pytest.fail(
+                    f"mlflow server exited:\n{(self.base / 'server.log').read_text()[-3000:]}"
+                )
+            with (
+                contextlib.suppress(OSError),
+                urllib.request.urlopen(self.uri + "/health", timeout=5) as resp,
+            ):
                 if resp.status == 200:
                     return
             time.sleep(0.5)
@@ -369,10 +463,16 @@ def test_server_lost_mid_sweep_keeps_results_and_rerun_uploads_them(reference, c
         # Everything local is there and right: units done, summary tables, the same numbers.
         first = run_info(work)
         assert {k: v for k, v in first["computed"].items() if k != "data"} == {
-            "clustering": 1, "train_groups": 1, "evaluations": 1}
+            "clustering": 1,
+            "train_groups": 1,
+            "evaluations": 1,
+        }
         assert results_only(summary_metrics(work)) == results_only(reference["metrics"])
         assert (work / NAME / "summary" / "accuracy_vs_p.csv").is_file()
-        marks = {st: [p.stat().st_mtime_ns for p in unit_done(work, st)] for st in ("cluster", "train", "evaluate")}
+        marks = {
+            st: [p.stat().st_mtime_ns for p in unit_done(work, st)]
+            for st in ("cluster", "train", "evaluate")
+        }
         assert all(len(v) == 1 for v in marks.values()), marks
 
         server.start()  # same port, same backend store

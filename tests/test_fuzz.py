@@ -39,23 +39,73 @@ CASE_SECONDS = 30  # a case that runs longer is a hang
 MAX_RSS_BYTES = 2 << 30
 
 BASE = {
-    "name": "fuzz", "domain": "trajectories", "seed": 0, "seeds": [0],
+    "name": "fuzz",
+    "domain": "trajectories",
+    "seed": 0,
+    "seeds": [0],
     "trajectories": {"path": "steps.parquet"},
     "gridworld": {"layout_dir": "layouts", "environments": ["E1"]},
     "pbtg": {"episodes": 30, "trajectories_per_style": 6, "dataset_per_style": 5, "max_steps": 30},
-    "minidungeons": {"train_levels": ["test"], "test_levels": ["holmgard_1"], "runs_per_level": 1,
-                     "max_steps": 20},
+    "minidungeons": {
+        "train_levels": ["test"],
+        "test_levels": ["holmgard_1"],
+        "runs_per_level": 1,
+        "max_steps": 20,
+    },
     "mario": {"path": "play.log"},
     "clustering": {"method": "summary_kmeans", "k": 2, "kmeans_n_init": 1},
-    "bc": {"epochs": 5}, "evaluation": {"rollouts_per_policy": 2, "max_steps": 20},
+    "bc": {"epochs": 5},
+    "evaluation": {"rollouts_per_policy": 2, "max_steps": 20},
 }
 # Replacement values: hostile or careless, and never a valid value that would make a case slow
 # (every count here is either invalid or small).
-HOSTILE = [-1, 0, -0.5, 0.5, 2, 7, 1e12, 2**70, -(2**70), float("nan"), float("inf"), float("-inf"), "x", "",
-           "../../evil", "/etc/passwd", "a" * 3000, None, True, [], [1, 2, 3], [[1]], {"a": 1}, {}, "1e9",
-           "gridworld", "mario", "minidungeons", "\x00", "é\u202e"]
-TEXT_JUNK = [b"\xff\xfe", b"\x00", b"&a [*a]", b"[[[[[[[[", b": : :", b"\t", b"!!python/object:os.system", b"*x",
-             b"{", b"\n- ", b"\xc3", b"---\n", b"%YAML 9.9\n"]
+HOSTILE = [
+    -1,
+    0,
+    -0.5,
+    0.5,
+    2,
+    7,
+    1e12,
+    2**70,
+    -(2**70),
+    float("nan"),
+    float("inf"),
+    float("-inf"),
+    "x",
+    "",
+    "../../evil",
+    "/etc/passwd",
+    "a" * 3000,
+    None,
+    True,
+    [],
+    [1, 2, 3],
+    [[1]],
+    {"a": 1},
+    {},
+    "1e9",
+    "gridworld",
+    "mario",
+    "minidungeons",
+    "\x00",
+    "é\u202e",
+]
+TEXT_JUNK = [
+    b"\xff\xfe",
+    b"\x00",
+    b"&a [*a]",
+    b"[[[[[[[[",
+    b": : :",
+    b"\t",
+    b"!!python/object:os.system",
+    b"*x",
+    b"{",
+    b"\n- ",
+    b"\xc3",
+    b"---\n",
+    b"%YAML 9.9\n",
+]
 
 
 @dataclass
@@ -79,7 +129,16 @@ def alias_bomb() -> str:
 
 # ------------------------------------------------------------------ base files
 def step_table(rng: random.Random) -> pa.Table:
-    rows = {"trajectory": [], "t": [], "action": [], "s0": [], "s1": [], "reward": [], "env": [], "style": []}
+    rows = {
+        "trajectory": [],
+        "t": [],
+        "action": [],
+        "s0": [],
+        "s1": [],
+        "reward": [],
+        "env": [],
+        "style": [],
+    }
     for traj in range(8):
         length = rng.randint(2, 5)
         for t in range(length):
@@ -96,13 +155,26 @@ def step_table(rng: random.Random) -> pa.Table:
 
 def small_dataset(env: str) -> Dataset:
     rng = np.random.default_rng(0)
-    trajs = [{"states": rng.random((4, 2)), "actions": rng.integers(0, 3, 3), "valid": np.ones((4, 3), bool),
-              "rewards": np.ones(3)} for _ in range(6)]
-    return Dataset.from_trajectories("trajectories", env, 3, trajs, styles=[0, 1] * 3, success=[True] * 6)
+    trajs = [
+        {
+            "states": rng.random((4, 2)),
+            "actions": rng.integers(0, 3, 3),
+            "valid": np.ones((4, 3), bool),
+            "rewards": np.ones(3),
+        }
+        for _ in range(6)
+    ]
+    return Dataset.from_trajectories(
+        "trajectories", env, 3, trajs, styles=[0, 1] * 3, success=[True] * 6
+    )
 
 
 def mario_log() -> str:
-    lines = (ROOT / "pcpg_dist" / "data" / "mario" / "mario_stli_all_levels.log").read_text().splitlines()
+    lines = (
+        (ROOT / "pcpg_dist" / "data" / "mario" / "mario_stli_all_levels.log")
+        .read_text()
+        .splitlines()
+    )
     return "\n".join(lines[:6]) + "\n"
 
 
@@ -142,7 +214,7 @@ def mutate_bytes(raw: bytes, rng: random.Random) -> tuple[bytes, str]:
         return raw[:cut], f"truncated at {cut}"
     if op == 1 and raw:
         pos = rng.randrange(len(raw))
-        return raw[:pos] + bytes([rng.randrange(256)]) + raw[pos + 1:], f"byte {pos} replaced"
+        return raw[:pos] + bytes([rng.randrange(256)]) + raw[pos + 1 :], f"byte {pos} replaced"
     if op == 2:
         junk = rng.choice(TEXT_JUNK)
         pos = rng.randrange(len(raw) + 1)
@@ -150,10 +222,10 @@ def mutate_bytes(raw: bytes, rng: random.Random) -> tuple[bytes, str]:
     if op == 3 and raw:
         lines = raw.split(b"\n")
         i = rng.randrange(len(lines))
-        return b"\n".join(lines[:i] + lines[i + 1:]), f"line {i} deleted"
+        return b"\n".join(lines[:i] + lines[i + 1 :]), f"line {i} deleted"
     lines = raw.split(b"\n")
     i = rng.randrange(len(lines))
-    return b"\n".join(lines[:i] + [lines[i]] * 3 + lines[i + 1:]), f"line {i} repeated"
+    return b"\n".join(lines[:i] + [lines[i]] * 3 + lines[i + 1 :]), f"line {i} repeated"
 
 
 def mutate_table(table: pa.Table, rng: random.Random) -> tuple[pa.Table, str]:
@@ -173,8 +245,14 @@ def mutate_table(table: pa.Table, rng: random.Random) -> tuple[pa.Table, str]:
         ("action -5 mid-trajectory", lambda: put("action", at("action", -5))),
         ("action 10**12", lambda: put("action", at("action", 10**12))),
         ("action null", lambda: put("action", at("action", None), pa.int64())),
-        ("action as float 1.5", lambda: put("action", [float(a) + 0.5 for a in table.column("action").to_pylist()])),
-        ("action as strings", lambda: put("action", [str(a) for a in table.column("action").to_pylist()])),
+        (
+            "action as float 1.5",
+            lambda: put("action", [float(a) + 0.5 for a in table.column("action").to_pylist()]),
+        ),
+        (
+            "action as strings",
+            lambda: put("action", [str(a) for a in table.column("action").to_pylist()]),
+        ),
         ("s0 NaN", lambda: put("s0", at("s0", float("nan")))),
         ("s0 inf", lambda: put("s0", at("s0", float("inf")))),
         ("s0 1e300", lambda: put("s0", at("s0", 1e300))),
@@ -187,16 +265,25 @@ def mutate_table(table: pa.Table, rng: random.Random) -> tuple[pa.Table, str]:
         ("env huge", lambda: put("env", at("env", "e" * 10_000))),
         ("style 7", lambda: put("style", at("style", 7))),
         ("style -5", lambda: put("style", at("style", -5))),
-        ("trajectory strings", lambda: put("trajectory", [f"../t{x}" for x in table.column("trajectory").to_pylist()])),
+        (
+            "trajectory strings",
+            lambda: put("trajectory", [f"../t{x}" for x in table.column("trajectory").to_pylist()]),
+        ),
         ("trajectory null", lambda: put("trajectory", at("trajectory", None), pa.int64())),
         ("reward nan", lambda: put("reward", at("reward", float("nan")))),
         ("valid wrong width", lambda: table.append_column("valid", pa.array([[True, False]] * n))),
-        ("valid forbids taken", lambda: table.append_column("valid", pa.array([[False, False, False]] * n))),
+        (
+            "valid forbids taken",
+            lambda: table.append_column("valid", pa.array([[False, False, False]] * n)),
+        ),
         ("valid ints", lambda: table.append_column("valid", pa.array([[1, 1, 1]] * n))),
         ("drop column", lambda: table.drop([rng.choice(table.column_names)])),
         ("s5 gap", lambda: table.append_column("s5", pa.array([0.0] * n))),
         ("no rows", lambda: table.slice(0, 0)),
-        ("success changes", lambda: table.append_column("success", pa.array([i % 2 == 0 for i in range(n)]))),
+        (
+            "success changes",
+            lambda: table.append_column("success", pa.array([i % 2 == 0 for i in range(n)])),
+        ),
     ]
     what, fn = rng.choice(ops)
     return fn(), what
@@ -231,9 +318,19 @@ def mutate_parquet_meta(directory: Path, rng: random.Random) -> str:
     file = next(directory.glob("*.parquet"))
     table = pq.read_table(file)
     meta = json.loads(table.schema.metadata[b"pcpg"])
-    key, value = rng.choice([("env", "../../evil"), ("env", "/tmp/x"), ("domain", "a/b"), ("n_actions", 1e12),
-                             ("n_actions", "inf"), ("feature_names", 5), ("schema_version", 99),
-                             ("env", "e" * 5000), ("n_actions", 2)])
+    key, value = rng.choice(
+        [
+            ("env", "../../evil"),
+            ("env", "/tmp/x"),
+            ("domain", "a/b"),
+            ("n_actions", 1e12),
+            ("n_actions", "inf"),
+            ("feature_names", 5),
+            ("schema_version", 99),
+            ("env", "e" * 5000),
+            ("n_actions", 2),
+        ]
+    )
     meta[key] = value
     pq.write_table(table.replace_schema_metadata({"pcpg": json.dumps(meta)}), file)
     manifest = json.loads((directory / "manifest.json").read_text())
@@ -265,14 +362,25 @@ def build_corpus(tmp: Path) -> list[Case]:
 
     def add(kind: str, what: str, d: Path, config: bytes, argv: list[str] | None = None) -> None:
         (d / "exp.yaml").write_bytes(config)
-        cases.append(Case(kind, what, argv or ["generate", str(d / "exp.yaml"), "--out", str(d / "out"), "--quiet"]))
+        cases.append(
+            Case(
+                kind,
+                what,
+                argv or ["generate", str(d / "exp.yaml"), "--out", str(d / "out"), "--quiet"],
+            )
+        )
 
     i = 0
     for _ in range(220):  # one setting replaced by a hostile value
         i += 1
         path = rng.choice(paths)
         value = rng.choice(HOSTILE)
-        add("config value", f"{'.'.join(path)} = {str(value)[:30]!r}", folder(i), dump(set_path(BASE, path, value)))
+        add(
+            "config value",
+            f"{'.'.join(path)} = {str(value)[:30]!r}",
+            folder(i),
+            dump(set_path(BASE, path, value)),
+        )
     for _ in range(20):  # two settings at once
         i += 1
         data, what = BASE, []
@@ -285,13 +393,25 @@ def build_corpus(tmp: Path) -> list[Case]:
         i += 1
         raw, what = mutate_bytes(dump(BASE), rng)
         add("config text", what, folder(i), raw)
-    for special, raw in [("alias bomb", alias_bomb().encode()), ("recursive alias", b"a: &a [*a]\nname: x\n"),
-                         ("2 MB", b"name: x\n" + b"#" * (2 << 20)), ("empty", b""), ("a list", b"- 1\n- 2\n"),
-                         ("deep", b"name: " + b"[" * 5000 + b"]" * 5000), ("non-UTF-8", b"name: \xff\n")]:
+    for special, raw in [
+        ("alias bomb", alias_bomb().encode()),
+        ("recursive alias", b"a: &a [*a]\nname: x\n"),
+        ("2 MB", b"name: x\n" + b"#" * (2 << 20)),
+        ("empty", b""),
+        ("a list", b"- 1\n- 2\n"),
+        ("deep", b"name: " + b"[" * 5000 + b"]" * 5000),
+        ("non-UTF-8", b"name: \xff\n"),
+    ]:
         i += 1
         add("config text", special, folder(i), raw)
     i += 1
-    add("config text", "config is /dev/zero", folder(i), dump(BASE), ["generate", "/dev/zero", "--out", str(tmp / "z")])
+    add(
+        "config text",
+        "config is /dev/zero",
+        folder(i),
+        dump(BASE),
+        ["generate", "/dev/zero", "--out", str(tmp / "z")],
+    )
 
     for _ in range(80):  # GridWorld layouts
         i += 1
@@ -317,24 +437,56 @@ def build_corpus(tmp: Path) -> list[Case]:
         d = folder(i)
         raw, what = mutate_bytes(mario_log().encode(), rng)
         if rng.random() < 0.3:
-            raw = raw.replace(b"0,0,0,0,0,1", rng.choice([b"99999999999999999999999,0,0,0,0,1", b"0,0,0,0,0,-5",
-                                                           b"-1,0,0,0,0,1", b"0,0,0,0,0,39", b"1e3,0,0,0,0,1"]), 1)
+            raw = raw.replace(
+                b"0,0,0,0,0,1",
+                rng.choice(
+                    [
+                        b"99999999999999999999999,0,0,0,0,1",
+                        b"0,0,0,0,0,-5",
+                        b"-1,0,0,0,0,1",
+                        b"0,0,0,0,0,39",
+                        b"1e3,0,0,0,0,1",
+                    ]
+                ),
+                1,
+            )
             what += " + a bad number"
         (d / "play.log").write_bytes(raw)
         strict = rng.random() < 0.5
-        add("mario log", what + ("" if strict else " (lenient)"), d,
-            dump(set_path({**BASE, "domain": "mario"}, ("mario", "strict"), strict)))
+        add(
+            "mario log",
+            what + ("" if strict else " (lenient)"),
+            d,
+            dump(set_path({**BASE, "domain": "mario"}, ("mario", "strict"), strict)),
+        )
     i += 1
-    add("mario log", "mario.path /dev/zero", folder(i), dump(set_path({**BASE, "domain": "mario"},
-                                                                      ("mario", "path"), "/dev/zero")))
+    add(
+        "mario log",
+        "mario.path /dev/zero",
+        folder(i),
+        dump(set_path({**BASE, "domain": "mario"}, ("mario", "path"), "/dev/zero")),
+    )
 
     for _ in range(40):  # pcpg dataset folders given to `pcpg cluster --data`
         i += 1
         d = folder(i)
         write_datasets(d / "data", [small_dataset("A")], {"config": {}})
         what = (mutate_parquet_meta if rng.random() < 0.4 else mutate_manifest)(d / "data", rng)
-        add("dataset folder", what, d, dump(BASE),
-            ["cluster", str(d / "exp.yaml"), "--data", str(d / "data"), "--out", str(d / "out"), "--quiet"])
+        add(
+            "dataset folder",
+            what,
+            d,
+            dump(BASE),
+            [
+                "cluster",
+                str(d / "exp.yaml"),
+                "--data",
+                str(d / "data"),
+                "--out",
+                str(d / "out"),
+                "--quiet",
+            ],
+        )
     return cases
 
 
@@ -352,7 +504,11 @@ def run_case(case: Case) -> Outcome:
     old = signal.signal(signal.SIGALRM, _alarm)
     signal.alarm(CASE_SECONDS)
     try:
-        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings():
+        with (
+            contextlib.redirect_stderr(err),
+            contextlib.redirect_stdout(io.StringIO()),
+            warnings.catch_warnings(),
+        ):
             warnings.simplefilter("ignore")  # warnings are advice, not the error line checked here
             try:
                 code: int | str = main(case.argv)
@@ -396,7 +552,10 @@ def test_fuzzed_inputs_exit_0_or_one_line_exit_2(tmp_path, ray_session, monkeypa
             findings.append(f"[{case.kind}] {case.what}: {why}: {out.err.strip()[-600:]!r}")
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
     summary = ", ".join(f"{k[0]} -> {k[1]}: {v}" for k, v in sorted(outcomes.items(), key=str))
-    assert not findings, f"{len(findings)} of {len(cases)} cases misbehaved ({summary}):\n" + "\n".join(findings[:20])
+    assert not findings, (
+        f"{len(findings)} of {len(cases)} cases misbehaved ({summary}):\n"
+        + "\n".join(findings[:20])
+    )
     assert rss < MAX_RSS_BYTES, f"peak memory {rss / 2**30:.2f} GB"
     # the corpus reaches past config loading: some cases of every kind pass, most fail
     for kind in ("config value", "layout", "step table", "mario log"):

@@ -18,13 +18,18 @@ from pcpg_dist.parallel import resolve_device, stage_gpus
 
 def test_stage_gpus_asks_only_where_a_stage_is_on_a_gpu():
     assert stage_gpus("cpu", 0.25, 8, "clustering.device") == 0.0
-    assert stage_gpus("auto", 0.25, 0, "clustering.device") == 0.0   # no GPU anywhere: the CPU
+    assert stage_gpus("auto", 0.25, 0, "clustering.device") == 0.0  # no GPU anywhere: the CPU
     assert stage_gpus("auto", 0.25, 1, "clustering.device") == 0.25
     assert stage_gpus("cuda", 2, 4, "bc.device") == 2.0
-    with pytest.raises(ConfigError, match=r"^bc.device is 'cuda' but no Ray node has a GPU; use 'cpu'"):
+    with pytest.raises(
+        ConfigError, match=r"^bc.device is 'cuda' but no Ray node has a GPU; use 'cpu'"
+    ):
         stage_gpus("cuda", 0.25, 0, "bc.device")
-    with pytest.raises(ConfigError, match=r"gpus_per_task: 2 GPUs per task, but the largest Ray node has 1; "
-                                          r"set it to at most 1$"):
+    with pytest.raises(
+        ConfigError,
+        match=r"gpus_per_task: 2 GPUs per task, but the largest Ray node has 1; "
+        r"set it to at most 1$",
+    ):
         stage_gpus("cuda", 2, 1, "clustering.device")
 
 
@@ -36,9 +41,13 @@ def test_gpus_per_task_is_a_fraction_or_whole():
             RunnerConfig(gpus_per_task=bad)
 
 
-@pytest.mark.skipif(__import__("torch").cuda.is_available(), reason="checks the refusal without a GPU")
+@pytest.mark.skipif(
+    __import__("torch").cuda.is_available(), reason="checks the refusal without a GPU"
+)
 def test_cuda_without_a_gpu_is_one_line_and_auto_is_the_cpu():
-    with pytest.raises(ConfigError, match=r"^clustering.device is 'cuda' but torch sees no GPU here"):
+    with pytest.raises(
+        ConfigError, match=r"^clustering.device is 'cuda' but torch sees no GPU here"
+    ):
         resolve_device("cuda", "clustering.device")
     assert resolve_device("auto", "clustering.device").type == "cpu"
 
@@ -50,7 +59,9 @@ def test_policy_mix_auto_is_the_cpu_fit_where_no_gpu_is_seen():
 
     from pcpg_dist.clustering import cluster, clustering_metrics
 
-    goals = goal_seekers(40, seed=7)  # as test_policy_mix: EM finds the styles from a start near chance
+    goals = goal_seekers(
+        40, seed=7
+    )  # as test_policy_mix: EM finds the styles from a start near chance
     cpu = cluster(goals, ClusterConfig(**FAST), seed=0)
     auto = cluster(goals, ClusterConfig(**FAST, device="auto"), seed=0)
     assert clustering_metrics(goals.styles, cpu.labels)["accuracy"] >= 0.95
@@ -70,12 +81,24 @@ def test_only_a_clustering_that_trains_a_network_asks_for_a_gpu():
 
     continuous = goal_seekers(5, seed=0)
     rng = np.random.default_rng(0)
-    grid = [{"states": rng.integers(0, 3, size=(6, 2)).astype(float), "actions": rng.integers(0, 4, 5),
-             "valid": np.full(6, 15), "rewards": np.zeros(5)} for _ in range(20)]  # 9 distinct states
+    grid = [
+        {
+            "states": rng.integers(0, 3, size=(6, 2)).astype(float),
+            "actions": rng.integers(0, 4, 5),
+            "valid": np.full(6, 15),
+            "rewards": np.zeros(5),
+        }
+        for _ in range(20)
+    ]  # 9 distinct states
     discrete = Dataset.from_trajectories("toy", "grid", 4, grid, [0] * 20, [True] * 20)
     auto = ClusterConfig(method="bag_auto")
     assert trains_a_network(auto, continuous) and not trains_a_network(auto, discrete)
-    for method, neural in (("lstm_dec", True), ("policy_mix", True), ("greedy_mix", False), ("bag_kmeans", False)):
+    for method, neural in (
+        ("lstm_dec", True),
+        ("policy_mix", True),
+        ("greedy_mix", False),
+        ("bag_kmeans", False),
+    ):
         assert trains_a_network(ClusterConfig(method=method), discrete) is neural
 
 
@@ -96,8 +119,13 @@ def test_run_on_cuda_without_a_gpu_is_refused_before_anything_starts(ray_session
     from pcpg_dist.runner import run_experiment
 
     path = tmp_path / "tiny.yaml"
-    path.write_text(yaml.safe_dump({**TINY, "clustering": {**TINY["clustering"], "method": "lstm_dec",
-                                                           "device": "cuda"}}))
+    path.write_text(
+        yaml.safe_dump(
+            {**TINY, "clustering": {**TINY["clustering"], "method": "lstm_dec", "device": "cuda"}}
+        )
+    )
     with pytest.raises(ConfigError, match="^clustering.device is 'cuda' but no Ray node has a GPU"):
-        run_experiment(load_config(path), workdir=tmp_path / "runs", track=False, show_progress=False)
+        run_experiment(
+            load_config(path), workdir=tmp_path / "runs", track=False, show_progress=False
+        )
     assert not (tmp_path / "runs").exists()

@@ -12,7 +12,9 @@ from pcpg_dist.clustering import ClusterConfig, cluster, clustering_metrics, loa
 from pcpg_dist.errors import DataError
 
 
-def synthetic_steps(seed: int, k: int = 3, per_style: int = 100, n_states: int = 60, length: int = 25):
+def synthetic_steps(
+    seed: int, k: int = 3, per_style: int = 100, n_states: int = 60, length: int = 25
+):
     """k styles = k random greedy actions per state; each trajectory strays uniformly with its own
     noise eps ~ U[0, 0.3]. States are drawn at random (the model never looks at transitions)."""
     rng = np.random.default_rng(seed)
@@ -24,8 +26,9 @@ def synthetic_steps(seed: int, k: int = 3, per_style: int = 100, n_states: int =
     stray = rng.random((n, length)) < eps[:, None]
     action = np.where(stray, rng.integers(0, 4, (n, length)), greedy[styles[:, None], state])
     traj = np.repeat(np.arange(n), length)
-    steps = greedy_mix.Steps.build(state.ravel(), action.ravel(), np.ones((n * length, 4), bool), traj, n,
-                                   n_states, 4)
+    steps = greedy_mix.Steps.build(
+        state.ravel(), action.ravel(), np.ones((n * length, 4), bool), traj, n, n_states, 4
+    )
     return steps, styles
 
 
@@ -67,7 +70,9 @@ def e4():
     from pcpg_dist.domains.gridworld import load_layout
     from pcpg_dist.pbtg import assemble_dataset, generate_pair
 
-    layout = load_layout(Path(__file__).resolve().parents[1] / "pcpg_dist" / "data" / "gridworld" / "E4.txt")
+    layout = load_layout(
+        Path(__file__).resolve().parents[1] / "pcpg_dist" / "data" / "gridworld" / "E4.txt"
+    )
     return assemble_dataset([generate_pair(layout, r, PBTGConfig(), 0) for r in range(4)])
 
 
@@ -77,7 +82,9 @@ def test_closes_the_paper_e4_gap_to_the_supervised_ceiling(e4):
     from pcpg_dist.ceiling import supervised_ceiling
 
     top = supervised_ceiling(e4, seed=0)
-    km = clustering_metrics(e4.styles, cluster(e4, ClusterConfig(method="bag_kmeans"), seed=0).labels)
+    km = clustering_metrics(
+        e4.styles, cluster(e4, ClusterConfig(method="bag_kmeans"), seed=0).labels
+    )
     auto = cluster(e4, ClusterConfig(), seed=0)  # the default, bag_auto
     acc = clustering_metrics(e4.styles, auto.labels)["accuracy"]
     assert km["accuracy"] < top - 0.015
@@ -101,7 +108,9 @@ def test_split_merge_frees_a_group_no_start_freed():
     top = supervised_ceiling(ds, seed=0)
     states, _ = checked_sequences(ds)
     steps = greedy_mix.Steps.of_dataset(ds, states, fit_vocabulary(states, ds.actions, 4).states)
-    starts = [cluster(ds, ClusterConfig(method="bag_kmeans", k=kk), seed=0).labels for kk in (4, 5, 6)]
+    starts = [
+        cluster(ds, ClusterConfig(method="bag_kmeans", k=kk), seed=0).labels for kk in (4, 5, 6)
+    ]
     without = greedy_mix.fit(steps, starts, 4, split_merge_rounds=0)
     fitted = greedy_mix.fit(steps, starts, 4)
     accuracy = lambda labels: clustering_metrics(ds.styles, labels)["accuracy"]  # noqa: E731
@@ -180,7 +189,14 @@ def test_margins_are_large_for_clear_styles_and_small_for_trajectories_that_fit_
     c0, c1 = (np.argmax(np.bincount(fit.labels[styles == s], minlength=3)) for s in (0, 1))
     shared = np.flatnonzero(v[c0] == v[c1])[:6]
     assert len(shared) >= 3
-    one = greedy_mix.Steps.build(shared, v[c0][shared], np.ones((len(shared), 4), bool),
-                                 np.zeros(len(shared), np.int64), 1, steps.n_states, 4)
+    one = greedy_mix.Steps.build(
+        shared,
+        v[c0][shared],
+        np.ones((len(shared), 4), bool),
+        np.zeros(len(shared), np.int64),
+        1,
+        steps.n_states,
+        4,
+    )
     both = greedy_mix.scores(one, greedy_mix._weights(one, fit.noise), fit.votes, fit.log_share)[0]
     assert abs(both[c0] - both[c1]) < 1.0 < min(both[c0], both[c1]) - both.min()

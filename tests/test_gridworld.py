@@ -45,14 +45,19 @@ def test_r1_takes_a_shortest_path_and_r2_visits_b1_before_g(layouts):
         routes = gw.optimal_routes(layout)
         # BFS shortest distance S -> G over cells (walls, traps excluded).
         from collections import deque
+
         start, goal = layout.start, layout.find("G")[0]
         dist, q = {start: 0}, deque([start])
         while q:
             x, y = q.popleft()
             for dx, dy in gw.MOVES:
                 n = (x + dx, y + dy)
-                if (0 <= n[0] < 10 and 0 <= n[1] < 10 and n not in dist
-                        and layout.grid[n[1]][n[0]] not in "#X"):
+                if (
+                    0 <= n[0] < 10
+                    and 0 <= n[1] < 10
+                    and n not in dist
+                    and layout.grid[n[1]][n[0]] not in "#X"
+                ):
                     dist[n] = dist[(x, y)] + 1
                     q.append(n)
         assert len(routes[0]) - 1 == dist[goal]
@@ -108,25 +113,30 @@ def test_invalid_action_is_a_no_op_and_cap_truncates(layouts):
     obs, _ = env.reset(seed=0)
     bad = np.nonzero(~env.action_masks())[0]
     if len(bad):
-        obs2, r, *_ , info = env.step(int(bad[0]))
+        obs2, r, *_, info = env.step(int(bad[0]))
         assert (obs2 == obs).all() and r == 0 and info["invalid_action"]
     env.reset(seed=0)
     good = int(np.nonzero(env.action_masks())[0][0])
-    out = [env.step(good if env.action_masks()[good] else int(np.nonzero(env.action_masks())[0][0]))
-           for _ in range(3)]
+    out = [
+        env.step(good if env.action_masks()[good] else int(np.nonzero(env.action_masks())[0][0]))
+        for _ in range(3)
+    ]
     assert out[-1][2] or out[-1][3]
 
 
-@pytest.mark.parametrize("text, needle", [
-    ("S.G\n.12\n..", "line 3: 2 characters, expected 3"),
-    ("S.G\n.1Z\n...", "unknown character 'Z'"),
-    ("S.G\n.1.\n...", "exactly one '2'"),
-    ("S.G\n.12\nSS.", "exactly one 'S'"),
-    ("S#G\n#12\n...", "goal G is not reachable"),
-    ("SXG\nX12\n...", "goal G is not reachable"),
-    ("S.G\n.X.\n1X2", "bonus 2 is not reachable"),
-    ("", "empty layout"),
-])
+@pytest.mark.parametrize(
+    "text, needle",
+    [
+        ("S.G\n.12\n..", "line 3: 2 characters, expected 3"),
+        ("S.G\n.1Z\n...", "unknown character 'Z'"),
+        ("S.G\n.1.\n...", "exactly one '2'"),
+        ("S.G\n.12\nSS.", "exactly one 'S'"),
+        ("S#G\n#12\n...", "goal G is not reachable"),
+        ("SXG\nX12\n...", "goal G is not reachable"),
+        ("S.G\n.X.\n1X2", "bonus 2 is not reachable"),
+        ("", "empty layout"),
+    ],
+)
 def test_bad_layouts_name_the_problem(text, needle, tmp_path):
     path = tmp_path / "mine.txt"
     path.write_text(text)
@@ -137,13 +147,16 @@ def test_bad_layouts_name_the_problem(text, needle, tmp_path):
 
 def test_layout_size_is_bounded_before_it_is_analysed():
     """Analysis grows as side^3 (1.5 s at 100x100, 13 s at 200x200): a wider layout is refused at once."""
+
     def layout(width: int) -> str:
         return "S" + "." * (width - 2) + "G\n1" + "." * (width - 2) + "2\n" + "." * width
 
     assert gw.parse_layout(layout(100), "wide.txt", check_styles=False).width == 100
     with pytest.raises(LayoutError) as e:
         gw.parse_layout(layout(101), "wide.txt")
-    assert str(e.value).startswith("wide.txt: 101 columns x 3 rows; a layout may be at most 100x100 cells")
+    assert str(e.value).startswith(
+        "wide.txt: 101 columns x 3 rows; a layout may be at most 100x100 cells"
+    )
     with pytest.raises(LayoutError, match="wide.txt: 2 columns x 101 rows"):
         gw.parse_layout("S1\n" + "..\n" * 99 + "G2\n", "wide.txt")
 

@@ -55,9 +55,15 @@ def returns(ds) -> np.ndarray:
 
 # ------------------------------------------------------------------ (a) FrozenLake
 def test_scripted_optimal_policy_reaches_the_goal_in_six_steps(lake_policy, rng):
-    ds = rollout("FrozenLake-v1", LAKE, lake_policy, 10, rng, max_steps=100,
-                 action_names=LAKE_ACTIONS)
-    assert (ds.domain, ds.env, ds.n_actions, ds.state_dim) == ("trajectories", "FrozenLake-v1", 4, 16)
+    ds = rollout(
+        "FrozenLake-v1", LAKE, lake_policy, 10, rng, max_steps=100, action_names=LAKE_ACTIONS
+    )
+    assert (ds.domain, ds.env, ds.n_actions, ds.state_dim) == (
+        "trajectories",
+        "FrozenLake-v1",
+        4,
+        16,
+    )
     assert (ds.lengths - 1 == 6).all()
     np.testing.assert_array_equal(returns(ds), 1.0)
     assert ds.success.all()
@@ -78,8 +84,15 @@ def test_random_policy_mostly_fails_and_what_success_means(rng):
     final = ds.states[ds.offsets[1:] - 1].argmax(axis=1)
     np.testing.assert_array_equal(ds.success, np.isin(final, [5, 7, 11, 12, 15]))
     assert ds.success.mean() > 0.8
-    strict = rollout("FrozenLake-v1", LAKE, random_policy, 60, np.random.default_rng(12345),
-                     max_steps=100, success_rule="terminated_positive_reward")
+    strict = rollout(
+        "FrozenLake-v1",
+        LAKE,
+        random_policy,
+        60,
+        np.random.default_rng(12345),
+        max_steps=100,
+        success_rule="terminated_positive_reward",
+    )
     np.testing.assert_array_equal(strict.success, reached)
 
 
@@ -97,9 +110,15 @@ def test_max_steps_ends_an_episode_without_success(rng):
 # ------------------------------------------------------------------ (b) seeding
 def test_same_rng_same_dataset():
     slippery = {"is_slippery": True, "map_name": "4x4"}  # the env's transitions use its seed
-    a = rollout("FrozenLake-v1", slippery, random_policy, 12, np.random.default_rng(7), max_steps=40)
-    b = rollout("FrozenLake-v1", slippery, random_policy, 12, np.random.default_rng(7), max_steps=40)
-    c = rollout("FrozenLake-v1", slippery, random_policy, 12, np.random.default_rng(8), max_steps=40)
+    a = rollout(
+        "FrozenLake-v1", slippery, random_policy, 12, np.random.default_rng(7), max_steps=40
+    )
+    b = rollout(
+        "FrozenLake-v1", slippery, random_policy, 12, np.random.default_rng(7), max_steps=40
+    )
+    c = rollout(
+        "FrozenLake-v1", slippery, random_policy, 12, np.random.default_rng(8), max_steps=40
+    )
     for field in ("states", "actions", "rewards", "valid", "offsets", "success"):
         np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
     assert a.n_rows != c.n_rows or not np.array_equal(a.actions, c.actions)
@@ -137,7 +156,9 @@ def test_invalid_action_names_episode_and_step(rng):
             a[1] = int(np.argmin(valid[1]))  # a masked action
         return a
 
-    with pytest.raises(ValueError, match=r"episode 1, step 2: the policy chose action \d, which is not valid"):
+    with pytest.raises(
+        ValueError, match=r"episode 1, step 2: the policy chose action \d, which is not valid"
+    ):
         rollout("Taxi-v4", {}, bad_at_step_two, 4, rng, max_steps=10)
 
     def out_of_range(states, valid, rng):
@@ -167,7 +188,9 @@ def test_check_compatible_rejects_other_widths():
 
 
 def test_make_env_errors():
-    with pytest.raises(ConfigError, match="trajectories.gymnasium_env.*Did you mean: `FrozenLake`") as err:
+    with pytest.raises(
+        ConfigError, match="trajectories.gymnasium_env.*Did you mean: `FrozenLake`"
+    ) as err:
         make_env("FrozenLak-v1", {})
     _one_line(err)
     with pytest.raises(ConfigError, match="trajectories.gymnasium_env.*Please use `Taxi-v4`"):
@@ -253,13 +276,32 @@ def _corridor_config(tmp_path, kwargs: dict):
     import pandas as pd
     import yaml
 
-    rows = [{"trajectory": i, "t": t, **{f"s{j}": float(j == t) for j in range(5)}, "action": 2 if t < 4 else -1}
-            for i in range(4) for t in range(5)]
+    rows = [
+        {
+            "trajectory": i,
+            "t": t,
+            **{f"s{j}": float(j == t) for j in range(5)},
+            "action": 2 if t < 4 else -1,
+        }
+        for i in range(4)
+        for t in range(5)
+    ]
     pd.DataFrame(rows).to_parquet(tmp_path / "corridor.parquet", index=False)
     path = tmp_path / "cfg.yaml"
-    path.write_text(yaml.safe_dump({
-        "name": "corridor", "domain": "trajectories", "seeds": [0],
-        "trajectories": {"path": "corridor.parquet", "gymnasium_env": FRAGILE, "gymnasium_kwargs": kwargs}}))
+    path.write_text(
+        yaml.safe_dump(
+            {
+                "name": "corridor",
+                "domain": "trajectories",
+                "seeds": [0],
+                "trajectories": {
+                    "path": "corridor.parquet",
+                    "gymnasium_env": FRAGILE,
+                    "gymnasium_kwargs": kwargs,
+                },
+            }
+        )
+    )
     return path
 
 
@@ -270,14 +312,18 @@ def test_kwargs_that_fail_only_when_the_env_runs_fail_at_config_load(fail_in, tm
     from pcpg_dist.cli import main
     from pcpg_dist.config import load_config
 
-    load_config(_corridor_config(tmp_path, {"fail_in": "step", "at_step": 1}))  # one reset, one masked step
+    load_config(
+        _corridor_config(tmp_path, {"fail_in": "step", "at_step": 1})
+    )  # one reset, one masked step
     cfg = _corridor_config(tmp_path, {"fail_in": fail_in})
     code = main(["run", str(cfg), "--no-tracking", "--quiet", "--workdir", str(tmp_path / "runs")])
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1, err
-    assert err.startswith(f"pcpg: error: {cfg}: key 'trajectories.gymnasium_kwargs': gymnasium.make("
-                          f"'{FRAGILE}', **{{'fail_in': '{fail_in}'}}) fails on its first reset() and step(): "
-                          f"RuntimeError: no display found"), err
+    assert err.startswith(
+        f"pcpg: error: {cfg}: key 'trajectories.gymnasium_kwargs': gymnasium.make("
+        f"'{FRAGILE}', **{{'fail_in': '{fail_in}'}}) fails on its first reset() and step(): "
+        f"RuntimeError: no display found"
+    ), err
     assert "second line" not in err and not (tmp_path / "runs").exists()
 
 
@@ -287,9 +333,11 @@ def test_an_env_error_during_rollouts_is_one_config_error_naming_the_env(rng):
 
     with pytest.raises(ConfigError) as err:
         rollout(FRAGILE, {"fail_in": "step", "at_step": 2}, forward, 2, rng, max_steps=10)
-    assert _one_line(err) == (f"key 'trajectories.gymnasium_kwargs': gymnasium.make('{FRAGILE}', **{{'at_step': 2, "
-                              f"'fail_in': 'step'}}) failed in a rollout (episode 0, step 2, step()): "
-                              f"RuntimeError: no display found")
+    assert _one_line(err) == (
+        f"key 'trajectories.gymnasium_kwargs': gymnasium.make('{FRAGILE}', **{{'at_step': 2, "
+        f"'fail_in': 'step'}}) failed in a rollout (episode 0, step 2, step()): "
+        f"RuntimeError: no display found"
+    )
 
 
 # ------------------------------------------------------------------ (f) learning end to end
@@ -302,12 +350,25 @@ def test_bc_agent_trained_on_lake_logs_reaches_the_goal(lake_policy, rng):
         explore = rng.random(len(a)) < 0.2
         return np.where(explore, random_policy(states, valid, rng), a)
 
-    logs = rollout("FrozenLake-v1", LAKE, noisy_expert, 60, rng, max_steps=30,
-                   success_rule="terminated_positive_reward")
+    logs = rollout(
+        "FrozenLake-v1",
+        LAKE,
+        noisy_expert,
+        60,
+        rng,
+        max_steps=30,
+        success_rule="terminated_positive_reward",
+    )
     assert 0.5 < logs.success.mean() < 1.0  # the logs hold failures too
     tr, _ = split_trajectories(logs.n_trajectories, 0.2, 0)
-    cells = plan_cells(logs, np.zeros(logs.n_trajectories, np.int64), tr, RankConfig(ps=(1.0,)),
-                       seeds=[0], baseline=False)
+    cells = plan_cells(
+        logs,
+        np.zeros(logs.n_trajectories, np.int64),
+        tr,
+        RankConfig(ps=(1.0,)),
+        seeds=[0],
+        baseline=False,
+    )
     trained = train_cells(cells, BCConfig(epochs=600))
     ds = rollout("FrozenLake-v1", LAKE, trained.policy("k0-p1-s0"), 20, rng, max_steps=100)
     assert (returns(ds) == 1.0).mean() >= 0.9

@@ -69,7 +69,9 @@ def test_action_is_next_event(shipped: mario.LoadResult) -> None:
     ds = shipped.dataset
     for i in range(0, ds.n_trajectories, 17):
         a, b = ds.offsets[i], ds.offsets[i + 1]
-        np.testing.assert_array_equal(ds.actions[a:b - 1], ds.states[a + 1:b, 5].astype(np.int64))
+        np.testing.assert_array_equal(
+            ds.actions[a : b - 1], ds.states[a + 1 : b, 5].astype(np.int64)
+        )
         assert ds.actions[b - 1] == -1
 
 
@@ -90,7 +92,9 @@ def test_terminator_blank_lines_bom_and_crlf_are_accepted(tmp_path: Path) -> Non
     assert list(ds.actions[:4]) == [3, 13, 17, -1]
     assert list(ds.actions[4:]) == [25, 24, 6, 22, -1]
     assert list(ds.success) == [True, False]
-    bom_first = mario.load_play_log(write(tmp_path, "\ufeff" + GOOD_A, "bom.log"), event="id").dataset
+    bom_first = mario.load_play_log(
+        write(tmp_path, "\ufeff" + GOOD_A, "bom.log"), event="id"
+    ).dataset
     np.testing.assert_array_equal(bom_first.states[0], np.zeros(6))
 
 
@@ -105,11 +109,18 @@ def test_goal_options_on_hand_made_log(tmp_path: Path) -> None:
 
 def test_increments_option(tmp_path: Path) -> None:
     # starts mid-count (a kill on the first step, as 18 shipped episodes do)
-    ds = mario.load_play_log(write(tmp_path, line("0,1,0,0,0,14", "1,1,0,0,0,3", "1,1,0,2,0,6")),
-                             increments=True, event="id").dataset
+    ds = mario.load_play_log(
+        write(tmp_path, line("0,1,0,0,0,14", "1,1,0,0,0,3", "1,1,0,2,0,6")),
+        increments=True,
+        event="id",
+    ).dataset
     assert ds.feature_names == (*mario.FEATURES, *mario.INCREMENTS)
-    np.testing.assert_array_equal(ds.states[:, 6:], [[0, 1, 0, 0, 0], [1, 0, 0, 0, 0], [0, 0, 0, 2, 0]])
-    np.testing.assert_array_equal(ds.states[:, :6], [[0, 1, 0, 0, 0, 14], [1, 1, 0, 0, 0, 3], [1, 1, 0, 2, 0, 6]])
+    np.testing.assert_array_equal(
+        ds.states[:, 6:], [[0, 1, 0, 0, 0], [1, 0, 0, 0, 0], [0, 0, 0, 2, 0]]
+    )
+    np.testing.assert_array_equal(
+        ds.states[:, :6], [[0, 1, 0, 0, 0, 14], [1, 1, 0, 0, 0, 3], [1, 1, 0, 2, 0, 6]]
+    )
 
 
 def test_state_encodings(tmp_path: Path) -> None:
@@ -122,7 +133,9 @@ def test_state_encodings(tmp_path: Path) -> None:
     assert (onehot.states[:, 5:].sum(axis=1) == 1).all()
     lean = mario.load_play_log(path, counters=False, increments=True).dataset
     assert lean.feature_names == (*(f"event_{i}" for i in range(39)), *mario.INCREMENTS)
-    np.testing.assert_array_equal(lean.states[:, 39:], [[0, 1, 0, 0, 0], [1, 0, 0, 0, 0], [0, 0, 0, 2, 0]])
+    np.testing.assert_array_equal(
+        lean.states[:, 39:], [[0, 1, 0, 0, 0], [1, 0, 0, 0, 0], [0, 0, 0, 2, 0]]
+    )
     np.testing.assert_array_equal(lean.actions, raw.actions)
     with pytest.raises(DataError, match="event must be"):
         mario.load_play_log(path, event="embedding")  # type: ignore[arg-type]
@@ -163,7 +176,11 @@ def test_bad_step_lenient_drops_only_that_step(tmp_path: Path, case: str, caplog
     with caplog.at_level(logging.WARNING, logger="pcpg_dist.domains.mario"):
         result = mario.load_play_log(path, strict=False)
     assert result.skipped_steps == 1 and result.skipped_episodes == 0
-    assert len(result.skipped) == 1 and why in result.skipped[0] and ":2: episode 1 step 1" in result.skipped[0]
+    assert (
+        len(result.skipped) == 1
+        and why in result.skipped[0]
+        and ":2: episode 1 step 1" in result.skipped[0]
+    )
     ds = result.dataset
     assert list(ds.lengths) == [4, 2]
     assert list(ds.actions[4:]) == [7, -1]  # the next readable event becomes the target
@@ -186,13 +203,19 @@ def test_truncated_last_line(tmp_path: Path) -> None:
     with pytest.raises(DataError, match=":3: episode 2"):
         mario.load_play_log(path)
     result = mario.load_play_log(path, strict=False)
-    assert (result.unterminated_episodes, result.skipped_steps, result.skipped_episodes) == (1, 1, 0)
+    assert (result.unterminated_episodes, result.skipped_steps, result.skipped_episodes) == (
+        1,
+        1,
+        0,
+    )
     assert list(result.dataset.lengths) == [4, 5, 2]
 
 
 def test_decreasing_counter_drops_episode(tmp_path: Path) -> None:
     path = write(tmp_path, line("0,0,0,0,0,0", "2,0,0,0,0,3", "1,0,0,0,0,3") + GOOD_B)
-    with pytest.raises(DataError, match="episode 0 step 2: cumulative counter 'jumps' decreases from 2 to 1"):
+    with pytest.raises(
+        DataError, match="episode 0 step 2: cumulative counter 'jumps' decreases from 2 to 1"
+    ):
         mario.load_play_log(path)
     result = mario.load_play_log(path, strict=False)
     assert result.skipped_episodes == 1 and result.dataset.n_trajectories == 1
@@ -292,12 +315,23 @@ def test_split_episodes_rejects_empty_parts(shipped: mario.LoadResult) -> None:
 def test_cluster_profile_values(tmp_path: Path) -> None:
     runner = line("0,0,0,0,0,0", "0,0,1,0,0,25", "1,0,1,0,0,3", "1,0,2,0,0,25")  # 4 steps
     killer = line("0,1,0,0,0,13", "0,2,0,0,0,13", "0,2,0,0,1,24", "0,2,0,0,1,22")  # 4 steps
-    coiner = line("0,0,0,0,0,0", "0,0,0,1,0,6", "0,0,0,2,0,6", "0,0,0,3,0,6", "0,0,0,3,0,6",
-                  "0,0,0,3,0,6", "0,0,0,3,0,6", "0,0,0,3,0,17")  # 8 steps
+    coiner = line(
+        "0,0,0,0,0,0",
+        "0,0,0,1,0,6",
+        "0,0,0,2,0,6",
+        "0,0,0,3,0,6",
+        "0,0,0,3,0,6",
+        "0,0,0,3,0,6",
+        "0,0,0,3,0,6",
+        "0,0,0,3,0,17",
+    )  # 8 steps
     ds = mario.load_play_log(write(tmp_path, runner + killer + coiner + runner)).dataset
     profile = mario.cluster_profile(ds, np.array([5, 1, 1, 5]))
-    lean = mario.load_play_log(write(tmp_path, runner + killer + coiner + runner, "lean.log"),
-                               counters=False, increments=True).dataset
+    lean = mario.load_play_log(
+        write(tmp_path, runner + killer + coiner + runner, "lean.log"),
+        counters=False,
+        increments=True,
+    ).dataset
     pd.testing.assert_frame_equal(mario.cluster_profile(lean, np.array([5, 1, 1, 5])), profile)
     assert list(profile.index) == [1, 5]
     assert list(profile["size"]) == [2, 2]
@@ -321,10 +355,17 @@ def test_cluster_profile_rejects_bad_input(tmp_path: Path) -> None:
     ds = mario.load_play_log(write(tmp_path, GOOD_A + GOOD_B)).dataset
     with pytest.raises(DataError, match="labels must have shape"):
         mario.cluster_profile(ds, np.zeros(3))
-    anonymous = Dataset.from_trajectories("x", "y", 2, [{"states": np.zeros((2, 6)), "actions": [0],
-                                                         "valid": [3, 3], "rewards": [0.0]}],
-                                          styles=[-1], success=[True])
+    anonymous = Dataset.from_trajectories(
+        "x",
+        "y",
+        2,
+        [{"states": np.zeros((2, 6)), "actions": [0], "valid": [3, 3], "rewards": [0.0]}],
+        styles=[-1],
+        success=[True],
+    )
     with pytest.raises(DataError, match="neither the Mario counters"):
         mario.cluster_profile(anonymous, np.zeros(1))
     with pytest.raises(DataError, match="profile lacks columns"):
-        mario.plot_profile(mario.cluster_profile(ds, np.zeros(2)).drop(columns="size"), tmp_path / "p.png")
+        mario.plot_profile(
+            mario.cluster_profile(ds, np.zeros(2)).drop(columns="size"), tmp_path / "p.png"
+        )

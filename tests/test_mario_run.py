@@ -33,15 +33,29 @@ def small_log(path: Path) -> Path:
 def mario_cfg(tmp_path_factory):
     where = tmp_path_factory.mktemp("mario")
     raw = {
-        "name": "mario_small", "domain": "mario", "seed": 0, "seeds": [0, 1],
-        "mario": {"path": str(small_log(where / "small.log")), "event": "onehot", "counters": True,
-                  "increments": True},
+        "name": "mario_small",
+        "domain": "mario",
+        "seed": 0,
+        "seeds": [0, 1],
+        "mario": {
+            "path": str(small_log(where / "small.log")),
+            "event": "onehot",
+            "counters": True,
+            "increments": True,
+        },
         # experiments/mario.yaml's pipeline: policy-mixture clusters, minibatch BC, per-cluster
         # agents fine-tuned from the No Clustering one
         "clustering": {"method": "policy_mix", "k": 2},
         "ranking": {"ps": [1.0, 0.5]},
-        "bc": {"hidden_layers": 2, "hidden_size": 16, "batch_size": 512, "epochs": 20, "lr": 0.01,
-               "init": "no_clustering", "finetune_epochs": 5},
+        "bc": {
+            "hidden_layers": 2,
+            "hidden_size": 16,
+            "batch_size": 512,
+            "epochs": 20,
+            "lr": 0.01,
+            "init": "no_clustering",
+            "finetune_epochs": 5,
+        },
     }
     (where / "mario.yaml").write_text(yaml.safe_dump(raw))
     return load_config(where / "mario.yaml")
@@ -50,8 +64,13 @@ def mario_cfg(tmp_path_factory):
 @pytest.fixture(scope="module")
 def mario_run(ray_session, mario_cfg, tmp_path_factory):
     work = tmp_path_factory.mktemp("work")
-    return run_experiment(mario_cfg, workdir=work / "runs", tracking_uri=f"sqlite:///{work / 'mlflow.db'}",
-                          show_progress=False, command="pcpg run mario.yaml")
+    return run_experiment(
+        mario_cfg,
+        workdir=work / "runs",
+        tracking_uri=f"sqlite:///{work / 'mlflow.db'}",
+        show_progress=False,
+        command="pcpg run mario.yaml",
+    )
 
 
 def test_episodes_are_split_whole(mario_cfg) -> None:
@@ -87,30 +106,54 @@ def test_mario_run_beats_the_majority_class_and_profiles_styles(mario_run, mario
     assert set(lengths["method"]) == {"pcpg", "nc"} and (lengths["mean"] <= STEPS).all()
     nc = lengths[lengths.method == "nc"].set_index("p")
     assert nc.loc[1.0, "n"] == EPISODES - round(0.2 * EPISODES)
-    for name in ("cluster_profile.png", "subset_length.png", "cross_accuracy.png", "accuracy_vs_p.png"):
+    for name in (
+        "cluster_profile.png",
+        "subset_length.png",
+        "cross_accuracy.png",
+        "accuracy_vs_p.png",
+    ):
         assert (smb / name).read_bytes()[:4] == b"\x89PNG", name
     cross = pd.read_csv(smb / "cross_accuracy.csv", index_col=0)
     assert cross.shape == (2, 2) and ((cross > 0.05) & (cross < 0.6)).all().all()
-    assert json.loads((mario_run.out_dir / "summary" / "metrics.json").read_text())["smb/majority/accuracy"] > 0
+    assert (
+        json.loads((mario_run.out_dir / "summary" / "metrics.json").read_text())[
+            "smb/majority/accuracy"
+        ]
+        > 0
+    )
 
 
 @pytest.mark.slow
-def test_a_split_that_changes_the_clustering_input_gets_its_own_clustering(ray_session, mario_cfg, tmp_path) -> None:
+def test_a_split_that_changes_the_clustering_input_gets_its_own_clustering(
+    ray_session, mario_cfg, tmp_path
+) -> None:
     """Mario's clustering input (its valid-event mask) comes from the training episodes, so from the
     split; the clustering cache key held only the settings, so a rerun (or a sweep point) with
     another ranking.split_seed reused the first split's clustering."""
-    fast = {"ranking.test_fraction": 0.9, "seeds": [0], "clustering.em_iterations": 2,
-            "clustering.policy_steps": 10, "bc.epochs": 2, "bc.finetune_epochs": 1,
-            "evaluation.corruption_levels": [], "evaluation.figures": False}
+    fast = {
+        "ranking.test_fraction": 0.9,
+        "seeds": [0],
+        "clustering.em_iterations": 2,
+        "clustering.policy_steps": 10,
+        "bc.epochs": 2,
+        "bc.finetune_epochs": 1,
+        "evaluation.corruption_levels": [],
+        "evaluation.figures": False,
+    }
 
     def cfg(split_seed: int):
         from pcpg_dist.config import ExperimentConfig
         from pcpg_dist.config.overrides import apply_overrides
 
-        raw = apply_overrides(mario_cfg.model_dump(mode="json"), {**fast, "ranking.split_seed": split_seed})
+        raw = apply_overrides(
+            mario_cfg.model_dump(mode="json"), {**fast, "ranking.split_seed": split_seed}
+        )
         return ExperimentConfig.model_validate(raw)
 
-    masks = [units(cfg(s), generate(cfg(s), show_progress=False))[0].clustered.valid.any(axis=0) for s in (0, 2)]
+    masks = [
+        units(cfg(s), generate(cfg(s), show_progress=False))[0].clustered.valid.any(axis=0)
+        for s in (0, 2)
+    ]
     assert (masks[0] != masks[1]).any()  # the two splits' training episodes saw different events
     work = tmp_path / "runs"
     first = run_experiment(cfg(0), workdir=work, tracking_uri=None, show_progress=False)
@@ -118,5 +161,7 @@ def test_a_split_that_changes_the_clustering_input_gets_its_own_clustering(ray_s
     again = run_experiment(cfg(2), workdir=work, tracking_uri=None, show_progress=False)
     assert first.computed["clustering"] == second.computed["clustering"] == 1
     assert again.computed["clustering"] == 0
-    fresh = run_experiment(cfg(2), workdir=tmp_path / "fresh", tracking_uri=None, show_progress=False)
+    fresh = run_experiment(
+        cfg(2), workdir=tmp_path / "fresh", tracking_uri=None, show_progress=False
+    )
     assert second.metrics["clustering/size_min_frac"] == fresh.metrics["clustering/size_min_frac"]

@@ -36,7 +36,9 @@ def minari_root(tmp_path, monkeypatch):
     return root
 
 
-def pcpg_dataset(rng: np.random.Generator, env: str = "lvl", lengths=(0, 2, 5, 9, 1), d: int = 3) -> Dataset:
+def pcpg_dataset(
+    rng: np.random.Generator, env: str = "lvl", lengths=(0, 2, 5, 9, 1), d: int = 3
+) -> Dataset:
     """Trajectories of different numbers of steps (one with no action at all), valid masks that hold the
     taken action, styles 0/1 and both outcomes."""
     trajs = []
@@ -44,12 +46,24 @@ def pcpg_dataset(rng: np.random.Generator, env: str = "lvl", lengths=(0, 2, 5, 9
         actions = rng.integers(0, N_ACTIONS, steps)
         valid = rng.random((steps + 1, N_ACTIONS)) < 0.5
         valid[np.arange(steps), actions] = True
-        trajs.append({"states": rng.normal(size=(steps + 1, d)), "actions": actions, "valid": valid,
-                      "rewards": rng.normal(size=steps)})
+        trajs.append(
+            {
+                "states": rng.normal(size=(steps + 1, d)),
+                "actions": actions,
+                "valid": valid,
+                "rewards": rng.normal(size=steps),
+            }
+        )
     n = len(lengths)
     return Dataset.from_trajectories(
-        "trajectories", env, N_ACTIONS, trajs, styles=np.arange(n) % 2,
-        success=np.arange(n) % 3 != 1, feature_names=tuple(f"f{j}" for j in range(d)))
+        "trajectories",
+        env,
+        N_ACTIONS,
+        trajs,
+        styles=np.arange(n) % 2,
+        success=np.arange(n) % 3 != 1,
+        feature_names=tuple(f"f{j}" for j in range(d)),
+    )
 
 
 def rows_of(table: pa.Table, name: str) -> np.ndarray:
@@ -71,10 +85,12 @@ def test_round_trip_through_minari(rng, tmp_path, minari_root):
         lo, hi = ds.offsets[i], ds.offsets[i + 1]
         assert ep.id == i
         np.testing.assert_array_equal(ep.observations, ds.states[lo:hi])
-        np.testing.assert_array_equal(ep.actions, ds.actions[lo:hi - 1])
-        np.testing.assert_array_equal(ep.rewards, ds.rewards[lo:hi - 1])
+        np.testing.assert_array_equal(ep.actions, ds.actions[lo : hi - 1])
+        np.testing.assert_array_equal(ep.rewards, ds.rewards[lo : hi - 1])
         if hi - lo > 1:
-            assert ep.terminations[-1] == ds.success[i] and ep.truncations[-1] == (not ds.success[i])
+            assert ep.terminations[-1] == ds.success[i] and ep.truncations[-1] == (
+                not ds.success[i]
+            )
             assert not ep.terminations[:-1].any() and not ep.truncations[:-1].any()
         np.testing.assert_array_equal(ep.infos["style"], np.full(hi - lo, ds.styles[i]))
         np.testing.assert_array_equal(ep.infos["valid"], ds.valid[lo:hi])
@@ -84,11 +100,15 @@ def test_round_trip_through_minari(rng, tmp_path, minari_root):
     original = ds.to_table()
     for col in ("trajectory", "t", "action", "reward", "style", "s0", "s1", "s2"):
         np.testing.assert_array_equal(rows_of(table, col), rows_of(original, col), err_msg=col)
-    np.testing.assert_array_equal(table.column("valid").combine_chunks().flatten().to_numpy(zero_copy_only=False),
-                                  ds.valid.reshape(-1))
+    np.testing.assert_array_equal(
+        table.column("valid").combine_chunks().flatten().to_numpy(zero_copy_only=False),
+        ds.valid.reshape(-1),
+    )
     # success survives for every trajectory that took an action (Minari keeps it on the last step)
     stepped = np.repeat(ds.lengths > 1, ds.lengths)
-    np.testing.assert_array_equal(rows_of(table, "success")[stepped], rows_of(original, "success")[stepped])
+    np.testing.assert_array_equal(
+        rows_of(table, "success")[stepped], rows_of(original, "success")[stepped]
+    )
     assert not rows_of(table, "success")[~stepped].any()
     assert set(rows_of(table, "env")) == {"pcpg_demo-v0"}
     assert table.schema.field("s0").type == pa.float32()
@@ -119,14 +139,25 @@ def frozen_lake_like(dataset_id: str, styles: bool) -> list[list[int]]:
     for i, steps in enumerate((3, 6)):
         obs = rng.integers(0, 16, steps + 1).tolist()
         infos = {"style": [i] * (steps + 1)} if styles else None
-        buffers.append(EpisodeBuffer(
-            observations=obs, actions=rng.integers(0, 4, steps).tolist(), rewards=[0.0] * (steps - 1) + [1.0],
-            terminations=[False] * (steps - 1) + [True], truncations=[False] * steps, infos=infos))
+        buffers.append(
+            EpisodeBuffer(
+                observations=obs,
+                actions=rng.integers(0, 4, steps).tolist(),
+                rewards=[0.0] * (steps - 1) + [1.0],
+                terminations=[False] * (steps - 1) + [True],
+                truncations=[False] * steps,
+                infos=infos,
+            )
+        )
         observations.append(obs)
     with pytest.warns(UserWarning):  # minari nags about the unset author, description, ...
         minari.create_dataset_from_buffers(
-            dataset_id, buffers, observation_space=gym.spaces.Discrete(16),
-            action_space=gym.spaces.Discrete(4), data_format="arrow")
+            dataset_id,
+            buffers,
+            observation_space=gym.spaces.Discrete(16),
+            action_space=gym.spaces.Discrete(4),
+            data_format="arrow",
+        )
     return observations
 
 
@@ -134,7 +165,9 @@ def test_discrete_observations_become_one_hot_states():
     observations = frozen_lake_like("toy/lake-v0", styles=True)
     table, meta = read_minari("toy/lake-v0")
     states = np.stack([rows_of(table, f"s{j}") for j in range(16)], axis=1)
-    np.testing.assert_array_equal(states, np.eye(16, dtype=np.float32)[np.concatenate(observations)])
+    np.testing.assert_array_equal(
+        states, np.eye(16, dtype=np.float32)[np.concatenate(observations)]
+    )
     assert meta["n_actions"] == 4 and meta["feature_names"][:2] == ["obs=0", "obs=1"]
     np.testing.assert_array_equal(rows_of(table, "action")[[3, 10]], [-1, -1])
     np.testing.assert_array_equal(rows_of(table, "style"), [0] * 4 + [1] * 7)
@@ -147,29 +180,50 @@ def test_discrete_observations_become_one_hot_states():
 
 
 def test_flatten_matches_gymnasium_for_nested_spaces():
-    space = gym.spaces.Dict({
-        "pos": gym.spaces.Box(-1, 1, (2, 3), np.float32),
-        "room": gym.spaces.Discrete(4, start=1),
-        "bag": gym.spaces.Tuple((gym.spaces.MultiDiscrete([2, 3]), gym.spaces.MultiBinary(3))),
-    })
+    space = gym.spaces.Dict(
+        {
+            "pos": gym.spaces.Box(-1, 1, (2, 3), np.float32),
+            "room": gym.spaces.Discrete(4, start=1),
+            "bag": gym.spaces.Tuple((gym.spaces.MultiDiscrete([2, 3]), gym.spaces.MultiBinary(3))),
+        }
+    )
     space.seed(3)
     samples = [space.sample() for _ in range(20)]
-    batch = {"pos": np.stack([s["pos"] for s in samples]), "room": np.array([s["room"] for s in samples]),
-             "bag": (np.stack([s["bag"][0] for s in samples]), np.stack([s["bag"][1] for s in samples]))}
+    batch = {
+        "pos": np.stack([s["pos"] for s in samples]),
+        "room": np.array([s["room"] for s in samples]),
+        "bag": (np.stack([s["bag"][0] for s in samples]), np.stack([s["bag"][1] for s in samples])),
+    }
     expected = np.stack([gym.spaces.flatten(space, s) for s in samples]).astype(np.float32)
     np.testing.assert_array_equal(flatten_observations(space, batch), expected)
     names = observation_names(space)
     assert len(names) == gym.spaces.flatdim(space)
     # gymnasium's Dict sorts its keys: bag, pos, room
-    assert names[:5] == ["obs.bag.0[0]=0", "obs.bag.0[0]=1", "obs.bag.0[1]=0", "obs.bag.0[1]=1", "obs.bag.0[1]=2"]
+    assert names[:5] == [
+        "obs.bag.0[0]=0",
+        "obs.bag.0[0]=1",
+        "obs.bag.0[1]=0",
+        "obs.bag.0[1]=1",
+        "obs.bag.0[1]=2",
+    ]
     assert names[8:10] == ["obs.pos[0,0]", "obs.pos[0,1]"] and names[-1] == "obs.room=4"
 
     # the same through a Minari dataset written with that space
-    buffer = EpisodeBuffer(observations=batch, actions=list(range(19)), rewards=[0.0] * 19,
-                           terminations=[False] * 19, truncations=[True] * 19)
+    buffer = EpisodeBuffer(
+        observations=batch,
+        actions=list(range(19)),
+        rewards=[0.0] * 19,
+        terminations=[False] * 19,
+        truncations=[True] * 19,
+    )
     with pytest.warns(UserWarning):
-        minari.create_dataset_from_buffers("toy/nested-v0", [buffer], observation_space=space,
-                                           action_space=gym.spaces.Discrete(19), data_format="arrow")
+        minari.create_dataset_from_buffers(
+            "toy/nested-v0",
+            [buffer],
+            observation_space=space,
+            action_space=gym.spaces.Discrete(19),
+            data_format="arrow",
+        )
     table, meta = read_minari("toy/nested-v0")
     states = np.stack([rows_of(table, f"s{j}") for j in range(len(names))], axis=1)
     np.testing.assert_array_equal(states, expected)
@@ -177,12 +231,21 @@ def test_flatten_matches_gymnasium_for_nested_spaces():
 
 
 def test_continuous_actions_and_unknown_ids_are_one_line_errors(minari_root):
-    buffer = EpisodeBuffer(observations=np.zeros((3, 2), np.float32), actions=np.zeros((2, 1), np.float32),
-                           rewards=[0.0, 0.0], terminations=[False, True], truncations=[False, False])
+    buffer = EpisodeBuffer(
+        observations=np.zeros((3, 2), np.float32),
+        actions=np.zeros((2, 1), np.float32),
+        rewards=[0.0, 0.0],
+        terminations=[False, True],
+        truncations=[False, False],
+    )
     with pytest.warns(UserWarning):
         minari.create_dataset_from_buffers(
-            "toy/reacher-v0", [buffer], observation_space=gym.spaces.Box(-1, 1, (2,), np.float32),
-            action_space=gym.spaces.Box(-1, 1, (1,), np.float32), data_format="arrow")
+            "toy/reacher-v0",
+            [buffer],
+            observation_space=gym.spaces.Box(-1, 1, (2,), np.float32),
+            action_space=gym.spaces.Box(-1, 1, (1,), np.float32),
+            data_format="arrow",
+        )
     with pytest.raises(DataError, match=r"pcpg needs a discrete action space") as err:
         read_minari("toy/reacher-v0")
     assert "Box(" in str(err.value)
@@ -221,7 +284,10 @@ def test_cli_exports_a_dataset_folder_and_a_runs_cached_data(rng, tmp_path, mina
     write_datasets(new, [pcpg_dataset(rng, "new"), pcpg_dataset(rng, "new2")], {})
     os.utime(old / "manifest.json", (1e9, 1e9))
     assert find_dataset_folder(run) == new
-    assert main(["export", "minari", str(run), "--out", str(minari_root), "--dataset-id", "me/run-v1"]) == 0
+    assert (
+        main(["export", "minari", str(run), "--out", str(minari_root), "--dataset-id", "me/run-v1"])
+        == 0
+    )
     out = capsys.readouterr().out
     assert "me/run/new-v1" in out and "me/run/new2-v1" in out
     assert minari.load_dataset("me/run/new2-v1").total_episodes == 5
@@ -232,7 +298,9 @@ def test_cli_exports_a_dataset_folder_and_a_runs_cached_data(rng, tmp_path, mina
     assert err.count("\n") == 1 and "manifest.json" in err
 
 
-def test_an_interrupted_export_leaves_nothing_and_the_rerun_writes_it(rng, minari_root, monkeypatch):
+def test_an_interrupted_export_leaves_nothing_and_the_rerun_writes_it(
+    rng, minari_root, monkeypatch
+):
     """Ctrl-C during `pcpg export minari` left a half-written dataset that Minari loaded with 0
     episodes, and the rerun that the interrupt message asked for refused: "already exists"."""
     from pcpg_dist.domains.trajectories import minari_io
@@ -257,7 +325,9 @@ def test_an_interrupted_export_leaves_nothing_and_the_rerun_writes_it(rng, minar
     assert sorted(p.name for p in minari_root.iterdir()) == ["pcpg"]
 
 
-def test_a_sigkilled_export_leaves_a_temporary_root_the_next_export_removes(rng, minari_root, tmp_path):
+def test_a_sigkilled_export_leaves_a_temporary_root_the_next_export_removes(
+    rng, minari_root, tmp_path
+):
     """SIGKILL skips the export's cleanup: its hidden .pcpg-minari-*.tmp root stayed in --out for
     good. The next export into the folder removes it; a live export's root and another machine's stay."""
     import signal
@@ -277,7 +347,8 @@ def test_a_sigkilled_export_leaves_a_temporary_root_the_next_export_removes(rng,
         "def slow(ds):\n"
         "    time.sleep(600)\n"
         "minari_io._episode_buffers = slow\n"
-        f"minari_io.write_minari({{'a': pcpg_dataset(np.random.default_rng(0), 'a')}}, {str(minari_root)!r}, 'pcpg/k-v0')\n")
+        f"minari_io.write_minari({{'a': pcpg_dataset(np.random.default_rng(0), 'a')}}, {str(minari_root)!r}, 'pcpg/k-v0')\n"
+    )
     proc = subprocess.Popen([sys.executable, "-c", script], cwd=Path(__file__).parents[1])
     deadline = time.monotonic() + 120
     while not list(minari_root.glob(".pcpg-minari-*.tmp")) and time.monotonic() < deadline:

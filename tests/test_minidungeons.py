@@ -39,8 +39,12 @@ from pcpg_dist.domains.minidungeons.proxies import (
 )
 from pcpg_dist.errors import LayoutError
 
-PROPS = {"PLAYER_MAX_HP": 30, "ENEMY_POWER": 10, "POTION_POWER": 10,
-         "REWARDS": {"TURN": 1, "EXIT": 20, "KILL": 4, "TREASURE": 3, "POTION": 1, "DEAD": -20}}
+PROPS = {
+    "PLAYER_MAX_HP": 30,
+    "ENEMY_POWER": 10,
+    "POTION_POWER": 10,
+    "REWARDS": {"TURN": 1, "EXIT": 20, "KILL": 4, "TREASURE": 3, "POTION": 1, "DEAD": -20},
+}
 
 # A short way to the exit through a monster (row 1) and a safe detour (row 3); treasure (4,1) and
 # potion (4,3) unguarded; treasure (5,7) guarded by the monster at (4,7); potion (5,9) guarded by (4,9).
@@ -141,7 +145,9 @@ def test_potion_heal_is_capped_at_max_hp(tmp_path):
     game = Game(make_level(tmp_path, "SMP.E\n", {**PROPS, "POTION_POWER": 15}))
     walk(game, [1, 1])
     assert game.hp == 30 and game.potions == 1  # 20 + 15 capped at 30
-    uncapped = Game(make_level(tmp_path, "SMP.E\n", {**PROPS, "POTION_POWER": 15, "IS_PLAYER_HP_LIMIT": False}))
+    uncapped = Game(
+        make_level(tmp_path, "SMP.E\n", {**PROPS, "POTION_POWER": 15, "IS_PLAYER_HP_LIMIT": False})
+    )
     walk(uncapped, [1, 1])
     assert uncapped.hp == 35
 
@@ -167,29 +173,39 @@ def test_turn_cap_truncates_as_failure(tmp_path):
 
 
 # ------------------------------------------------------------------- malformed files
-@pytest.mark.parametrize(("stage", "line", "words"), [
-    ("S..\n...\n..\n..E\n", 3, "2 characters, expected 3"),
-    ("S..\n.x.\n..E\n", 2, "unknown character 'x'"),
-    ("...\n...\n..E\n", 1, "no start"),
-    ("S..\n...\n...\n", 1, "no exit"),
-    ("S..\n...\n.SE\n", 3, "second start"),
-    ("S.#\n.#.\n#.E\n", 3, "cannot be reached"),
-    ("", 1, "empty"),
-])
+@pytest.mark.parametrize(
+    ("stage", "line", "words"),
+    [
+        ("S..\n...\n..\n..E\n", 3, "2 characters, expected 3"),
+        ("S..\n.x.\n..E\n", 2, "unknown character 'x'"),
+        ("...\n...\n..E\n", 1, "no start"),
+        ("S..\n...\n...\n", 1, "no exit"),
+        ("S..\n...\n.SE\n", 3, "second start"),
+        ("S.#\n.#.\n#.E\n", 3, "cannot be reached"),
+        ("", 1, "empty"),
+    ],
+)
 def test_malformed_stage_names_file_and_line(tmp_path, stage, line, words):
     with pytest.raises(LayoutError) as e:
         make_level(tmp_path, stage)
     assert f"lvl.txt:{line}:" in str(e.value) and words in str(e.value)
 
 
-@pytest.mark.parametrize(("props", "line", "words"), [
-    ('{\n  "PLAYER_MAX_HP": 30,\n  "ENEMY_POWER": 10,\n  "POTION_POWER" 10\n}', 4, "invalid JSON"),
-    ({"ENEMY_POWER": 10, "POTION_POWER": 10}, 1, "missing key 'PLAYER_MAX_HP'"),
-    ({**PROPS, "ENEMY_POWER": "ten"}, 3, "'ENEMY_POWER' must be a positive integer"),
-    ({**PROPS, "IS_ENEMY_POWER_RANDOM": True}, 1, "missing key 'ENEMY_POWER_MIN'"),
-    ({**PROPS, "REWARDS": {"TURN": 1}}, 5, "REWARDS.EXIT"),
-    ("[1, 2]", 1, "expected a JSON object"),
-])
+@pytest.mark.parametrize(
+    ("props", "line", "words"),
+    [
+        (
+            '{\n  "PLAYER_MAX_HP": 30,\n  "ENEMY_POWER": 10,\n  "POTION_POWER" 10\n}',
+            4,
+            "invalid JSON",
+        ),
+        ({"ENEMY_POWER": 10, "POTION_POWER": 10}, 1, "missing key 'PLAYER_MAX_HP'"),
+        ({**PROPS, "ENEMY_POWER": "ten"}, 3, "'ENEMY_POWER' must be a positive integer"),
+        ({**PROPS, "IS_ENEMY_POWER_RANDOM": True}, 1, "missing key 'ENEMY_POWER_MIN'"),
+        ({**PROPS, "REWARDS": {"TURN": 1}}, 5, "REWARDS.EXIT"),
+        ("[1, 2]", 1, "expected a JSON object"),
+    ],
+)
 def test_malformed_props_names_file_and_line(tmp_path, props, line, words):
     with pytest.raises(LayoutError) as e:
         make_level(tmp_path, "S.E\n", props)
@@ -321,8 +337,12 @@ def test_outcome_rollouts_play_the_agents_own_rollout_episodes(tmp_path, monkeyp
     from pcpg_dist.domains.minidungeons.data import generate_trajectories
     from pcpg_dist.evaluation import rollout_rng
 
-    cfg = load_config(Path(__file__).resolve().parent.parent / "experiments" / "minidungeons_paper.yaml")
-    data = Dataset.concat([generate_trajectories("holmgard_1", p, 2, seed=p) for p in range(6)], renumber=True)
+    cfg = load_config(
+        Path(__file__).resolve().parent.parent / "experiments" / "minidungeons_paper.yaml"
+    )
+    data = Dataset.concat(
+        [generate_trajectories("holmgard_1", p, 2, seed=p) for p in range(6)], renumber=True
+    )
     unit = Unit("levels", data, np.arange(data.n_trajectories))
     seen = {}
 

@@ -43,7 +43,9 @@ def test_noiseless_rollouts_follow_the_style():
 
 def test_noise_lowers_skill_and_is_recorded():
     layout = gw.load_layout(LAYOUTS / "E2.txt")
-    cfg = PBTGConfig(noise_min=0.0, noise_max=0.3, trajectories_per_style=2000, dataset_per_style=500)
+    cfg = PBTGConfig(
+        noise_min=0.0, noise_max=0.3, trajectories_per_style=2000, dataset_per_style=500
+    )
     q = q_learning(layout.tables, 3, cfg, seed=1)
     ds = sample_trajectories(layout, q, 3, 2000, cfg, np.random.default_rng(0))
     assert ((ds.epsilon >= 0) & (ds.epsilon <= 0.3)).all()
@@ -67,9 +69,15 @@ def test_generate_pair_is_a_function_of_its_key():
     assert (np.diff(d.styles) >= 0).all() and (d.trajectory_ids == np.arange(400)).all()
 
 
-@pytest.mark.parametrize("bad", [{"noise_min": 0.5, "noise_max": 0.1},
-                                 {"dataset_per_style": 9, "trajectories_per_style": 5},
-                                 {"gamma": 0.0}, {"episodes": 0}])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        {"noise_min": 0.5, "noise_max": 0.1},
+        {"dataset_per_style": 9, "trajectories_per_style": 5},
+        {"gamma": 0.0},
+        {"episodes": 0},
+    ],
+)
 def test_bad_pbtg_config_rejected(bad):
     with pytest.raises(ValueError):
         PBTGConfig(**bad)

@@ -27,7 +27,10 @@ from pcpg_dist.domains.base import Unit
 
 PACKAGE = Path(__file__).resolve().parent / "plugin_domain"
 TINY = {
-    "name": "corridor-e2e", "domain": "corridor", "seed": 0, "seeds": [0, 1],
+    "name": "corridor-e2e",
+    "domain": "corridor",
+    "seed": 0,
+    "seeds": [0, 1],
     "corridor": {"length": 12, "trajectories_per_style": 60, "noise_max": 0.2},
     "clustering": {"k": 3, "pretrain_epochs": 6, "dec_epochs": 2},
     "ranking": {"ps": [1.0, 0.5]},
@@ -46,8 +49,18 @@ def _uv() -> str:
 def install(package: Path, site: Path) -> None:
     """Build ``package`` with its own build backend and install it into ``site``: from uv's cache
     when hatchling is there (no network), else from the index."""
-    cmd = [_uv(), "pip", "install", "--quiet", "--python", sys.executable, "--target", str(site),
-           "--no-deps", str(package)]
+    cmd = [
+        _uv(),
+        "pip",
+        "install",
+        "--quiet",
+        "--python",
+        sys.executable,
+        "--target",
+        str(site),
+        "--no-deps",
+        str(package),
+    ]
     done = subprocess.run([*cmd, "--offline"], capture_output=True, text=True, timeout=300)
     if done.returncode != 0:
         done = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
@@ -103,12 +116,19 @@ def test_unknown_domain_lists_the_plugin(corridor_site, capsys, tmp_path):
     assert not (tmp_path / "w").exists()
 
 
-@pytest.mark.parametrize(("section", "key", "says"), [
-    ({"length": 3}, "corridor.length", "greater than or equal to 10"),
-    ({"lenght": 12}, "corridor.lenght", "not a setting of section 'corridor'; did you mean 'corridor.length'?"),
-    ({"noise_max": "lots"}, "corridor.noise_max", "valid number"),
-    ({"length": 12, "max_steps": 5}, "corridor", "shorter than the explorer's route (17 steps"),
-])
+@pytest.mark.parametrize(
+    ("section", "key", "says"),
+    [
+        ({"length": 3}, "corridor.length", "greater than or equal to 10"),
+        (
+            {"lenght": 12},
+            "corridor.lenght",
+            "not a setting of section 'corridor'; did you mean 'corridor.length'?",
+        ),
+        ({"noise_max": "lots"}, "corridor.noise_max", "valid number"),
+        ({"length": 12, "max_steps": 5}, "corridor", "shorter than the explorer's route (17 steps"),
+    ],
+)
 def test_bad_plugin_setting_names_the_key(corridor_site, capsys, tmp_path, section, key, says):
     cfg = write_config(tmp_path, corridor=section)
     code, err = run_cli(capsys, "run", str(cfg), "--no-tracking", "--workdir", str(tmp_path / "w"))
@@ -149,11 +169,30 @@ def test_pcpg_run_end_to_end(corridor_site, tmp_path):
     site, _ = corridor_site
     cfg = write_config(tmp_path)
     path = os.pathsep.join(filter(None, [str(site), os.environ.get("PYTHONPATH")]))
-    env = {**os.environ, "PYTHONPATH": path, "RAY_AUTH_MODE": "disabled",
-           "RAY_ENABLE_UV_RUN_RUNTIME_ENV": "0"}
-    done = subprocess.run([sys.executable, "-m", "pcpg_dist.cli", "run", str(cfg), "--no-tracking",
-                           "--workdir", str(tmp_path / "runs"), "--quiet"],
-                          capture_output=True, text=True, env=env, timeout=540, cwd=tmp_path)
+    env = {
+        **os.environ,
+        "PYTHONPATH": path,
+        "RAY_AUTH_MODE": "disabled",
+        "RAY_ENABLE_UV_RUN_RUNTIME_ENV": "0",
+    }
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pcpg_dist.cli",
+            "run",
+            str(cfg),
+            "--no-tracking",
+            "--workdir",
+            str(tmp_path / "runs"),
+            "--quiet",
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=540,
+        cwd=tmp_path,
+    )
     assert done.returncode == 0, done.stderr[-3000:]
     summary = tmp_path / "runs" / "corridor-e2e" / "summary"
     for name in ("metrics.json", "accuracy_vs_p.csv", "clustering.csv", "run.json"):
@@ -210,59 +249,105 @@ def _generated(self, cfg, show_progress=True):
 
 
 BEFORE_CLUSTERING = {
-    "generate-empty": ({"generate": lambda self, cfg, show_progress=True: {}},
-                       "generate returned an empty dict; it must return a non-empty dict of environment "
-                       "name -> Dataset"),
-    "generate-list": ({"generate": lambda self, cfg, show_progress=True: list(_generated(self, cfg).values())},
-                      "generate returned a list; it must return a non-empty dict"),
-    "generate-none": ({"generate": lambda self, cfg, show_progress=True: None},
-                      "generate returned None; it must return a non-empty dict"),
-    "generate-array": ({"generate": lambda self, cfg, show_progress=True: {"L12": np.zeros(3)}},
-                       "generate returned a ndarray for 'L12'; it must return a non-empty dict"),
-    "generate-same-env": ({"generate": lambda self, cfg, show_progress=True: {
-                              "a": _generated(self, cfg)["L12"], "b": _generated(self, cfg)["L12"]}},
-                          "generate returned two datasets of environment 'L12' (keys 'a' and 'b')"),
-    "generate-raises": ({"generate": raising(RuntimeError("simulator crashed\nat step 7"))},
-                        "generate raised RuntimeError: simulator crashed"),
-    "units-out-of-range": ({"units": corridor_units([0, 5, 999])},
-                           "units returned unit 'L12' with test_idx 999, outside 0..179 (its dataset holds "
-                           "180 trajectories)"),
+    "generate-empty": (
+        {"generate": lambda self, cfg, show_progress=True: {}},
+        "generate returned an empty dict; it must return a non-empty dict of environment "
+        "name -> Dataset",
+    ),
+    "generate-list": (
+        {"generate": lambda self, cfg, show_progress=True: list(_generated(self, cfg).values())},
+        "generate returned a list; it must return a non-empty dict",
+    ),
+    "generate-none": (
+        {"generate": lambda self, cfg, show_progress=True: None},
+        "generate returned None; it must return a non-empty dict",
+    ),
+    "generate-array": (
+        {"generate": lambda self, cfg, show_progress=True: {"L12": np.zeros(3)}},
+        "generate returned a ndarray for 'L12'; it must return a non-empty dict",
+    ),
+    "generate-same-env": (
+        {
+            "generate": lambda self, cfg, show_progress=True: {
+                "a": _generated(self, cfg)["L12"],
+                "b": _generated(self, cfg)["L12"],
+            }
+        },
+        "generate returned two datasets of environment 'L12' (keys 'a' and 'b')",
+    ),
+    "generate-raises": (
+        {"generate": raising(RuntimeError("simulator crashed\nat step 7"))},
+        "generate raised RuntimeError: simulator crashed",
+    ),
+    "units-out-of-range": (
+        {"units": corridor_units([0, 5, 999])},
+        "units returned unit 'L12' with test_idx 999, outside 0..179 (its dataset holds "
+        "180 trajectories)",
+    ),
     "units-negative": ({"units": corridor_units([-1, 3])}, "test_idx -1, outside 0..179"),
-    "units-floats": ({"units": corridor_units([0.5, 3.0])}, "dtype float64; it must be a 1-D array of "
-                                                          "trajectory positions (integers)"),
+    "units-floats": (
+        {"units": corridor_units([0.5, 3.0])},
+        "dtype float64; it must be a 1-D array of trajectory positions (integers)",
+    ),
     "units-repeated": ({"units": corridor_units([3, 3])}, "test_idx naming a trajectory twice"),
-    "units-all-held-out": ({"units": corridor_units(np.arange(180))},
-                           "all 180 trajectories held out; at least one must be left for training"),
-    "units-cluster-input": ({"units": lambda self, cfg, datasets: [
-                                Unit("L12", datasets["L12"], np.arange(5), datasets["L12"].subset(np.arange(9)))]},
-                            "unit 'L12' with 9 trajectories as its cluster_input; it must be a Dataset of the "
-                            "same 180 trajectories"),
-    "units-same-name": ({"units": lambda self, cfg, datasets: [Unit("L12", datasets["L12"], np.arange(5))] * 2},
-                        "units returned a unit named 'L12' at position 1; every unit needs its own"),
-    "units-none": ({"units": lambda self, cfg, datasets: None},
-                   "units returned None; it must return a non-empty list of Unit"),
+    "units-all-held-out": (
+        {"units": corridor_units(np.arange(180))},
+        "all 180 trajectories held out; at least one must be left for training",
+    ),
+    "units-cluster-input": (
+        {
+            "units": lambda self, cfg, datasets: [
+                Unit("L12", datasets["L12"], np.arange(5), datasets["L12"].subset(np.arange(9)))
+            ]
+        },
+        "unit 'L12' with 9 trajectories as its cluster_input; it must be a Dataset of the "
+        "same 180 trajectories",
+    ),
+    "units-same-name": (
+        {"units": lambda self, cfg, datasets: [Unit("L12", datasets["L12"], np.arange(5))] * 2},
+        "units returned a unit named 'L12' at position 1; every unit needs its own",
+    ),
+    "units-none": (
+        {"units": lambda self, cfg, datasets: None},
+        "units returned None; it must return a non-empty list of Unit",
+    ),
     "units-raises": ({"units": raising(KeyError("L13"))}, "units raised KeyError: 'L13'"),
-    "score-raises": ({"score": raising(ValueError("no skill column"))},
-                     "score raised ValueError: no skill column"),
-    "score-function-raises": ({"score": lambda self, cfg: raising(ZeroDivisionError("division by zero"))},
-                              "score's function raised ZeroDivisionError: division by zero"),
-    "score-not-callable": ({"score": lambda self, cfg: np.ones(180)},
-                           "score returned a ndarray; it must return None or a function"),
-    "score-wrong-shape": ({"score": lambda self, cfg: lambda ds: np.ones(3)},
-                          "its score function returned shape (3,) for L12; it must return one number per "
-                          "trajectory, shape (180,)"),
-    "score-strings": ({"score": lambda self, cfg: lambda ds: ["high"] * ds.n_trajectories},
-                      "score's function returned a list that does not convert to floats"),
-    "hooks-raises": ({"hooks": raising(FileNotFoundError(2, "No such file", "levels/L12.txt"))},
-                     "hooks raised FileNotFoundError: [Errno 2] No such file: 'levels/L12.txt'"),
-    "hooks-dict": ({"hooks": lambda self, cfg, unit: {"rollout": None}},
-                   "hooks returned a dict for unit 'L12'; it must return None or a DomainHooks"),
+    "score-raises": (
+        {"score": raising(ValueError("no skill column"))},
+        "score raised ValueError: no skill column",
+    ),
+    "score-function-raises": (
+        {"score": lambda self, cfg: raising(ZeroDivisionError("division by zero"))},
+        "score's function raised ZeroDivisionError: division by zero",
+    ),
+    "score-not-callable": (
+        {"score": lambda self, cfg: np.ones(180)},
+        "score returned a ndarray; it must return None or a function",
+    ),
+    "score-wrong-shape": (
+        {"score": lambda self, cfg: lambda ds: np.ones(3)},
+        "its score function returned shape (3,) for L12; it must return one number per "
+        "trajectory, shape (180,)",
+    ),
+    "score-strings": (
+        {"score": lambda self, cfg: lambda ds: ["high"] * ds.n_trajectories},
+        "score's function returned a list that does not convert to floats",
+    ),
+    "hooks-raises": (
+        {"hooks": raising(FileNotFoundError(2, "No such file", "levels/L12.txt"))},
+        "hooks raised FileNotFoundError: [Errno 2] No such file: 'levels/L12.txt'",
+    ),
+    "hooks-dict": (
+        {"hooks": lambda self, cfg, unit: {"rollout": None}},
+        "hooks returned a dict for unit 'L12'; it must return None or a DomainHooks",
+    ),
 }
 
 
 @pytest.mark.parametrize("fault", list(BEFORE_CLUSTERING))
-def test_broken_plugin_fails_in_one_line_before_clustering(corridor_site, ray_session, capsys, tmp_path,
-                                                           monkeypatch, fault):
+def test_broken_plugin_fails_in_one_line_before_clustering(
+    corridor_site, ray_session, capsys, tmp_path, monkeypatch, fault
+):
     """A plugin whose generate, units, score or hooks is broken stops `pcpg run` with one line
     naming the domain, the method and what it returned (or raised), before any Ray task starts:
     no clustering, nothing written but the generated data's cache entry."""
@@ -271,9 +356,13 @@ def test_broken_plugin_fails_in_one_line_before_clustering(corridor_site, ray_se
     methods, says = BEFORE_CLUSTERING[fault]
     monkeypatch.setitem(registry._loaded, "corridor", broken_corridor(**methods))
     stages = []
-    monkeypatch.setattr(runner, "_run_stage", lambda description, *a, **k: stages.append(description) or 0)
+    monkeypatch.setattr(
+        runner, "_run_stage", lambda description, *a, **k: stages.append(description) or 0
+    )
     work = tmp_path / "w"
-    code, err = run_cli(capsys, "run", str(write_config(tmp_path)), "--no-tracking", "--workdir", str(work))
+    code, err = run_cli(
+        capsys, "run", str(write_config(tmp_path)), "--no-tracking", "--workdir", str(work)
+    )
     assert (code, len(err)) == (2, 1), err
     who = "domain 'corridor': "  # every fault names the domain (the score's shape did not)
     assert err[0].startswith(f"pcpg: error: {who}") and says in err[0], err[0]
@@ -291,10 +380,14 @@ def corridor_trained(corridor_site, tmp_path_factory):
     from pcpg_dist.domains import contract
     from pcpg_dist.pipeline import cluster_unit, plan_unit
 
-    small = {"corridor": {"length": 12, "trajectories_per_style": 8, "noise_max": 0.2}, "seeds": [0],
-             "ranking": {"ps": [1.0]}, "bc": {"epochs": 3, "hidden_size": 8},
-             "clustering": {"k": 3, "pretrain_epochs": 1, "dec_epochs": 1},
-             "evaluation": {"rollouts_per_policy": 2, "corruption_levels": [0.0], "max_steps": 20}}
+    small = {
+        "corridor": {"length": 12, "trajectories_per_style": 8, "noise_max": 0.2},
+        "seeds": [0],
+        "ranking": {"ps": [1.0]},
+        "bc": {"epochs": 3, "hidden_size": 8},
+        "clustering": {"k": 3, "pretrain_epochs": 1, "dec_epochs": 1},
+        "evaluation": {"rollouts_per_policy": 2, "corruption_levels": [0.0], "max_steps": 20},
+    }
     cfg = load_config(write_config(tmp_path_factory.mktemp("cfg"), **small))
     (unit,) = contract.units(cfg, contract.generate(cfg, show_progress=False))
     clustering = cluster_unit(unit, cfg.clustering, cfg.seed, ceiling=False)
@@ -321,26 +414,41 @@ def _short_rollout(self, cfg, unit):
 
 
 IN_EVALUATION = {
-    "extras-str": ({"extras": lambda self, *a: {"x": "abc"}},
-                   "extras returned 'x': 'abc' for unit 'L12'; it must return a dict of metric name (str) -> "
-                   "finite float"),
+    "extras-str": (
+        {"extras": lambda self, *a: {"x": "abc"}},
+        "extras returned 'x': 'abc' for unit 'L12'; it must return a dict of metric name (str) -> "
+        "finite float",
+    ),
     "extras-nan": ({"extras": lambda self, *a: {"x": float("nan")}}, "extras returned 'x': nan"),
     "extras-list": ({"extras": lambda self, *a: [1.0]}, "extras returned a list for unit 'L12'"),
-    "extras-raises": ({"extras": raising(IndexError("list index out of range"))},
-                      "extras raised IndexError: list index out of range"),
-    "rollout-dict": ({"hooks": _rollout_returning(lambda n: {"lengths": [5] * n})},
-                     "the rollout hook returned a dict; it must return a Dataset of the 2 episodes asked for"),
-    "rollout-none": ({"hooks": _rollout_returning(lambda n: None)}, "the rollout hook returned None"),
-    "rollout-short": ({"hooks": _short_rollout},
-                      "the rollout hook returned a Dataset of 1 episode(s); it must return a Dataset of the 2 "
-                      "episodes asked for"),
-    "rollout-raises": ({"hooks": _rollout_returning(raising(OSError("simulator died")))},
-                       "the rollout hook raised OSError: simulator died"),
+    "extras-raises": (
+        {"extras": raising(IndexError("list index out of range"))},
+        "extras raised IndexError: list index out of range",
+    ),
+    "rollout-dict": (
+        {"hooks": _rollout_returning(lambda n: {"lengths": [5] * n})},
+        "the rollout hook returned a dict; it must return a Dataset of the 2 episodes asked for",
+    ),
+    "rollout-none": (
+        {"hooks": _rollout_returning(lambda n: None)},
+        "the rollout hook returned None",
+    ),
+    "rollout-short": (
+        {"hooks": _short_rollout},
+        "the rollout hook returned a Dataset of 1 episode(s); it must return a Dataset of the 2 "
+        "episodes asked for",
+    ),
+    "rollout-raises": (
+        {"hooks": _rollout_returning(raising(OSError("simulator died")))},
+        "the rollout hook raised OSError: simulator died",
+    ),
 }
 
 
 @pytest.mark.parametrize("fault", list(IN_EVALUATION))
-def test_broken_plugin_in_the_evaluation_is_one_line(corridor_trained, monkeypatch, tmp_path, fault):
+def test_broken_plugin_in_the_evaluation_is_one_line(
+    corridor_trained, monkeypatch, tmp_path, fault
+):
     """extras and rollouts run inside the evaluation (a Ray task in `pcpg run`, whose PcpgError
     reaches the CLI as its one line): what they return is checked where the evaluation gets it."""
     from pcpg_dist.errors import DomainError
@@ -352,7 +460,9 @@ def test_broken_plugin_in_the_evaluation_is_one_line(corridor_trained, monkeypat
     with pytest.raises(DomainError) as raised:
         evaluate_unit(unit, labels, trained, cfg, tmp_path)
     message = str(raised.value)
-    assert "\n" not in message and message.startswith("domain 'corridor': ") and says in message, message
+    assert "\n" not in message and message.startswith("domain 'corridor': ") and says in message, (
+        message
+    )
 
 
 def test_good_extras_and_rollouts_pass_through(corridor_trained, monkeypatch, tmp_path):
@@ -360,12 +470,16 @@ def test_good_extras_and_rollouts_pass_through(corridor_trained, monkeypatch, tm
     from pcpg_dist.pipeline import evaluate_unit
 
     cfg, unit, labels, trained = corridor_trained
-    extras = {"extras": lambda self, *a: {"mine/count": np.int64(3), "mine/share": np.float32(0.25)}}
+    extras = {
+        "extras": lambda self, *a: {"mine/count": np.int64(3), "mine/share": np.float32(0.25)}
+    }
     monkeypatch.setitem(registry._loaded, "corridor", broken_corridor(**extras))
     metrics = evaluate_unit(unit, labels, trained, cfg, tmp_path)
     assert metrics["mine/count"] == 3.0 and metrics["mine/share"] == 0.25
     assert type(metrics["mine/count"]) is float
-    assert sorted(k for k in metrics if k.startswith("rollout/length/k"))  # the corridor's rollouts ran
+    assert sorted(
+        k for k in metrics if k.startswith("rollout/length/k")
+    )  # the corridor's rollouts ran
 
 
 def test_a_built_in_domains_exception_keeps_its_traceback():
@@ -383,14 +497,28 @@ def test_a_built_in_domains_exception_keeps_its_traceback():
         1 / 0  # noqa: B018
 
 
-def test_a_plugin_check_config_raising_anything_is_one_line(corridor_site, capsys, tmp_path, monkeypatch):
+def test_a_plugin_check_config_raising_anything_is_one_line(
+    corridor_site, capsys, tmp_path, monkeypatch
+):
     """check_config may raise ValueError or a pcpg error; anything else was a traceback at load."""
-    monkeypatch.setitem(registry._loaded, "corridor",
-                        broken_corridor(check_config=raising(OSError(13, "Permission denied", "/srv/levels"))))
-    code, err = run_cli(capsys, "run", str(write_config(tmp_path)), "--no-tracking", "--workdir", str(tmp_path / "w"))
+    monkeypatch.setitem(
+        registry._loaded,
+        "corridor",
+        broken_corridor(check_config=raising(OSError(13, "Permission denied", "/srv/levels"))),
+    )
+    code, err = run_cli(
+        capsys,
+        "run",
+        str(write_config(tmp_path)),
+        "--no-tracking",
+        "--workdir",
+        str(tmp_path / "w"),
+    )
     assert (code, len(err)) == (2, 1), err
-    assert "domain 'corridor': check_config raised PermissionError: [Errno 13] Permission denied: " \
-           "'/srv/levels'" in err[0], err[0]
+    assert (
+        "domain 'corridor': check_config raised PermissionError: [Errno 13] Permission denied: "
+        "'/srv/levels'" in err[0]
+    ), err[0]
     assert not (tmp_path / "w").exists()
 
 
@@ -401,7 +529,9 @@ def test_an_entry_point_that_is_not_a_domain_says_so(monkeypatch):
     monkeypatch.setitem(registry.BUILTIN, "notdomain", "collections:OrderedDict")
     with pytest.raises(ConfigError) as e:
         registry.get("notdomain")
-    assert str(e.value) == ("domain 'notdomain': collections:OrderedDict is <class 'collections.OrderedDict'>, "
-                            "not a pcpg_dist.domains.base.Domain (subclass of it, or an instance); "
-                            "docs/writing-a-domain.md shows one")
+    assert str(e.value) == (
+        "domain 'notdomain': collections:OrderedDict is <class 'collections.OrderedDict'>, "
+        "not a pcpg_dist.domains.base.Domain (subclass of it, or an instance); "
+        "docs/writing-a-domain.md shows one"
+    )
     assert "notdomain" not in registry._loaded

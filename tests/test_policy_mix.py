@@ -38,8 +38,14 @@ def goal_seekers(n_per_style: int, seed: int) -> Dataset:
             states = np.column_stack([MOVES[move].reshape(t, 8), np.arange(t) / 100])
             greedy = move[:-1, style]
             actions = np.where(rng.random(t - 1) < 0.2, rng.integers(0, 4, t - 1), greedy)
-            trajs.append({"states": states, "actions": actions, "valid": np.full(t, 15),
-                          "rewards": np.zeros(t - 1)})
+            trajs.append(
+                {
+                    "states": states,
+                    "actions": actions,
+                    "valid": np.full(t, 15),
+                    "rewards": np.zeros(t - 1),
+                }
+            )
             styles.append(style)
     return Dataset.from_trajectories("toy", "goals", 4, trajs, styles, [True] * len(trajs))
 
@@ -78,8 +84,9 @@ def test_same_seed_same_labels_and_global_rng_untouched(goals, fitted):
     assert torch.equal(torch.rand(1), before)
     np.testing.assert_array_equal(again.labels, fitted.labels)
     shuffled = goals.with_styles(np.zeros(goals.n_trajectories, np.int64))
-    np.testing.assert_array_equal(cluster(shuffled, ClusterConfig(**FAST), seed=0).labels,
-                                  fitted.labels)  # never reads the styles
+    np.testing.assert_array_equal(
+        cluster(shuffled, ClusterConfig(**FAST), seed=0).labels, fitted.labels
+    )  # never reads the styles
 
 
 def test_saved_model_predicts_the_same_and_unseen_trajectories(tmp_path, goals, fitted):
@@ -93,9 +100,21 @@ def test_saved_model_predicts_the_same_and_unseen_trajectories(tmp_path, goals, 
 
 def test_bad_input_and_bad_files_are_data_errors(tmp_path, goals, fitted):
     no_actions = Dataset.from_trajectories(
-        "toy", "still", 4, [{"states": np.zeros((1, 9)), "actions": np.zeros(0, np.int64),
-                             "valid": np.full(1, 15), "rewards": np.zeros(0)}] * 4,
-        [0] * 4, [True] * 4)
+        "toy",
+        "still",
+        4,
+        [
+            {
+                "states": np.zeros((1, 9)),
+                "actions": np.zeros(0, np.int64),
+                "valid": np.full(1, 15),
+                "rewards": np.zeros(0),
+            }
+        ]
+        * 4,
+        [0] * 4,
+        [True] * 4,
+    )
     with pytest.raises(DataError, match="no step with an action"):
         cluster(no_actions, ClusterConfig(**FAST), seed=0)
     fitted.model.save(tmp_path / "m")
@@ -106,7 +125,10 @@ def test_bad_input_and_bad_files_are_data_errors(tmp_path, goals, fitted):
         load_model(tmp_path / "m")
     meta["n_actions"] = 5
     (tmp_path / "m" / "cluster_model.json").write_text(json.dumps(meta))
-    with pytest.raises(DataError, match=r"pm.heads.weight has shape \(16, 16\); .*needs \(20, 16\) \(from .*n_actions in cluster_model.json\)"):
+    with pytest.raises(
+        DataError,
+        match=r"pm.heads.weight has shape \(16, 16\); .*needs \(20, 16\) \(from .*n_actions in cluster_model.json\)",
+    ):
         load_model(tmp_path / "m")
 
 

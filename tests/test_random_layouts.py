@@ -65,12 +65,15 @@ def test_config_names_units_and_domain_uses_the_generated_layouts(tmp_path):
     assert GridWorldDomain().data_key(other) != key
 
 
-@pytest.mark.parametrize("section, needle", [
-    ({"random_layouts": {"count": 0, "seed": 1}}, "gridworld.random_layouts.count"),
-    ({"random_layouts": {"count": 2, "seed": -1}}, "gridworld.random_layouts.seed"),
-    ({"random_layouts": {"count": 2}, "environments": ["E1"]}, "not both"),
-    ({"random_layouts": {"count": 2, "sed": 1}}, "sed"),
-])
+@pytest.mark.parametrize(
+    "section, needle",
+    [
+        ({"random_layouts": {"count": 0, "seed": 1}}, "gridworld.random_layouts.count"),
+        ({"random_layouts": {"count": 2, "seed": -1}}, "gridworld.random_layouts.seed"),
+        ({"random_layouts": {"count": 2}, "environments": ["E1"]}, "not both"),
+        ({"random_layouts": {"count": 2, "sed": 1}}, "sed"),
+    ],
+)
 def test_bad_random_layouts_give_one_line(tmp_path, section, needle):
     with pytest.raises(ConfigError) as e:
         _config(tmp_path, section)

@@ -27,8 +27,15 @@ def toy() -> Dataset:
 
 
 def _lined(lengths, success) -> Dataset:
-    trajs = [{"states": np.zeros((n, 1)), "actions": np.zeros(n - 1, int), "valid": np.ones(n, int),
-              "rewards": np.zeros(n - 1)} for n in lengths]
+    trajs = [
+        {
+            "states": np.zeros((n, 1)),
+            "actions": np.zeros(n - 1, int),
+            "valid": np.ones(n, int),
+            "rewards": np.zeros(n - 1),
+        }
+        for n in lengths
+    ]
     return Dataset.from_trajectories("t", "e", 1, trajs, [0] * len(lengths), success)
 
 
@@ -137,8 +144,9 @@ def test_plan_cells_skips_a_cluster_without_training_trajectories(toy):
     scores its test trajectories with No Clustering's agent), never a crash."""
     tr, _ = split_trajectories(toy.n_trajectories, 0.2, 0)
     labels = np.where(toy.styles == 1, 2, 0)  # no trajectory labelled 1
-    cells = plan_cells(toy, labels, tr, RankConfig(ps=(1.0, 0.5)), seeds=[0], k=3,
-                       corruption_levels=(0.0,))
+    cells = plan_cells(
+        toy, labels, tr, RankConfig(ps=(1.0, 0.5)), seeds=[0], k=3, corruption_levels=(0.0,)
+    )
     keys = {c.key for c in cells}
     assert {"k0-p1-s0", "k2-p0.5-s0", "nc-p1-s0", "corrupt0-k2-p1-s0"} <= keys
     assert not any(k.startswith(("k1-", "corrupt0-k1-")) for k in keys)
@@ -147,8 +155,15 @@ def test_plan_cells_skips_a_cluster_without_training_trajectories(toy):
 
 def test_custom_score_is_used(toy):
     tr, _ = split_trajectories(toy.n_trajectories, 0.2, 0)
-    longest = plan_cells(toy, toy.styles, tr, RankConfig(ps=(0.1,)), [0], baseline=False,
-                         score=lambda ds: ds.lengths.astype(float))
+    longest = plan_cells(
+        toy,
+        toy.styles,
+        tr,
+        RankConfig(ps=(0.1,)),
+        [0],
+        baseline=False,
+        score=lambda ds: ds.lengths.astype(float),
+    )
     shortest = plan_cells(toy, toy.styles, tr, RankConfig(ps=(0.1,)), [0], baseline=False)
     assert longest[0].weights.sum() > shortest[0].weights.sum()
     with pytest.raises(DataError, match="shape"):
@@ -160,10 +175,14 @@ def test_a_score_that_is_not_finite_names_the_trajectory(toy):
     tr, _ = split_trajectories(toy.n_trajectories, 0.2, 0)
     overflow = np.where(np.arange(toy.n_trajectories) % 3 == 1, np.inf, 1.0)
     with pytest.raises(DataError) as e:
-        plan_cells(toy, toy.styles, tr, RankConfig(), [0], score=lambda ds: overflow[: ds.n_trajectories])
+        plan_cells(
+            toy, toy.styles, tr, RankConfig(), [0], score=lambda ds: overflow[: ds.n_trajectories]
+        )
     n = toy.n_trajectories
-    assert (f"{toy.domain}-{toy.env}: the skill score of trajectory {toy.trajectory_ids[1]} is inf "
-            f"({(n + 1) // 3} of {n} trajectories not finite)") in str(e.value)
+    assert (
+        f"{toy.domain}-{toy.env}: the skill score of trajectory {toy.trajectory_ids[1]} is inf "
+        f"({(n + 1) // 3} of {n} trajectories not finite)"
+    ) in str(e.value)
 
 
 def test_style_margin_ranks_ambiguous_trajectories_last_in_training_and_test_alike(toy):
@@ -182,11 +201,20 @@ def test_style_margin_ranks_ambiguous_trajectories_last_in_training_and_test_ali
     n = toy.n_trajectories
     margins = np.linspace(0.0, 5.0, n)
     assert ranked_last(margins, RankConfig(), toy) is None  # the paper's Step B by default
-    np.testing.assert_array_equal(ranked_last(margins, RankConfig(style_margin=1.0), toy), margins < 1.0)
+    np.testing.assert_array_equal(
+        ranked_last(margins, RankConfig(style_margin=1.0), toy), margins < 1.0
+    )
     tr, te = split_trajectories(n, 0.2, 0)
     cfg = RankConfig(ps=(0.25,), style_margin=1.0)
-    plain = plan_cells(toy, toy.styles, tr, cfg.model_copy(update={"style_margin": 0.0}), [0], baseline=False,
-                       margins=margins)
+    plain = plan_cells(
+        toy,
+        toy.styles,
+        tr,
+        cfg.model_copy(update={"style_margin": 0.0}),
+        [0],
+        baseline=False,
+        margins=margins,
+    )
     aware = plan_cells(toy, toy.styles, tr, cfg, [0], baseline=False, margins=margins)
     assert [c.n_trajectories for c in aware] == [c.n_trajectories for c in plain]  # same ceil(p n)
     args = (toy.styles, tr, performance(toy), toy.trajectory_ids, [0.25])

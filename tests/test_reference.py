@@ -43,7 +43,16 @@ def test_metrics_equal_the_stored_reference(ray_session, tmp_path) -> None:
         # a metric may be added by later work (e.g. a new table); none may vanish or change
         missing = sorted(set(ref) - set(got[domain]))
         assert not missing, f"{domain}: metrics gone: {missing[:5]}"
-        changed = {k: (ref[k], got[domain][k]) for k in ref
-                   if got[domain][k] != pytest.approx(ref[k], rel=LOSS_RTOL if any(x in k for x in LOSSES) else 1e-6,
-                                                      abs=AGENT_TOL if trained(k) else 1e-9)}
-        assert not changed, f"{domain}: {len(changed)} metrics changed, e.g. {list(changed.items())[:3]}"
+        changed = {
+            k: (ref[k], got[domain][k])
+            for k in ref
+            if got[domain][k]
+            != pytest.approx(
+                ref[k],
+                rel=LOSS_RTOL if any(x in k for x in LOSSES) else 1e-6,
+                abs=AGENT_TOL if trained(k) else 1e-9,
+            )
+        }
+        assert not changed, (
+            f"{domain}: {len(changed)} metrics changed, e.g. {list(changed.items())[:3]}"
+        )

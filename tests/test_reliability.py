@@ -20,13 +20,36 @@ from pcpg_dist.errors import ConfigError, DataError, LayoutError, PcpgError, Tra
 
 ROOT = Path(__file__).resolve().parent.parent
 
-scalars = st.one_of(st.none(), st.booleans(), st.integers(-10**6, 10**6), st.floats(allow_nan=True),
-                    st.text(max_size=12))
-values = st.recursive(scalars, lambda inner: st.one_of(st.lists(inner, max_size=4),
-                                                       st.dictionaries(st.text(max_size=8), inner, max_size=4)),
-                      max_leaves=10)
-SECTIONS = ["name", "domain", "seed", "seeds", "gridworld", "pbtg", "clustering", "ranking", "bc",
-            "evaluation", "runner", "minidungeons", "mario", "bogus"]
+scalars = st.one_of(
+    st.none(),
+    st.booleans(),
+    st.integers(-(10**6), 10**6),
+    st.floats(allow_nan=True),
+    st.text(max_size=12),
+)
+values = st.recursive(
+    scalars,
+    lambda inner: st.one_of(
+        st.lists(inner, max_size=4), st.dictionaries(st.text(max_size=8), inner, max_size=4)
+    ),
+    max_leaves=10,
+)
+SECTIONS = [
+    "name",
+    "domain",
+    "seed",
+    "seeds",
+    "gridworld",
+    "pbtg",
+    "clustering",
+    "ranking",
+    "bc",
+    "evaluation",
+    "runner",
+    "minidungeons",
+    "mario",
+    "bogus",
+]
 
 
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -51,14 +74,21 @@ def test_random_layouts_fail_only_with_layout_error(rows):
             assert "fuzz.txt" in str(e)
 
 
-@pytest.mark.parametrize("patch, needle", [
-    ({"ranking": {"ps": [1.5]}}, "ranking.ps"),
-    ({"ranking": {"ps": [0.0]}}, "ranking.ps"),
-    ({"clustering": {"k": 0}}, "clustering.k"),
-    ({"bc": {"epochs": -1}}, "bc.epochs"),
-])
+@pytest.mark.parametrize(
+    "patch, needle",
+    [
+        ({"ranking": {"ps": [1.5]}}, "ranking.ps"),
+        ({"ranking": {"ps": [0.0]}}, "ranking.ps"),
+        ({"clustering": {"k": 0}}, "clustering.k"),
+        ({"bc": {"epochs": -1}}, "bc.epochs"),
+    ],
+)
 def test_issue_listed_bad_values_exit_2_and_start_nothing(tmp_path, capsys, patch, needle):
-    cfg = {"name": "bad", "gridworld": {"layout_dir": str(ROOT / "pcpg_dist" / "data" / "gridworld")}, **patch}
+    cfg = {
+        "name": "bad",
+        "gridworld": {"layout_dir": str(ROOT / "pcpg_dist" / "data" / "gridworld")},
+        **patch,
+    }
     path = tmp_path / "bad.yaml"
     path.write_text(yaml.safe_dump(cfg))
     assert main(["run", str(path), "--workdir", str(tmp_path / "runs"), "--no-tracking"]) == 2
@@ -95,8 +125,15 @@ def test_tampered_cluster_model_is_rejected(tmp_path):
     from pcpg_dist.dataset import Dataset
 
     rng = np.random.default_rng(0)
-    trajs = [{"states": rng.random((4, 2)), "actions": np.zeros(3, int), "valid": np.full(4, 1),
-              "rewards": np.zeros(3)} for _ in range(12)]
+    trajs = [
+        {
+            "states": rng.random((4, 2)),
+            "actions": np.zeros(3, int),
+            "valid": np.full(4, 1),
+            "rewards": np.zeros(3),
+        }
+        for _ in range(12)
+    ]
     ds = Dataset.from_trajectories("toy", "E", 1, trajs, styles=[0] * 12, success=[True] * 12)
     res = cluster(ds, ClusterConfig(method="summary_kmeans", k=2), seed=0)
     res.model.save(tmp_path / "m")
@@ -112,9 +149,18 @@ def test_unwritable_output_is_a_clear_error(tmp_path, capsys):
     blocker = tmp_path / "not-a-folder"
     blocker.write_text("x")
     cfg = tmp_path / "c.yaml"
-    cfg.write_text(yaml.safe_dump({"name": "w", "gridworld": {"layout_dir": str(ROOT / "pcpg_dist" / "data" / "gridworld"),
-                                                             "environments": ["E1"]},
-                                   "pbtg": {"episodes": 10, "trajectories_per_style": 5, "dataset_per_style": 5}}))
+    cfg.write_text(
+        yaml.safe_dump(
+            {
+                "name": "w",
+                "gridworld": {
+                    "layout_dir": str(ROOT / "pcpg_dist" / "data" / "gridworld"),
+                    "environments": ["E1"],
+                },
+                "pbtg": {"episodes": 10, "trajectories_per_style": 5, "dataset_per_style": 5},
+            }
+        )
+    )
     code = main(["generate", str(cfg), "--out", str(blocker / "data"), "--quiet"])
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert code == 2 and err.startswith("pcpg: error: cannot access") and "not-a-folder" in err
@@ -154,10 +200,16 @@ def write_log(tmp_path: Path, text: str) -> Path:
     return path
 
 
-@pytest.mark.parametrize("text, needle", [
-    ("0,0,0,0,0,3|99999999999999999999999,0,0,0,0,4|#0,0,0#\n", "step 1: counter above 16777216"),
-    ("0,0,0,0,0,3|1,0,0,0,0,-5|1,0,0,0,0,4|#0,0,0#\n", "step 1: event id -5 outside 0..38"),
-])
+@pytest.mark.parametrize(
+    "text, needle",
+    [
+        (
+            "0,0,0,0,0,3|99999999999999999999999,0,0,0,0,4|#0,0,0#\n",
+            "step 1: counter above 16777216",
+        ),
+        ("0,0,0,0,0,3|1,0,0,0,0,-5|1,0,0,0,0,4|#0,0,0#\n", "step 1: event id -5 outside 0..38"),
+    ],
+)
 def test_mario_log_overflow_and_negative_event_name_the_step(tmp_path, text, needle):
     from pcpg_dist.domains.mario import load_play_log
 
@@ -182,17 +234,25 @@ def test_non_utf8_layout_is_a_layout_error(tmp_path):
         load_layout(path)
 
 
-@pytest.mark.parametrize("stage, props, needle", [
-    (b"S\xffE\n", b"{}", "stage.txt:1: not a UTF-8 text file"),
-    (None, b"[" * 100_000, "props.json:1: JSON nested too deeply"),
-    (None, b'{"PLAYER_MAX_HP": 1e300, "ENEMY_POWER": 1, "POTION_POWER": 1}', "'PLAYER_MAX_HP' must be a positive "
-                                                                          "integer of at most 1000000"),
-])
+@pytest.mark.parametrize(
+    "stage, props, needle",
+    [
+        (b"S\xffE\n", b"{}", "stage.txt:1: not a UTF-8 text file"),
+        (None, b"[" * 100_000, "props.json:1: JSON nested too deeply"),
+        (
+            None,
+            b'{"PLAYER_MAX_HP": 1e300, "ENEMY_POWER": 1, "POTION_POWER": 1}',
+            "'PLAYER_MAX_HP' must be a positive integer of at most 1000000",
+        ),
+    ],
+)
 def test_minidungeons_level_files_are_bounded(tmp_path, stage, props, needle):
     from pcpg_dist.domains.minidungeons.level import data_dir, read_level
 
     stage_path, props_path = tmp_path / "stage.txt", tmp_path / "props.json"
-    stage_path.write_bytes(stage if stage is not None else (data_dir() / "stages" / "test.txt").read_bytes())
+    stage_path.write_bytes(
+        stage if stage is not None else (data_dir() / "stages" / "test.txt").read_bytes()
+    )
     props_path.write_bytes(props)
     with pytest.raises(LayoutError) as e:
         read_level(stage_path, props_path)
@@ -213,12 +273,18 @@ def test_cluster_refuses_a_dataset_whose_env_would_leave_out(tmp_path, capsys, r
     file = next(data.glob("*.parquet"))
     table = pq.read_table(file)
     meta = json.loads(table.schema.metadata[b"pcpg"])
-    pq.write_table(table.replace_schema_metadata({"pcpg": json.dumps({**meta, "env": "../../evil"})}), file)
+    pq.write_table(
+        table.replace_schema_metadata({"pcpg": json.dumps({**meta, "env": "../../evil"})}), file
+    )
     manifest = json.loads((data / "manifest.json").read_text())
-    manifest["files"][file.name]["sha256"] = sha256_file(file)  # a crafted, consistently signed dataset
+    manifest["files"][file.name]["sha256"] = sha256_file(
+        file
+    )  # a crafted, consistently signed dataset
     (data / "manifest.json").write_text(json.dumps(manifest))
     cfg = tmp_path / "c.yaml"
-    cfg.write_text(yaml.safe_dump({"name": "c", "domain": "mario", "clustering": {"method": "summary_kmeans"}}))
+    cfg.write_text(
+        yaml.safe_dump({"name": "c", "domain": "mario", "clustering": {"method": "summary_kmeans"}})
+    )
     out = tmp_path / "deep" / "out"
     assert main(["cluster", str(cfg), "--data", str(data), "--out", str(out), "--quiet"]) == 2
     err = capsys.readouterr().err.strip()
@@ -226,16 +292,28 @@ def test_cluster_refuses_a_dataset_whose_env_would_leave_out(tmp_path, capsys, r
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.yaml", "deep"] and not out.exists()
 
 
-@pytest.mark.parametrize("style, needle", [(10**12, "style 1000000000000; styles are 0, 1, 2, ... (below 100000)"),
-                                           (-5, "style -5; styles are 0, 1, 2")])
+@pytest.mark.parametrize(
+    "style, needle",
+    [
+        (10**12, "style 1000000000000; styles are 0, 1, 2, ... (below 100000)"),
+        (-5, "style -5; styles are 0, 1, 2"),
+    ],
+)
 def test_step_table_style_out_of_range_names_the_row(tmp_path, style, needle):
     """A style id indexes count tables (np.bincount in the ceiling): 10**12 would ask for terabytes."""
     import pyarrow as pa
 
     from pcpg_dist.domains.trajectories.table import StepTable, datasets_from_table
 
-    table = pa.table({"trajectory": [0, 0, 1, 1], "t": [0, 1, 0, 1], "action": [0, -1, 1, -1],
-                      "s0": [0.0, 1.0, 0.0, 1.0], "style": [0, 0, style, style]})
+    table = pa.table(
+        {
+            "trajectory": [0, 0, 1, 1],
+            "t": [0, 1, 0, 1],
+            "action": [0, -1, 1, -1],
+            "s0": [0.0, 1.0, 0.0, 1.0],
+            "style": [0, 0, style, style],
+        }
+    )
     with pytest.raises(DataError) as e:
         datasets_from_table(StepTable(table, "logs.parquet", "logs"))
     assert f"logs.parquet: column 'style', row 2: {needle}" in str(e.value)
@@ -247,20 +325,33 @@ def test_step_table_with_an_env_per_row_is_refused(tmp_path):
     from pcpg_dist.domains.trajectories.table import MAX_ENVS, StepTable, datasets_from_table
 
     n = MAX_ENVS + 1
-    table = pa.table({"trajectory": np.arange(n), "t": np.zeros(n, np.int64), "action": np.full(n, -1),
-                      "s0": np.zeros(n), "env": [f"e{i}" for i in range(n)]})
-    with pytest.raises(DataError, match=f"logs.parquet: column 'env' has {n} distinct values; .* at most {MAX_ENVS}"):
+    table = pa.table(
+        {
+            "trajectory": np.arange(n),
+            "t": np.zeros(n, np.int64),
+            "action": np.full(n, -1),
+            "s0": np.zeros(n),
+            "env": [f"e{i}" for i in range(n)],
+        }
+    )
+    with pytest.raises(
+        DataError,
+        match=f"logs.parquet: column 'env' has {n} distinct values; .* at most {MAX_ENVS}",
+    ):
         datasets_from_table(StepTable(table, "logs.parquet", "logs"))
 
 
-@pytest.mark.parametrize("edit", [
-    lambda m: {**m, "config": [1]},
-    lambda m: {**m, "state_dim": 10**400},
-    lambda m: {**m, "feature_names": 5},
-    lambda m: {**m, "config": {**m["config"], "hidden_size": -1}},
-    lambda m: {**m, "config": {**m["config"], "hidden_size": 10**6}},
-    lambda m: "[" * 100_000,
-])
+@pytest.mark.parametrize(
+    "edit",
+    [
+        lambda m: {**m, "config": [1]},
+        lambda m: {**m, "state_dim": 10**400},
+        lambda m: {**m, "feature_names": 5},
+        lambda m: {**m, "config": {**m["config"], "hidden_size": -1}},
+        lambda m: {**m, "config": {**m["config"], "hidden_size": 10**6}},
+        lambda m: "[" * 100_000,
+    ],
+)
 def test_tampered_cluster_model_is_one_line(tmp_path, edit):
     """A hand-edited cluster_model.json is a one-line DataError, never a traceback or a huge
     allocation (issue 18: tampered `cluster_model.json`)."""

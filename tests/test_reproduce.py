@@ -14,8 +14,14 @@ from pcpg_dist.reproduce import Reproduction, compare_metrics, print_reproductio
 ROOT = Path(__file__).resolve().parent.parent
 
 TINY = {
-    "name": "repro", "domain": "gridworld", "seed": 3, "seeds": [0, 1],
-    "gridworld": {"layout_dir": str(ROOT / "pcpg_dist" / "data" / "gridworld"), "environments": ["E1"]},
+    "name": "repro",
+    "domain": "gridworld",
+    "seed": 3,
+    "seeds": [0, 1],
+    "gridworld": {
+        "layout_dir": str(ROOT / "pcpg_dist" / "data" / "gridworld"),
+        "environments": ["E1"],
+    },
     "pbtg": {"episodes": 20000, "trajectories_per_style": 120, "dataset_per_style": 60},
     "clustering": {"k": 4, "pretrain_epochs": 4, "dec_epochs": 2},
     "ranking": {"ps": [1.0, 0.5]},
@@ -30,7 +36,9 @@ def logged_run(ray_session, tmp_path_factory) -> Path:
 
     cfg = parse_config(TINY, source="tiny")
     work = tmp_path_factory.mktemp("logged")
-    result = run_experiment(cfg, workdir=work, track=False, show_progress=False, command="pcpg run tiny.yaml")
+    result = run_experiment(
+        cfg, workdir=work, track=False, show_progress=False, command="pcpg run tiny.yaml"
+    )
     return result.out_dir
 
 
@@ -60,13 +68,27 @@ def test_compare_metrics_statuses_and_tolerance():
     logged = {"a": 0.5, "b": 1.0, "c": float("nan"), "d": 2.0, "e": 3.0, "fit_seconds": 1.0}
     new = {"a": 0.5, "b": 1.0 + 1e-9, "c": float("nan"), "d": 2.1, "f": 4.0, "fit_seconds": 9.0}
     got = {c.name: c.status for c in compare_metrics(logged, new, rtol=1e-6, atol=0.0)}
-    assert got == {"a": "exact", "b": "within", "c": "exact", "d": "differs", "e": "missing", "f": "extra"}
-    assert {c.name: c.status for c in compare_metrics(logged, new, rtol=0.0, atol=0.0)}["b"] == "differs"
+    assert got == {
+        "a": "exact",
+        "b": "within",
+        "c": "exact",
+        "d": "differs",
+        "e": "missing",
+        "f": "extra",
+    }
+    assert {c.name: c.status for c in compare_metrics(logged, new, rtol=0.0, atol=0.0)}[
+        "b"
+    ] == "differs"
 
 
 def test_a_difference_is_printed_and_fails(tmp_path, capsys):
-    rep = Reproduction(compare_metrics({"pcpg/accuracy/p1": 0.9, "x": 1.0}, {"pcpg/accuracy/p1": 0.8, "x": 1.0}),
-                       tmp_path, 1e-6, 1e-9, ["code: logged at commit abc, reproducing at def"])
+    rep = Reproduction(
+        compare_metrics({"pcpg/accuracy/p1": 0.9, "x": 1.0}, {"pcpg/accuracy/p1": 0.8, "x": 1.0}),
+        tmp_path,
+        1e-6,
+        1e-9,
+        ["code: logged at commit abc, reproducing at def"],
+    )
     assert not rep.ok
     print_reproduction(rep)
     out = capsys.readouterr().out.splitlines()
@@ -92,12 +114,27 @@ def test_bad_arguments_are_one_line_errors(tmp_path, capsys):
     assert len(err) == 2 and "not empty" in err[0] and "--rtol -1.0" in err[1]
 
 
-@pytest.mark.parametrize("file, text, says", [
-    ("run.json", "[" * 100_000 + "]" * 100_000, "run.json: unreadable (maximum recursion"),
-    ("run.json", json.dumps({"config": TINY, "computed": {"data": "x"}}), "run.json: computed 'data' is 'x'"),
-    ("metrics.json", '{"pcpg/accuracy/p1": "x"}', "metrics.json: metric 'pcpg/accuracy/p1' is 'x'"),
-    ("metrics.json", '{"pcpg/accuracy/p1": [1]}', "metrics.json: metric 'pcpg/accuracy/p1' is [1]"),
-])
+@pytest.mark.parametrize(
+    "file, text, says",
+    [
+        ("run.json", "[" * 100_000 + "]" * 100_000, "run.json: unreadable (maximum recursion"),
+        (
+            "run.json",
+            json.dumps({"config": TINY, "computed": {"data": "x"}}),
+            "run.json: computed 'data' is 'x'",
+        ),
+        (
+            "metrics.json",
+            '{"pcpg/accuracy/p1": "x"}',
+            "metrics.json: metric 'pcpg/accuracy/p1' is 'x'",
+        ),
+        (
+            "metrics.json",
+            '{"pcpg/accuracy/p1": [1]}',
+            "metrics.json: metric 'pcpg/accuracy/p1' is [1]",
+        ),
+    ],
+)
 def test_tampered_run_files_are_one_line_before_anything_runs(file, text, says, tmp_path, capsys):
     """A tampered run.json or metrics.json: exit 2, one line naming the file, before the rerun's
     folder is made (a bad metrics.json used to surface only after the whole sweep, or as a
@@ -112,7 +149,9 @@ def test_tampered_run_files_are_one_line_before_anything_runs(file, text, says, 
     workdir = tmp_path / "rerun"
     assert main(["reproduce", str(tmp_path / "run"), "--workdir", str(workdir)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith(f"pcpg: error: {summary / file}: ") and says in err[0], err
+    assert (
+        len(err) == 1 and err[0].startswith(f"pcpg: error: {summary / file}: ") and says in err[0]
+    ), err
     assert not workdir.exists()
 
 
@@ -123,7 +162,9 @@ def test_reproduce_of_a_mistyped_run_creates_no_mlflow_store(tmp_path, monkeypat
     monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
     assert main(["reproduce", "nosuchrun"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "'nosuchrun' is neither a run's output folder nor an MLflow run" in err[0]
+    assert (
+        len(err) == 1 and "'nosuchrun' is neither a run's output folder nor an MLflow run" in err[0]
+    )
     assert list(tmp_path.iterdir()) == []
 
 
@@ -136,22 +177,45 @@ def test_an_edited_log_is_not_reproduced_even_where_the_metrics_match(tmp_path, 
     from pcpg_dist.runner import input_key
 
     log = tmp_path / "logs.parquet"
-    table = pd.DataFrame({"trajectory": [0, 0, 1, 1], "t": [0, 1, 0, 1], "s0": [0.0, 1.0, 0.0, 2.0],
-                          "action": [1, 0, 2, 0], "reward": [0.0, 1.0, 0.0, 1.0]})
+    table = pd.DataFrame(
+        {
+            "trajectory": [0, 0, 1, 1],
+            "t": [0, 1, 0, 1],
+            "s0": [0.0, 1.0, 0.0, 2.0],
+            "action": [1, 0, 2, 0],
+            "reward": [0.0, 1.0, 0.0, 1.0],
+        }
+    )
     table.to_parquet(log, index=False)
-    cfg = parse_config({"name": "own", "domain": "trajectories", "trajectories": {"path": str(log), "score": "return"},
-                        "clustering": {"k": 2}}, source="own")
+    cfg = parse_config(
+        {
+            "name": "own",
+            "domain": "trajectories",
+            "trajectories": {"path": str(log), "score": "return"},
+            "clustering": {"k": 2},
+        },
+        source="own",
+    )
     run = {"input_key": input_key(cfg), "config_hash": cfg.hash()}
     assert input_note(run, cfg) == (None, False)  # the same file: nothing to say
-    assert input_note({}, cfg) == (None, False)  # a run logged before the key was recorded: not checked
+    assert input_note({}, cfg) == (
+        None,
+        False,
+    )  # a run logged before the key was recorded: not checked
     table.loc[1, "reward"] = 5.0
     table.to_parquet(log, index=False)
     note, changed = input_note(run, cfg)
-    assert changed and note.startswith(f"input data changed: the logged run read data of key {run['input_key']}")
+    assert changed and note.startswith(
+        f"input data changed: the logged run read data of key {run['input_key']}"
+    )
     # a config hash that changed too (a setting added since): said, not taken for changed data
     soft, changed = input_note({**run, "config_hash": "0123"}, cfg)
-    assert not changed and soft.startswith("input key: logged ") and "config hash changed too" in soft
-    rep = Reproduction(compare_metrics({"x": 1.0}, {"x": 1.0}), tmp_path, 1e-6, 1e-9, [note], input_changed=True)
+    assert (
+        not changed and soft.startswith("input key: logged ") and "config hash changed too" in soft
+    )
+    rep = Reproduction(
+        compare_metrics({"x": 1.0}, {"x": 1.0}), tmp_path, 1e-6, 1e-9, [note], input_changed=True
+    )
     assert not rep.ok
     print_reproduction(rep)
     out = capsys.readouterr().out.splitlines()

@@ -24,8 +24,13 @@ from pcpg_dist.runner import run_experiment
 ROOT = Path(__file__).resolve().parent.parent
 
 SMALL = {
-    "name": "small", "seed": 0, "seeds": [0],
-    "gridworld": {"layout_dir": str(ROOT / "pcpg_dist" / "data" / "gridworld"), "environments": ["E1", "E3"]},
+    "name": "small",
+    "seed": 0,
+    "seeds": [0],
+    "gridworld": {
+        "layout_dir": str(ROOT / "pcpg_dist" / "data" / "gridworld"),
+        "environments": ["E1", "E3"],
+    },
     "pbtg": {"episodes": 2000, "trajectories_per_style": 100, "dataset_per_style": 50},
     "clustering": {"k": 4, "pretrain_epochs": 2, "dec_epochs": 1},
     "ranking": {"ps": [1.0, 0.5]},
@@ -59,7 +64,9 @@ def listing(folder: Path) -> list[str]:
 
 
 @pytest.mark.slow
-def test_outputs_inside_the_folders_a_run_rewrites_are_refused(small_run, tmp_path, capsys, monkeypatch):
+def test_outputs_inside_the_folders_a_run_rewrites_are_refused(
+    small_run, tmp_path, capsys, monkeypatch
+):
     """classify beside a run's cached data, export minari/onnx and report into cache/, summary/ or
     agents/ were written (exit 0) and deleted without a word by the next `pcpg run`."""
     run = copy_run(small_run, tmp_path)
@@ -69,7 +76,13 @@ def test_outputs_inside_the_folders_a_run_rewrites_are_refused(small_run, tmp_pa
     monkeypatch.chdir(data)  # classify's default --out: the current folder
     commands = [
         ["classify", str(model), str(data / "gridworld-E1.parquet")],
-        ["classify", str(model), str(data / "gridworld-E1.parquet"), "--out", str(run / "summary" / "s.csv")],
+        [
+            "classify",
+            str(model),
+            str(data / "gridworld-E1.parquet"),
+            "--out",
+            str(run / "summary" / "s.csv"),
+        ],
         ["export", "minari", str(run), "--out", str(data)],
         ["export", "minari", str(run), "--out", str(run / "summary" / "minari")],
         ["export", "onnx", str(run), "--out", str(run / "agents" / "onnx")],
@@ -85,20 +98,39 @@ def test_outputs_inside_the_folders_a_run_rewrites_are_refused(small_run, tmp_pa
     monkeypatch.chdir(tmp_path)
     assert main(["classify", str(model), str(data / "gridworld-E1.parquet")]) == 0
     assert main(["export", "onnx", str(run), "--out", str(run / "onnx")]) == 0
-    assert (tmp_path / "gridworld-E1.styles.csv").is_file() and (run / "onnx" / "agents_E3.onnx").is_file()
+    assert (tmp_path / "gridworld-E1.styles.csv").is_file() and (
+        run / "onnx" / "agents_E3.onnx"
+    ).is_file()
 
 
 # `pcpg run` in a subprocess with Ray started first on 2 CPUs (as tests/test_faults.py does)
-LAUNCH = ("import sys; from pcpg_dist.ray_utils import init_ray; init_ray(num_cpus=2); "
-          "from pcpg_dist.cli import main; sys.exit(main(sys.argv[1:]))")
+LAUNCH = (
+    "import sys; from pcpg_dist.ray_utils import init_ray; init_ray(num_cpus=2); "
+    "from pcpg_dist.cli import main; sys.exit(main(sys.argv[1:]))"
+)
 
 
 def start_run(cfg: Path, workdir: Path, log: Path) -> subprocess.Popen:
     env = {k: v for k, v in os.environ.items() if k not in ("RAY_ADDRESS", "MLFLOW_TRACKING_URI")}
     env.update(RAY_AUTH_MODE="disabled", RAY_ENABLE_UV_RUN_RUNTIME_ENV="0", PYTHONUNBUFFERED="1")
-    return subprocess.Popen([sys.executable, "-c", LAUNCH, "run", str(cfg), "--workdir", str(workdir),
-                             "--no-tracking", "--quiet"], cwd=log.parent, env=env, stdout=log.open("w"),
-                            stderr=subprocess.STDOUT, start_new_session=True)
+    return subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            LAUNCH,
+            "run",
+            str(cfg),
+            "--workdir",
+            str(workdir),
+            "--no-tracking",
+            "--quiet",
+        ],
+        cwd=log.parent,
+        env=env,
+        stdout=log.open("w"),
+        stderr=subprocess.STDOUT,
+        start_new_session=True,
+    )
 
 
 def kill_tree(proc: subprocess.Popen, sig: int = signal.SIGKILL) -> int:
@@ -117,7 +149,9 @@ def kill_tree(proc: subprocess.Popen, sig: int = signal.SIGKILL) -> int:
 
 
 @pytest.mark.slow
-def test_a_rerun_killed_while_writing_its_summary_never_leaves_a_mixed_summary(small_run, tmp_path, capsys):
+def test_a_rerun_killed_while_writing_its_summary_never_leaves_a_mixed_summary(
+    small_run, tmp_path, capsys
+):
     """A rerun with bc.epochs 30 SIGKILLed once its new metrics.json existed left the new metrics
     beside the old run.json (epochs 20), agents and report: `pcpg report` exited 0 with mixed
     numbers and `pcpg reproduce` blamed reproducibility."""
@@ -128,8 +162,9 @@ def test_a_rerun_killed_while_writing_its_summary_never_leaves_a_mixed_summary(s
     proc = start_run(cfg, tmp_path / "runs", tmp_path / "killed.log")
 
     def new_metrics() -> bool:
-        return any(p.is_file() and p.stat().st_mtime > t0 for p in run.glob("*/summary/metrics.json")) or \
-            any(p.is_file() and p.stat().st_mtime > t0 for p in run.glob("summary/metrics.json"))
+        return any(
+            p.is_file() and p.stat().st_mtime > t0 for p in run.glob("*/summary/metrics.json")
+        ) or any(p.is_file() and p.stat().st_mtime > t0 for p in run.glob("summary/metrics.json"))
 
     end = time.monotonic() + 400
     try:
@@ -137,7 +172,9 @@ def test_a_rerun_killed_while_writing_its_summary_never_leaves_a_mixed_summary(s
             time.sleep(0.02)
     finally:
         code = kill_tree(proc)
-    assert code == -signal.SIGKILL, f"the run ended ({code}) before it was killed:\n{(tmp_path / 'killed.log').read_text()}"
+    assert code == -signal.SIGKILL, (
+        f"the run ended ({code}) before it was killed:\n{(tmp_path / 'killed.log').read_text()}"
+    )
 
     if (run / "summary" / "run.json").exists():  # the old summary, whole
         info = json.loads((run / "summary" / "run.json").read_text())
@@ -148,11 +185,20 @@ def test_a_rerun_killed_while_writing_its_summary_never_leaves_a_mixed_summary(s
         assert main(["report", str(run), "--out", str(tmp_path / "rep")]) == 2
         assert len(capsys.readouterr().err.strip().splitlines()) == 1
 
-    result = run_experiment(load_config(cfg), workdir=tmp_path / "runs", track=False, show_progress=False)
+    result = run_experiment(
+        load_config(cfg), workdir=tmp_path / "runs", track=False, show_progress=False
+    )
     info = json.loads((run / "summary" / "run.json").read_text())
     assert info["config"]["bc"]["epochs"] == 30 and result.metrics == json.loads(
-        (run / "summary" / "metrics.json").read_text())
-    assert sorted(p.name for p in run.iterdir()) == ["agents", "cache", "cache.lock", "report", "summary"]
+        (run / "summary" / "metrics.json").read_text()
+    )
+    assert sorted(p.name for p in run.iterdir()) == [
+        "agents",
+        "cache",
+        "cache.lock",
+        "report",
+        "summary",
+    ]
 
 
 @pytest.mark.slow
@@ -166,9 +212,25 @@ def test_sigterm_is_one_line_exit_143_and_marks_the_mlflow_run_killed(ray_sessio
     env.update(RAY_AUTH_MODE="disabled", PYTHONUNBUFFERED="1")
     log = tmp_path / "run.log"
     MlflowClient(uri).search_experiments()  # the store's tables, made before two processes use it
-    proc = subprocess.Popen([sys.executable, "-m", "pcpg_dist.cli", "run", str(cfg), "--workdir",
-                             str(tmp_path / "runs"), "--tracking-uri", uri, "--quiet"], cwd=tmp_path, env=env,
-                            stdout=subprocess.DEVNULL, stderr=log.open("w"), start_new_session=True)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "pcpg_dist.cli",
+            "run",
+            str(cfg),
+            "--workdir",
+            str(tmp_path / "runs"),
+            "--tracking-uri",
+            uri,
+            "--quiet",
+        ],
+        cwd=tmp_path,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=log.open("w"),
+        start_new_session=True,
+    )
     end = time.monotonic() + 400
 
     def parent_runs() -> list:
@@ -211,7 +273,9 @@ def test_the_names_written_beside_the_environments_are_all_reserved(small_run):
     from pcpg_dist.run_folders import BESIDE_UNITS
 
     envs = {"E1", "E3"}
-    beside = {p.name for folder in ("summary", "agents", "report") for p in (small_run / folder).iterdir()}
+    beside = {
+        p.name for folder in ("summary", "agents", "report") for p in (small_run / folder).iterdir()
+    }
     beside |= {p.name for p in small_run.iterdir()}
     assert envs <= beside  # the environments' folders are there, beside the rest
     assert beside - envs - {"cache.lock"} <= BESIDE_UNITS, beside - envs - BESIDE_UNITS

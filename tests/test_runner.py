@@ -17,8 +17,13 @@ from pcpg_dist.runner import run_experiment
 ROOT = Path(__file__).resolve().parent.parent
 
 TINY = {
-    "name": "tiny", "seed": 1, "seeds": [0, 1],
-    "gridworld": {"layout_dir": str(ROOT / "pcpg_dist" / "data" / "gridworld"), "environments": ["E1"]},
+    "name": "tiny",
+    "seed": 1,
+    "seeds": [0, 1],
+    "gridworld": {
+        "layout_dir": str(ROOT / "pcpg_dist" / "data" / "gridworld"),
+        "environments": ["E1"],
+    },
     "pbtg": {"episodes": 20000, "trajectories_per_style": 200, "dataset_per_style": 100},
     "clustering": {"k": 4, "pretrain_epochs": 6, "dec_epochs": 3},
     "ranking": {"ps": [1.0, 0.5]},
@@ -43,8 +48,13 @@ def tiny_cfg(tmp_path_factory):
 def first_run(ray_session, tiny_cfg, tmp_path_factory):
     work = tmp_path_factory.mktemp("work")
     uri = f"sqlite:///{work / 'mlflow.db'}"
-    result = run_experiment(tiny_cfg, workdir=work / "runs", tracking_uri=uri, show_progress=False,
-                            command="pcpg run tiny.yaml")
+    result = run_experiment(
+        tiny_cfg,
+        workdir=work / "runs",
+        tracking_uri=uri,
+        show_progress=False,
+        command="pcpg run tiny.yaml",
+    )
     return work, uri, result
 
 
@@ -56,18 +66,34 @@ def test_run_produces_metrics_tables_figures(first_run):
     for p in ("1", "0.5"):
         assert m[f"pcpg/accuracy/p{p}"] > m["random/accuracy"] + 0.2
     summary = result.out_dir / "summary"
-    for name in ("metrics.json", "accuracy_vs_p.csv", "accuracy_vs_p.png", "clustering.csv", "run.json"):
+    for name in (
+        "metrics.json",
+        "accuracy_vs_p.csv",
+        "accuracy_vs_p.png",
+        "clustering.csv",
+        "run.json",
+    ):
         assert (summary / name).is_file(), name
     assert list((summary / "E1").glob("*.png")) and list((summary / "E1").glob("*.csv"))
     assert result.computed == {"data": 1, "clustering": 1, "train_groups": 1, "evaluations": 1}
     # the summary's table holds each environment's own figures at each p (random was the
     # all-test-steps figure in every row, beside a per-p majority class)
-    table, own = pd.read_csv(summary / "accuracy_vs_p.csv"), pd.read_csv(summary / "E1" / "accuracy.csv")
-    for col, method in (("pcpg", "pcpg"), ("no_clustering", "no_clustering"), ("random", "random"),
-                        ("majority", "majority")):
+    table, own = (
+        pd.read_csv(summary / "accuracy_vs_p.csv"),
+        pd.read_csv(summary / "E1" / "accuracy.csv"),
+    )
+    for col, method in (
+        ("pcpg", "pcpg"),
+        ("no_clustering", "no_clustering"),
+        ("random", "random"),
+        ("majority", "majority"),
+    ):
         for p in (1.0, 0.5):
             want = own[(own.method == method) & (own.p == p)]["mean"].item()
-            assert table[(table.env == "E1") & (table.p == p)][col].item() == pytest.approx(want), (col, p)
+            assert table[(table.env == "E1") & (table.p == p)][col].item() == pytest.approx(want), (
+                col,
+                p,
+            )
 
 
 @pytest.mark.slow
@@ -84,9 +110,12 @@ def test_mlflow_runs_metrics_artifacts_and_agents(first_run):
     parent = parents[0]
     assert parent.data.params["bc.hidden_size"] == "16"
     assert {"pcpg.git_commit", "pcpg.config_hash", "pcpg.version"} <= set(parent.data.tags)
-    assert parent.data.metrics["pcpg/accuracy/p0.5"] == pytest.approx(result.metrics["pcpg/accuracy/p0.5"])
-    children = client.search_runs([exp.experiment_id],
-                                  filter_string=f"tags.`mlflow.parentRunId` = '{parent.info.run_id}'")
+    assert parent.data.metrics["pcpg/accuracy/p0.5"] == pytest.approx(
+        result.metrics["pcpg/accuracy/p0.5"]
+    )
+    children = client.search_runs(
+        [exp.experiment_id], filter_string=f"tags.`mlflow.parentRunId` = '{parent.info.run_id}'"
+    )
     assert [c.data.tags["pcpg.env"] for c in children] == ["E1"]
     child = children[0]
     assert child.info.status == "FINISHED" and "clustering/ari" in child.data.metrics
@@ -94,8 +123,17 @@ def test_mlflow_runs_metrics_artifacts_and_agents(first_run):
     assert {a.path for a in client.list_artifacts(parent.info.run_id)} >= {"summary", "report"}
     mlflow.set_tracking_uri(uri)
     agents = mlflow.pyfunc.load_model(f"runs:/{parent.info.run_id}/agents")
-    df = pd.DataFrame({"style": [0, 1], "p": [1.0, 0.5], "s0": [1, 1], "s1": [1, 1], "s2": [0, 0],
-                       "s3": [0, 0], "valid": [[False, True, True, False]] * 2})
+    df = pd.DataFrame(
+        {
+            "style": [0, 1],
+            "p": [1.0, 0.5],
+            "s0": [1, 1],
+            "s1": [1, 1],
+            "s2": [0, 0],
+            "s3": [0, 0],
+            "valid": [[False, True, True, False]] * 2,
+        }
+    )
     actions = agents.predict(df)
     assert set(actions) <= {1, 2}  # only valid actions (right, down) are ever chosen
 
@@ -145,10 +183,14 @@ def test_interrupted_sweep_resumes_with_same_metrics(first_run, tiny_cfg, monkey
     client = MlflowClient(uri2)
     exp = client.get_experiment_by_name("tiny")
     assert [r.info.status for r in client.search_runs([exp.experiment_id])] == ["KILLED"]
-    resumed = run_experiment(tiny_cfg, workdir=work / "runs2", tracking_uri=uri2, show_progress=False)
+    resumed = run_experiment(
+        tiny_cfg, workdir=work / "runs2", tracking_uri=uri2, show_progress=False
+    )
     assert resumed.computed["clustering"] == 0 and resumed.computed["train_groups"] == 0
     assert resumed.computed["evaluations"] == 1
-    assert results_only(resumed.metrics) == results_only(result.metrics)  # same numbers as uninterrupted
+    assert results_only(resumed.metrics) == results_only(
+        result.metrics
+    )  # same numbers as uninterrupted
     runs = client.search_runs([exp.experiment_id])
     assert sorted(r.info.status for r in runs) == ["FINISHED", "FINISHED"]
 
@@ -158,8 +200,21 @@ def test_report_renders_everything(first_run, tmp_path):
     from pcpg_dist.cli import main
 
     work, uri, result = first_run
-    assert main(["report", "tiny", "--tracking-uri", uri, "--workdir", str(tmp_path),
-                 "--out", str(tmp_path / "rep")]) == 0
+    assert (
+        main(
+            [
+                "report",
+                "tiny",
+                "--tracking-uri",
+                uri,
+                "--workdir",
+                str(tmp_path),
+                "--out",
+                str(tmp_path / "rep"),
+            ]
+        )
+        == 0
+    )
     html = (tmp_path / "rep" / "report.html").read_text()
     md = (tmp_path / "rep" / "report.md").read_text()
     run = json.loads((result.out_dir / "summary" / "run.json").read_text())
@@ -184,21 +239,30 @@ def test_agents_start_from_no_clustering(first_run, tiny_cfg):
     from pcpg_dist.bc import TrainedCells
 
     work, _, _ = first_run
-    cfg = tiny_cfg.model_copy(update={"bc": tiny_cfg.bc.model_copy(
-        update={"init": "no_clustering", "finetune_epochs": 0})})
+    cfg = tiny_cfg.model_copy(
+        update={
+            "bc": tiny_cfg.bc.model_copy(update={"init": "no_clustering", "finetune_epochs": 0})
+        }
+    )
     train_dir = work / "runs" / "tiny" / "cache" / "train"
     before = set(train_dir.iterdir())
     result = run_experiment(cfg, workdir=work / "runs", track=False, show_progress=False)
     assert result.computed["clustering"] == 0 and result.computed["train_groups"] >= 2
-    trained = TrainedCells.concat([TrainedCells.load(d / "cells") for d in sorted(set(train_dir.iterdir()) - before)])
+    trained = TrainedCells.concat(
+        [TrainedCells.load(d / "cells") for d in sorted(set(train_dir.iterdir()) - before)]
+    )
     nc = {(s.p, s.seed): i for i, s in enumerate(trained.specs) if s.kind == "nc"}
     others = [i for i, s in enumerate(trained.specs) if s.kind != "nc"]
     assert {trained.specs[i].kind for i in others} == {"pcpg", "corrupt"}
     for i in others:
         s = trained.specs[i]
-        for a, b in zip(trained.cell_params(i), trained.cell_params(nc[(s.p, s.seed)]), strict=True):
+        for a, b in zip(
+            trained.cell_params(i), trained.cell_params(nc[(s.p, s.seed)]), strict=True
+        ):
             assert np.array_equal(a, b), s.key
-    assert result.metrics["pcpg/accuracy/p1"] == pytest.approx(result.metrics["baseline/accuracy/p1"])
+    assert result.metrics["pcpg/accuracy/p1"] == pytest.approx(
+        result.metrics["baseline/accuracy/p1"]
+    )
 
 
 def test_the_summary_says_which_stages_came_from_the_cache(tmp_path):
@@ -212,19 +276,37 @@ def test_the_summary_says_which_stages_came_from_the_cache(tmp_path):
 
     def printed(**kw) -> str:
         out = io.StringIO()
-        print_summary(RunResult(out_dir=tmp_path, metrics={}, clustering={}, **kw), Console(file=out, width=200))
+        print_summary(
+            RunResult(out_dir=tmp_path, metrics={}, clustering={}, **kw),
+            Console(file=out, width=200),
+        )
         return out.getvalue().splitlines()[-1]
 
-    times = {"generate": 7.0, "cluster": 14.2, "train": 30.5, "evaluate": 2.0, "summary": 0.4, "tracking": 0.2}
-    assert printed(stage_seconds=times, cached_stages=["generate", "cluster", "train", "evaluate"]) == \
-        "time per stage: summary 0.4s, tracking 0.2s; from the cache: generate, cluster, train, evaluate"
-    assert printed(stage_seconds=times, cached_stages=["generate"]) == \
-        "time per stage: cluster 14.2s, train 30.5s, evaluate 2.0s, summary 0.4s, tracking 0.2s; from the cache: generate"
-    assert printed(stage_seconds=times, cached_stages=[]) == \
-        "time per stage: generate 7.0s, cluster 14.2s, train 30.5s, evaluate 2.0s, summary 0.4s, tracking 0.2s"
+    times = {
+        "generate": 7.0,
+        "cluster": 14.2,
+        "train": 30.5,
+        "evaluate": 2.0,
+        "summary": 0.4,
+        "tracking": 0.2,
+    }
+    assert (
+        printed(stage_seconds=times, cached_stages=["generate", "cluster", "train", "evaluate"])
+        == "time per stage: summary 0.4s, tracking 0.2s; from the cache: generate, cluster, train, evaluate"
+    )
+    assert (
+        printed(stage_seconds=times, cached_stages=["generate"])
+        == "time per stage: cluster 14.2s, train 30.5s, evaluate 2.0s, summary 0.4s, tracking 0.2s; from the cache: generate"
+    )
+    assert (
+        printed(stage_seconds=times, cached_stages=[])
+        == "time per stage: generate 7.0s, cluster 14.2s, train 30.5s, evaluate 2.0s, summary 0.4s, tracking 0.2s"
+    )
 
 
-def test_a_failure_that_is_not_bad_input_leaves_no_empty_run_folder(ray_session, tiny_cfg, tmp_path, monkeypatch):
+def test_a_failure_that_is_not_bad_input_leaves_no_empty_run_folder(
+    ray_session, tiny_cfg, tmp_path, monkeypatch
+):
     """Before anything is cached, any failure (here the disk, an OSError; was: only pcpg's own
     errors) removes the folders and the lock file the run created."""
     import pcpg_dist.runner as runner
@@ -239,7 +321,9 @@ def test_a_failure_that_is_not_bad_input_leaves_no_empty_run_folder(ray_session,
 
 
 @pytest.mark.slow
-def test_reproduce_by_mlflow_run_id_downloads_to_a_private_folder_it_removes(first_run, tmp_path, monkeypatch, capsys):
+def test_reproduce_by_mlflow_run_id_downloads_to_a_private_folder_it_removes(
+    first_run, tmp_path, monkeypatch, capsys
+):
     """`pcpg reproduce RUN_ID` fetched the logged summary into a fixed /tmp/pcpg-reproduce-logged,
     shared by every user of the machine and never cleaned, and recorded that path as its command."""
     import tempfile
@@ -250,13 +334,28 @@ def test_reproduce_by_mlflow_run_id_downloads_to_a_private_folder_it_removes(fir
 
     work, uri, _ = first_run
     client = MlflowClient(uri)
-    (parent,) = client.search_runs([client.get_experiment_by_name("tiny").experiment_id],
-                                   filter_string="tags.`pcpg.role` = 'parent'")
+    (parent,) = client.search_runs(
+        [client.get_experiment_by_name("tiny").experiment_id],
+        filter_string="tags.`pcpg.role` = 'parent'",
+    )
     private = tmp_path / "tmp"
     private.mkdir()
     monkeypatch.setattr(tempfile, "tempdir", str(private))
     fresh = tmp_path / "fresh"
-    assert main(["reproduce", parent.info.run_id, "--tracking-uri", uri, "--workdir", str(fresh), "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "reproduce",
+                parent.info.run_id,
+                "--tracking-uri",
+                uri,
+                "--workdir",
+                str(fresh),
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     assert capsys.readouterr().out.splitlines()[-1].startswith("REPRODUCED")
     assert list(private.iterdir()) == []
     redone = json.loads(next(fresh.glob("*/summary/run.json")).read_text())

@@ -108,7 +108,12 @@ def processes_mentioning(*markers: str) -> list[str]:
     found = []
     for pid in filter(str.isdigit, os.listdir("/proc")):
         try:
-            cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+            cmd = (
+                Path(f"/proc/{pid}/cmdline")
+                .read_bytes()
+                .replace(b"\0", b" ")
+                .decode(errors="replace")
+            )
         except OSError:
             continue
         if any(m in cmd for m in markers):
@@ -124,13 +129,20 @@ def svc(tmp_path):
     db = f"svc_test_{secrets.token_hex(4)}"
     base_env = {k: v for k, v in os.environ.items() if not k.startswith("PCPG_")}
     base_env.update(
-        PCPG_BIN=str(Path(sys.executable).parent), PCPG_SERVICES_DIR=str(state),
+        PCPG_BIN=str(Path(sys.executable).parent),
+        PCPG_SERVICES_DIR=str(state),
         PCPG_PG_URL=f"postgresql+psycopg2://{PG['user']}@{PG['host']}:{PG['port']}",
-        PCPG_MLFLOW_DB=db, PCPG_OPTUNA_DB=f"{db}_optuna", PCPG_MLFLOW_WORKERS="1",
-        PCPG_RAY_AUTH_MODE="disabled", PCPG_RAY_TEMP=str(ray_temp),
+        PCPG_MLFLOW_DB=db,
+        PCPG_OPTUNA_DB=f"{db}_optuna",
+        PCPG_MLFLOW_WORKERS="1",
+        PCPG_RAY_AUTH_MODE="disabled",
+        PCPG_RAY_TEMP=str(ray_temp),
         # were a refusal to regress, fail within a minute instead of 3 x 300 s
-        PCPG_START_TIMEOUT="60", PCPG_RAY_START_ATTEMPTS="1",
-        PCPG_MLFLOW_PORT=str(free_port()), PCPG_RAY_PORT=str(free_port()))
+        PCPG_START_TIMEOUT="60",
+        PCPG_RAY_START_ATTEMPTS="1",
+        PCPG_MLFLOW_PORT=str(free_port()),
+        PCPG_RAY_PORT=str(free_port()),
+    )
 
     class Svc:
         env = base_env
@@ -138,8 +150,13 @@ def svc(tmp_path):
 
         def run(self, *args: str, timeout: float = 150, **env: str):
             t0 = time.monotonic()
-            res = subprocess.run(["bash", str(SERVICES), *args], env={**base_env, **env}, text=True,
-                                 capture_output=True, timeout=timeout)
+            res = subprocess.run(
+                ["bash", str(SERVICES), *args],
+                env={**base_env, **env},
+                text=True,
+                capture_output=True,
+                timeout=timeout,
+            )
             res.seconds = time.monotonic() - t0
             return res
 
@@ -172,8 +189,9 @@ def svc(tmp_path):
     try:
         yield s
     finally:
-        subprocess.run(["bash", str(SERVICES), "stop", "all"], env=base_env, capture_output=True,
-                       timeout=120)
+        subprocess.run(
+            ["bash", str(SERVICES), "stop", "all"], env=base_env, capture_output=True, timeout=120
+        )
         for name in s.dbs:
             drop_db(name)
         shutil.rmtree(ray_temp, ignore_errors=True)
@@ -242,11 +260,19 @@ def test_start_mlflow_detects_port_taken_after_the_check(svc):
 
 
 # ---------------------------------------------------------------------------- 2: PCPG_PG_URL
-@pytest.mark.parametrize("args", [("start", "mlflow"), ("start", "db"), ("start", "all"), ("env",)],
-                         ids=lambda a: "-".join(a))
-@pytest.mark.parametrize("url", ["postgresql://postgres@127.0.0.1:5432/test",
-                                 "postgresql+psycopg2://postgres:pw@127.0.0.1:5432/test/"],
-                         ids=["bare", "psycopg2-password"])
+@pytest.mark.parametrize(
+    "args",
+    [("start", "mlflow"), ("start", "db"), ("start", "all"), ("env",)],
+    ids=lambda a: "-".join(a),
+)
+@pytest.mark.parametrize(
+    "url",
+    [
+        "postgresql://postgres@127.0.0.1:5432/test",
+        "postgresql+psycopg2://postgres:pw@127.0.0.1:5432/test/",
+    ],
+    ids=["bare", "psycopg2-password"],
+)
 def test_pg_url_with_a_database_is_refused(svc, args, url):
     res = svc.run(*args, PCPG_PG_URL=url)
     line = svc.assert_refused(res, "PCPG_PG_URL", "server only", "PCPG_MLFLOW_DB", "PCPG_OPTUNA_DB")
@@ -255,9 +281,14 @@ def test_pg_url_with_a_database_is_refused(svc, args, url):
     svc.assert_no_databases()
 
 
-@pytest.mark.parametrize("url", ["postgresql://postgres@127.0.0.1:5432",
-                                 "postgresql+psycopg2://postgres@127.0.0.1:5432/",
-                                 "postgresql+psycopg2://postgres:a/b@127.0.0.1:5432"])
+@pytest.mark.parametrize(
+    "url",
+    [
+        "postgresql://postgres@127.0.0.1:5432",
+        "postgresql+psycopg2://postgres@127.0.0.1:5432/",
+        "postgresql+psycopg2://postgres:a/b@127.0.0.1:5432",
+    ],
+)
 def test_pg_url_naming_the_server_is_accepted(svc, url):
     res = svc.run("env", PCPG_PG_URL=url)
     assert res.returncode == 0, res.stderr
@@ -272,7 +303,10 @@ def test_pg_url_options_follow_the_database(svc):
     res = svc.run("env", PCPG_PG_URL=url)
     assert res.returncode == 0, res.stderr
     storage = re.search(r"--optuna-storage (\S+)", res.stdout).group(1)
-    assert storage == f"postgresql+psycopg2://{PG['user']}@{PG['host']}:{PG['port']}/{svc.dbs[1]}?sslmode=disable"
+    assert (
+        storage
+        == f"postgresql+psycopg2://{PG['user']}@{PG['host']}:{PG['port']}/{svc.dbs[1]}?sslmode=disable"
+    )
     res = svc.run("start", "db", PCPG_PG_URL=url)
     assert res.returncode == 0, res.stderr
     assert all(db_exists(name) for name in svc.dbs)
@@ -315,11 +349,18 @@ def test_env_variables_match_the_docs(svc):
     res = svc.run("env")
     assert res.returncode == 0, res.stderr
     names = re.findall(r"^export (\w+)=", res.stdout, flags=re.M)
-    assert names == ["MLFLOW_TRACKING_URI", "RAY_ADDRESS", "RAY_AUTH_MODE", "RAY_ENABLE_UV_RUN_RUNTIME_ENV"]
+    assert names == [
+        "MLFLOW_TRACKING_URI",
+        "RAY_ADDRESS",
+        "RAY_AUTH_MODE",
+        "RAY_ENABLE_UV_RUN_RUNTIME_ENV",
+    ]
     readme = (ROOT / "tracking" / "README.md").read_text()
     line = next(ln for ln in readme.splitlines() if 'eval "$(tracking/services.sh env)"' in ln)
     for name in names:
-        assert name in line, f"tracking/README.md does not say `services.sh env` sets {name}: {line}"
+        assert name in line, (
+            f"tracking/README.md does not say `services.sh env` sets {name}: {line}"
+        )
     team = (ROOT / "docs" / "team-mode.md").read_text()
     block = team.split('eval "$(tracking/services.sh env)"', 1)[1].split("```", 1)[0]
     for name in names:

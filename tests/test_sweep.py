@@ -30,8 +30,13 @@ ROOT = Path(__file__).resolve().parent.parent
 QUICK = ROOT / "experiments" / "quick.yaml"
 
 TINY = {
-    "name": "sweeptiny", "seed": 1, "seeds": [0, 1],
-    "gridworld": {"layout_dir": str(ROOT / "pcpg_dist" / "data" / "gridworld"), "environments": ["E1"]},
+    "name": "sweeptiny",
+    "seed": 1,
+    "seeds": [0, 1],
+    "gridworld": {
+        "layout_dir": str(ROOT / "pcpg_dist" / "data" / "gridworld"),
+        "environments": ["E1"],
+    },
     "pbtg": {"episodes": 20000, "trajectories_per_style": 120, "dataset_per_style": 60},
     "clustering": {"k": 4, "method": "lstm_dec", "pretrain_epochs": 4, "dec_epochs": 2},
     "ranking": {"ps": [1.0, 0.5]},
@@ -48,16 +53,29 @@ def test_override_changes_the_setting_and_is_validated_like_the_file():
         load_config_with(QUICK, ["bc.lr=-1"])
 
 
-@pytest.mark.parametrize("item, closest", [("bc.epitchs=3", "bc.epochs"), ("clustrng.k=3", "clustering.k"),
-                                           ("evaluation.rollout_per_policy=3", "evaluation.rollouts_per_policy")])
+@pytest.mark.parametrize(
+    "item, closest",
+    [
+        ("bc.epitchs=3", "bc.epochs"),
+        ("clustrng.k=3", "clustering.k"),
+        ("evaluation.rollout_per_policy=3", "evaluation.rollouts_per_policy"),
+    ],
+)
 def test_unknown_key_names_the_closest_valid_key(item, closest):
     with pytest.raises(ConfigError, match=f"did you mean '{closest}'"):
         load_config_with(QUICK, [item])
 
 
-@pytest.mark.parametrize("key, closest", [("eval.greedy", "evaluation.greedy"), ("evals.figures", "evaluation.figures"),
-                                          ("cfg.seed", "seed"), ("clustrng.k", "clustering.k"),
-                                          ("corridor.length", None)])
+@pytest.mark.parametrize(
+    "key, closest",
+    [
+        ("eval.greedy", "evaluation.greedy"),
+        ("evals.figures", "evaluation.figures"),
+        ("cfg.seed", "seed"),
+        ("clustrng.k", "clustering.k"),
+        ("corridor.length", None),
+    ],
+)
 def test_an_unknown_section_is_guessed_only_by_a_setting_of_that_name(key, closest):
     from pcpg_dist.config.overrides import closest_key
 
@@ -68,7 +86,9 @@ def test_a_section_unlike_any_gets_no_unrelated_suggestion():
     """`corridor.length=12` (another domain's section) was answered "did you mean 'mario.event'?"."""
     with pytest.raises(ConfigError) as e:
         load_config_with(QUICK, ["corridor.length=12"])
-    assert str(e.value) == "unknown config key 'corridor.length'; `pcpg run --help` shows the sections"
+    assert (
+        str(e.value) == "unknown config key 'corridor.length'; `pcpg run --help` shows the sections"
+    )
 
 
 def test_unknown_key_on_the_command_line_is_one_line_exit_2(capsys):
@@ -89,16 +109,28 @@ def test_ranges_and_grids():
     assert parse_range("a:b:c") is None
     with pytest.raises(ConfigError):
         parse_range("1:0:1")
-    axes, points = sweep_points({"grid": {"clustering.k": [2, 4]}, "zip": {"bc.epochs": [10, 20, 30],
-                                                                         "bc.hidden_size": [4, 8, 16]}},
-                                ["bc.lr=0.01,0.1"], "gridworld")
-    assert len(points) == 2 * 2 * 3 and list(axes) == ["clustering.k", "bc.lr", "bc.epochs", "bc.hidden_size"]
+    axes, points = sweep_points(
+        {
+            "grid": {"clustering.k": [2, 4]},
+            "zip": {"bc.epochs": [10, 20, 30], "bc.hidden_size": [4, 8, 16]},
+        },
+        ["bc.lr=0.01,0.1"],
+        "gridworld",
+    )
+    assert len(points) == 2 * 2 * 3 and list(axes) == [
+        "clustering.k",
+        "bc.lr",
+        "bc.epochs",
+        "bc.hidden_size",
+    ]
     assert {(p["bc.epochs"], p["bc.hidden_size"]) for p in points} == {(10, 4), (20, 8), (30, 16)}
     with pytest.raises(ConfigError, match="equally many"):
         sweep_points({"zip": {"bc.epochs": [1, 2], "bc.lr": [0.1]}}, [], "gridworld")
     with pytest.raises(ConfigError, match="did you mean"):
         sweep_points(None, ["bc.lrr=0.1,0.2"], "gridworld")
-    with pytest.raises(ConfigError, match="sweep axis 'clustering.k': range '4:2:1': needs start <= stop"):
+    with pytest.raises(
+        ConfigError, match="sweep axis 'clustering.k': range '4:2:1': needs start <= stop"
+    ):
         sweep_points(None, ["clustering.k=4:2:1"], "gridworld")
 
 
@@ -106,7 +138,9 @@ def test_sweep_mistakes_are_refused_before_anything_is_built(capsys):
     """Counted before the points are built (three axes of 1000 values grew past 3 GB), overflowing
     ranges, an axis given twice, a value repeated, an axis also fixed: one line each, exit 2."""
     with pytest.raises(ConfigError, match="the sweep has 1000000000 points; at most 10000"):
-        sweep_points(None, ["clustering.k=1:1000:1", "bc.epochs=1:1000:1", "seed=1:1000:1"], "gridworld")
+        sweep_points(
+            None, ["clustering.k=1:1000:1", "bc.epochs=1:1000:1", "seed=1:1000:1"], "gridworld"
+        )
     for spec in ("1e308:1e309:1", "0:1e300:1e-300"):
         with pytest.raises(ConfigError, match="more than 10000 values"):
             sweep_points(None, [f"clustering.k={spec}"], "gridworld")
@@ -125,14 +159,27 @@ def test_sweep_mistakes_are_refused_before_anything_is_built(capsys):
 def test_a_bracketed_list_is_one_value_so_a_fixed_override(capsys):
     """`ranking.ps=[1.0,0.5]` is one value (a list), fixed like `pcpg run` sets it; it was read as
     a one-valued axis (a ranking.ps column, folder names and 10 figures against it)."""
-    items = ["bc.hidden_size=5,8", "ranking.ps=[1.0,0.5]", "evaluation.figures=false", "clustering.k=2:4:1",
-             "evaluation.corruption_levels=[0.0],[0.0,1.0]", "bc.lr=1:0:1"]
+    items = [
+        "bc.hidden_size=5,8",
+        "ranking.ps=[1.0,0.5]",
+        "evaluation.figures=false",
+        "clustering.k=2:4:1",
+        "evaluation.corruption_levels=[0.0],[0.0,1.0]",
+        "bc.lr=1:0:1",
+    ]
     axes, fixed = split_sweep_items(items)
-    assert axes == ["bc.hidden_size=5,8", "clustering.k=2:4:1", "evaluation.corruption_levels=[0.0],[0.0,1.0]",
-                    "bc.lr=1:0:1"]  # a malformed range stays an axis: its check names the mistake
+    assert axes == [
+        "bc.hidden_size=5,8",
+        "clustering.k=2:4:1",
+        "evaluation.corruption_levels=[0.0],[0.0,1.0]",
+        "bc.lr=1:0:1",
+    ]  # a malformed range stays an axis: its check names the mistake
     assert fixed == ["ranking.ps=[1.0,0.5]", "evaluation.figures=false"]
     # on the command line: the list is a single value, so an axis over the same key clashes with it
-    assert main(["sweep", str(QUICK), "ranking.ps=[1.0,0.5]", "ranking.ps=0.5,0.1", "--no-tracking"]) == 2
+    assert (
+        main(["sweep", str(QUICK), "ranking.ps=[1.0,0.5]", "ranking.ps=0.5,0.1", "--no-tracking"])
+        == 2
+    )
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "'ranking.ps' is both a sweep axis and a single value" in err[0], err
 
@@ -170,11 +217,15 @@ def test_a_points_folder_is_set_by_its_axes_and_fixed_overrides(tmp_path):
     b = folders(["bc.hidden_size=8,16"], ["evaluation.rollouts_per_policy=3"])
     c = folders(["bc.hidden_size=8,16"], ["ranking.ps=[1.0,0.25]"])
     assert len(set(a) | set(b) | set(c)) == 6
-    assert folders(["bc.hidden_size=8,16"]) == a and set(a) <= set(folders(["bc.hidden_size=8,16,32"]))
+    assert folders(["bc.hidden_size=8,16"]) == a and set(a) <= set(
+        folders(["bc.hidden_size=8,16,32"])
+    )
     for p in a + b + c:  # short, safe, named by the axis values only (a fixed value is in the hash)
         assert p.parent == tmp_path.resolve() / "runs" / "sweeptiny" / "sweep" / "points"
         assert re.fullmatch(r"bc\.hidden_size=(8|16)-[0-9a-f]{8}", p.name), p.name
-    plan = plan_sweep(cfg, ["bc.hidden_size=8,16"], ["ranking.ps=[1.0,0.25]"], workdir=tmp_path / "runs")
+    plan = plan_sweep(
+        cfg, ["bc.hidden_size=8,16"], ["ranking.ps=[1.0,0.25]"], workdir=tmp_path / "runs"
+    )
     assert plan.axes == {"bc.hidden_size": [8, 16]} and plan.fixed == {"ranking.ps": [1.0, 0.25]}
     assert all(list(p.cfg.ranking.ps) == [1.0, 0.25] for p in plan.points)
     assert "fixed: ranking.ps=[1.0, 0.25]" in plan.description
@@ -184,16 +235,27 @@ def fake_rows(plan) -> list[dict]:
     """Headline rows as run_sweep makes them, without running the points."""
     rows = []
     for i, (combo, point) in enumerate(zip(plan.combos, plan.points, strict=True)):
-        rows.append({**combo, "point": point.out.name, "clustering/accuracy": 0.9 - 0.01 * i,
-                     "clustering/accuracy/std": 0.01, "pcpg/accuracy/p1": 0.8 + 0.01 * i,
-                     "pcpg/accuracy/p1/std": 0.02, "baseline/accuracy/p1": 0.7, "pcpg_lead/p1": 0.1 + 0.01 * i})
+        rows.append(
+            {
+                **combo,
+                "point": point.out.name,
+                "clustering/accuracy": 0.9 - 0.01 * i,
+                "clustering/accuracy/std": 0.01,
+                "pcpg/accuracy/p1": 0.8 + 0.01 * i,
+                "pcpg/accuracy/p1/std": 0.02,
+                "baseline/accuracy/p1": 0.7,
+                "pcpg_lead/p1": 0.1 + 0.01 * i,
+            }
+        )
     return rows
 
 
 def test_sweep_files_describe_only_the_last_sweep_and_render_again(tmp_path, capsys):
     """An earlier sweep's figures are removed (33 PNGs beside a report of 13); `pcpg report` of the
     sweep folder renders the very page the sweep wrote (it said "no such folder")."""
-    first = plan_sweep(QUICK, ["bc.hidden_size=8,16", "bc.epochs=100,200"], [], workdir=tmp_path / "runs")
+    first = plan_sweep(
+        QUICK, ["bc.hidden_size=8,16", "bc.epochs=100,200"], [], workdir=tmp_path / "runs"
+    )
     write_sweep_files(first.out, first, fake_rows(first))
     assert len(list(first.out.glob("*__vs__bc.epochs.png"))) == 4
     second = plan_sweep(QUICK, ["clustering.k=3,4"], ["bc.epochs=100"], workdir=tmp_path / "runs")
@@ -206,16 +268,25 @@ def test_sweep_files_describe_only_the_last_sweep_and_render_again(tmp_path, cap
     assert record["axes"] == {"clustering.k": [3, 4]} and record["fixed"] == {"bc.epochs": 100}
     assert sorted(record["figures"]) == pngs
     html = (second.out / "report.html").read_text()
-    assert html.count("data:image/png;base64,") == 4 and "clustering.k" in html and "bc.hidden_size" not in html
+    assert (
+        html.count("data:image/png;base64,") == 4
+        and "clustering.k" in html
+        and "bc.hidden_size" not in html
+    )
 
     assert main(["report", str(second.out), "--out", str(tmp_path / "again")]) == 0
     assert (tmp_path / "again" / "report.html").read_text() == html
     assert capsys.readouterr().out.strip() == f"sweep report: {tmp_path / 'again' / 'report.html'}"
     # a whole sweep is not one run: reproduce and export say what they take, in one line
-    for cmd in (["reproduce", str(second.out)], ["export", "onnx", str(second.out), "--out", str(tmp_path / "x")]):
+    for cmd in (
+        ["reproduce", str(second.out)],
+        ["export", "onnx", str(second.out), "--out", str(tmp_path / "x")],
+    ):
         assert main(cmd) == 2
         err = capsys.readouterr().err.strip().splitlines()
-        assert len(err) == 1 and "is the folder of a whole pcpg sweep" in err[0] and "points" in err[0], err
+        assert (
+            len(err) == 1 and "is the folder of a whole pcpg sweep" in err[0] and "points" in err[0]
+        ), err
     assert not (tmp_path / "x").exists()
 
 
@@ -225,20 +296,46 @@ def test_report_of_a_sweeps_mlflow_run_and_reproduce_names_a_point(tmp_path, cap
     from pcpg_dist.tracking import SweepTracker, Tracker
 
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
-    plan = plan_sweep(QUICK, ["bc.hidden_size=8,16"], ["ranking.ps=[1.0,0.5]"], workdir=tmp_path / "runs")
+    plan = plan_sweep(
+        QUICK, ["bc.hidden_size=8,16"], ["ranking.ps=[1.0,0.5]"], workdir=tmp_path / "runs"
+    )
     files = write_sweep_files(plan.out, plan, fake_rows(plan))
     sweep = SweepTracker.start(plan.base.name, "key", plan.axes, plan.description, uri)
-    point = Tracker.start(plan.points[0].cfg, uri, plan.points[0].out, parent_run_id=sweep.parent_id,
-                          params=plan.points[0].params)
+    point = Tracker.start(
+        plan.points[0].cfg,
+        uri,
+        plan.points[0].out,
+        parent_run_id=sweep.parent_id,
+        params=plan.points[0].params,
+    )
     sweep.finish({}, files)
     for target in (sweep.parent_id, "quick"):  # the experiment's newest top-level run is the sweep
-        assert main(["report", target, "--tracking-uri", uri, "--workdir", str(tmp_path / "dl"),
-                     "--out", str(tmp_path / target)]) == 0, capsys.readouterr().err
-        assert (tmp_path / target / "report.html").read_text() == (plan.out / "report.html").read_text()
+        assert (
+            main(
+                [
+                    "report",
+                    target,
+                    "--tracking-uri",
+                    uri,
+                    "--workdir",
+                    str(tmp_path / "dl"),
+                    "--out",
+                    str(tmp_path / target),
+                ]
+            )
+            == 0
+        ), capsys.readouterr().err
+        assert (tmp_path / target / "report.html").read_text() == (
+            plan.out / "report.html"
+        ).read_text()
     capsys.readouterr()
     assert main(["reproduce", sweep.parent_id, "--tracking-uri", uri]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "is the MLflow run of a whole pcpg sweep" in err[0] and point.parent_id in err[0], err
+    assert (
+        len(err) == 1
+        and "is the MLflow run of a whole pcpg sweep" in err[0]
+        and point.parent_id in err[0]
+    ), err
 
 
 def noise_x_k_rows() -> tuple[dict, list[dict]]:
@@ -247,15 +344,26 @@ def noise_x_k_rows() -> tuple[dict, list[dict]]:
     rows = []
     for noise in axes["pbtg.noise_max"]:
         for k in axes["clustering.k"]:
-            rows.append({"pbtg.noise_max": noise, "clustering.k": k, "point": f"{noise}-{k}",
-                         "clustering/accuracy": (0.8 if k == 3 else 0.95) - noise / 10,
-                         "pcpg/accuracy/p1": 0.9 - noise / 10 + k / 100, "pcpg/accuracy/p1/std": 0.01,
-                         "baseline/accuracy/p1": 0.8, "pcpg/accuracy/p0.5": 0.85, "baseline/accuracy/p0.5": 0.7,
-                         "pcpg_lead/p0.5": 0.15 + (0.01 if (noise, k) == (0.3, 3) else 0.0)})
+            rows.append(
+                {
+                    "pbtg.noise_max": noise,
+                    "clustering.k": k,
+                    "point": f"{noise}-{k}",
+                    "clustering/accuracy": (0.8 if k == 3 else 0.95) - noise / 10,
+                    "pcpg/accuracy/p1": 0.9 - noise / 10 + k / 100,
+                    "pcpg/accuracy/p1/std": 0.01,
+                    "baseline/accuracy/p1": 0.8,
+                    "pcpg/accuracy/p0.5": 0.85,
+                    "baseline/accuracy/p0.5": 0.7,
+                    "pcpg_lead/p0.5": 0.15 + (0.01 if (noise, k) == (0.3, 3) else 0.0),
+                }
+            )
     return axes, rows
 
 
-def test_sweep_figures_tick_the_swept_values_label_axes_and_keep_equal_lines_visible(tmp_path, monkeypatch):
+def test_sweep_figures_tick_the_swept_values_label_axes_and_keep_equal_lines_visible(
+    tmp_path, monkeypatch
+):
     """k = 3, 4, 5 was drawn with ticks 3.00, 3.25, …; k = 4 and 5 (equal) hid each other; titles and
     axes were raw keys and the error bars unexplained."""
     import matplotlib.figure
@@ -268,15 +376,22 @@ def test_sweep_figures_tick_the_swept_values_label_axes_and_keep_equal_lines_vis
     def spy(fig, *args, **kwargs):
         ax = fig.axes[0]
         seen[(ax.get_xlabel(), ax.get_ylabel())] = (
-            ax.get_title(), [t.get_text() for t in ax.get_xticklabels()], list(ax.get_xticks()),
-            ax.get_legend_handles_labels()[1], [tuple(line.get_xdata()) for line in ax.lines if len(line.get_xdata()) > 1])
+            ax.get_title(),
+            [t.get_text() for t in ax.get_xticklabels()],
+            list(ax.get_xticks()),
+            ax.get_legend_handles_labels()[1],
+            [tuple(line.get_xdata()) for line in ax.lines if len(line.get_xdata()) > 1],
+        )
         return save(fig, *args, **kwargs)
 
     monkeypatch.setattr(matplotlib.figure.Figure, "savefig", spy)
     axes, rows = noise_x_k_rows()
     paths = draw_sweep(tmp_path, axes, rows)
     assert len(paths) == 2 * 6 and all(p.is_file() for p in paths)
-    k_label, noise_label = "k (clusters) (clustering.k)", "largest per-trajectory action noise (pbtg.noise_max)"
+    k_label, noise_label = (
+        "k (clusters) (clustering.k)",
+        "largest per-trajectory action noise (pbtg.noise_max)",
+    )
     title, ticks, xs, legend, _ = seen[(k_label, "PCPG accuracy at p = 1")]
     assert ticks == ["3", "4", "5"] and xs == [3.0, 4.0, 5.0]
     assert "error bars: std over seeds" in title and legend == ["noise_max=0.1", "noise_max=0.3"]
@@ -317,8 +432,13 @@ def uninterrupted(ray_session, tiny_yaml, tmp_path_factory):
     its summary rows as first written; a test may add points to the folder later)."""
     tmp_path = tmp_path_factory.mktemp("uninterrupted")
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
-    first = run_sweep(tiny_yaml, ["bc.epochs=100,200"], workdir=tmp_path / "runs", tracking_uri=uri,
-                      show_progress=False)
+    first = run_sweep(
+        tiny_yaml,
+        ["bc.epochs=100,200"],
+        workdir=tmp_path / "runs",
+        tracking_uri=uri,
+        show_progress=False,
+    )
     return first, uri, tmp_path, read_rows(first.out_dir / "summary.csv")
 
 
@@ -333,17 +453,27 @@ def test_sweep_shares_stages_logs_once_and_resumes(tiny_yaml, uninterrupted):
     assert first.computed["evaluations"] == 4
     rows = read_rows(first.out_dir / "summary.csv")
     assert [r["bc.hidden_size"] for r in rows] == ["8", "8", "16", "16"]
-    assert all(float(r["clustering/accuracy"]) == float(rows[0]["clustering/accuracy"]) for r in rows)
-    assert all(0 <= float(r["pcpg/accuracy/p1"]) <= 1 and r["pcpg/accuracy/p1/std"] != "" for r in rows)
+    assert all(
+        float(r["clustering/accuracy"]) == float(rows[0]["clustering/accuracy"]) for r in rows
+    )
+    assert all(
+        0 <= float(r["pcpg/accuracy/p1"]) <= 1 and r["pcpg/accuracy/p1/std"] != "" for r in rows
+    )
     assert len({r["pcpg/accuracy/p1"] for r in rows}) > 1  # the BC settings did change the agents
     figs = sorted(p.name for p in first.out_dir.glob("*.png"))
-    assert "pcpg_accuracy_p1__vs__bc.epochs.png" in figs and "clustering_accuracy__vs__bc.hidden_size.png" in figs
+    assert (
+        "pcpg_accuracy_p1__vs__bc.epochs.png" in figs
+        and "clustering_accuracy__vs__bc.hidden_size.png" in figs
+    )
     html = (first.out_dir / "report.html").read_text()
     assert html.count("data:image/png;base64,") == len(figs) and "bc.hidden_size" in html
     # each point's own report says its stage times are the batch's (they were shown as its own)
     for point in (first.out_dir / "points").iterdir():
         assert json.loads((point / "summary" / "run.json").read_text())["batch_points"] == 4
-        assert "one of 4 sweep points whose stages ran together" in (point / "report" / "report.md").read_text()
+        assert (
+            "one of 4 sweep points whose stages ran together"
+            in (point / "report" / "report.md").read_text()
+        )
 
     client = MlflowClient(uri)
     exp = client.get_experiment_by_name("sweeptiny")
@@ -352,37 +482,60 @@ def test_sweep_shares_stages_logs_once_and_resumes(tiny_yaml, uninterrupted):
     points = [r for r in runs if r.data.tags.get("mlflow.parentRunId") == first.parent_run_id]
     assert len(sweep_runs) == 1 and len(points) == 4
     assert {(r.data.params["bc.hidden_size"], r.data.params["bc.epochs"]) for r in points} == {
-        ("8", "100"), ("8", "200"), ("16", "100"), ("16", "200")}
+        ("8", "100"),
+        ("8", "200"),
+        ("16", "100"),
+        ("16", "200"),
+    }
     assert all(r.info.status == "FINISHED" for r in runs)
     # points named by their axis values, no stage times of their own; the sweep run has them and
     # names its best points
-    assert sorted(r.info.run_name for r in points) == ["hidden_size=16 epochs=100", "hidden_size=16 epochs=200",
-                                                       "hidden_size=8 epochs=100", "hidden_size=8 epochs=200"]
+    assert sorted(r.info.run_name for r in points) == [
+        "hidden_size=16 epochs=100",
+        "hidden_size=16 epochs=200",
+        "hidden_size=8 epochs=100",
+        "hidden_size=8 epochs=200",
+    ]
     assert not any(k.startswith("time/") for r in points for k in r.data.metrics)
     sweep_run = sweep_runs[0]
-    assert {"time/train_seconds", "time/sweep_seconds", "best/pcpg/accuracy/p1"} <= set(sweep_run.data.metrics)
+    assert {"time/train_seconds", "time/sweep_seconds", "best/pcpg/accuracy/p1"} <= set(
+        sweep_run.data.metrics
+    )
     best = max(points, key=lambda r: r.data.metrics["pcpg/accuracy/p1"])
     assert sweep_run.data.tags["pcpg.best_point/pcpg/accuracy/p1"].startswith(best.info.run_name)
     assert "Best points: " in sweep_run.data.tags["mlflow.note.content"]
     n_runs = len(runs)
 
     # the same command again: nothing runs, nothing is logged twice, the table is identical
-    again = run_sweep(tiny_yaml, ["bc.epochs=100,200"], workdir=tmp_path / "runs", tracking_uri=uri,
-                      show_progress=False)
+    again = run_sweep(
+        tiny_yaml,
+        ["bc.epochs=100,200"],
+        workdir=tmp_path / "runs",
+        tracking_uri=uri,
+        show_progress=False,
+    )
     assert again.ran == 0 and again.parent_run_id == first.parent_run_id
     assert read_rows(again.out_dir / "summary.csv") == rows
     assert len(client.search_runs([exp.experiment_id], max_results=1000)) == n_runs
 
     # a new value on an axis runs only the new points
-    more = run_sweep(tiny_yaml, ["bc.epochs=100,200,300"], workdir=tmp_path / "runs", tracking_uri=uri,
-                     show_progress=False)
+    more = run_sweep(
+        tiny_yaml,
+        ["bc.epochs=100,200,300"],
+        workdir=tmp_path / "runs",
+        tracking_uri=uri,
+        show_progress=False,
+    )
     assert more.ran == 2 and more.computed["clustering"] == 0 and more.computed["data"] == 0
     new_rows = read_rows(more.out_dir / "summary.csv")
     assert [r for r in new_rows if r["bc.epochs"] != "300"] == rows
     # its MLflow run has a child per point: the two it ran, and copies of the four it reused
     # (it had only the new two, while naming its best points among the others)
-    kids = [r for r in client.search_runs([exp.experiment_id], max_results=1000)
-            if r.data.tags.get("mlflow.parentRunId") == more.parent_run_id]
+    kids = [
+        r
+        for r in client.search_runs([exp.experiment_id], max_results=1000)
+        if r.data.tags.get("mlflow.parentRunId") == more.parent_run_id
+    ]
     assert len(kids) == 6 and all(r.info.status == "FINISHED" for r in kids)
     copies = {r.data.tags["pcpg.same_as"]: r for r in kids if "pcpg.same_as" in r.data.tags}
     assert set(copies) == {r.info.run_id for r in points}
@@ -390,13 +543,28 @@ def test_sweep_shares_stages_logs_once_and_resumes(tiny_yaml, uninterrupted):
         copy = copies[src.info.run_id]
         assert copy.info.run_name == src.info.run_name and copy.data.params == src.data.params
         assert copy.data.metrics == src.data.metrics
-        own, copied = ({k: sorted((m.step, m.value) for m in client.get_metric_history(run_id, k))
-                        for k in src.data.metrics} for run_id in (src.info.run_id, copy.info.run_id))
+        own, copied = (
+            {
+                k: sorted((m.step, m.value) for m in client.get_metric_history(run_id, k))
+                for k in src.data.metrics
+            }
+            for run_id in (src.info.run_id, copy.info.run_id)
+        )
         assert copied == own and any(len(h) > 1 for h in own.values())  # its curves over p too
-    named = {t for k, t in client.get_run(more.parent_run_id).data.tags.items() if k.startswith("pcpg.best_point/")}
+    named = {
+        t
+        for k, t in client.get_run(more.parent_run_id).data.tags.items()
+        if k.startswith("pcpg.best_point/")
+    }
     assert all(any(t.startswith(r.info.run_name) for r in kids) for t in named)
     n_now = len(client.search_runs([exp.experiment_id], max_results=1000))
-    run_sweep(tiny_yaml, ["bc.epochs=100,200,300"], workdir=tmp_path / "runs", tracking_uri=uri, show_progress=False)
+    run_sweep(
+        tiny_yaml,
+        ["bc.epochs=100,200,300"],
+        workdir=tmp_path / "runs",
+        tracking_uri=uri,
+        show_progress=False,
+    )
     assert len(client.search_runs([exp.experiment_id], max_results=1000)) == n_now  # no copy twice
 
 
@@ -404,14 +572,30 @@ def test_sweep_shares_stages_logs_once_and_resumes(tiny_yaml, uninterrupted):
 def test_sweep_killed_at_any_moment_resumes_to_identical_tables(tmp_path, tiny_yaml, uninterrupted):
     """kill -9 a `pcpg sweep` mid-way; rerunning the same command gives the uninterrupted tables
     (those of the same sweep run in-process on the session's Ray, never killed)."""
-    cmd = [sys.executable, "-m", "pcpg_dist.cli", "sweep", str(tiny_yaml), "bc.epochs=100,200", "--quiet",
-           "--workdir", str(tmp_path / "runs"), "--tracking-uri", f"sqlite:///{tmp_path / 'mlflow.db'}"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "pcpg_dist.cli",
+        "sweep",
+        str(tiny_yaml),
+        "bc.epochs=100,200",
+        "--quiet",
+        "--workdir",
+        str(tmp_path / "runs"),
+        "--tracking-uri",
+        f"sqlite:///{tmp_path / 'mlflow.db'}",
+    ]
     env = {k: v for k, v in os.environ.items() if k not in ("RAY_ADDRESS", "MLFLOW_TRACKING_URI")}
-    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                            start_new_session=True)
+    proc = subprocess.Popen(
+        cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
+    )
     cache = tmp_path / "runs" / "sweeptiny" / "cache" / "train"
     deadline = time.monotonic() + 600
-    while time.monotonic() < deadline and proc.poll() is None and not (cache.exists() and any(cache.iterdir())):
+    while (
+        time.monotonic() < deadline
+        and proc.poll() is None
+        and not (cache.exists() and any(cache.iterdir()))
+    ):
         time.sleep(0.5)
     os.killpg(proc.pid, signal.SIGKILL)
     proc.wait()
@@ -428,8 +612,12 @@ def test_sweep_killed_at_any_moment_resumes_to_identical_tables(tmp_path, tiny_y
     assert not [r for r in runs if r.info.status == "RUNNING"]
     roots = [r for r in runs if "mlflow.parentRunId" not in r.data.tags]
     assert len(roots) == 1  # one sweep run, never a duplicate after the kill
-    points = [r for r in runs if r.data.tags.get("mlflow.parentRunId") == roots[0].info.run_id
-              and r.info.status == "FINISHED"]
+    points = [
+        r
+        for r in runs
+        if r.data.tags.get("mlflow.parentRunId") == roots[0].info.run_id
+        and r.info.status == "FINISHED"
+    ]
     assert len(points) == 4
 
 
@@ -438,11 +626,22 @@ def test_another_sweeps_fixed_override_leaves_this_sweeps_points_done(tiny_yaml,
     """A sweep with a fixed override wrote into the first sweep's point folders (same axis values),
     so rerunning the first recomputed them ("2 run now"); the folder kept the other's figures."""
     first, uri, tmp_path, rows = uninterrupted
-    other = run_sweep(tiny_yaml, ["bc.epochs=100,200"], ["evaluation.rollouts_per_policy=3"],
-                      workdir=tmp_path / "runs", tracking_uri=uri, show_progress=False)
+    other = run_sweep(
+        tiny_yaml,
+        ["bc.epochs=100,200"],
+        ["evaluation.rollouts_per_policy=3"],
+        workdir=tmp_path / "runs",
+        tracking_uri=uri,
+        show_progress=False,
+    )
     assert other.ran == 4 and other.computed["train_groups"] == 0  # only the evaluation differs
     assert not {r["point"] for r in other.rows} & {r["point"] for r in rows}
-    again = run_sweep(tiny_yaml, ["bc.epochs=100,200"], workdir=tmp_path / "runs", tracking_uri=uri,
-                      show_progress=False)
+    again = run_sweep(
+        tiny_yaml,
+        ["bc.epochs=100,200"],
+        workdir=tmp_path / "runs",
+        tracking_uri=uri,
+        show_progress=False,
+    )
     assert again.ran == 0 and read_rows(again.out_dir / "summary.csv") == rows
     assert sorted(again.out_dir.glob("*.png")) == sorted(again.figures)

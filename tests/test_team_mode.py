@@ -32,8 +32,13 @@ RUN_TIMEOUT = 1200  # s; ~2-4 min measured on the shared 2-core machine
 pytestmark = [pytest.mark.slow, pytest.mark.services]
 
 TEAM = {
-    "name": "team_tiny", "seed": 1, "seeds": [0, 1],
-    "gridworld": {"layout_dir": str(ROOT / "pcpg_dist" / "data" / "gridworld"), "environments": ["E1", "E3"]},
+    "name": "team_tiny",
+    "seed": 1,
+    "seeds": [0, 1],
+    "gridworld": {
+        "layout_dir": str(ROOT / "pcpg_dist" / "data" / "gridworld"),
+        "environments": ["E1", "E3"],
+    },
     "pbtg": {"episodes": 20000, "trajectories_per_style": 200, "dataset_per_style": 100},
     "clustering": {"k": 4, "pretrain_epochs": 6, "dec_epochs": 3},
     "ranking": {"ps": [1.0, 0.5]},
@@ -62,8 +67,10 @@ def pg_admin():
     try:
         conn = psycopg2.connect(connect_timeout=5, **PG)
     except psycopg2.OperationalError as e:
-        pytest.skip(f"PostgreSQL is not reachable at {PG['host']}:{PG['port']} as {PG['user']} "
-                    f"(needed by the team-mode test): {str(e).strip().splitlines()[0]}")
+        pytest.skip(
+            f"PostgreSQL is not reachable at {PG['host']}:{PG['port']} as {PG['user']} "
+            f"(needed by the team-mode test): {str(e).strip().splitlines()[0]}"
+        )
     conn.autocommit = True
     return conn
 
@@ -101,32 +108,55 @@ def services(database, tmp_path_factory):
     # Ray's Unix socket paths must stay under ~107 characters: keep its temp dir short.
     ray_temp = tempfile.mkdtemp(prefix="pcpg-ray-")
     mlflow_port, ray_port, *extra = free_ports(8)
-    ray_args = ("--num-cpus=2 --object-store-memory=200000000 --dashboard-port={} "
-                "--dashboard-agent-listen-port={} --dashboard-agent-grpc-port={} --runtime-env-agent-port={} "
-                "--metrics-export-port={} --node-manager-port={}").format(*extra)
-    env = {**os.environ,
-           "PCPG_BIN": str(Path(sys.executable).parent), "PCPG_SERVICES_DIR": str(base / "services"),
-           "PCPG_PG_URL": f"postgresql+psycopg2://{PG['user']}@{PG['host']}:{PG['port']}",
-           "PCPG_MLFLOW_DB": database, "PCPG_MLFLOW_PORT": str(mlflow_port), "PCPG_MLFLOW_WORKERS": "1",
-           "PCPG_MLFLOW_ARTIFACTS": str(base / "artifacts"), "PCPG_RAY_PORT": str(ray_port),
-           "PCPG_RAY_AUTH_MODE": "disabled", "PCPG_RAY_TEMP": ray_temp, "PCPG_RAY_ARGS": ray_args,
-           "PCPG_START_TIMEOUT": str(START_TIMEOUT)}
-    info = {"mlflow": f"http://127.0.0.1:{mlflow_port}", "ray": f"127.0.0.1:{ray_port}",
-            "artifacts": base / "artifacts", "base": base}
+    ray_args = (
+        "--num-cpus=2 --object-store-memory=200000000 --dashboard-port={} "
+        "--dashboard-agent-listen-port={} --dashboard-agent-grpc-port={} --runtime-env-agent-port={} "
+        "--metrics-export-port={} --node-manager-port={}"
+    ).format(*extra)
+    env = {
+        **os.environ,
+        "PCPG_BIN": str(Path(sys.executable).parent),
+        "PCPG_SERVICES_DIR": str(base / "services"),
+        "PCPG_PG_URL": f"postgresql+psycopg2://{PG['user']}@{PG['host']}:{PG['port']}",
+        "PCPG_MLFLOW_DB": database,
+        "PCPG_MLFLOW_PORT": str(mlflow_port),
+        "PCPG_MLFLOW_WORKERS": "1",
+        "PCPG_MLFLOW_ARTIFACTS": str(base / "artifacts"),
+        "PCPG_RAY_PORT": str(ray_port),
+        "PCPG_RAY_AUTH_MODE": "disabled",
+        "PCPG_RAY_TEMP": ray_temp,
+        "PCPG_RAY_ARGS": ray_args,
+        "PCPG_START_TIMEOUT": str(START_TIMEOUT),
+    }
+    info = {
+        "mlflow": f"http://127.0.0.1:{mlflow_port}",
+        "ray": f"127.0.0.1:{ray_port}",
+        "artifacts": base / "artifacts",
+        "base": base,
+    }
     try:
         # One after the other: MLflow's schema migration running beside it can make the raylet
         # miss Ray's fixed 30 s registration window on a busy 2-core machine.
         for what in ("ray", "mlflow"):
-            res = subprocess.run(["bash", str(SERVICES), "start", what], env=env, text=True,
-                                 capture_output=True, timeout=3 * START_TIMEOUT)
-            assert res.returncode == 0, f"services.sh start {what} failed:\n{res.stdout}{res.stderr}"
-        status = subprocess.run(["bash", str(SERVICES), "status"], env=env, text=True, capture_output=True,
-                                timeout=60)
+            res = subprocess.run(
+                ["bash", str(SERVICES), "start", what],
+                env=env,
+                text=True,
+                capture_output=True,
+                timeout=3 * START_TIMEOUT,
+            )
+            assert res.returncode == 0, (
+                f"services.sh start {what} failed:\n{res.stdout}{res.stderr}"
+            )
+        status = subprocess.run(
+            ["bash", str(SERVICES), "status"], env=env, text=True, capture_output=True, timeout=60
+        )
         assert status.returncode == 0, status.stdout + status.stderr
         yield info
     finally:
-        subprocess.run(["bash", str(SERVICES), "stop", "all"], env=env, timeout=180,
-                       capture_output=True)
+        subprocess.run(
+            ["bash", str(SERVICES), "stop", "all"], env=env, timeout=180, capture_output=True
+        )
         left = _kill_groups(base / "services")
         shutil.rmtree(ray_temp, ignore_errors=True)
         assert not left, f"services.sh stop left {left} running (killed now)"
@@ -143,9 +173,23 @@ def team_run(services, tmp_path_factory):
     # ship the working dir and start the job's workers through `uv run`: pointless here, where the
     # `ray start` workers already run this venv with pcpg_dist installed.
     env.update(RAY_AUTH_MODE="disabled", RAY_ENABLE_UV_RUN_RUNTIME_ENV="0", PYTHONUNBUFFERED="1")
-    cmd = [sys.executable, "-m", "pcpg_dist.cli", "run", str(cfg), "--workdir", str(work / "runs"),
-           "--ray-address", services["ray"], "--tracking-uri", services["mlflow"], "--quiet"]
-    proc = subprocess.Popen(cmd, env=env, cwd=work, text=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    cmd = [
+        sys.executable,
+        "-m",
+        "pcpg_dist.cli",
+        "run",
+        str(cfg),
+        "--workdir",
+        str(work / "runs"),
+        "--ray-address",
+        services["ray"],
+        "--tracking-uri",
+        services["mlflow"],
+        "--quiet",
+    ]
+    proc = subprocess.Popen(
+        cmd, env=env, cwd=work, text=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT
+    )
     try:
         out, _ = proc.communicate(timeout=RUN_TIMEOUT)
     finally:
@@ -158,11 +202,18 @@ def team_run(services, tmp_path_factory):
 
 def test_driver_joined_the_external_cluster(services, team_run):
     """The cluster's own job table holds the finished `pcpg run` driver (no private local Ray)."""
-    probe = ("import json, ray; ray.init(address='{}', log_to_driver=False); "
-             "print(json.dumps([[j['DriverPid'], j['IsDead'], j['Entrypoint']] for j in ray._private.state.jobs()]))")
+    probe = (
+        "import json, ray; ray.init(address='{}', log_to_driver=False); "
+        "print(json.dumps([[j['DriverPid'], j['IsDead'], j['Entrypoint']] for j in ray._private.state.jobs()]))"
+    )
     env = {**os.environ, "RAY_AUTH_MODE": "disabled", "RAY_ENABLE_UV_RUN_RUNTIME_ENV": "0"}
-    res = subprocess.run([sys.executable, "-c", probe.format(services["ray"])], env=env, text=True,
-                         capture_output=True, timeout=180)
+    res = subprocess.run(
+        [sys.executable, "-c", probe.format(services["ray"])],
+        env=env,
+        text=True,
+        capture_output=True,
+        timeout=180,
+    )
     assert res.returncode == 0, res.stderr[-3000:]
     jobs = json.loads(res.stdout.strip().splitlines()[-1])
     mine = [j for j in jobs if j[0] == team_run["driver_pid"]]
@@ -180,8 +231,11 @@ def test_runs_metrics_and_artifacts_on_the_server(services, team_run):
     parents = [r for r in runs if r.data.tags.get("pcpg.role") == "parent"]
     assert len(parents) == 1 and parents[0].info.status == "FINISHED"
     parent = parents[0]
-    children = {r.data.tags["pcpg.env"]: r for r in runs
-                if r.data.tags.get("mlflow.parentRunId") == parent.info.run_id}
+    children = {
+        r.data.tags["pcpg.env"]: r
+        for r in runs
+        if r.data.tags.get("mlflow.parentRunId") == parent.info.run_id
+    }
     assert sorted(children) == ["E1", "E3"] and len(runs) == 3
     assert all(c.info.status == "FINISHED" for c in children.values())
 
@@ -190,11 +244,18 @@ def test_runs_metrics_and_artifacts_on_the_server(services, team_run):
     assert exp.tags["mlflow.experimentKind"] == "custom_model_development"
     summary = json.loads((team_run["out"] / "summary" / "metrics.json").read_text())
     pm = parent.data.metrics
-    assert len(pm) <= 30 and not any(k.endswith("/std") or k.startswith(("E1/", "E3/")) for k in pm), sorted(pm)
+    assert len(pm) <= 30 and not any(
+        k.endswith("/std") or k.startswith(("E1/", "E3/")) for k in pm
+    ), sorted(pm)
     for key in ("pcpg/accuracy/p1", "baseline/accuracy/p1", "clustering/ari", "random/accuracy"):
         assert pm[key] == pytest.approx(summary[key]), key
-    curve = {m.step: m.value for m in client.get_metric_history(parent.info.run_id, "accuracy_vs_p/pcpg")}
-    assert curve == {100: pytest.approx(summary["pcpg/accuracy/p1"]), 50: pytest.approx(summary["pcpg/accuracy/p0.5"])}
+    curve = {
+        m.step: m.value for m in client.get_metric_history(parent.info.run_id, "accuracy_vs_p/pcpg")
+    }
+    assert curve == {
+        100: pytest.approx(summary["pcpg/accuracy/p1"]),
+        50: pytest.approx(summary["pcpg/accuracy/p0.5"]),
+    }
     assert curve[50] > pm["random/accuracy"] + 0.2
     assert "pcpg run" in parent.data.tags["mlflow.note.content"]
     assert parent.data.params["bc.hidden_size"] == "16"
@@ -202,9 +263,15 @@ def test_runs_metrics_and_artifacts_on_the_server(services, team_run):
         cm = child.data.metrics
         assert 0.3 < cm["clustering/ari"] <= 1.0, (env, cm["clustering/ari"])
         assert cm["pcpg/accuracy/p1"] > cm["random/accuracy"] + 0.2, env
-        evaluation = {Path(a.path).name for a in client.list_artifacts(child.info.run_id, "evaluation")}
-        assert "metrics.json" in evaluation and any(n.endswith(".png") for n in evaluation), evaluation
-        assert "metrics.csv" in evaluation and "done.json" not in evaluation, evaluation  # std table, no bookkeeping
+        evaluation = {
+            Path(a.path).name for a in client.list_artifacts(child.info.run_id, "evaluation")
+        }
+        assert "metrics.json" in evaluation and any(n.endswith(".png") for n in evaluation), (
+            evaluation
+        )
+        assert "metrics.csv" in evaluation and "done.json" not in evaluation, (
+            evaluation
+        )  # std table, no bookkeeping
         assert client.list_artifacts(child.info.run_id, "models"), env
 
     # Artifacts went through the server into its artifacts dir, and come back byte for byte.
@@ -212,11 +279,18 @@ def test_runs_metrics_and_artifacts_on_the_server(services, team_run):
     assert {"summary", "report"} <= top
     report = {Path(a.path).name for a in client.list_artifacts(parent.info.run_id, "report")}
     assert {"report.html", "report.md"} <= report
-    stored = (services["artifacts"] / exp.experiment_id / parent.info.run_id / "artifacts" / "summary"
-              / "metrics.json")
+    stored = (
+        services["artifacts"]
+        / exp.experiment_id
+        / parent.info.run_id
+        / "artifacts"
+        / "summary"
+        / "metrics.json"
+    )
     assert json.loads(stored.read_text()) == summary
-    fetched = client.download_artifacts(parent.info.run_id, "summary/metrics.json",
-                                        str(services["base"] / "download"))
+    fetched = client.download_artifacts(
+        parent.info.run_id, "summary/metrics.json", str(services["base"] / "download")
+    )
     assert Path(fetched).read_bytes() == (team_run["out"] / "summary" / "metrics.json").read_bytes()
 
 
@@ -235,6 +309,16 @@ def test_agents_model_loads_from_the_server(services, team_run):
         agents = mlflow.pyfunc.load_model(f"runs:/{parent.info.run_id}/agents")
     finally:
         mlflow.set_tracking_uri(before)
-    df = pd.DataFrame({"env": ["E1", "E1", "E3", "E3"], "style": [0, 1, 2, 3], "p": [1.0, 0.5, 1.0, 0.5], "s0": [1] * 4, "s1": [1] * 4,
-                       "s2": [0] * 4, "s3": [0] * 4, "valid": [[False, True, True, False]] * 4})
+    df = pd.DataFrame(
+        {
+            "env": ["E1", "E1", "E3", "E3"],
+            "style": [0, 1, 2, 3],
+            "p": [1.0, 0.5, 1.0, 0.5],
+            "s0": [1] * 4,
+            "s1": [1] * 4,
+            "s2": [0] * 4,
+            "s3": [0] * 4,
+            "valid": [[False, True, True, False]] * 4,
+        }
+    )
     assert set(agents.predict(df)) <= {1, 2}  # right or down: the only valid actions in that corner

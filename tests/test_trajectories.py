@@ -26,11 +26,16 @@ from pcpg_dist.pipeline import run_unit
 
 
 def write_config(tmp_path: Path, logs: str | Path, **over) -> Path:
-    raw = {"name": "own_logs", "domain": "trajectories", "seeds": [0],
-           "trajectories": {"path": str(logs), "score": "return"},
-           "clustering": {"k": 4, "method": "visits_kmeans"},
-           "ranking": {"ps": [1.0, 0.5]}, "bc": {"epochs": 300, "hidden_size": 16},
-           "evaluation": {"corruption_levels": [], "figures": False, "rollouts_per_policy": 20}}
+    raw = {
+        "name": "own_logs",
+        "domain": "trajectories",
+        "seeds": [0],
+        "trajectories": {"path": str(logs), "score": "return"},
+        "clustering": {"k": 4, "method": "visits_kmeans"},
+        "ranking": {"ps": [1.0, 0.5]},
+        "bc": {"epochs": 300, "hidden_size": 16},
+        "evaluation": {"corruption_levels": [], "figures": False, "rollouts_per_policy": 20},
+    }
     for key, value in over.items():
         section, _, name = key.partition("__")
         if name:
@@ -42,14 +47,22 @@ def write_config(tmp_path: Path, logs: str | Path, **over) -> Path:
     return path
 
 
-def tiny_table(n_traj: int = 6, steps: int = 4, d: int = 2, n_actions: int = 3, seed: int = 0) -> pd.DataFrame:
+def tiny_table(
+    n_traj: int = 6, steps: int = 4, d: int = 2, n_actions: int = 3, seed: int = 0
+) -> pd.DataFrame:
     rng = np.random.default_rng(seed)
     rows = []
     for i in range(n_traj):
         for t in range(steps + 1):
-            rows.append({"trajectory": i, "t": t, **{f"s{j}": float(rng.normal()) for j in range(d)},
-                         "action": int(rng.integers(n_actions)) if t < steps else -1,
-                         "reward": float(rng.random()) if t < steps else 0.0})
+            rows.append(
+                {
+                    "trajectory": i,
+                    "t": t,
+                    **{f"s{j}": float(rng.normal()) for j in range(d)},
+                    "action": int(rng.integers(n_actions)) if t < steps else -1,
+                    "reward": float(rng.random()) if t < steps else 0.0,
+                }
+            )
     return pd.DataFrame(rows)
 
 
@@ -114,12 +127,27 @@ def test_a_thousand_actions_with_valid_lists(tmp_path) -> None:
             action = 100 * style + t if t < 5 else -1
             if action >= 0:
                 valid[action] = True
-            rows.append({"trajectory": i, "t": t, "s0": float(t), "s1": float(style), "action": action,
-                         "valid": valid.tolist(), "style": style})
+            rows.append(
+                {
+                    "trajectory": i,
+                    "t": t,
+                    "s0": float(t),
+                    "s1": float(style),
+                    "action": action,
+                    "valid": valid.tolist(),
+                    "style": style,
+                }
+            )
     (ds,) = load(pd.DataFrame(rows), tmp_path).values()
     assert ds.n_actions == 1000 and ds.valid.shape == (ds.n_rows, 1000)
-    cfg = load_config(write_config(tmp_path, tmp_path / "logs.parquet", clustering={"k": 2, "method": "summary_kmeans"},
-                                   bc={"epochs": 400, "hidden_size": 16, "lr": 0.05}))
+    cfg = load_config(
+        write_config(
+            tmp_path,
+            tmp_path / "logs.parquet",
+            clustering={"k": 2, "method": "summary_kmeans"},
+            bc={"epochs": 400, "hidden_size": 16, "lr": 0.05},
+        )
+    )
     (unit,) = cfg.domain_object.units(cfg, {"logs": ds})
     m = run_unit(unit, cfg).metrics
     assert m["clustering/accuracy"] == 1.0
@@ -129,19 +157,32 @@ def test_a_thousand_actions_with_valid_lists(tmp_path) -> None:
 
 BAD = {
     "missing column": (lambda df: df.drop(columns="t"), "missing column 't'"),
-    "fractional action": (lambda df: df.assign(action=df.action.astype(float).where(df.index != 3, 1.5)),
-                          "column 'action', row 3: 1.5 is not an integer"),
+    "fractional action": (
+        lambda df: df.assign(action=df.action.astype(float).where(df.index != 3, 1.5)),
+        "column 'action', row 3: 1.5 is not an integer",
+    ),
     "action out of range": (lambda df: df.assign(action=df.action.where(df.index != 2, 7)), None),
-    "negative mid action": (lambda df: df.assign(action=df.action.where(df.index != 1, -5)),
-                            "column 'action', row 1: action -5 is not allowed"),
-    "t repeated": (lambda df: df.assign(t=df.t.where(df.index != 2, 0)),
-                   "column 't', rows 0 and 2: trajectory 0 has two rows with t = 0; each step of a trajectory "
-                   "needs its own t"),
-    "NaN state": (lambda df: df.assign(s1=df.s1.where(df.index != 4, np.nan)), "column 's1', row 4: is empty"),
-    "infinite state": (lambda df: df.assign(s1=df.s1.where(df.index != 4, np.inf)),
-                       "column 's1', row 4: inf is not a finite 32-bit float"),
-    "style changes": (lambda df: df.assign(style=np.where(df.index == 2, 1, 0)),
-                      "column 'style', row 2: changes within a trajectory"),
+    "negative mid action": (
+        lambda df: df.assign(action=df.action.where(df.index != 1, -5)),
+        "column 'action', row 1: action -5 is not allowed",
+    ),
+    "t repeated": (
+        lambda df: df.assign(t=df.t.where(df.index != 2, 0)),
+        "column 't', rows 0 and 2: trajectory 0 has two rows with t = 0; each step of a trajectory "
+        "needs its own t",
+    ),
+    "NaN state": (
+        lambda df: df.assign(s1=df.s1.where(df.index != 4, np.nan)),
+        "column 's1', row 4: is empty",
+    ),
+    "infinite state": (
+        lambda df: df.assign(s1=df.s1.where(df.index != 4, np.inf)),
+        "column 's1', row 4: inf is not a finite 32-bit float",
+    ),
+    "style changes": (
+        lambda df: df.assign(style=np.where(df.index == 2, 1, 0)),
+        "column 'style', row 2: changes within a trajectory",
+    ),
     "state gap": (lambda df: df.rename(columns={"s1": "s2"}), "s1 is missing"),
 }
 
@@ -160,8 +201,16 @@ def test_bad_files_fail_in_one_line_naming_file_column_and_row(case, tmp_path) -
 def test_cli_on_a_bad_file_exits_2_and_writes_nothing(tmp_path, capsys) -> None:
     path = tmp_path / "bad.parquet"
     BAD["negative mid action"][0](tiny_table()).to_parquet(path, index=False)
-    code = main(["run", str(write_config(tmp_path, path)), "--no-tracking", "--quiet",
-                 "--workdir", str(tmp_path / "runs")])
+    code = main(
+        [
+            "run",
+            str(write_config(tmp_path, path)),
+            "--no-tracking",
+            "--quiet",
+            "--workdir",
+            str(tmp_path / "runs"),
+        ]
+    )
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1 and "Traceback" not in err, err
     assert f"{path}: column 'action', row 1: action -5 is not allowed" in err
@@ -175,7 +224,9 @@ def arrow_table(**columns) -> pa.Table:
         i = table.schema.get_field_index(name)
         table = table.remove_column(i) if i >= 0 else table
         if values is not None:
-            table = table.append_column(name, values if isinstance(values, pa.Array) else pa.array(values))
+            table = table.append_column(
+                name, values if isinstance(values, pa.Array) else pa.array(values)
+            )
     return table
 
 
@@ -186,33 +237,62 @@ def load_arrow(table: pa.Table, tmp_path: Path, name: str):
 
 ROWS = 30  # tiny_table(): 6 trajectories of 5 rows
 BAD_TYPES = {  # what pyarrow cannot cast (was a traceback), and values that change on the cast
-    "env of lists": ({"env": [[1]] * ROWS}, "column 'env' has type list<element: int64>; expected strings or integers"),
-    "env of structs": ({"env": [{"a": 1}] * ROWS}, "column 'env' has type struct<a: int64>; expected strings"),
-    "trajectory of lists": ({"trajectory": [[i // 5] for i in range(ROWS)]},
-                            "column 'trajectory' has type list<element: int64>; expected integers or strings"),
-    "env not UTF-8": ({"env": pa.array([b"\xff"] * ROWS)}, "column 'env', row 0: b'\\xff' is not UTF-8 text"),
-    "valid null in row 0": ({"valid": pa.array([None] + [[True] * 3] * (ROWS - 1), pa.list_(pa.bool_()))},
-                            "column 'valid', row 0: is empty (null); every row needs a list of booleans"),
-    "s01 for s1": ({"s01": np.zeros(ROWS), "s1": None}, "column 's01' has a leading zero; state columns are "
-                                                        "named s0, s1, ... s{d-1} without leading zeros (rename it s1)"),
-    "uint64 action": ({"action": pa.array(np.where(np.arange(ROWS) == 4, 2**64 - 1, 0).astype(np.uint64))},
-                      "column 'action', row 4: 18446744073709551615 does not fit a 64-bit signed integer"),
-    "uint64 t": ({"t": pa.array(np.where(np.arange(ROWS) == 1, 2**64 - 1, 0).astype(np.uint64))},
-                 "column 't', row 1: 18446744073709551615 does not fit a 64-bit signed integer"),
+    "env of lists": (
+        {"env": [[1]] * ROWS},
+        "column 'env' has type list<element: int64>; expected strings or integers",
+    ),
+    "env of structs": (
+        {"env": [{"a": 1}] * ROWS},
+        "column 'env' has type struct<a: int64>; expected strings",
+    ),
+    "trajectory of lists": (
+        {"trajectory": [[i // 5] for i in range(ROWS)]},
+        "column 'trajectory' has type list<element: int64>; expected integers or strings",
+    ),
+    "env not UTF-8": (
+        {"env": pa.array([b"\xff"] * ROWS)},
+        "column 'env', row 0: b'\\xff' is not UTF-8 text",
+    ),
+    "valid null in row 0": (
+        {"valid": pa.array([None] + [[True] * 3] * (ROWS - 1), pa.list_(pa.bool_()))},
+        "column 'valid', row 0: is empty (null); every row needs a list of booleans",
+    ),
+    "s01 for s1": (
+        {"s01": np.zeros(ROWS), "s1": None},
+        "column 's01' has a leading zero; state columns are "
+        "named s0, s1, ... s{d-1} without leading zeros (rename it s1)",
+    ),
+    "uint64 action": (
+        {"action": pa.array(np.where(np.arange(ROWS) == 4, 2**64 - 1, 0).astype(np.uint64))},
+        "column 'action', row 4: 18446744073709551615 does not fit a 64-bit signed integer",
+    ),
+    "uint64 t": (
+        {"t": pa.array(np.where(np.arange(ROWS) == 1, 2**64 - 1, 0).astype(np.uint64))},
+        "column 't', row 1: 18446744073709551615 does not fit a 64-bit signed integer",
+    ),
 }
 
 
 @pytest.mark.parametrize("case", sorted(BAD_TYPES))
-def test_column_types_and_uint64_values_are_one_line_naming_the_column(case, tmp_path, capsys) -> None:
+def test_column_types_and_uint64_values_are_one_line_naming_the_column(
+    case, tmp_path, capsys
+) -> None:
     columns, needle = BAD_TYPES[case]
     path = tmp_path / "bad.parquet"
     pq.write_table(arrow_table(**columns), path)
     with pytest.raises(DataError) as e:
         datasets_from_table(read_step_table(path))
     assert str(e.value).startswith(f"{path}: {needle}"), str(e.value)
-    code = main(["generate", str(write_config(tmp_path, path)), "--out", str(tmp_path / "out"), "--quiet"])
+    code = main(
+        ["generate", str(write_config(tmp_path, path)), "--out", str(tmp_path / "out"), "--quiet"]
+    )
     err = capsys.readouterr().err.strip()
-    assert code == 2 and err.startswith("pcpg: error: ") and len(err.splitlines()) == 1 and needle in err, err
+    assert (
+        code == 2
+        and err.startswith("pcpg: error: ")
+        and len(err.splitlines()) == 1
+        and needle in err
+    ), err
     assert not (tmp_path / "out").exists()
 
 
@@ -232,20 +312,36 @@ def test_a_folder_names_the_file_that_differs_and_a_files_own_row(tmp_path, caps
     second["trajectory"] += 100
     first.to_parquet(folder / "a.parquet", index=False)
     for edit, needle in (
-        (lambda df: df.drop(columns="reward"), "b.parquet: has no column 'reward', which a.parquet has"),
+        (
+            lambda df: df.drop(columns="reward"),
+            "b.parquet: has no column 'reward', which a.parquet has",
+        ),
         (lambda df: df.assign(s2=0.0), "b.parquet: column 's2' is not in a.parquet"),
-        (lambda df: df.assign(s1="x"), "b.parquet: column 's1' has type large_string, but double in a.parquet"),
-        (lambda df: df.assign(action=df.action.where(df.index != 3, -5)),  # row 33 of the whole table
-         "b.parquet: column 'action', row 3: action -5 is not allowed"),
+        (
+            lambda df: df.assign(s1="x"),
+            "b.parquet: column 's1' has type large_string, but double in a.parquet",
+        ),
+        (
+            lambda df: df.assign(
+                action=df.action.where(df.index != 3, -5)
+            ),  # row 33 of the whole table
+            "b.parquet: column 'action', row 3: action -5 is not allowed",
+        ),
     ):
         edit(second).to_parquet(folder / "b.parquet", index=False)
         with pytest.raises(DataError) as e:
             datasets_from_table(read_step_table(folder))
         assert str(e.value).startswith(f"{folder / needle}"), str(e.value)
-    code = main(["generate", str(write_config(tmp_path, folder)), "--out", str(tmp_path / "out"), "--quiet"])
+    code = main(
+        ["generate", str(write_config(tmp_path, folder)), "--out", str(tmp_path / "out"), "--quiet"]
+    )
     err = capsys.readouterr().err.strip()
-    assert code == 2 and err == f"pcpg: error: {folder / 'b.parquet'}: column 'action', row 3: action -5 is not " \
-                                "allowed (0..n-1; -1 only on a trajectory's last row)", err
+    assert (
+        code == 2
+        and err
+        == f"pcpg: error: {folder / 'b.parquet'}: column 'action', row 3: action -5 is not "
+        "allowed (0..n-1; -1 only on a trajectory's last row)"
+    ), err
     assert not (tmp_path / "out").exists()
 
 
@@ -257,10 +353,12 @@ def test_trajectory_ids_restarting_in_each_file_of_a_folder_name_both_files(tmp_
     tiny_table(seed=2).to_parquet(folder / "day2.parquet", index=False)
     with pytest.raises(DataError) as e:
         datasets_from_table(read_step_table(folder))
-    assert str(e.value) == (f"{folder / 'day2.parquet'}: trajectory 0 appears both in {folder / 'day1.parquet'} and "
-                            f"in this file (its t restarts at 0 here after 4 there); trajectory ids must be unique "
-                            f"across a folder's files: give each file's trajectories distinct ids (e.g. prefixed by "
-                            f"the file's name)")
+    assert str(e.value) == (
+        f"{folder / 'day2.parquet'}: trajectory 0 appears both in {folder / 'day1.parquet'} and "
+        f"in this file (its t restarts at 0 here after 4 there); trajectory ids must be unique "
+        f"across a folder's files: give each file's trajectories distinct ids (e.g. prefixed by "
+        f"the file's name)"
+    )
     # ids restarting with t ranges that do not overlap (day1's trajectory 0 at t 10.., day2's at
     # t 0..): merged into one trajectory since rows were ordered by t; a restart all the same
     day1, day2 = tiny_table(n_traj=1, seed=1), tiny_table(n_traj=1, seed=2)
@@ -269,9 +367,11 @@ def test_trajectory_ids_restarting_in_each_file_of_a_folder_name_both_files(tmp_
     day2.to_parquet(folder / "day2.parquet", index=False)
     with pytest.raises(DataError) as e:
         datasets_from_table(read_step_table(folder))
-    assert str(e.value).startswith(f"{folder / 'day2.parquet'}: trajectory 0 appears both in "
-                                   f"{folder / 'day1.parquet'} and in this file (its t restarts at 0 here after "
-                                   f"{day1.t.max()} there)")
+    assert str(e.value).startswith(
+        f"{folder / 'day2.parquet'}: trajectory 0 appears both in "
+        f"{folder / 'day1.parquet'} and in this file (its t restarts at 0 here after "
+        f"{day1.t.max()} there)"
+    )
     # a trajectory that goes on in the next file (t still increasing) is one trajectory, as before
     whole = tiny_table(n_traj=2)
     whole.iloc[:3].to_parquet(folder / "day1.parquet", index=False)
@@ -288,8 +388,10 @@ def test_a_path_that_is_not_a_regular_file_or_folder_says_so(tmp_path) -> None:
     for path in (fifo, Path("/dev/zero")):
         with pytest.raises(DataError) as e:
             read_step_table(path)
-        assert str(e.value) == (f"{path}: not a regular file or folder; trajectories.path names a Parquet file "
-                                f"or a folder of them")
+        assert str(e.value) == (
+            f"{path}: not a regular file or folder; trajectories.path names a Parquet file "
+            f"or a folder of them"
+        )
     with pytest.raises(DataError, match="no such file or folder"):
         read_step_table(tmp_path / "none.parquet")
 
@@ -299,9 +401,11 @@ def test_a_table_of_single_row_trajectories_says_no_trajectory_has_a_step(tmp_pa
     single = tiny_table(n_traj=5, steps=0)
     with pytest.raises(DataError) as e:
         load(single, tmp_path)
-    assert str(e.value) == (f"{tmp_path / 'logs.parquet'}: no trajectory has a step: each of the 5 trajectories is a "
-                            f"single row (action -1, its closing state); a trajectory needs rows with actions 0..n-1 "
-                            f"before its last")
+    assert str(e.value) == (
+        f"{tmp_path / 'logs.parquet'}: no trajectory has a step: each of the 5 trajectories is a "
+        f"single row (action -1, its closing state); a trajectory needs rows with actions 0..n-1 "
+        f"before its last"
+    )
 
 
 def test_a_folder_refuses_a_link_leaving_it_and_reads_upper_case_parquet_names(tmp_path) -> None:
@@ -315,8 +419,10 @@ def test_a_folder_refuses_a_link_leaving_it_and_reads_upper_case_parquet_names(t
     (folder / "b.parquet").symlink_to(outside / "secret.parquet")
     with pytest.raises(DataError) as e:  # it was read as part of the folder
         read_step_table(folder)
-    assert str(e.value) == (f"{folder / 'b.parquet'}: a link to {outside / 'secret.parquet'}, outside {folder}; "
-                            f"refusing to read it (copy the file into the folder)")
+    assert str(e.value) == (
+        f"{folder / 'b.parquet'}: a link to {outside / 'secret.parquet'}, outside {folder}; "
+        f"refusing to read it (copy the file into the folder)"
+    )
     (folder / "b.parquet").unlink()
     second.to_parquet(folder / "B.PARQUET", index=False)  # was skipped without a word
     (ds,) = datasets_from_table(read_step_table(folder)).values()
@@ -327,7 +433,9 @@ def test_action_outside_its_valid_mask(tmp_path) -> None:
     df = tiny_table()
     df["valid"] = [[True, True, True]] * len(df)
     df.at[5, "valid"] = [a != df.action[5] for a in range(3)]
-    with pytest.raises(DataError, match=r"column 'action', row 5: action \d is not in the row's valid mask"):
+    with pytest.raises(
+        DataError, match=r"column 'action', row 5: action \d is not in the row's valid mask"
+    ):
         load(df, tmp_path)
     df.at[5, "valid"] = [True, True]
     with pytest.raises(DataError, match=r"column 'valid', row 5: 2 entries, expected 3"):
@@ -339,12 +447,19 @@ def test_score_choices_and_an_unknown_column(tmp_path) -> None:
     df["skill"] = df.trajectory * 10.0
     path = tmp_path / "logs.parquet"
     df.to_parquet(path, index=False)
-    for how, expected in (("return", df.groupby("trajectory").reward.sum().to_numpy()),
-                          ("-length", -np.full(6, 5.0)), ("skill", np.arange(6) * 10.0)):
-        cfg = load_config(write_config(tmp_path, path, trajectories={"path": str(path), "score": how}))
+    for how, expected in (
+        ("return", df.groupby("trajectory").reward.sum().to_numpy()),
+        ("-length", -np.full(6, 5.0)),
+        ("skill", np.arange(6) * 10.0),
+    ):
+        cfg = load_config(
+            write_config(tmp_path, path, trajectories={"path": str(path), "score": how})
+        )
         (ds,) = cfg.domain_object.generate(cfg, show_progress=False).values()
         np.testing.assert_allclose(cfg.domain_object.score(cfg)(ds), expected)
-    cfg = load_config(write_config(tmp_path, path, trajectories={"path": str(path), "score": "skil"}))
+    cfg = load_config(
+        write_config(tmp_path, path, trajectories={"path": str(path), "score": "skil"})
+    )
     with pytest.raises(DataError, match="names column 'skil'.*skill"):
         cfg.domain_object.generate(cfg, show_progress=False)
 
@@ -367,18 +482,34 @@ def test_gymnasium_rollouts_report_each_agents_success_rate(tmp_path) -> None:
     when it earns the goal's reward of 1, so each agent's success rate equals its mean return."""
     path = tmp_path / "lake.parquet"
     frozenlake_logs(per_style=25, seed=3).to_parquet(path, index=False)
-    cfg = load_config(write_config(
-        tmp_path, path, bc={"epochs": 150, "hidden_size": 8},
-        trajectories={"path": str(path), "score": "return", "gymnasium_env": "FrozenLake-v1",
-                      "gymnasium_kwargs": {"map_name": "8x8", "is_slippery": False},
-                      "gymnasium_success": "terminated_positive_reward"},
-        evaluation={"corruption_levels": [], "figures": False, "rollouts_per_policy": 5, "max_steps": 100}))
+    cfg = load_config(
+        write_config(
+            tmp_path,
+            path,
+            bc={"epochs": 150, "hidden_size": 8},
+            trajectories={
+                "path": str(path),
+                "score": "return",
+                "gymnasium_env": "FrozenLake-v1",
+                "gymnasium_kwargs": {"map_name": "8x8", "is_slippery": False},
+                "gymnasium_success": "terminated_positive_reward",
+            },
+            evaluation={
+                "corruption_levels": [],
+                "figures": False,
+                "rollouts_per_policy": 5,
+                "max_steps": 100,
+            },
+        )
+    )
     (unit,) = cfg.domain_object.units(cfg, cfg.domain_object.generate(cfg, show_progress=False))
     m = run_unit(unit, cfg, out_dir=tmp_path / "eval").metrics
     agents = [f"{who}/p{p}" for who in ("k0", "k1", "k2", "k3", "nc") for p in ("1", "0.5")]
     for agent in agents:
         assert m[f"rollout/success/{agent}"] == pytest.approx(m[f"rollout/return/{agent}"]), agent
-    assert 0 < np.mean([m[f"rollout/success/{a}"] for a in agents]) <= 1  # some agents reach the goal
+    assert (
+        0 < np.mean([m[f"rollout/success/{a}"] for a in agents]) <= 1
+    )  # some agents reach the goal
     table = pd.read_csv(tmp_path / "eval" / "rollout_success.csv")
     assert len(table) == len(agents)
     assert sorted(table["mean"]) == pytest.approx(sorted(m[f"rollout/success/{a}"] for a in agents))
@@ -393,28 +524,55 @@ def test_own_logs_end_to_end_with_gymnasium_rollouts(ray_session, tmp_path) -> N
 
     path = tmp_path / "lake.parquet"
     frozenlake_logs(per_style=150, seed=7).to_parquet(path, index=False)
-    cfg = load_config(write_config(
-        tmp_path, path, seeds=[0, 1],
-        trajectories={"path": str(path), "score": "return", "gymnasium_env": "FrozenLake-v1",
-                      "gymnasium_kwargs": {"map_name": "8x8", "is_slippery": False},
-                      "gymnasium_success": "terminated_positive_reward"},
-        evaluation={"corruption_levels": [0.0, 1.0], "figures": True, "rollouts_per_policy": 10,
-                    "max_steps": 100}))
+    cfg = load_config(
+        write_config(
+            tmp_path,
+            path,
+            seeds=[0, 1],
+            trajectories={
+                "path": str(path),
+                "score": "return",
+                "gymnasium_env": "FrozenLake-v1",
+                "gymnasium_kwargs": {"map_name": "8x8", "is_slippery": False},
+                "gymnasium_success": "terminated_positive_reward",
+            },
+            evaluation={
+                "corruption_levels": [0.0, 1.0],
+                "figures": True,
+                "rollouts_per_policy": 10,
+                "max_steps": 100,
+            },
+        )
+    )
     result = run_experiment(cfg, workdir=tmp_path / "runs", track=False, show_progress=False)
     m = result.metrics
     assert m["clustering/accuracy"] >= m["clustering/ceiling"] - 0.03
     assert m["pcpg/accuracy/p1"] > m["baseline/accuracy/p1"]
     # styles share their first steps (all start in one corner): 3 of 4 rows is what this data gives
     assert m["cross/diagonal_is_row_max"] >= 0.75
-    print({k: round(v, 3) for k, v in m.items() if k.split("/")[0] in ("clustering", "pcpg", "baseline", "cross")
-           or k.startswith("rollout/return")})
+    print(
+        {
+            k: round(v, 3)
+            for k, v in m.items()
+            if k.split("/")[0] in ("clustering", "pcpg", "baseline", "cross")
+            or k.startswith("rollout/return")
+        }
+    )
     # the agents walk the real lake: most PCPG agents at p = 1 reach the goal
     returns = [v for k, v in m.items() if k.startswith("rollout/return/k") and k.endswith("/p1")]
     assert len(returns) == 4 and np.mean(returns) > 0.5
     env_dir = result.out_dir / "summary" / "lake0"
-    for name in ("cross_accuracy.csv", "accuracy.csv", "rollout_return.csv", "corruption_accuracy.csv"):
+    for name in (
+        "cross_accuracy.csv",
+        "accuracy.csv",
+        "rollout_return.csv",
+        "corruption_accuracy.csv",
+    ):
         assert (env_dir / name).is_file(), name
-    assert json.loads((result.out_dir / "summary" / "metrics.json").read_text())["clustering/accuracy"] > 0.9
+    assert (
+        json.loads((result.out_dir / "summary" / "metrics.json").read_text())["clustering/accuracy"]
+        > 0.9
+    )
 
 
 def test_a_local_minari_dataset_runs_like_a_parquet_log(tmp_path, monkeypatch) -> None:
@@ -426,7 +584,9 @@ def test_a_local_minari_dataset_runs_like_a_parquet_log(tmp_path, monkeypatch) -
     frozenlake_logs(per_style=20, seed=5).drop(columns="env").to_parquet(path, index=False)
     (from_parquet,) = datasets_from_table(read_step_table(path)).values()
     write_minari({"lake": from_parquet}, tmp_path / "minari", "pcpg/lake-v0")
-    cfg = load_config(write_config(tmp_path, "minari:pcpg/lake-v0", bc={"epochs": 150, "hidden_size": 8}))
+    cfg = load_config(
+        write_config(tmp_path, "minari:pcpg/lake-v0", bc={"epochs": 150, "hidden_size": 8})
+    )
     (ds,) = cfg.domain_object.generate(cfg, show_progress=False).values()
     np.testing.assert_array_equal(ds.states, from_parquet.states)
     np.testing.assert_array_equal(ds.actions, from_parquet.actions)
@@ -438,7 +598,9 @@ def test_a_local_minari_dataset_runs_like_a_parquet_log(tmp_path, monkeypatch) -
 
 
 @pytest.mark.parametrize("dataset_id", ["/usr", "../../../usr", "/", "a/../b-v0", " "])
-def test_a_minari_path_that_is_not_an_id_is_refused_at_load_before_any_folder_is_read(tmp_path, dataset_id):
+def test_a_minari_path_that_is_not_an_id_is_refused_at_load_before_any_folder_is_read(
+    tmp_path, dataset_id
+):
     """`minari:/usr` used to hash every file under /usr (43 s for 6 GB) before the id was checked."""
     with pytest.raises(ConfigError) as e:
         load_config(write_config(tmp_path, f"minari:{dataset_id}"))
@@ -461,10 +623,16 @@ def test_a_huge_action_number_is_refused_before_its_mask_is_built(tmp_path, monk
         load(tiny_table(n_traj=400), tmp_path, n_actions=1_000_000)
 
 
-@pytest.mark.parametrize("column", ["s1\u0660", "s\u0661", "s\uff11"])  # Arabic-Indic, full-width digits
+@pytest.mark.parametrize(
+    "column", ["s1\u0660", "s\u0661", "s\uff11"]
+)  # Arabic-Indic, full-width digits
 def test_a_state_column_with_non_ascii_digits_is_one_line(tmp_path, column) -> None:
     """'s1٠' was read as state 10 and failed in a KeyError traceback; 's١' was called a leading zero."""
-    df = tiny_table(d=11).rename(columns={"s10": column}) if column == "s1\u0660" else tiny_table().assign(**{column: 1.0})
+    df = (
+        tiny_table(d=11).rename(columns={"s10": column})
+        if column == "s1\u0660"
+        else tiny_table().assign(**{column: 1.0})
+    )
     with pytest.raises(DataError) as e:
         load(df, tmp_path)
     assert f"column {column!r} names a state with non-ASCII digits" in str(e.value)
@@ -476,8 +644,16 @@ def test_an_env_named_like_a_summary_file_is_refused_before_clustering(tmp_path,
     df = frozenlake_logs(per_style=10, seed=1)
     df["env"] = np.where(df.trajectory % 2 == 0, "metrics.json", "lake")
     df.to_parquet(path, index=False)
-    code = main(["run", str(write_config(tmp_path, path)), "--no-tracking", "--quiet",
-                 "--workdir", str(tmp_path / "runs")])
+    code = main(
+        [
+            "run",
+            str(write_config(tmp_path, path)),
+            "--no-tracking",
+            "--quiet",
+            "--workdir",
+            str(tmp_path / "runs"),
+        ]
+    )
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1 and "Traceback" not in err, err
     assert "environment name 'metrics.json' is the name of a file or folder pcpg writes" in err
@@ -485,12 +661,16 @@ def test_an_env_named_like_a_summary_file_is_refused_before_clustering(tmp_path,
     assert not (run / "cache" / "cluster").exists() and not (run / "summary").exists()
 
 
-def test_style_margin_on_continuous_states_with_bag_auto_is_refused_before_clustering(tmp_path, capsys) -> None:
+def test_style_margin_on_continuous_states_with_bag_auto_is_refused_before_clustering(
+    tmp_path, capsys
+) -> None:
     """bag_auto falls back to lstm_dec on continuous states, which has no margins: the error came
     after every unit was clustered."""
     path = tmp_path / "logs.parquet"
     tiny_table(n_traj=12, steps=5).to_parquet(path, index=False)
-    cfg = write_config(tmp_path, path, clustering={"k": 2, "method": "bag_auto"}, ranking__style_margin=1.0)
+    cfg = write_config(
+        tmp_path, path, clustering={"k": 2, "method": "bag_auto"}, ranking__style_margin=1.0
+    )
     code = main(["run", str(cfg), "--no-tracking", "--quiet", "--workdir", str(tmp_path / "runs")])
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1 and "Traceback" not in err, err
@@ -499,12 +679,15 @@ def test_style_margin_on_continuous_states_with_bag_auto_is_refused_before_clust
     assert not (run / "cache" / "cluster").exists() and not (run / "summary").exists()
 
 
-@pytest.mark.parametrize("key, value, needle", [
-    ("pcpg.feature_names", 5, "metadata 'pcpg.feature_names' is 5; expected a list of names"),
-    ("pcpg.action_names", 5, "metadata 'pcpg.action_names' is 5; expected a list of names"),
-    # Minari reads every episode the metadata counts when asked for its iterator (was 'cannot access')
-    ("total_episodes", 100, "unreadable episode data (no such file"),
-])
+@pytest.mark.parametrize(
+    "key, value, needle",
+    [
+        ("pcpg.feature_names", 5, "metadata 'pcpg.feature_names' is 5; expected a list of names"),
+        ("pcpg.action_names", 5, "metadata 'pcpg.action_names' is 5; expected a list of names"),
+        # Minari reads every episode the metadata counts when asked for its iterator (was 'cannot access')
+        ("total_episodes", 100, "unreadable episode data (no such file"),
+    ],
+)
 def test_tampered_minari_metadata_is_one_line(tmp_path, monkeypatch, key, value, needle) -> None:
     from pcpg_dist.domains.trajectories.minari_io import read_minari, write_minari
 
@@ -533,14 +716,20 @@ def test_logs_that_never_took_the_envs_last_action_are_told_to_set_n_actions(tmp
     df = df[~df.trajectory.isin(df.trajectory[df.action == 3])]
     path = tmp_path / "lake.parquet"
     df.to_parquet(path, index=False)
-    lake = {"path": str(path), "score": "return", "gymnasium_env": "FrozenLake-v1",
-            "gymnasium_kwargs": {"map_name": "8x8", "is_slippery": False}}
+    lake = {
+        "path": str(path),
+        "score": "return",
+        "gymnasium_env": "FrozenLake-v1",
+        "gymnasium_kwargs": {"map_name": "8x8", "is_slippery": False},
+    }
     cfg = load_config(write_config(tmp_path, path, trajectories=lake))
     with pytest.raises(ConfigError) as e:
         cfg.domain_object.units(cfg, cfg.domain_object.generate(cfg, show_progress=False))
     msg = str(e.value)
-    assert "but the logs have 3 (trajectories.n_actions, else the width of a 'valid' column, else the largest " \
-           "action + 1); if the players never took action 3, set trajectories.n_actions: 4" in msg, msg
+    assert (
+        "but the logs have 3 (trajectories.n_actions, else the width of a 'valid' column, else the largest "
+        "action + 1); if the players never took action 3, set trajectories.n_actions: 4" in msg
+    ), msg
     cfg = load_config(write_config(tmp_path, path, trajectories={**lake, "n_actions": 4}))
     (unit,) = cfg.domain_object.units(cfg, cfg.domain_object.generate(cfg, show_progress=False))
     assert unit.dataset.n_actions == 4

@@ -23,7 +23,18 @@ from pcpg_dist.config.stages import (
 )
 
 __all__ = [
-    "BCConfig", "ClusterConfig", "EvalConfig", "ExperimentConfig", "GridWorldConfig", "MarioLoadConfig",
-    "MiniDungeonsConfig", "PBTGConfig", "RankConfig", "RunnerConfig", "TrajectoriesConfig", "TuneConfig",
-    "load_config", "parse_config",
+    "BCConfig",
+    "ClusterConfig",
+    "EvalConfig",
+    "ExperimentConfig",
+    "GridWorldConfig",
+    "MarioLoadConfig",
+    "MiniDungeonsConfig",
+    "PBTGConfig",
+    "RankConfig",
+    "RunnerConfig",
+    "TrajectoriesConfig",
+    "TuneConfig",
+    "load_config",
+    "parse_config",
 ]

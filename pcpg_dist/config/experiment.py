@@ -53,25 +53,44 @@ class ExperimentConfig(StrictModel):
     """A whole experiment: data, clustering, ranking, BC, evaluation and fan-out."""
 
     name: Annotated[str, Field(description="experiment name (MLflow experiment, output folder)")]
-    domain: Annotated[str, Field(description="a registered domain: gridworld, minidungeons, mario, "
-                                             "trajectories, or a plugin's name (`pcpg domains` lists them)")] = "gridworld"
+    domain: Annotated[
+        str,
+        Field(
+            description="a registered domain: gridworld, minidungeons, mario, "
+            "trajectories, or a plugin's name (`pcpg domains` lists them)"
+        ),
+    ] = "gridworld"
     seed: Annotated[int, Field(ge=0, le=2**32 - 1, description="base seed of data generation")] = 0
-    seeds: Annotated[list[int], Field(min_length=1, max_length=1000, description="repetition seeds (clustering, split, BC init); "
-                                                                "results report mean and std over them")] = [0, 1, 2, 3]
+    seeds: Annotated[
+        list[int],
+        Field(
+            min_length=1,
+            max_length=1000,
+            description="repetition seeds (clustering, split, BC init); "
+            "results report mean and std over them",
+        ),
+    ] = [0, 1, 2, 3]
     gridworld: GridWorldConfig = GridWorldConfig()
     minidungeons: MiniDungeonsConfig = MiniDungeonsConfig()
     mario: MarioLoadConfig = MarioLoadConfig()
     trajectories: TrajectoriesConfig = TrajectoriesConfig()
     pbtg: PBTGConfig = PBTGConfig()
-    plugin: Annotated[dict[str, Any], Field(description="settings of a third-party domain; written in "
-                                                         "YAML under the domain's own name")] = {}
+    plugin: Annotated[
+        dict[str, Any],
+        Field(
+            description="settings of a third-party domain; written in "
+            "YAML under the domain's own name"
+        ),
+    ] = {}
     clustering: ClusterConfig = ClusterConfig()
     ranking: RankConfig = RankConfig()
     bc: BCConfig = BCConfig()
     evaluation: EvalConfig = EvalConfig()
     runner: RunnerConfig = RunnerConfig()
-    tuning: Annotated[TuneConfig, Field(description="`pcpg tune`: search space, objective and study "
-                                                   "(ignored by `pcpg run`)")] = TuneConfig()
+    tuning: Annotated[
+        TuneConfig,
+        Field(description="`pcpg tune`: search space, objective and study (ignored by `pcpg run`)"),
+    ] = TuneConfig()
 
     @model_validator(mode="before")
     @classmethod
@@ -88,17 +107,21 @@ class ExperimentConfig(StrictModel):
     def _corruption_needs_two_clusters(self) -> ExperimentConfig:
         """Corrupting labels moves trajectories to *other* clusters: with one there is none."""
         if self.clustering.k < 2 and any(c > 0 for c in self.evaluation.corruption_levels):
-            raise ValueError("clustering.k = 1 leaves no other cluster to corrupt labels into: set "
-                             "evaluation.corruption_levels to [0.0], or clustering.k to 2 or more")
+            raise ValueError(
+                "clustering.k = 1 leaves no other cluster to corrupt labels into: set "
+                "evaluation.corruption_levels to [0.0], or clustering.k to 2 or more"
+            )
         return self
 
     @model_validator(mode="after")
     def _style_margin_needs_a_likelihood(self) -> ExperimentConfig:
         """A style margin is a likelihood ratio: only the clusterers with a likelihood give one."""
         if self.ranking.style_margin > 0 and self.clustering.method not in LIKELIHOOD_METHODS:
-            raise ValueError(f"ranking.style_margin needs a clusterer with a likelihood "
-                             f"(clustering.method {', '.join(LIKELIHOOD_METHODS)}); "
-                             f"{self.clustering.method} gives none: set ranking.style_margin to 0")
+            raise ValueError(
+                f"ranking.style_margin needs a clusterer with a likelihood "
+                f"(clustering.method {', '.join(LIKELIHOOD_METHODS)}); "
+                f"{self.clustering.method} gives none: set ranking.style_margin to 0"
+            )
         return self
 
     @field_validator("name")
@@ -140,7 +163,9 @@ class ExperimentConfig(StrictModel):
         """Content hash of what determines a sweep's results (paths included): `tuning` (used only
         by `pcpg tune`) and `runner` (how work is spread) are left out, so editing them reuses
         the sweep's MLflow parent run."""
-        return hashlib.sha256(self.model_dump_json(exclude={"tuning", "runner"}).encode()).hexdigest()[:16]
+        return hashlib.sha256(
+            self.model_dump_json(exclude={"tuning", "runner"}).encode()
+        ).hexdigest()[:16]
 
     def flat(self) -> dict[str, str]:
         """Flattened ``section.key -> value`` strings, for MLflow params: the sections that act on
@@ -154,7 +179,9 @@ class ExperimentConfig(StrictModel):
                 for k, v in value.items():
                     walk(f"{prefix}.{k}" if prefix else k, v)
             else:
-                out[prefix] = json.dumps(value) if isinstance(value, list | tuple | dict) else str(value)
+                out[prefix] = (
+                    json.dumps(value) if isinstance(value, list | tuple | dict) else str(value)
+                )
 
         walk("", self.model_dump(mode="json", exclude=unused))
         return out
@@ -195,7 +222,9 @@ def _describe(error: dict, domain: str | None = None) -> str:
     return f"key '{key}': value {shown} is not allowed — {msg}"
 
 
-def parse_config(data: Any, source: str = "<config>", base_dir: Path | None = None) -> ExperimentConfig:
+def parse_config(
+    data: Any, source: str = "<config>", base_dir: Path | None = None
+) -> ExperimentConfig:
     """Validate a config mapping; raise :class:`ConfigError` with a one-line message."""
     if not isinstance(data, dict):
         raise ConfigError(f"{source}: a config must be a YAML mapping of keys to values")
@@ -209,7 +238,9 @@ def parse_config(data: Any, source: str = "<config>", base_dir: Path | None = No
     from pcpg_dist.domains.contract import calling
 
     try:  # the chosen domain's own settings and checks (files exist, a plugin's section, ...)
-        with calling(cfg.domain_object, "check_config"):  # a plugin's other exceptions: one line too
+        with calling(
+            cfg.domain_object, "check_config"
+        ):  # a plugin's other exceptions: one line too
             cfg.domain_object.check_config(cfg)
     except (PcpgError, ValueError) as e:
         raise ConfigError(one_line(f"{source}: {e}")) from None
@@ -231,8 +262,14 @@ class _BoundedLoader(yaml.SafeLoader):
 
     def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict:
         first_line: dict[Any, int] = {}
-        for key_node, _ in node.value:  # before SafeConstructor flattens the merge keys into the list
-            if not isinstance(key_node, yaml.ScalarNode) or key_node.tag == "tag:yaml.org,2002:merge":
+        for (
+            key_node,
+            _,
+        ) in node.value:  # before SafeConstructor flattens the merge keys into the list
+            if (
+                not isinstance(key_node, yaml.ScalarNode)
+                or key_node.tag == "tag:yaml.org,2002:merge"
+            ):
                 continue
             key = self.construct_object(key_node)
             line = key_node.start_mark.line + 1
@@ -241,8 +278,10 @@ class _BoundedLoader(yaml.SafeLoader):
             except TypeError:  # an unhashable key: SafeConstructor's own message names it
                 continue
             if first is not None:
-                raise ConfigError(f"{self.source}, line {line}: key {reprlib.repr(key)} appears twice "
-                                  f"(first on line {first}); give each key once")
+                raise ConfigError(
+                    f"{self.source}, line {line}: key {reprlib.repr(key)} appears twice "
+                    f"(first on line {first}); give each key once"
+                )
             first_line[key] = line
         return super().construct_mapping(node, deep=deep)
 
@@ -250,14 +289,24 @@ class _BoundedLoader(yaml.SafeLoader):
 _INT, _FLOAT = "tag:yaml.org,2002:int", "tag:yaml.org,2002:float"
 _BoundedLoader.yaml_implicit_resolvers = {
     first: [(tag, rx) for tag, rx in items if tag not in (_INT, _FLOAT)]
-    for first, items in yaml.SafeLoader.yaml_implicit_resolvers.items()}
+    for first, items in yaml.SafeLoader.yaml_implicit_resolvers.items()
+}
 _BoundedLoader.add_implicit_resolver(
-    _INT, re.compile(r"^(?:[-+]?0b[0-1_]+|[-+]?0x[0-9a-fA-F_]+|[-+]?(?:0|[1-9][0-9_]*))$"), list("-+0123456789"))
+    _INT,
+    re.compile(r"^(?:[-+]?0b[0-1_]+|[-+]?0x[0-9a-fA-F_]+|[-+]?(?:0|[1-9][0-9_]*))$"),
+    list("-+0123456789"),
+)
 _BoundedLoader.add_implicit_resolver(
-    _FLOAT, re.compile(r"""^(?:[-+]?(?:[0-9][0-9_]*\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+    _FLOAT,
+    re.compile(
+        r"""^(?:[-+]?(?:[0-9][0-9_]*\.[0-9_]*(?:[eE][-+]?[0-9]+)?
                         |[0-9][0-9_]*[eE][-+]?[0-9]+
                         |\.[0-9_]+(?:[eE][-+]?[0-9]+)?)
-                        |[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))$""", re.X), list("-+0123456789."))
+                        |[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))$""",
+        re.X,
+    ),
+    list("-+0123456789."),
+)
 
 
 def _expanded_size(node: yaml.Node, path: str) -> int:
@@ -269,11 +318,15 @@ def _expanded_size(node: yaml.Node, path: str) -> int:
         if id(n) in memo:
             return memo[id(n)]
         if id(n) in active:
-            raise ConfigError(f"{path}, line {n.start_mark.line + 1}: a YAML alias refers to a value that "
-                              f"contains it (a recursive structure); write the values out")
+            raise ConfigError(
+                f"{path}, line {n.start_mark.line + 1}: a YAML alias refers to a value that "
+                f"contains it (a recursive structure); write the values out"
+            )
         if depth > MAX_YAML_DEPTH:
-            raise ConfigError(f"{path}, line {n.start_mark.line + 1}: nested more than {MAX_YAML_DEPTH} "
-                              f"levels deep; a config needs a few")
+            raise ConfigError(
+                f"{path}, line {n.start_mark.line + 1}: nested more than {MAX_YAML_DEPTH} "
+                f"levels deep; a config needs a few"
+            )
         active.add(id(n))
         if isinstance(n, yaml.SequenceNode):
             total = 1 + sum(size(c, depth + 1) for c in n.value)
@@ -283,8 +336,10 @@ def _expanded_size(node: yaml.Node, path: str) -> int:
             total = 1
         active.discard(id(n))
         if total > MAX_YAML_NODES:
-            raise ConfigError(f"{path}, line {n.start_mark.line + 1}: expands to more than {MAX_YAML_NODES} "
-                              f"values (YAML aliases repeat what they refer to); a config needs far fewer")
+            raise ConfigError(
+                f"{path}, line {n.start_mark.line + 1}: expands to more than {MAX_YAML_NODES} "
+                f"values (YAML aliases repeat what they refer to); a config needs far fewer"
+            )
         memo[id(n)] = total
         return total
 
@@ -300,8 +355,10 @@ def read_yaml(path: Path, what: str = "config") -> Any:
             raise ConfigError(f"{path}: cannot read {what} ({reason})")
         size = path.stat().st_size
         if size > MAX_CONFIG_BYTES:
-            raise ConfigError(f"{path}: {size} bytes; a {what} file may hold at most {MAX_CONFIG_BYTES} bytes "
-                              f"(is this the right file?)")
+            raise ConfigError(
+                f"{path}: {size} bytes; a {what} file may hold at most {MAX_CONFIG_BYTES} bytes "
+                f"(is this the right file?)"
+            )
         with open(path, "rb") as f:
             raw = f.read(MAX_CONFIG_BYTES + 1)
     except OSError as e:
@@ -312,7 +369,9 @@ def read_yaml(path: Path, what: str = "config") -> Any:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as e:
         line = raw[: e.start].count(b"\n") + 1
-        raise ConfigError(f"{path}, line {line}: not UTF-8 text (byte {e.start}); save the file as UTF-8") from None
+        raise ConfigError(
+            f"{path}, line {line}: not UTF-8 text (byte {e.start}); save the file as UTF-8"
+        ) from None
     if "\x00" in text:
         raise ConfigError(f"{path}: contains a NUL character; a {what} is a text file")
     return load_yaml_text(text, str(path))
@@ -338,7 +397,9 @@ def load_yaml_text(text: str, path: str) -> Any:
         problem = str(getattr(e, "problem", None) or e).replace("\n", " ")[:MAX_SHOWN]
         raise ConfigError(f"{path}{where}: not valid YAML ({problem})") from None
     except RecursionError:
-        raise ConfigError(f"{path}: nested too deeply to read; a config needs a few levels") from None
+        raise ConfigError(
+            f"{path}: nested too deeply to read; a config needs a few levels"
+        ) from None
     finally:
         loader.dispose()
 

@@ -67,7 +67,11 @@ def valid_keys(domain: str | None = None) -> list[str]:
             model = registry.get(domain).settings_model
         except Exception:  # noqa: BLE001 - an unknown domain is reported by the config itself
             model = None
-        if isinstance(model, type) and issubclass(model, BaseModel) and domain not in ExperimentConfig.model_fields:
+        if (
+            isinstance(model, type)
+            and issubclass(model, BaseModel)
+            and domain not in ExperimentConfig.model_fields
+        ):
             keys += _leaf_keys(model, domain + ".")
     return keys
 
@@ -81,7 +85,11 @@ def closest_key(key: str, domain: str | None) -> str | None:
     if not close:
         return None
     head, tops = key.split(".")[0], {k.split(".")[0] for k in keys}
-    if "." in key and head not in tops and not difflib.get_close_matches(head, tops, n=1, cutoff=0.6):
+    if (
+        "." in key
+        and head not in tops
+        and not difflib.get_close_matches(head, tops, n=1, cutoff=0.6)
+    ):
         # a section unlike any (another domain's, or an abbreviation like `eval`): only a setting of
         # the same name is a useful guess (`eval.greedy` -> evaluation.greedy, not `corridor.length`
         # -> mario.event)
@@ -103,11 +111,15 @@ def unknown_key_message(key: str, domain: str | None) -> str:
 def check_key(key: str, domain: str | None) -> None:
     """Raise a one-line :class:`ConfigError` naming the closest valid key when ``key`` is unknown."""
     keys = valid_keys(domain)
-    if key in keys or any(key.startswith(f"{k}.") for k in keys if k.split(".")[-1] in _OPEN_SECTIONS):
+    if key in keys or any(
+        key.startswith(f"{k}.") for k in keys if k.split(".")[-1] in _OPEN_SECTIONS
+    ):
         return
     if any(k.startswith(key + ".") for k in keys):
-        raise ConfigError(f"override {key!r} names a whole section; set one of its keys, e.g. "
-                          f"{next(k for k in keys if k.startswith(key + '.'))}=...")
+        raise ConfigError(
+            f"override {key!r} names a whole section; set one of its keys, e.g. "
+            f"{next(k for k in keys if k.startswith(key + '.'))}=..."
+        )
     close = closest_key(key, domain)
     hint = f"; did you mean {close!r}?" if close else "; `pcpg run --help` shows the sections"
     raise ConfigError(f"unknown config key {key[:120]!r}{hint}")
@@ -125,7 +137,9 @@ def parse_value(text: str) -> Any:
         return text
     try:
         return load_yaml_text(text, "command-line value")
-    except ConfigError:  # not YAML (or an alias bomb): the text itself, which the key's check judges
+    except (
+        ConfigError
+    ):  # not YAML (or an alias bomb): the text itself, which the key's check judges
         return text
 
 
@@ -137,7 +151,9 @@ def split_assignment(item: str) -> tuple[str, str]:
     return key, value
 
 
-def split_assignments(items: list[str], what: str = "override", form: str = "{key}=VALUE") -> list[tuple[str, str]]:
+def split_assignments(
+    items: list[str], what: str = "override", form: str = "{key}=VALUE"
+) -> list[tuple[str, str]]:
     """``KEY=VALUE`` items as (key, value) pairs, a key given twice refused: the last one would win
     without a word. ``what`` and ``form`` say what an item is and how to give it once."""
     first: dict[str, str] = {}
@@ -145,8 +161,10 @@ def split_assignments(items: list[str], what: str = "override", form: str = "{ke
     for item in items:
         key, value = split_assignment(item)
         if key in first:
-            raise ConfigError(f"{what} {key!r} is given twice on the command line ({reprlib.repr(first[key])} and "
-                              f"{reprlib.repr(item)}); give it once as {form.format(key=key)}")
+            raise ConfigError(
+                f"{what} {key!r} is given twice on the command line ({reprlib.repr(first[key])} and "
+                f"{reprlib.repr(item)}); give it once as {form.format(key=key)}"
+            )
         first[key] = item
         pairs.append((key, value))
     return pairs
@@ -212,13 +230,19 @@ def parse_range(text: str) -> list[float] | None:
         raise ConfigError(f"range {text!r}: needs start <= stop and a positive step")
     span = (stop - start) / step  # inf or above 2**63 for 1e308:1e309:1 or 0:1e300:1e-300
     if not span < MAX_POINTS:
-        raise ConfigError(f"range {text!r} has more than {MAX_POINTS} values; a sweep axis may have at most "
-                          f"{MAX_POINTS}")
+        raise ConfigError(
+            f"range {text!r} has more than {MAX_POINTS} values; a sweep axis may have at most "
+            f"{MAX_POINTS}"
+        )
     n = int(round(span)) + 1
     if n > MAX_POINTS:
-        raise ConfigError(f"range {text!r} has {n} values; a sweep axis may have at most {MAX_POINTS}")
+        raise ConfigError(
+            f"range {text!r} has {n} values; a sweep axis may have at most {MAX_POINTS}"
+        )
     ints = all(float(p).is_integer() and "." not in p for p in parts)
-    values = [start + i * step for i in range(n) if start + i * step <= stop + 1e-9 * max(1.0, abs(step))]
+    values = [
+        start + i * step for i in range(n) if start + i * step <= stop + 1e-9 * max(1.0, abs(step))
+    ]
     return [int(v) for v in values] if ints else [round(v, 10) for v in values]
 
 
@@ -243,7 +267,9 @@ def axis_values(key: str, spec: Any) -> list[Any]:
     for v in values:  # a repeat would run one point twice into one folder
         shown = json.dumps(v, sort_keys=True, default=str)
         if shown in seen:
-            raise ConfigError(f"sweep axis {key!r} repeats the value {reprlib.repr(v)}; give each value once")
+            raise ConfigError(
+                f"sweep axis {key!r} repeats the value {reprlib.repr(v)}; give each value once"
+            )
         seen.add(shown)
     return values
 
@@ -281,22 +307,30 @@ def split_sweep_items(items: list[str]) -> tuple[list[str], list[str]]:
     return axes, fixed
 
 
-def sweep_points(section: Any, cli_axes: list[str], domain: str | None) -> tuple[dict[str, list], list[dict[str, Any]]]:
+def sweep_points(
+    section: Any, cli_axes: list[str], domain: str | None
+) -> tuple[dict[str, list], list[dict[str, Any]]]:
     """The axes (key -> values) and the points (one override mapping each) of a sweep."""
     grid: dict[str, list] = {}
     zipped: dict[str, list] = {}
     if section is not None:
         if not isinstance(section, dict) or set(section) - {"grid", "zip"}:
-            raise ConfigError("sweep: must be a mapping with 'grid:' and/or 'zip:' (each a mapping of "
-                              "dotted keys to lists of values or start:stop:step ranges)")
+            raise ConfigError(
+                "sweep: must be a mapping with 'grid:' and/or 'zip:' (each a mapping of "
+                "dotted keys to lists of values or start:stop:step ranges)"
+            )
         for name, target in (("grid", grid), ("zip", zipped)):
             axes = section.get(name) or {}
             if not isinstance(axes, dict):
-                raise ConfigError(f"sweep.{name}: must map dotted keys to values, e.g. bc.lr: [0.001, 0.01]")
+                raise ConfigError(
+                    f"sweep.{name}: must map dotted keys to values, e.g. bc.lr: [0.001, 0.01]"
+                )
             for key, spec in axes.items():
                 target[str(key)] = axis_values(str(key), spec)
     if both := sorted(set(grid) & set(zipped)):
-        raise ConfigError(f"sweep: {both[0]!r} is under both 'grid:' and 'zip:'; an axis goes under one of them")
+        raise ConfigError(
+            f"sweep: {both[0]!r} is under both 'grid:' and 'zip:'; an axis goes under one of them"
+        )
     for key, value in split_assignments(cli_axes, "sweep axis", "{key}=v1,v2,..."):
         zipped.pop(key, None)  # an axis on the command line replaces the file's
         grid[key] = axis_values(key, value)
@@ -304,14 +338,20 @@ def sweep_points(section: Any, cli_axes: list[str], domain: str | None) -> tuple
         check_key(key, domain)
     if zipped and len({len(v) for v in zipped.values()}) > 1:
         shown = ", ".join(f"{k} ({len(v)})" for k, v in zipped.items())
-        raise ConfigError(f"sweep.zip: axes that move together need equally many values; got {shown}")
+        raise ConfigError(
+            f"sweep.zip: axes that move together need equally many values; got {shown}"
+        )
     if not grid and not zipped:
-        raise ConfigError("a sweep needs at least one axis: AXIS=v1,v2 on the command line or a sweep: section")
+        raise ConfigError(
+            "a sweep needs at least one axis: AXIS=v1,v2 on the command line or a sweep: section"
+        )
     n_zip = len(next(iter(zipped.values()))) if zipped else 1
     n_points = math.prod(len(v) for v in grid.values()) * n_zip  # counted before any is built
     if n_points > MAX_POINTS:
         raise ConfigError(f"the sweep has {n_points} points; at most {MAX_POINTS}")
-    combos: list[dict[str, Any]] = [dict(zip(grid, vals, strict=True)) for vals in itertools.product(*grid.values())]
+    combos: list[dict[str, Any]] = [
+        dict(zip(grid, vals, strict=True)) for vals in itertools.product(*grid.values())
+    ]
     if zipped:
         rows = [{k: v[i] for k, v in zipped.items()} for i in range(n_zip)]
         combos = [{**c, **r} for c in combos for r in rows]

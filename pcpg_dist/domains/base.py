@@ -129,8 +129,10 @@ class Domain:
                     from pcpg_dist.config.overrides import unknown_key_message
 
                     raise ConfigError(unknown_key_message(key, self.name)) from None
-                raise ConfigError(f"key '{key}': value {shown} is not allowed — "
-                                  f"{err['msg'].removeprefix('Value error, ')}") from None
+                raise ConfigError(
+                    f"key '{key}': value {shown} is not allowed — "
+                    f"{err['msg'].removeprefix('Value error, ')}"
+                ) from None
         return None
 
     def check_config(self, cfg: ExperimentConfig) -> None:
@@ -148,8 +150,12 @@ class Domain:
         plugin, its package version (an upgrade regenerates the data). Include the *content* of any
         file the data is read from (a hash), not only its path."""
         settings = self.settings(cfg)
-        return [self.name, cfg.seed, settings.model_dump(mode="json") if settings is not None else None,
-                self.package_version()]
+        return [
+            self.name,
+            cfg.seed,
+            settings.model_dump(mode="json") if settings is not None else None,
+            self.package_version(),
+        ]
 
     def package_version(self) -> str | None:
         """Version of the installed distribution that ships this domain (None for pcpg's own)."""
@@ -159,7 +165,9 @@ class Domain:
         if top == "pcpg_dist":
             return None
         try:
-            return ",".join(f"{d}=={version(d)}" for d in sorted(packages_distributions().get(top, [])))
+            return ",".join(
+                f"{d}=={version(d)}" for d in sorted(packages_distributions().get(top, []))
+            )
         except PackageNotFoundError:
             return None
 
@@ -177,9 +185,16 @@ class Domain:
         (``ranking.test_fraction``, ``ranking.split_seed``)."""
         from pcpg_dist.ranking import split_trajectories
 
-        return [Unit(env, ds, split_trajectories(ds.n_trajectories, cfg.ranking.test_fraction,
-                                                 cfg.ranking.split_seed)[1])
-                for env, ds in datasets.items()]
+        return [
+            Unit(
+                env,
+                ds,
+                split_trajectories(
+                    ds.n_trajectories, cfg.ranking.test_fraction, cfg.ranking.split_seed
+                )[1],
+            )
+            for env, ds in datasets.items()
+        ]
 
     # ------------------------------------------------------------------ stages
     def score(self, cfg: ExperimentConfig) -> ScoreFn | None:
@@ -190,7 +205,8 @@ class Domain:
         """Rollouts, returns, optimal returns and drawings for one unit, where the domain simulates."""
         return None
 
-    def extras(self, cfg: ExperimentConfig, unit: Unit, labels: np.ndarray, trained: Any,
-               out: Path) -> dict[str, float]:
+    def extras(
+        self, cfg: ExperimentConfig, unit: Unit, labels: np.ndarray, trained: Any, out: Path
+    ) -> dict[str, float]:
         """Domain-specific tables written to ``out`` and their metrics (outcomes, profiles, ...)."""
         return {}

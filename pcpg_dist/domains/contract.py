@@ -59,7 +59,9 @@ def calling(domain: Domain, method: str) -> Iterator[None]:
         if not is_plugin(domain):
             raise
         ray = sys.modules.get("ray")
-        while ray is not None and isinstance(e, ray.exceptions.RayTaskError) and e.cause is not None:
+        while (
+            ray is not None and isinstance(e, ray.exceptions.RayTaskError) and e.cause is not None
+        ):
             e = e.cause
         if isinstance(e, PcpgError):
             raise e from None
@@ -73,7 +75,9 @@ def data_key(cfg: ExperimentConfig) -> list[Any]:
     with calling(domain, "data_key"):
         key = domain.data_key(cfg)
     if not isinstance(key, list | tuple):
-        raise _fail(domain, "data_key", f"returned {_kind(key)}; it must return a list of JSON-able parts")
+        raise _fail(
+            domain, "data_key", f"returned {_kind(key)}; it must return a list of JSON-able parts"
+        )
     return list(key)
 
 
@@ -92,12 +96,18 @@ def generate(cfg: ExperimentConfig, show_progress: bool = True) -> dict[str, Dat
     envs: dict[str, str] = {}
     for name, ds in datasets.items():
         if not isinstance(name, str):
-            raise _fail(domain, "generate", f"returned the key {name!r} ({type(name).__name__}); {allowed}")
+            raise _fail(
+                domain, "generate", f"returned the key {name!r} ({type(name).__name__}); {allowed}"
+            )
         if not isinstance(ds, Dataset):
             raise _fail(domain, "generate", f"returned {_kind(ds)} for {name!r}; {allowed}")
         if ds.env in envs:  # both would be written to the same file
-            raise _fail(domain, "generate", f"returned two datasets of environment {ds.env!r} (keys "
-                                            f"{envs[ds.env]!r} and {name!r}); each environment must come once")
+            raise _fail(
+                domain,
+                "generate",
+                f"returned two datasets of environment {ds.env!r} (keys "
+                f"{envs[ds.env]!r} and {name!r}); each environment must come once",
+            )
         envs[ds.env] = name
     return datasets
 
@@ -132,30 +142,53 @@ def units(cfg: ExperimentConfig, datasets: dict[str, Dataset]) -> list[Unit]:
         if not isinstance(u, Unit):
             raise _fail(domain, "units", f"returned {_kind(u)} at position {i}; {allowed}")
         if not isinstance(u.name, str) or not u.name or u.name in (v.name for v in out):
-            raise _fail(domain, "units", f"returned a unit named {u.name!r} at position {i}; every unit "
-                                         "needs its own non-empty name (a str)")
+            raise _fail(
+                domain,
+                "units",
+                f"returned a unit named {u.name!r} at position {i}; every unit "
+                "needs its own non-empty name (a str)",
+            )
         where = f"returned unit {u.name!r} with"
         if not isinstance(u.dataset, Dataset):
-            raise _fail(domain, "units", f"{where} {_kind(u.dataset)} as its dataset; it must be a Dataset")
+            raise _fail(
+                domain, "units", f"{where} {_kind(u.dataset)} as its dataset; it must be a Dataset"
+            )
         n = u.dataset.n_trajectories
         test = np.asarray(u.test_idx)
         if test.ndim != 1 or (test.size and test.dtype.kind not in "iu"):
-            raise _fail(domain, "units", f"{where} test_idx of shape {test.shape} and dtype {test.dtype}; "
-                                         "it must be a 1-D array of trajectory positions (integers)")
+            raise _fail(
+                domain,
+                "units",
+                f"{where} test_idx of shape {test.shape} and dtype {test.dtype}; "
+                "it must be a 1-D array of trajectory positions (integers)",
+            )
         bad = test[(test < 0) | (test >= n)]
         if bad.size:
-            raise _fail(domain, "units", f"{where} test_idx {int(bad[0])}, outside 0..{n - 1} (its dataset "
-                                         f"holds {n} trajectories)")
+            raise _fail(
+                domain,
+                "units",
+                f"{where} test_idx {int(bad[0])}, outside 0..{n - 1} (its dataset "
+                f"holds {n} trajectories)",
+            )
         if len(np.unique(test)) != test.size:
-            raise _fail(domain, "units", f"{where} test_idx naming a trajectory twice; each position once")
+            raise _fail(
+                domain, "units", f"{where} test_idx naming a trajectory twice; each position once"
+            )
         if test.size >= n:
-            raise _fail(domain, "units", f"{where} all {n} trajectories held out; at least one must be left "
-                                         "for training")
+            raise _fail(
+                domain,
+                "units",
+                f"{where} all {n} trajectories held out; at least one must be left for training",
+            )
         ci = u.cluster_input
         if ci is not None and (not isinstance(ci, Dataset) or ci.n_trajectories != n):
             got = f"{ci.n_trajectories} trajectories" if isinstance(ci, Dataset) else _kind(ci)
-            raise _fail(domain, "units", f"{where} {got} as its cluster_input; it must be a Dataset of the "
-                                         f"same {n} trajectories as its dataset")
+            raise _fail(
+                domain,
+                "units",
+                f"{where} {got} as its cluster_input; it must be a Dataset of the "
+                f"same {n} trajectories as its dataset",
+            )
         out.append(replace(u, test_idx=test.astype(np.int64)))
     fn = score(cfg)
     for u in out:
@@ -175,8 +208,12 @@ def score(cfg: ExperimentConfig) -> ScoreFn | None:
     if fn is None:
         return None
     if not callable(fn):
-        raise _fail(domain, "score", f"returned {_kind(fn)}; it must return None or a function "
-                                     "Dataset -> one float per trajectory")
+        raise _fail(
+            domain,
+            "score",
+            f"returned {_kind(fn)}; it must return None or a function "
+            "Dataset -> one float per trajectory",
+        )
 
     def checked(dataset: Dataset) -> np.ndarray:
         with calling(domain, "score's function"):
@@ -184,8 +221,12 @@ def score(cfg: ExperimentConfig) -> ScoreFn | None:
         try:
             return np.asarray(values, dtype=np.float64)
         except (TypeError, ValueError):
-            raise _fail(domain, "score's function", f"returned {_kind(values)} that does not convert to "
-                                                    "floats; it must return one float per trajectory") from None
+            raise _fail(
+                domain,
+                "score's function",
+                f"returned {_kind(values)} that does not convert to "
+                "floats; it must return one float per trajectory",
+            ) from None
 
     return checked
 
@@ -199,14 +240,21 @@ def hooks(cfg: ExperimentConfig, unit: str) -> DomainHooks | None:
     if found is None:
         return None
     if not isinstance(found, DomainHooks):
-        raise _fail(domain, "hooks", f"returned {_kind(found)} for unit {unit!r}; it must return None or "
-                                     "a DomainHooks")
+        raise _fail(
+            domain,
+            "hooks",
+            f"returned {_kind(found)} for unit {unit!r}; it must return None or a DomainHooks",
+        )
     fields = {}
     for name in ("rollout", "returns", "optimal_return", "draw"):
         fn = getattr(found, name)
         if fn is not None and not callable(fn):
-            raise _fail(domain, "hooks", f"returned {_kind(fn)} as DomainHooks.{name} for unit {unit!r}; "
-                                         "it must be None or a function")
+            raise _fail(
+                domain,
+                "hooks",
+                f"returned {_kind(fn)} as DomainHooks.{name} for unit {unit!r}; "
+                "it must be None or a function",
+            )
         fields[name] = None if fn is None else _wrapped(domain, f"the {name} hook", fn)
     if found.rollout is not None:
         fields["rollout"] = _checked_rollout(domain, fields["rollout"])
@@ -226,30 +274,47 @@ def _checked_rollout(domain: Domain, rollout: Callable[..., Any]) -> Callable[..
 
     def checked(policy: Any, n_episodes: int, rng: np.random.Generator) -> Dataset:
         ds = rollout(policy, n_episodes, rng)
-        got = f"a Dataset of {ds.n_trajectories} episode(s)" if isinstance(ds, Dataset) else _kind(ds)
+        got = (
+            f"a Dataset of {ds.n_trajectories} episode(s)" if isinstance(ds, Dataset) else _kind(ds)
+        )
         if not isinstance(ds, Dataset) or ds.n_trajectories != n_episodes:
-            raise _fail(domain, "the rollout hook", f"returned {got}; it must return a Dataset of the "
-                                                    f"{n_episodes} episodes asked for")
+            raise _fail(
+                domain,
+                "the rollout hook",
+                f"returned {got}; it must return a Dataset of the {n_episodes} episodes asked for",
+            )
         return ds
 
     return checked
 
 
-def extras(cfg: ExperimentConfig, unit: Unit, labels: np.ndarray, trained: Any, out: Path) -> dict[str, float]:
+def extras(
+    cfg: ExperimentConfig, unit: Unit, labels: np.ndarray, trained: Any, out: Path
+) -> dict[str, float]:
     """The domain's own metrics for ``unit``: a dict of metric name -> finite float."""
     domain = cfg.domain_object
     with calling(domain, "extras"):
         metrics = domain.extras(cfg, unit, labels, trained, out)
     allowed = "it must return a dict of metric name (str) -> finite float"
     if not isinstance(metrics, dict):
-        raise _fail(domain, "extras", f"returned {_kind(metrics)} for unit {unit.name!r}; {allowed}")
+        raise _fail(
+            domain, "extras", f"returned {_kind(metrics)} for unit {unit.name!r}; {allowed}"
+        )
     checked: dict[str, float] = {}
     for name, value in metrics.items():
         if not isinstance(name, str) or not name:
-            raise _fail(domain, "extras", f"returned the key {name!r} for unit {unit.name!r}; {allowed}")
+            raise _fail(
+                domain, "extras", f"returned the key {name!r} for unit {unit.name!r}; {allowed}"
+            )
         number = isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_)
         if not number or not math.isfinite(value):
-            shown = repr(value) if number or isinstance(value, str | bool | np.bool_) else _kind(value)
-            raise _fail(domain, "extras", f"returned {name!r}: {shown[:80]} for unit {unit.name!r}; {allowed}")
+            shown = (
+                repr(value) if number or isinstance(value, str | bool | np.bool_) else _kind(value)
+            )
+            raise _fail(
+                domain,
+                "extras",
+                f"returned {name!r}: {shown[:80]} for unit {unit.name!r}; {allowed}",
+            )
         checked[name] = float(value)
     return checked

@@ -102,15 +102,22 @@ class GridTables:
             nxt[ok, a] = target[ok]
             valid[:, a] = ok
             for r in range(4):
-                gain = (REWARDS[r, 0] * (tile == "G") + REWARDS[r, 1] * ((tile == "1") & (b1 == 0))
-                        + REWARDS[r, 2] * ((tile == "2") & (b2 == 0)))
+                gain = (
+                    REWARDS[r, 0] * (tile == "G")
+                    + REWARDS[r, 1] * ((tile == "1") & (b1 == 0))
+                    + REWARDS[r, 2] * ((tile == "2") & (b2 == 0))
+                )
                 reward[r, ok, a] = gain[ok]
         here = chars[y, x]
         terminal = (here == "G") | (here == "X")
         valid[terminal] = False  # nothing to do after the episode ended
         sx, sy = layout.start
         return GridTables(
-            next_state=nxt, valid=valid, reward=reward, terminal=terminal, goal=here == "G",
+            next_state=nxt,
+            valid=valid,
+            reward=reward,
+            terminal=terminal,
+            goal=here == "G",
             features=np.stack([x, y, b1, b2], axis=1).astype(np.float32),
             start=int((sy * w + sx) * 4),
         )
@@ -133,10 +140,14 @@ def parse_layout(text: str, name: str = "<layout>", check_styles: bool = True) -
     width = len(lines[0])
     for i, ln in enumerate(lines, 1):
         if len(ln) != width:
-            raise LayoutError(f"{name}, line {i}: {len(ln)} characters, expected {width} like line 1")
+            raise LayoutError(
+                f"{name}, line {i}: {len(ln)} characters, expected {width} like line 1"
+            )
         bad = set(ln) - CHARS
         if bad:
-            raise LayoutError(f"{name}, line {i}: unknown character {sorted(bad)[0]!r}; allowed: . # S G X 1 2")
+            raise LayoutError(
+                f"{name}, line {i}: unknown character {sorted(bad)[0]!r}; allowed: . # S G X 1 2"
+            )
     if width < 2 or len(lines) < 2:
         raise LayoutError(f"{name}: a layout needs at least 2 rows and 2 columns")
     layout = Layout(name=name, grid=tuple(lines))
@@ -148,7 +159,9 @@ def parse_layout(text: str, name: str = "<layout>", check_styles: bool = True) -
     if check_styles:
         problem = style_problem(layout)
         if problem:
-            warnings.warn(f"{name}: {problem}; clustering cannot tell those styles apart", stacklevel=2)
+            warnings.warn(
+                f"{name}: {problem}; clustering cannot tell those styles apart", stacklevel=2
+            )
     return layout
 
 
@@ -156,12 +169,16 @@ def load_layout(path: str | Path, check_styles: bool = True) -> Layout:
     path = Path(path)
     try:
         if path.is_file() and path.stat().st_size > 1 << 20:
-            raise LayoutError(f"{path}: {path.stat().st_size} bytes; a layout file may hold at most {1 << 20}")
+            raise LayoutError(
+                f"{path}: {path.stat().st_size} bytes; a layout file may hold at most {1 << 20}"
+            )
         text = path.read_text(encoding="utf-8")
     except OSError as e:
         raise LayoutError(f"{path}: cannot read layout file ({e.strerror})") from None
     except UnicodeDecodeError as e:
-        raise LayoutError(f"{path}: not UTF-8 text (byte {e.start}); save the layout as UTF-8") from None
+        raise LayoutError(
+            f"{path}: not UTF-8 text (byte {e.start}); save the layout as UTF-8"
+        ) from None
     # Errors name the file; the layout itself is named by its stem (E1, E2, ...).
     layout = parse_layout(text, name=str(path), check_styles=check_styles)
     return Layout(name=path.stem, grid=layout.grid)
@@ -176,8 +193,12 @@ def _reach(layout: Layout, source: tuple[int, int]) -> set[tuple[int, int]]:
             continue
         for dx, dy in MOVES:
             nx, ny = x + dx, y + dy
-            if (0 <= nx < layout.width and 0 <= ny < layout.height and (nx, ny) not in seen
-                    and layout.grid[ny][nx] not in "#X"):
+            if (
+                0 <= nx < layout.width
+                and 0 <= ny < layout.height
+                and (nx, ny) not in seen
+                and layout.grid[ny][nx] not in "#X"
+            ):
                 seen.add((nx, ny))
                 queue.append((nx, ny))
     return seen
@@ -187,7 +208,9 @@ def _check_reachability(layout: Layout) -> None:
     start, goal = layout.start, layout.find("G")[0]
     from_start = _reach(layout, start)
     if goal not in from_start:
-        raise LayoutError(f"{layout.name}: the goal G is not reachable from S without crossing a trap or wall")
+        raise LayoutError(
+            f"{layout.name}: the goal G is not reachable from S without crossing a trap or wall"
+        )
     for ch in "12":
         bonus = layout.find(ch)[0]
         if bonus not in from_start:
@@ -197,8 +220,13 @@ def _check_reachability(layout: Layout) -> None:
 
 
 # ----------------------------------------------------------------------- planning
-def value_iteration(tables: GridTables, reward_index: int, gamma: float = 0.99,
-                    tol: float = 1e-10, max_iter: int = 10_000) -> np.ndarray:
+def value_iteration(
+    tables: GridTables,
+    reward_index: int,
+    gamma: float = 0.99,
+    tol: float = 1e-10,
+    max_iter: int = 10_000,
+) -> np.ndarray:
     """Optimal Q (S, A) for reward function ``reward_index``; invalid actions get -inf."""
     r = tables.reward[reward_index]
     cont = ~tables.terminal[tables.next_state]
@@ -232,18 +260,30 @@ def greedy_route(tables: GridTables, actions: np.ndarray, max_steps: int = 100) 
 
 def route_return(tables: GridTables, route: list[int], reward_index: int) -> float:
     r = tables.reward[reward_index]
-    return float(sum(r[s, a] for s, s2 in zip(route, route[1:], strict=False)
-                     for a in np.nonzero(tables.next_state[s] == s2)[0][:1]))
+    return float(
+        sum(
+            r[s, a]
+            for s, s2 in zip(route, route[1:], strict=False)
+            for a in np.nonzero(tables.next_state[s] == s2)[0][:1]
+        )
+    )
 
 
 def optimal_routes(layout: Layout, gamma: float = 0.99, max_steps: int = 100) -> list[list[int]]:
     t = layout.tables
-    return [greedy_route(t, greedy_actions(value_iteration(t, r, gamma), t.valid), max_steps) for r in range(4)]
+    return [
+        greedy_route(t, greedy_actions(value_iteration(t, r, gamma), t.valid), max_steps)
+        for r in range(4)
+    ]
 
 
-def optimal_return(layout: Layout, reward_index: int, gamma: float = 0.99, max_steps: int = 100) -> float:
+def optimal_return(
+    layout: Layout, reward_index: int, gamma: float = 0.99, max_steps: int = 100
+) -> float:
     """Undiscounted return of the optimal (value-iteration) policy's rollout under R."""
-    return route_return(layout.tables, optimal_routes(layout, gamma, max_steps)[reward_index], reward_index)
+    return route_return(
+        layout.tables, optimal_routes(layout, gamma, max_steps)[reward_index], reward_index
+    )
 
 
 def style_problem(layout: Layout, gamma: float = 0.99, max_steps: int = 100) -> str | None:
@@ -257,7 +297,9 @@ def style_problem(layout: Layout, gamma: float = 0.99, max_steps: int = 100) -> 
         if not t.goal[end]:
             problems.append(f"R{r + 1}'s optimal route does not reach G")
         elif flags != SIGNATURES[r]:
-            problems.append(f"R{r + 1}'s optimal route ends with (b1, b2) = {flags}, not {SIGNATURES[r]}")
+            problems.append(
+                f"R{r + 1}'s optimal route ends with (b1, b2) = {flags}, not {SIGNATURES[r]}"
+            )
     cells = [tuple(int(s) // 4 for s in route) for route in routes]
     shared: set[int] = set()
     for i in range(4):
@@ -276,13 +318,21 @@ def style_problem(layout: Layout, gamma: float = 0.99, max_steps: int = 100) -> 
         for dx, dy in MOVES:
             nx, ny = x + dx, y + dy
             if 0 <= nx < layout.width and 0 <= ny < layout.height and layout.grid[ny][nx] == "X":
-                problems.append(f"trap at ({nx}, {ny}) borders ({x}, {y}), where styles' routes have not "
-                                f"yet parted")
+                problems.append(
+                    f"trap at ({nx}, {ny}) borders ({x}, {y}), where styles' routes have not "
+                    f"yet parted"
+                )
     return "; ".join(dict.fromkeys(problems)) or None
 
 
-def random_layout(seed: int | Sequence[int], size: int = 10, wall_density: float = 0.18, n_traps: int = 4,
-                  max_tries: int = 10_000, name: str | None = None) -> Layout:
+def random_layout(
+    seed: int | Sequence[int],
+    size: int = 10,
+    wall_density: float = 0.18,
+    n_traps: int = 4,
+    max_tries: int = 10_000,
+    name: str | None = None,
+) -> Layout:
     """A random valid layout whose four styles have distinct optimal routes and signatures.
 
     Deterministic in ``seed`` (an int, or a sequence of ints = one seed-sequence entropy):
@@ -319,12 +369,20 @@ def random_layouts(count: int, seed: int, start: int = 0) -> list[Layout]:
 
     Layout i comes from the seed sequence (seed, i) alone, so it does not depend on ``count``.
     """
-    return [random_layout((seed, i), name=random_layout_name(i)) for i in range(start, start + count)]
+    return [
+        random_layout((seed, i), name=random_layout_name(i)) for i in range(start, start + count)
+    ]
 
 
 # ----------------------------------------------------------------------- rollouts
-def rollout(layout: Layout, policy: Policy, n_episodes: int, rng: np.random.Generator,
-            max_steps: int = 100, reward_index: int = 0) -> Dataset:
+def rollout(
+    layout: Layout,
+    policy: Policy,
+    n_episodes: int,
+    rng: np.random.Generator,
+    max_steps: int = 100,
+    reward_index: int = 0,
+) -> Dataset:
     """Roll ``policy`` out ``n_episodes`` times from S, all episodes stepped together.
 
     The returned Dataset's rewards are under R_{reward_index + 1}; ``success`` = reached G.
@@ -350,14 +408,30 @@ def rollout(layout: Layout, policy: Policy, n_episodes: int, rng: np.random.Gene
         lengths[live] += 1
         alive &= ~t.terminal[s]
     trajs = []
-    st, ac = np.stack(states, 1), np.stack(actions, 1) if actions else np.zeros((n_episodes, 0), np.int64)
+    st, ac = (
+        np.stack(states, 1),
+        np.stack(actions, 1) if actions else np.zeros((n_episodes, 0), np.int64),
+    )
     for i in range(n_episodes):
         seq, acts = st[i, : lengths[i]], ac[i, : lengths[i] - 1]
-        trajs.append({"states": t.features[seq], "actions": acts, "valid": t.valid[seq],
-                      "rewards": t.reward[reward_index, seq[:-1], acts]})
+        trajs.append(
+            {
+                "states": t.features[seq],
+                "actions": acts,
+                "valid": t.valid[seq],
+                "rewards": t.reward[reward_index, seq[:-1], acts],
+            }
+        )
     success = [bool(t.goal[st[i, lengths[i] - 1]]) for i in range(n_episodes)]
-    return Dataset.from_trajectories("gridworld", layout.name, N_ACTIONS, trajs,
-                                     styles=[-1] * n_episodes, success=success, feature_names=FEATURES)
+    return Dataset.from_trajectories(
+        "gridworld",
+        layout.name,
+        N_ACTIONS,
+        trajs,
+        styles=[-1] * n_episodes,
+        success=success,
+        feature_names=FEATURES,
+    )
 
 
 def returns(dataset: Dataset, reward_index: int) -> np.ndarray:
@@ -369,8 +443,15 @@ def returns(dataset: Dataset, reward_index: int) -> np.ndarray:
 
 def draw_trajectory(ax, layout: Layout, dataset: Dataset, title: str | None = None) -> None:
     """Draw the grid and the (first) trajectory of ``dataset`` on a matplotlib axis (Fig. 8)."""
-    colours = {".": (1, 1, 1), "#": (0.25, 0.25, 0.25), "S": (0.6, 0.8, 1.0), "G": (0.4, 0.85, 0.4),
-               "X": (0.95, 0.4, 0.4), "1": (1.0, 0.85, 0.3), "2": (0.85, 0.55, 1.0)}
+    colours = {
+        ".": (1, 1, 1),
+        "#": (0.25, 0.25, 0.25),
+        "S": (0.6, 0.8, 1.0),
+        "G": (0.4, 0.85, 0.4),
+        "X": (0.95, 0.4, 0.4),
+        "1": (1.0, 0.85, 0.3),
+        "2": (0.85, 0.55, 1.0),
+    }
     img = np.array([[colours[c] for c in row] for row in layout.grid])
     ax.imshow(img, origin="upper")
     for ch in "SG12X":
@@ -379,7 +460,9 @@ def draw_trajectory(ax, layout: Layout, dataset: Dataset, title: str | None = No
     if dataset.n_trajectories:
         xy = dataset.trajectory_states(0)[:, :2]
         jitter = np.linspace(-0.15, 0.15, len(xy))
-        ax.plot(xy[:, 0] + jitter, xy[:, 1] + jitter, "-o", color="navy", markersize=2, linewidth=1.5)
+        ax.plot(
+            xy[:, 0] + jitter, xy[:, 1] + jitter, "-o", color="navy", markersize=2, linewidth=1.5
+        )
     ax.set_xticks([])
     ax.set_yticks([])
     if title:

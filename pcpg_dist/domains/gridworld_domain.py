@@ -34,8 +34,12 @@ def _file_layout(cfg, env: str, check_styles: bool = True):
     from pcpg_dist.domains.gridworld import Layout, parse_layout
 
     gw = cfg.gridworld
-    return Layout(name=env, grid=parse_layout(gw.layout_text(env), name=str(gw.layout_path(env)),
-                                              check_styles=check_styles).grid)
+    return Layout(
+        name=env,
+        grid=parse_layout(
+            gw.layout_text(env), name=str(gw.layout_path(env)), check_styles=check_styles
+        ).grid,
+    )
 
 
 def gridworld_layout(cfg, unit: str):
@@ -73,13 +77,18 @@ class GridWorldDomain(Domain):
         layouts = gridworld_layouts(cfg)
         calls = [(layout, r, cfg.pbtg, cfg.seed) for layout in layouts for r in range(4)]
         pairs = run_tasks(generate_pair, calls, "PBTG (E, R)", show_progress=show_progress)
-        return {lt.name: assemble_dataset(pairs[4 * i: 4 * i + 4]) for i, lt in enumerate(layouts)}
+        return {lt.name: assemble_dataset(pairs[4 * i : 4 * i + 4]) for i, lt in enumerate(layouts)}
 
     def manifest(self, cfg, datasets) -> dict[str, Any]:
         from pcpg_dist.pbtg import pair_seed
 
-        return {"seed_entropy": {f"{env}/R{r + 1}": pair_seed(cfg.seed, env, r).entropy
-                                 for env in datasets for r in range(4)}}
+        return {
+            "seed_entropy": {
+                f"{env}/R{r + 1}": pair_seed(cfg.seed, env, r).entropy
+                for env in datasets
+                for r in range(4)
+            }
+        }
 
     def hooks(self, cfg, unit: str) -> DomainHooks:
         from pcpg_dist.domains import gridworld as gw
@@ -88,5 +97,7 @@ class GridWorldDomain(Domain):
         layout = gridworld_layout(cfg, unit)
         return DomainHooks(
             rollout=lambda policy, n, rng: gw.rollout(layout, policy, n, rng, max_steps=steps),
-            returns=gw.returns, optimal_return=lambda r: gw.optimal_return(layout, r, max_steps=steps),
-            draw=lambda ax, ds: gw.draw_trajectory(ax, layout, ds))
+            returns=gw.returns,
+            optimal_return=lambda r: gw.optimal_return(layout, r, max_steps=steps),
+            draw=lambda ax, ds: gw.draw_trajectory(ax, layout, ds),
+        )

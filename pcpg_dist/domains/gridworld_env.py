@@ -35,8 +35,13 @@ class GridWorldEnv(gym.Env):
 
     metadata = {"render_modes": ["ansi"]}
 
-    def __init__(self, layout: Layout, reward_index: int = 0, max_steps: int = 100,
-                 render_mode: str | None = None) -> None:
+    def __init__(
+        self,
+        layout: Layout,
+        reward_index: int = 0,
+        max_steps: int = 100,
+        render_mode: str | None = None,
+    ) -> None:
         if reward_index not in range(4):
             raise ValueError(f"reward_index must be 0..3 (R1..R4), got {reward_index}")
         self.layout, self.reward_index, self.max_steps = layout, reward_index, max_steps

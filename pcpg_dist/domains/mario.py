@@ -54,7 +54,9 @@ SHIPPED_PATH = ("data", "mario", "mario_stli_all_levels.log")
 SHIPPED_SHA256 = "ff427eb617213f81c138d67c707a6ec953fa79154d3566c940ffbe1ae08e876b"
 SHIPPED_EPISODES = 225
 
-MAX_COUNTER = 2**24  # float32 states hold counters exactly up to here; a human episode counts hundreds
+MAX_COUNTER = (
+    2**24
+)  # float32 states hold counters exactly up to here; a human episode counts hundreds
 
 EVENT_ONEHOT = tuple(f"event_{i}" for i in range(N_ACTIONS))
 
@@ -72,10 +74,14 @@ class LoadResult:
 
     @property
     def counts(self) -> dict[str, int]:
-        return {"episodes": self.dataset.n_trajectories, "steps": self.dataset.n_rows,
-                "skipped_steps": self.skipped_steps, "skipped_episodes": self.skipped_episodes,
-                "unterminated_episodes": self.unterminated_episodes,
-                "blank_lines": self.blank_lines}
+        return {
+            "episodes": self.dataset.n_trajectories,
+            "steps": self.dataset.n_rows,
+            "skipped_steps": self.skipped_steps,
+            "skipped_episodes": self.skipped_episodes,
+            "unterminated_episodes": self.unterminated_episodes,
+            "blank_lines": self.blank_lines,
+        }
 
     def summary(self) -> str:
         """One line for a log or a tracking tag."""
@@ -91,7 +97,10 @@ def _parse_step(text: str) -> tuple[list[int] | None, str]:
     """Six integers from ``'j,k,r,c,d,e'``, or None and why not."""
     parts = text.split(",")
     if len(parts) != FIELDS_PER_STEP:
-        return None, f"expected {FIELDS_PER_STEP} comma-separated integers, got {len(parts)} fields ({text[:60]!r})"
+        return (
+            None,
+            f"expected {FIELDS_PER_STEP} comma-separated integers, got {len(parts)} fields ({text[:60]!r})",
+        )
     try:
         values = [int(p) for p in parts]
     except ValueError:
@@ -113,30 +122,44 @@ def _success(steps: np.ndarray, goal: Goal) -> bool:
     return True
 
 
-def feature_names(event: EventEncoding = "onehot", counters: bool = True,
-                  increments: bool = False) -> tuple[str, ...]:
+def feature_names(
+    event: EventEncoding = "onehot", counters: bool = True, increments: bool = False
+) -> tuple[str, ...]:
     """State feature names, in order: counters, the event, increments (each where chosen)."""
-    return ((*COUNTERS,) if counters else ()) + (EVENT_ONEHOT if event == "onehot" else ("event",)) \
+    return (
+        ((*COUNTERS,) if counters else ())
+        + (EVENT_ONEHOT if event == "onehot" else ("event",))
         + (INCREMENTS if increments else ())
+    )
 
 
-def _episode_arrays(steps: np.ndarray, event: EventEncoding, counters: bool,
-                    increments: bool) -> dict[str, np.ndarray]:
+def _episode_arrays(
+    steps: np.ndarray, event: EventEncoding, counters: bool, increments: bool
+) -> dict[str, np.ndarray]:
     """States, next-event actions, all-valid mask and zero rewards of one episode."""
-    parts = [steps[:, :DEATHS + 1]] if counters else []
+    parts = [steps[:, : DEATHS + 1]] if counters else []
     parts.append(np.eye(N_ACTIONS)[steps[:, -1]] if event == "onehot" else steps[:, -1:])
     if increments:
         # Counters start from an implicit zero before the first step (18 shipped episodes open
         # on a kill, so their first step already counts 1): the first increment is steps[0].
-        parts.append(np.diff(steps[:, :DEATHS + 1], axis=0, prepend=0))
+        parts.append(np.diff(steps[:, : DEATHS + 1], axis=0, prepend=0))
     states = np.concatenate(parts, axis=1).astype(np.float32)
-    return {"states": states, "actions": steps[1:, -1], "valid": np.ones((len(steps), N_ACTIONS), bool),
-            "rewards": np.zeros(len(steps) - 1)}
+    return {
+        "states": states,
+        "actions": steps[1:, -1],
+        "valid": np.ones((len(steps), N_ACTIONS), bool),
+        "rewards": np.zeros(len(steps) - 1),
+    }
 
 
-def load_play_log(path: str | Path, strict: bool = True, goal: Goal = "no_death",
-                  increments: bool = False, event: EventEncoding = "onehot",
-                  counters: bool = True) -> LoadResult:
+def load_play_log(
+    path: str | Path,
+    strict: bool = True,
+    goal: Goal = "no_death",
+    increments: bool = False,
+    event: EventEncoding = "onehot",
+    counters: bool = True,
+) -> LoadResult:
     """Read an S-TLI play log into a Dataset (domain 'mario', env 'smb', styles unknown).
 
     Every problem names the file, the line, the episode (0-based, counting non-blank lines)
@@ -153,11 +176,15 @@ def load_play_log(path: str | Path, strict: bool = True, goal: Goal = "no_death"
         raise DataError(f"event must be 'onehot' or 'id', got {event!r}")
     try:
         if not path.is_file():  # a FIFO or /dev/zero would block or never end
-            raise DataError(f"{path}: cannot read play log (" + ("not a regular file)" if path.exists()
-                                                                  else "not found)"))
+            raise DataError(
+                f"{path}: cannot read play log ("
+                + ("not a regular file)" if path.exists() else "not found)")
+            )
         if path.stat().st_size > MAX_PLAY_LOG_BYTES:
-            raise DataError(f"{path}: {path.stat().st_size} bytes; a play log may hold at most {MAX_PLAY_LOG_BYTES} "
-                            f"(split it)")
+            raise DataError(
+                f"{path}: {path.stat().st_size} bytes; a play log may hold at most {MAX_PLAY_LOG_BYTES} "
+                f"(split it)"
+            )
         text = path.read_text(encoding="utf-8-sig", errors="replace")  # a BOM is not data
     except OSError as e:
         raise DataError(f"{path}: cannot read play log ({e.strerror or e})") from None
@@ -201,23 +228,33 @@ def load_play_log(path: str | Path, strict: bool = True, goal: Goal = "no_death"
             problem(f"{where}: no readable step")
             continue
         arr = np.asarray(steps, dtype=np.int64)
-        down = np.diff(arr[:, :DEATHS + 1], axis=0) < 0
+        down = np.diff(arr[:, : DEATHS + 1], axis=0) < 0
         if down.any():
             step, col = (int(x) for x in np.argwhere(down)[0])
             skipped_episodes += 1
-            problem(f"{where} step {step + 1}: cumulative counter '{COUNTERS[col]}' decreases "
-                    f"from {arr[step, col]} to {arr[step + 1, col]}")
+            problem(
+                f"{where} step {step + 1}: cumulative counter '{COUNTERS[col]}' decreases "
+                f"from {arr[step, col]} to {arr[step + 1, col]}"
+            )
             continue
         trajectories.append(_episode_arrays(arr, event, counters, increments))
         success.append(_success(arr, goal))
 
     if not trajectories:
-        raise DataError(f"{path}: no readable episode ({len(problems)} problems; first: "
-                        f"{problems[0] if problems else 'the file is empty'})")
+        raise DataError(
+            f"{path}: no readable episode ({len(problems)} problems; first: "
+            f"{problems[0] if problems else 'the file is empty'})"
+        )
     names = feature_names(event, counters, increments)
-    dataset = Dataset.from_trajectories(DOMAIN, ENV, N_ACTIONS, trajectories,
-                                        styles=[-1] * len(trajectories), success=success,
-                                        feature_names=names)
+    dataset = Dataset.from_trajectories(
+        DOMAIN,
+        ENV,
+        N_ACTIONS,
+        trajectories,
+        styles=[-1] * len(trajectories),
+        success=success,
+        feature_names=names,
+    )
     result = LoadResult(dataset, problems, skipped_steps, skipped_episodes, unterminated, blank)
     if problems:
         shown = "; ".join(problems[:5]) + (" ..." if len(problems) > 5 else "")
@@ -231,16 +268,24 @@ def load(cfg: MarioLoadConfig) -> LoadResult:
     return load_default(**options) if cfg.path is None else load_play_log(cfg.path, **options)
 
 
-def load_default(strict: bool = True, goal: Goal = "no_death", increments: bool = False,
-                 event: EventEncoding = "onehot", counters: bool = True) -> LoadResult:
+def load_default(
+    strict: bool = True,
+    goal: Goal = "no_death",
+    increments: bool = False,
+    event: EventEncoding = "onehot",
+    counters: bool = True,
+) -> LoadResult:
     """The shipped log (225 human episodes), read from package data — never from /work/shared."""
     resource = resources.files(SHIPPED_PACKAGE).joinpath(*SHIPPED_PATH)
     with resources.as_file(resource) as path:
         if not Path(path).is_file():
-            raise DataError(f"{path}: the shipped Mario play log is missing from the installed "
-                            "package (was pcpg_dist/data/ left out of the build?)")
-        return load_play_log(path, strict=strict, goal=goal, increments=increments, event=event,
-                             counters=counters)
+            raise DataError(
+                f"{path}: the shipped Mario play log is missing from the installed "
+                "package (was pcpg_dist/data/ left out of the build?)"
+            )
+        return load_play_log(
+            path, strict=strict, goal=goal, increments=increments, event=event, counters=counters
+        )
 
 
 def shipped_log_path() -> Path:
@@ -257,8 +302,10 @@ def valid_mask_from(train: Dataset) -> np.ndarray:
     """
     seen = np.unique(train.actions[train.actions >= 0])
     if not len(seen):
-        raise DataError(f"dataset {train.domain}-{train.env}: no step with an action, "
-                        "cannot derive a valid-event mask")
+        raise DataError(
+            f"dataset {train.domain}-{train.env}: no step with an action, "
+            "cannot derive a valid-event mask"
+        )
     mask = np.zeros(train.n_actions, bool)
     mask[seen] = True
     return mask
@@ -268,8 +315,10 @@ def with_valid(dataset: Dataset, mask: np.ndarray) -> Dataset:
     """A copy of ``dataset`` whose every row has the valid-action mask ``mask`` ((n_actions,) bool)."""
     mask = np.asarray(mask, bool)
     if mask.shape != (dataset.n_actions,) or not mask.any():
-        raise DataError(f"valid mask must be a non-empty ({dataset.n_actions},) bool vector, got "
-                        f"shape {mask.shape} with {int(mask.sum())} valid")
+        raise DataError(
+            f"valid mask must be a non-empty ({dataset.n_actions},) bool vector, got "
+            f"shape {mask.shape} with {int(mask.sum())} valid"
+        )
     return replace(dataset, valid=np.broadcast_to(mask, (dataset.n_rows, dataset.n_actions)).copy())
 
 
@@ -311,9 +360,11 @@ def cluster_profile(dataset: Dataset, labels: np.ndarray) -> pd.DataFrame:
         per_row = dataset.states[:, cols].astype(np.float64)
         finals = np.add.reduceat(per_row, dataset.offsets[:-1], axis=0)
     else:
-        raise DataError(f"dataset {dataset.domain}-{dataset.env} has neither the Mario counters "
-                        f"{list(COUNTERS)} nor their increments {list(INCREMENTS)} "
-                        f"(feature_names={list(names)})")
+        raise DataError(
+            f"dataset {dataset.domain}-{dataset.env} has neither the Mario counters "
+            f"{list(COUNTERS)} nor their increments {list(INCREMENTS)} "
+            f"(feature_names={list(names)})"
+        )
     frame = pd.DataFrame(finals / lengths[:, None], columns=list(RATE_COLUMNS))
     frame["length"] = lengths
     frame["success"] = dataset.success.astype(np.float64)
@@ -350,13 +401,17 @@ def plot_profile(profile: pd.DataFrame, path: str | Path) -> Path:
     x = np.arange(len(COUNTERS))
     names = [f"cluster {c} (n={int(s)})" for c, s in zip(profile.index, sizes, strict=True)]
     for i in range(k):
-        ax.bar(x + (i - (k - 1) / 2) * width, relative[i], width, label=names[i], color=f"C{i % 10}")
+        ax.bar(
+            x + (i - (k - 1) / 2) * width, relative[i], width, label=names[i], color=f"C{i % 10}"
+        )
     ax.axhline(1.0, color="black", lw=0.8, ls="--")
     ax.set_xticks(x, [c.replace("_", " ") for c in COUNTERS])
     ax.set_ylabel("per-step rate / all-episode mean")
     ax.set_title("Mario play-style profile")
     ax.legend(fontsize="small")
-    ax_len.bar(np.arange(k), profile["mean_length"].to_numpy(), color=[f"C{i % 10}" for i in range(k)])
+    ax_len.bar(
+        np.arange(k), profile["mean_length"].to_numpy(), color=[f"C{i % 10}" for i in range(k)]
+    )
     ax_len.set_xticks(np.arange(k), [str(c) for c in profile.index])
     ax_len.set_xlabel("cluster")
     ax_len.set_ylabel("mean episode length (steps)")

@@ -21,7 +21,11 @@ class MarioDomain(Domain):
         from pcpg_dist.dataset import sha256_file
 
         log = cfg.mario.path
-        return [self.name, cfg.mario, sha256_file(log) if log is not None and log.is_file() else "shipped"]
+        return [
+            self.name,
+            cfg.mario,
+            sha256_file(log) if log is not None and log.is_file() else "shipped",
+        ]
 
     def generate(self, cfg, show_progress: bool = True):
         from pcpg_dist.domains.mario import load
@@ -39,8 +43,9 @@ class MarioDomain(Domain):
 
         units = []
         for env, ds in datasets.items():
-            train_idx, test_idx = split_trajectories(ds.n_trajectories, cfg.ranking.test_fraction,
-                                                     cfg.ranking.split_seed)
+            train_idx, test_idx = split_trajectories(
+                ds.n_trajectories, cfg.ranking.test_fraction, cfg.ranking.split_seed
+            )
             units.append(Unit(env, with_valid(ds, valid_mask_from(ds.subset(train_idx))), test_idx))
         return units
 

@@ -59,15 +59,21 @@ def get(name: str):
         try:
             obj = getattr(import_module(module), attr)
         except (ImportError, AttributeError) as e:
-            raise ConfigError(f"domain {name!r}: cannot load {where} ({type(e).__name__}: {e})") from None
+            raise ConfigError(
+                f"domain {name!r}: cannot load {where} ({type(e).__name__}: {e})"
+            ) from None
         from pcpg_dist.domains.base import Domain
 
         if not (isinstance(obj, Domain) or (isinstance(obj, type) and issubclass(obj, Domain))):
-            raise ConfigError(f"domain {name!r}: {where} is {obj!r}, not a pcpg_dist.domains.base.Domain "
-                              f"(subclass of it, or an instance); docs/writing-a-domain.md shows one")
+            raise ConfigError(
+                f"domain {name!r}: {where} is {obj!r}, not a pcpg_dist.domains.base.Domain "
+                f"(subclass of it, or an instance); docs/writing-a-domain.md shows one"
+            )
         obj = obj() if isinstance(obj, type) else obj
         if getattr(obj, "name", None) != name:
-            raise ConfigError(f"domain {name!r}: {where} has name {getattr(obj, 'name', None)!r}; the "
-                              f"entry point and the domain's `name` must agree")
+            raise ConfigError(
+                f"domain {name!r}: {where} has name {getattr(obj, 'name', None)!r}; the "
+                f"entry point and the domain's `name` must agree"
+            )
         _loaded[name] = obj
     return _loaded[name]

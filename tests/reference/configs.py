@@ -21,8 +21,14 @@ ROOT = Path(__file__).resolve().parents[2]
 HERE = Path(__file__).resolve().parent
 
 GRIDWORLD = {
-    "name": "ref_gridworld", "domain": "gridworld", "seed": 3, "seeds": [0, 1],
-    "gridworld": {"layout_dir": str(ROOT / "pcpg_dist" / "data" / "gridworld"), "environments": ["E2"]},
+    "name": "ref_gridworld",
+    "domain": "gridworld",
+    "seed": 3,
+    "seeds": [0, 1],
+    "gridworld": {
+        "layout_dir": str(ROOT / "pcpg_dist" / "data" / "gridworld"),
+        "environments": ["E2"],
+    },
     "pbtg": {"episodes": 8000, "trajectories_per_style": 120, "dataset_per_style": 60},
     "clustering": {"method": "lstm_dec", "k": 4, "pretrain_epochs": 4, "dec_epochs": 2},
     "ranking": {"ps": [1.0, 0.5]},
@@ -31,13 +37,25 @@ GRIDWORLD = {
 }
 
 MINIDUNGEONS = {
-    "name": "ref_minidungeons", "domain": "minidungeons", "seed": 0, "seeds": [0],
-    "minidungeons": {"train_levels": ["test", "hard", "random_1"], "test_levels": ["holmgard_1", "holmgard_2"],
-                     "runs_per_level": 2, "max_steps": 80},
+    "name": "ref_minidungeons",
+    "domain": "minidungeons",
+    "seed": 0,
+    "seeds": [0],
+    "minidungeons": {
+        "train_levels": ["test", "hard", "random_1"],
+        "test_levels": ["holmgard_1", "holmgard_2"],
+        "runs_per_level": 2,
+        "max_steps": 80,
+    },
     "clustering": {"method": "lstm_dec", "k": 6, "pretrain_epochs": 4, "dec_epochs": 2},
     "ranking": {"ps": [1.0, 0.5]},
     "bc": {"epochs": 200, "hidden_size": 8},
-    "evaluation": {"rollouts_per_policy": 4, "max_steps": 60, "corruption_levels": [], "figures": False},
+    "evaluation": {
+        "rollouts_per_policy": 4,
+        "max_steps": 60,
+        "corruption_levels": [],
+        "figures": False,
+    },
 }
 
 MARIO_EPISODES, MARIO_STEPS = 40, 80
@@ -45,9 +63,18 @@ MARIO_EPISODES, MARIO_STEPS = 40, 80
 
 def mario_config(log: Path) -> dict:
     return {
-        "name": "ref_mario", "domain": "mario", "seed": 0, "seeds": [0],
+        "name": "ref_mario",
+        "domain": "mario",
+        "seed": 0,
+        "seeds": [0],
         "mario": {"path": str(log), "event": "onehot", "counters": True, "increments": True},
-        "clustering": {"method": "lstm_dec", "k": 2, "batch_size": 16, "pretrain_epochs": 3, "dec_epochs": 2},
+        "clustering": {
+            "method": "lstm_dec",
+            "k": 2,
+            "batch_size": 16,
+            "pretrain_epochs": 3,
+            "dec_epochs": 2,
+        },
         "ranking": {"ps": [1.0, 0.5]},
         "bc": {"hidden_layers": 2, "hidden_size": 8, "epochs": 100, "lr": 0.03},
         "evaluation": {"figures": False},
@@ -74,15 +101,21 @@ def run_all(work: Path) -> dict[str, dict[str, float]]:
     from pcpg_dist.runner import run_experiment
 
     work.mkdir(parents=True, exist_ok=True)
-    raws = {"gridworld": GRIDWORLD, "minidungeons": MINIDUNGEONS,
-            "mario": mario_config(small_mario_log(work / "mario_small.log"))}
+    raws = {
+        "gridworld": GRIDWORLD,
+        "minidungeons": MINIDUNGEONS,
+        "mario": mario_config(small_mario_log(work / "mario_small.log")),
+    }
     out = {}
     for name, raw in raws.items():
         path = work / f"{name}.yaml"
         path.write_text(yaml.safe_dump(raw))
-        result = run_experiment(load_config(path), workdir=work / "runs", track=False, show_progress=False)
-        out[name] = {k: float(v) for k, v in sorted(result.metrics.items())
-                     if "seconds" not in k and v == v}
+        result = run_experiment(
+            load_config(path), workdir=work / "runs", track=False, show_progress=False
+        )
+        out[name] = {
+            k: float(v) for k, v in sorted(result.metrics.items()) if "seconds" not in k and v == v
+        }
     return out
 
 
@@ -97,7 +130,9 @@ if __name__ == "__main__":
     from pcpg_dist.parallel import set_threads
 
     set_threads(1)
-    ray.init(num_cpus=2, include_dashboard=False, object_store_memory=200_000_000, log_to_driver=False)
+    ray.init(
+        num_cpus=2, include_dashboard=False, object_store_memory=200_000_000, log_to_driver=False
+    )
     with tempfile.TemporaryDirectory() as tmp:
         numbers = run_all(Path(tmp))
     (HERE / "metrics.json").write_text(json.dumps(numbers, indent=1, sort_keys=True) + "\n")

@@ -36,8 +36,13 @@ def _record(game: Game) -> tuple[np.ndarray, int]:
     return game.features(), game.valid_mask()
 
 
-def play(level: Level, proxy: int, epsilon: float, rng: np.random.Generator,
-         max_steps: int = DEFAULT_MAX_STEPS) -> tuple[dict[str, np.ndarray], Game]:
+def play(
+    level: Level,
+    proxy: int,
+    epsilon: float,
+    rng: np.random.Generator,
+    max_steps: int = DEFAULT_MAX_STEPS,
+) -> tuple[dict[str, np.ndarray], Game]:
     """One episode of a proxy; returns the trajectory dict of Dataset.from_trajectories and the game."""
     game = Game(level, max_steps)
     states, valid, actions, rewards = [], [], [], []
@@ -52,20 +57,31 @@ def play(level: Level, proxy: int, epsilon: float, rng: np.random.Generator,
         s, v = _record(game)
         states.append(s)
         valid.append(v)
-    return {"states": np.stack(states), "actions": np.array(actions, np.int64),
-            "valid": np.array(valid, bool), "rewards": np.array(rewards, np.float64)}, game
+    return {
+        "states": np.stack(states),
+        "actions": np.array(actions, np.int64),
+        "valid": np.array(valid, bool),
+        "rewards": np.array(rewards, np.float64),
+    }, game
 
 
-def generate_trajectories(level_name: str, proxy: int, n_runs: int, seed: int,
-                          noise_range: tuple[float, float] = DEFAULT_NOISE,
-                          max_steps: int = DEFAULT_MAX_STEPS) -> Dataset:
+def generate_trajectories(
+    level_name: str,
+    proxy: int,
+    n_runs: int,
+    seed: int,
+    noise_range: tuple[float, float] = DEFAULT_NOISE,
+    max_steps: int = DEFAULT_MAX_STEPS,
+) -> Dataset:
     """``n_runs`` episodes of one proxy on one level; each run's epsilon ~ U[noise_range].
 
     ``styles`` = proxy id, ``success`` = reached the exit, ``epsilon`` = the noise used.
     Same arguments, same Dataset: all randomness comes from ``np.random.default_rng(seed)``.
     """
     if not 0 <= proxy < N_PROXIES:
-        raise ConfigError(f"proxy must be 0..{N_PROXIES - 1} ({', '.join(PROXY_NAMES)}), got {proxy}")
+        raise ConfigError(
+            f"proxy must be 0..{N_PROXIES - 1} ({', '.join(PROXY_NAMES)}), got {proxy}"
+        )
     lo, hi = noise_range
     if not 0.0 <= lo <= hi <= 1.0:
         raise ConfigError(f"noise_range must satisfy 0 <= lo <= hi <= 1, got {noise_range}")
@@ -80,19 +96,34 @@ def generate_trajectories(level_name: str, proxy: int, n_runs: int, seed: int,
         trajs.append(tr)
         success.append(game.success)
         eps.append(e)
-    return Dataset.from_trajectories(DOMAIN, level.name, N_ACTIONS, trajs, styles=[proxy] * n_runs,
-                                     success=success, epsilon=eps, feature_names=FEATURES)
+    return Dataset.from_trajectories(
+        DOMAIN,
+        level.name,
+        N_ACTIONS,
+        trajs,
+        styles=[proxy] * n_runs,
+        success=success,
+        epsilon=eps,
+        feature_names=FEATURES,
+    )
 
 
-def default_dataset(seed: int, n_runs: int = 10, levels: tuple[str, ...] = (*LEVELS_TRAIN, *LEVELS_TEST),
-                    noise_range: tuple[float, float] = DEFAULT_NOISE) -> Dataset:
+def default_dataset(
+    seed: int,
+    n_runs: int = 10,
+    levels: tuple[str, ...] = (*LEVELS_TRAIN, *LEVELS_TEST),
+    noise_range: tuple[float, float] = DEFAULT_NOISE,
+) -> Dataset:
     """The paper's 780 trajectories (6 proxies x 13 levels x 10 runs), in one process.
 
     Each (level, proxy) part has its own seed derived from ``seed``, exactly as a Ray fan-out would
     use via :func:`part_seed`, so both give the same data.
     """
-    parts = [generate_trajectories(lv, p, n_runs, part_seed(seed, lv, p), noise_range)
-             for lv in levels for p in range(N_PROXIES)]
+    parts = [
+        generate_trajectories(lv, p, n_runs, part_seed(seed, lv, p), noise_range)
+        for lv in levels
+        for p in range(N_PROXIES)
+    ]
     return Dataset.concat(parts)
 
 
@@ -102,8 +133,13 @@ def part_seed(seed: int, level_name: str, proxy: int) -> int:
     return int(np.random.SeedSequence(key).generate_state(1, np.uint64)[0] >> np.uint64(1))
 
 
-def rollout(level: str | Level, policy: Policy, n_episodes: int, rng: np.random.Generator,
-            max_steps: int = DEFAULT_MAX_STEPS) -> Dataset:
+def rollout(
+    level: str | Level,
+    policy: Policy,
+    n_episodes: int,
+    rng: np.random.Generator,
+    max_steps: int = DEFAULT_MAX_STEPS,
+) -> Dataset:
     """Roll a batched ``policy`` out ``n_episodes`` times; the live episodes share one call per turn.
 
     Fight damage draws from ``rng`` too. ``styles`` are -1; ``success`` = reached the exit.
@@ -133,11 +169,24 @@ def rollout(level: str | Level, policy: Policy, n_episodes: int, rng: np.random.
             recs[i]["rewards"].append(r)
             recs[i]["states"].append(s)
             recs[i]["valid"].append(v)
-    trajs = [{"states": np.stack(r["states"]), "actions": np.array(r["actions"], np.int64),
-              "valid": np.array(r["valid"], bool), "rewards": np.array(r["rewards"], np.float64)}
-             for r in recs]
-    return Dataset.from_trajectories(DOMAIN, level.name, N_ACTIONS, trajs, styles=[-1] * n_episodes,
-                                     success=[g.success for g in games], feature_names=FEATURES)
+    trajs = [
+        {
+            "states": np.stack(r["states"]),
+            "actions": np.array(r["actions"], np.int64),
+            "valid": np.array(r["valid"], bool),
+            "rewards": np.array(r["rewards"], np.float64),
+        }
+        for r in recs
+    ]
+    return Dataset.from_trajectories(
+        DOMAIN,
+        level.name,
+        N_ACTIONS,
+        trajs,
+        styles=[-1] * n_episodes,
+        success=[g.success for g in games],
+        feature_names=FEATURES,
+    )
 
 
 def outcome_stats(dataset: Dataset) -> pd.DataFrame:
@@ -154,10 +203,16 @@ def outcome_stats(dataset: Dataset) -> pd.DataFrame:
     def count(name: str) -> np.ndarray:
         return np.rint(last[:, idx[name]] * COUNT_SCALE).astype(np.int64)
 
-    return pd.DataFrame({
-        "trajectory": dataset.trajectory_ids, "style": dataset.styles,
-        "treasure": count("treasure"), "potions": count("potions"), "kills": count("kills"),
-        "steps": np.rint(last[:, idx["steps"]] * STEP_SCALE).astype(np.int64),
-        "died": last[:, idx["hp"]] <= 0.0, "success": dataset.success.astype(bool),
-        "hp": last[:, idx["hp"]],
-    })
+    return pd.DataFrame(
+        {
+            "trajectory": dataset.trajectory_ids,
+            "style": dataset.styles,
+            "treasure": count("treasure"),
+            "potions": count("potions"),
+            "kills": count("kills"),
+            "steps": np.rint(last[:, idx["steps"]] * STEP_SCALE).astype(np.int64),
+            "died": last[:, idx["hp"]] <= 0.0,
+            "success": dataset.success.astype(bool),
+            "hp": last[:, idx["hp"]],
+        }
+    )

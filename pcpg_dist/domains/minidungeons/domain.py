@@ -21,7 +21,9 @@ from pcpg_dist.domains.base import Domain, DomainHooks, Unit, standardised
 def _part(level: str, proxy: int, runs: int, seed: int, noise: tuple[float, float], max_steps: int):
     from pcpg_dist.domains.minidungeons import generate_trajectories, part_seed
 
-    return generate_trajectories(level, proxy, runs, part_seed(seed, level, proxy), noise, max_steps)
+    return generate_trajectories(
+        level, proxy, runs, part_seed(seed, level, proxy), noise, max_steps
+    )
 
 
 def held_out_rollout(cfg, policy, n: int, rng: np.random.Generator):
@@ -31,8 +33,11 @@ def held_out_rollout(cfg, policy, n: int, rng: np.random.Generator):
 
     levels = cfg.minidungeons.test_levels
     counts = [n // len(levels) + (i < n % len(levels)) for i in range(len(levels))]
-    parts = [rollout(lv, policy, c, rng, max_steps=cfg.minidungeons.max_steps)
-             for lv, c in zip(levels, counts, strict=True) if c]
+    parts = [
+        rollout(lv, policy, c, rng, max_steps=cfg.minidungeons.max_steps)
+        for lv, c in zip(levels, counts, strict=True)
+        if c
+    ]
     return Dataset.concat(parts)
 
 
@@ -47,11 +52,16 @@ class MiniDungeonsDomain(Domain):
 
         md = cfg.minidungeons
         levels = [*md.train_levels, *md.test_levels]
-        calls = [(lv, p, md.runs_per_level, cfg.seed, (md.noise_min, md.noise_max), md.max_steps)
-                 for lv in levels for p in range(N_PROXIES)]
+        calls = [
+            (lv, p, md.runs_per_level, cfg.seed, (md.noise_min, md.noise_max), md.max_steps)
+            for lv in levels
+            for p in range(N_PROXIES)
+        ]
         parts = run_tasks(_part, calls, "proxies (level, proxy)", show_progress=show_progress)
-        return {lv: Dataset.concat(parts[i * N_PROXIES:(i + 1) * N_PROXIES], renumber=True)
-                for i, lv in enumerate(levels)}
+        return {
+            lv: Dataset.concat(parts[i * N_PROXIES : (i + 1) * N_PROXIES], renumber=True)
+            for i, lv in enumerate(levels)
+        }
 
     def units(self, cfg, datasets) -> list[Unit]:
         from pcpg_dist.dataset import Dataset
@@ -65,7 +75,9 @@ class MiniDungeonsDomain(Domain):
         joined = replace(Dataset.concat(parts), env="levels")
         n_train = sum(datasets[lv].n_trajectories for lv in md.train_levels)
         scaled = replace(Dataset.concat([standardised(p) for p in parts]), env="levels")
-        return [Unit("levels", joined, np.arange(n_train, joined.n_trajectories), scaled, "per-level-z")]
+        return [
+            Unit("levels", joined, np.arange(n_train, joined.n_trajectories), scaled, "per-level-z")
+        ]
 
     def hooks(self, cfg, unit: str) -> DomainHooks:
         return DomainHooks(rollout=lambda policy, n, rng: held_out_rollout(cfg, policy, n, rng))
@@ -86,14 +98,24 @@ class MiniDungeonsDomain(Domain):
             key = f"k{k}-p{p:g}-s{seed}"
             if key not in trained.keys:
                 continue
-            roll = held_out_rollout(cfg, trained.policy(key, greedy=cfg.evaluation.greedy),
-                                    cfg.evaluation.rollouts_per_policy,
-                                    rollout_rng(cfg.evaluation.rollout_seed, key))  # rollouts.csv's episodes
+            roll = held_out_rollout(
+                cfg,
+                trained.policy(key, greedy=cfg.evaluation.greedy),
+                cfg.evaluation.rollouts_per_policy,
+                rollout_rng(cfg.evaluation.rollout_seed, key),
+            )  # rollouts.csv's episodes
             agent = outcome_stats(roll).mean(numeric_only=True)
             own = proxies[proxies["style"] == style[k]].mean(numeric_only=True)
             for stat in agent.index.drop(["trajectory", "style"], errors="ignore"):
-                rows.append({"cluster": k, "proxy": PROXY_NAMES[style[k]], "stat": stat,
-                             "agent": float(agent[stat]), "proxy_value": float(own.get(stat, np.nan))})
+                rows.append(
+                    {
+                        "cluster": k,
+                        "proxy": PROXY_NAMES[style[k]],
+                        "stat": stat,
+                        "agent": float(agent[stat]),
+                        "proxy_value": float(own.get(stat, np.nan)),
+                    }
+                )
                 metrics[f"outcome/{stat}/k{k}"] = float(agent[stat])
         table = pd.DataFrame(rows)
         table.to_csv(out / "outcomes.csv", index=False)

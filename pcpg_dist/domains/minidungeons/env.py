@@ -36,8 +36,12 @@ class MiniDungeonsEnv(gym.Env):
 
     metadata = {"render_modes": ["ansi"], "render_fps": 4}
 
-    def __init__(self, level: str | Level = "test", max_steps: int = DEFAULT_MAX_STEPS,
-                 render_mode: str | None = None) -> None:
+    def __init__(
+        self,
+        level: str | Level = "test",
+        max_steps: int = DEFAULT_MAX_STEPS,
+        render_mode: str | None = None,
+    ) -> None:
         self.level = load_level(level) if isinstance(level, str) else level
         self.max_steps = int(max_steps)
         self.render_mode = render_mode
@@ -49,9 +53,17 @@ class MiniDungeonsEnv(gym.Env):
 
     def _info(self, events: dict[str, int] | None = None) -> dict[str, Any]:
         g = self.game
-        return {"action_mask": g.valid_mask(), "hp": g.hp, "pos": g.pos, "success": g.success,
-                "dead": g.dead, "treasure": g.treasure, "potions": g.potions, "kills": g.kills,
-                "events": events or {}}
+        return {
+            "action_mask": g.valid_mask(),
+            "hp": g.hp,
+            "pos": g.pos,
+            "success": g.success,
+            "dead": g.dead,
+            "treasure": g.treasure,
+            "potions": g.potions,
+            "kills": g.kills,
+            "events": events or {},
+        }
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)

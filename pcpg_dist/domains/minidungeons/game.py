@@ -60,15 +60,26 @@ FEATURES: tuple[str, ...] = (
     "treasure",  # treasures collected so far / 10
     "potions",  # potions drunk so far / 10
     "kills",  # monsters killed so far / 10
-    "exit_dy", "exit_dx",  # first move toward the exit, avoiding fights where possible (averse)
-    "exit_plain_dy", "exit_plain_dx",  # first move of the shortest way to the exit (plain)
-    "treasure_dy", "treasure_dx",  # first move toward the nearest treasure (averse) / (1 + fights)
-    "potion_dy", "potion_dx",  # first move toward the nearest potion (averse) / (1 + fights)
-    "monster_dy", "monster_dx",  # first move toward the nearest monster (plain) / its distance
+    "exit_dy",
+    "exit_dx",  # first move toward the exit, avoiding fights where possible (averse)
+    "exit_plain_dy",
+    "exit_plain_dx",  # first move of the shortest way to the exit (plain)
+    "treasure_dy",
+    "treasure_dx",  # first move toward the nearest treasure (averse) / (1 + fights)
+    "potion_dy",
+    "potion_dx",  # first move toward the nearest potion (averse) / (1 + fights)
+    "monster_dy",
+    "monster_dx",  # first move toward the nearest monster (plain) / its distance
 )
 STATE_DIM = len(FEATURES)
 #: (target tile, metric) of each direction pair in FEATURES, in order.
-DIRECTION_FEATURES = ((EXIT, AVERSE), (EXIT, PLAIN), (TREASURE, AVERSE), (POTION, AVERSE), (MONSTER, PLAIN))
+DIRECTION_FEATURES = (
+    (EXIT, AVERSE),
+    (EXIT, PLAIN),
+    (TREASURE, AVERSE),
+    (POTION, AVERSE),
+    (MONSTER, PLAIN),
+)
 
 
 class Game:
@@ -127,7 +138,11 @@ class Game:
             tile = int(self.grid[nxt])
             if tile == MONSTER:
                 p = self.props
-                dmg = int(rng.integers(p.power_min, p.power_max + 1)) if p.power_random else p.enemy_power
+                dmg = (
+                    int(rng.integers(p.power_min, p.power_max + 1))
+                    if p.power_random
+                    else p.enemy_power
+                )
                 self.hp -= dmg
                 self.damage += dmg
                 self.kills += 1
@@ -162,10 +177,14 @@ class Game:
     def _clear(self, pos: tuple[int, int], tile: int) -> None:
         self.grid[pos] = FLOOR
         # Killing a monster changes every non-plain metric; a pickup changes only its own targets.
-        self._fields = {k: v for k, v in self._fields.items()
-                        if k[0] != tile and not (tile == MONSTER and k[1] != PLAIN)
-                        and not (tile == POTION and k[1] == PURE)
-                        and not (k[0] == ITEMS and tile in (TREASURE, POTION))}
+        self._fields = {
+            k: v
+            for k, v in self._fields.items()
+            if k[0] != tile
+            and not (tile == MONSTER and k[1] != PLAIN)
+            and not (tile == POTION and k[1] == PURE)
+            and not (k[0] == ITEMS and tile in (TREASURE, POTION))
+        }
 
     # ------------------------------------------------------------------ distance fields
     def field(self, target: int, metric: str) -> np.ndarray:
@@ -223,7 +242,12 @@ class Game:
                 continue
             for dr, dc in MOVES:
                 nr, nc = r + dr, c + dc
-                if 0 <= nr < h and 0 <= nc < w and nd < dist[nr, nc] and math.isfinite(cost[nr, nc]):
+                if (
+                    0 <= nr < h
+                    and 0 <= nc < w
+                    and nd < dist[nr, nc]
+                    and math.isfinite(cost[nr, nc])
+                ):
                     dist[nr, nc] = nd
                     heapq.heappush(heap, (nd, nr, nc))
         return dist, cost

@@ -30,7 +30,14 @@ CHAR_TILE = {".": FLOOR, "#": WALL, "T": TREASURE, "P": POTION, "M": MONSTER, "E
 REWARD_KEYS = ("TURN", "EXIT", "KILL", "TREASURE", "POTION", "DEAD")
 #: Used when a props file has no REWARDS block (the values of gym-md's ``test`` level).
 MAX_PROP = 10**6  # hit points, powers and rewards: larger values overflow the game's counters
-DEFAULT_REWARDS = {"TURN": 1.0, "EXIT": 20.0, "KILL": 4.0, "TREASURE": 3.0, "POTION": 1.0, "DEAD": -20.0}
+DEFAULT_REWARDS = {
+    "TURN": 1.0,
+    "EXIT": 20.0,
+    "KILL": 4.0,
+    "TREASURE": 3.0,
+    "POTION": 1.0,
+    "DEAD": -20.0,
+}
 
 
 def data_dir() -> Path:
@@ -58,7 +65,9 @@ class Props:
 
     @property
     def mean_damage(self) -> float:
-        return (self.power_min + self.power_max) / 2 if self.power_random else float(self.enemy_power)
+        return (
+            (self.power_min + self.power_max) / 2 if self.power_random else float(self.enemy_power)
+        )
 
 
 @dataclass(frozen=True, eq=False)
@@ -86,7 +95,9 @@ class Level:
 
 
 # --------------------------------------------------------------------------- parsing
-def parse_stage(text: str, source: str = "<stage>") -> tuple[np.ndarray, tuple[int, int], tuple[int, int]]:
+def parse_stage(
+    text: str, source: str = "<stage>"
+) -> tuple[np.ndarray, tuple[int, int], tuple[int, int]]:
     """Grid, start and exit of a stage text; rows must be equally long and use known characters."""
     lines = text.splitlines()
     while lines and not lines[-1].strip():
@@ -98,12 +109,16 @@ def parse_stage(text: str, source: str = "<stage>") -> tuple[np.ndarray, tuple[i
     starts, exits = [], []
     for r, line in enumerate(lines):
         if len(line) != width:
-            raise LayoutError(f"{source}:{r + 1}: row has {len(line)} characters, expected {width} "
-                              f"(every row must be as long as the first)")
+            raise LayoutError(
+                f"{source}:{r + 1}: row has {len(line)} characters, expected {width} "
+                f"(every row must be as long as the first)"
+            )
         for c, ch in enumerate(line):
             if ch not in CHAR_TILE:
-                raise LayoutError(f"{source}:{r + 1}: unknown character {ch!r} in column {c + 1} "
-                                  f"(allowed: {''.join(CHAR_TILE)})")
+                raise LayoutError(
+                    f"{source}:{r + 1}: unknown character {ch!r} in column {c + 1} "
+                    f"(allowed: {''.join(CHAR_TILE)})"
+                )
             grid[r, c] = CHAR_TILE[ch]
             if ch == "S":
                 starts.append((r, c))
@@ -113,10 +128,14 @@ def parse_stage(text: str, source: str = "<stage>") -> tuple[np.ndarray, tuple[i
         if not found:
             raise LayoutError(f"{source}:1: no {what} ('{ch}') anywhere in the {len(lines)} lines")
         if len(found) > 1:
-            raise LayoutError(f"{source}:{found[1][0] + 1}: a second {what} ('{ch}'); exactly one is allowed")
+            raise LayoutError(
+                f"{source}:{found[1][0] + 1}: a second {what} ('{ch}'); exactly one is allowed"
+            )
     if exits[0] not in _reachable(grid, starts[0]):
-        raise LayoutError(f"{source}:{exits[0][0] + 1}: the exit cannot be reached from the start "
-                          f"(line {starts[0][0] + 1}) through the walls")
+        raise LayoutError(
+            f"{source}:{exits[0][0] + 1}: the exit cannot be reached from the start "
+            f"(line {starts[0][0] + 1}) through the walls"
+        )
     grid.setflags(write=False)
     return grid, starts[0], exits[0]
 
@@ -146,13 +165,19 @@ def parse_props(text: str, source: str = "<props>") -> Props:
     try:
         raw = json.loads(text)
     except json.JSONDecodeError as e:
-        raise LayoutError(f"{source}:{e.lineno}: invalid JSON ({e.msg}, column {e.colno})") from None
+        raise LayoutError(
+            f"{source}:{e.lineno}: invalid JSON ({e.msg}, column {e.colno})"
+        ) from None
     except RecursionError:
-        raise LayoutError(f"{source}:1: JSON nested too deeply; a props file is one flat object") from None
+        raise LayoutError(
+            f"{source}:1: JSON nested too deeply; a props file is one flat object"
+        ) from None
     if not isinstance(raw, dict):
         raise LayoutError(f"{source}:1: expected a JSON object of rules, got {type(raw).__name__}")
 
-    def number(key: str, default: float | None = None, positive: bool = True, integer: bool = True) -> float:
+    def number(
+        key: str, default: float | None = None, positive: bool = True, integer: bool = True
+    ) -> float:
         if key not in raw:
             if default is None:
                 raise LayoutError(f"{source}:1: missing key '{key}'")
@@ -163,23 +188,32 @@ def parse_props(text: str, source: str = "<props>") -> Props:
             ok = float(v).is_integer()
         if not ok or (positive and v <= 0) or abs(v) > MAX_PROP:
             kind = "a positive integer" if integer and positive else "a number"
-            raise LayoutError(f"{source}:{_key_line(text, key)}: '{key}' must be {kind} of at most "
-                              f"{MAX_PROP}, got {repr(v)[:40]}")
+            raise LayoutError(
+                f"{source}:{_key_line(text, key)}: '{key}' must be {kind} of at most "
+                f"{MAX_PROP}, got {repr(v)[:40]}"
+            )
         return v
 
     def flag(key: str, default: bool) -> bool:
         v = raw.get(key, default)
         if not isinstance(v, bool):
-            raise LayoutError(f"{source}:{_key_line(text, key)}: '{key}' must be true or false, got {repr(v)[:40]}")
+            raise LayoutError(
+                f"{source}:{_key_line(text, key)}: '{key}' must be true or false, got {repr(v)[:40]}"
+            )
         return v
 
     power = int(number("ENEMY_POWER"))
     random_power = flag("IS_ENEMY_POWER_RANDOM", False)
     need_range = None if random_power else power
-    pmin, pmax = int(number("ENEMY_POWER_MIN", need_range)), int(number("ENEMY_POWER_MAX", need_range))
+    pmin, pmax = (
+        int(number("ENEMY_POWER_MIN", need_range)),
+        int(number("ENEMY_POWER_MAX", need_range)),
+    )
     if pmin > pmax:
-        raise LayoutError(f"{source}:{_key_line(text, 'ENEMY_POWER_MIN')}: ENEMY_POWER_MIN {pmin} > "
-                          f"ENEMY_POWER_MAX {pmax}")
+        raise LayoutError(
+            f"{source}:{_key_line(text, 'ENEMY_POWER_MIN')}: ENEMY_POWER_MIN {pmin} > "
+            f"ENEMY_POWER_MAX {pmax}"
+        )
     rewards_raw = raw.get("REWARDS", DEFAULT_REWARDS)
     if not isinstance(rewards_raw, dict):
         raise LayoutError(f"{source}:{_key_line(text, 'REWARDS')}: 'REWARDS' must be an object")
@@ -187,11 +221,20 @@ def parse_props(text: str, source: str = "<props>") -> Props:
     for k in REWARD_KEYS:
         v = rewards_raw.get(k)
         if not isinstance(v, int | float) or isinstance(v, bool) or not abs(v) <= MAX_PROP:
-            raise LayoutError(f"{source}:{_key_line(text, 'REWARDS')}: REWARDS.{k} missing or not a number")
+            raise LayoutError(
+                f"{source}:{_key_line(text, 'REWARDS')}: REWARDS.{k} missing or not a number"
+            )
         rewards[k] = float(v)
-    return Props(max_hp=int(number("PLAYER_MAX_HP")), hp_limit=flag("IS_PLAYER_HP_LIMIT", True),
-                 enemy_power=power, power_min=pmin, power_max=pmax, power_random=random_power,
-                 potion_power=int(number("POTION_POWER")), rewards=rewards)
+    return Props(
+        max_hp=int(number("PLAYER_MAX_HP")),
+        hp_limit=flag("IS_PLAYER_HP_LIMIT", True),
+        enemy_power=power,
+        power_min=pmin,
+        power_max=pmax,
+        power_random=random_power,
+        potion_power=int(number("POTION_POWER")),
+        rewards=rewards,
+    )
 
 
 def read_level(stage_path: str | Path, props_path: str | Path, name: str | None = None) -> Level:
@@ -199,9 +242,13 @@ def read_level(stage_path: str | Path, props_path: str | Path, name: str | None 
     stage_path, props_path = Path(stage_path), Path(props_path)
     for p in (stage_path, props_path):
         if not p.is_file():
-            raise LayoutError(f"{p}:1: level file not found" + (" (not a regular file)" if p.exists() else ""))
+            raise LayoutError(
+                f"{p}:1: level file not found" + (" (not a regular file)" if p.exists() else "")
+            )
         if p.stat().st_size > MAX_LEVEL_BYTES:
-            raise LayoutError(f"{p}:1: {p.stat().st_size} bytes; a level file may hold at most {MAX_LEVEL_BYTES}")
+            raise LayoutError(
+                f"{p}:1: {p.stat().st_size} bytes; a level file may hold at most {MAX_LEVEL_BYTES}"
+            )
     texts = []
     for p in (stage_path, props_path):
         try:
@@ -226,7 +273,9 @@ def load_level(name: str) -> Level:
     """A shipped level by name (cached: levels are immutable)."""
     if name not in _CACHE:
         if name not in level_names():
-            raise LayoutError(f"<minidungeons>:1: unknown level '{name}'; shipped: {', '.join(level_names())}")
+            raise LayoutError(
+                f"<minidungeons>:1: unknown level '{name}'; shipped: {', '.join(level_names())}"
+            )
         d = data_dir()
         _CACHE[name] = read_level(d / "stages" / f"{name}.txt", d / "props" / f"{name}.json", name)
     return _CACHE[name]

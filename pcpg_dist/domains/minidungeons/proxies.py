@@ -38,8 +38,14 @@ from pcpg_dist.domains.minidungeons.game import AVERSE, CAREFUL, ITEMS, PLAIN, P
 from pcpg_dist.domains.minidungeons.level import EXIT, MONSTER, POTION, TREASURE
 
 SAFE_RUNNER, RECKLESS_RUNNER, BRAVE_HUNTER, PURE_HUNTER, SAFETY_FIRST, MONSTER_KILLER = range(6)
-PROXY_NAMES: tuple[str, ...] = ("Safe Runner", "Reckless Runner", "Brave Treasure Hunter",
-                                "Pure Treasure Hunter", "Safety-First", "Monster Killer")
+PROXY_NAMES: tuple[str, ...] = (
+    "Safe Runner",
+    "Reckless Runner",
+    "Brave Treasure Hunter",
+    "Pure Treasure Hunter",
+    "Safety-First",
+    "Monster Killer",
+)
 N_PROXIES = len(PROXY_NAMES)
 #: The Reckless Runner attacks monsters at most this many steps away.
 SWAT_RANGE = 2.0
@@ -65,17 +71,23 @@ def plan(game: Game, proxy: int) -> int:
         near = game.distance(MONSTER, PLAIN) <= SWAT_RANGE
         goals = ([(MONSTER, PLAIN)] if near and healthy else []) + [(EXIT, PLAIN)]
     elif proxy == BRAVE_HUNTER:
-        goals = ([(TREASURE, PLAIN)] if healthy else [(POTION, SAFE), (TREASURE, SAFE)]) + [(EXIT, AVERSE)]
+        goals = ([(TREASURE, PLAIN)] if healthy else [(POTION, SAFE), (TREASURE, SAFE)]) + [
+            (EXIT, AVERSE)
+        ]
     elif proxy == PURE_HUNTER:
         goals = [(TREASURE, PURE), (EXIT, AVERSE)]
     elif proxy == SAFETY_FIRST:
         # safe items first; a guarded potion is worth a fight it surely survives (the potion pays it back)
         goals = [(ITEMS, CAREFUL)] + ([(POTION, AVERSE)] if healthy else []) + [(EXIT, AVERSE)]
     elif proxy == MONSTER_KILLER:
-        goals = ([(MONSTER, PLAIN)] if healthy else [(POTION, SAFE)] if game.remaining(MONSTER) else [])
+        goals = (
+            [(MONSTER, PLAIN)] if healthy else [(POTION, SAFE)] if game.remaining(MONSTER) else []
+        )
         goals = goals + [(EXIT, AVERSE)]
     else:
-        raise ValueError(f"unknown proxy {proxy}; ids are 0..{N_PROXIES - 1} ({', '.join(PROXY_NAMES)})")
+        raise ValueError(
+            f"unknown proxy {proxy}; ids are 0..{N_PROXIES - 1} ({', '.join(PROXY_NAMES)})"
+        )
     a = _first(game, goals)
     if a < 0:  # nothing reachable (cannot happen on a valid level): any valid move
         a = int(np.flatnonzero(game.valid_mask())[0])

@@ -65,8 +65,13 @@ class TrajectoriesDomain(Domain):
             content = minari_fingerprint(s.path.removeprefix("minari:"))
         else:
             content = [[f.name, sha256_file(f)] for f in parquet_files(Path(s.path))]
-        return [self.name, s.model_dump(mode="json", exclude={"gymnasium_env", "gymnasium_kwargs",
-                                                               "gymnasium_success"}), content]
+        return [
+            self.name,
+            s.model_dump(
+                mode="json", exclude={"gymnasium_env", "gymnasium_kwargs", "gymnasium_success"}
+            ),
+            content,
+        ]
 
     def generate(self, cfg, show_progress: bool = True):
         from pcpg_dist.domains.trajectories.table import (
@@ -119,7 +124,9 @@ class TrajectoriesDomain(Domain):
             if ds.skill is None:
                 from pcpg_dist.errors import DataError
 
-                raise DataError(f"dataset {ds.env}: no recorded skill column '{how}' (trajectories.score)")
+                raise DataError(
+                    f"dataset {ds.env}: no recorded skill column '{how}' (trajectories.score)"
+                )
             return ds.skill
 
         return column
@@ -131,7 +138,14 @@ class TrajectoriesDomain(Domain):
         from pcpg_dist.domains.trajectories.gym_rollout import rollout
 
         def run(policy, n, rng):
-            return rollout(s.gymnasium_env, dict(s.gymnasium_kwargs), policy, n, rng,
-                           max_steps=cfg.evaluation.max_steps, success_rule=s.gymnasium_success)
+            return rollout(
+                s.gymnasium_env,
+                dict(s.gymnasium_kwargs),
+                policy,
+                n,
+                rng,
+                max_steps=cfg.evaluation.max_steps,
+                success_rule=s.gymnasium_success,
+            )
 
         return DomainHooks(rollout=run)

@@ -20,11 +20,25 @@ from pathlib import Path
 
 import numpy as np
 
-MAP_8X8 = ("SFFFFFFF", "FFFFFFFF", "FFFHFFFF", "FFFFFHFF", "FFFHFFFF", "FHHFFFHF", "FHFFHFHF", "FFFHFFFG")
+MAP_8X8 = (
+    "SFFFFFFF",
+    "FFFFFFFF",
+    "FFFHFFFF",
+    "FFFFFHFF",
+    "FFFHFFFF",
+    "FHHFFFHF",
+    "FHFFHFHF",
+    "FFFHFFFG",
+)
 MOVES = ((0, -1), (1, 0), (0, 1), (-1, 0))  # FrozenLake: left, down, right, up as (drow, dcol)
 ACTION_NAMES = ("left", "down", "right", "up")
 #: waypoints of each style before the goal (row, col)
-STYLES = {"top-right": [(0, 7)], "bottom-left": [(7, 0)], "centre": [(4, 4)], "grand-tour": [(0, 7), (7, 0)]}
+STYLES = {
+    "top-right": [(0, 7)],
+    "bottom-left": [(7, 0)],
+    "centre": [(4, 4)],
+    "grand-tour": [(0, 7), (7, 0)],
+}
 
 
 def _step(pos: tuple[int, int], a: int, size: int) -> tuple[int, int]:
@@ -41,15 +55,24 @@ def _first_moves(grid: tuple[str, ...], target: tuple[int, int]) -> dict[tuple[i
         cur = queue.popleft()
         for a in range(4):
             prev = (cur[0] - MOVES[a][0], cur[1] - MOVES[a][1])
-            if (0 <= prev[0] < size and 0 <= prev[1] < size and prev not in best
-                    and grid[prev[0]][prev[1]] != "H"):
+            if (
+                0 <= prev[0] < size
+                and 0 <= prev[1] < size
+                and prev not in best
+                and grid[prev[0]][prev[1]] != "H"
+            ):
                 best[prev] = a
                 queue.append(prev)
     return best
 
 
-def play(style: list[tuple[int, int]], epsilon: float, rng: np.random.Generator,
-         grid: tuple[str, ...] = MAP_8X8, max_steps: int = 100) -> tuple[list[int], list[int], float]:
+def play(
+    style: list[tuple[int, int]],
+    epsilon: float,
+    rng: np.random.Generator,
+    grid: tuple[str, ...] = MAP_8X8,
+    max_steps: int = 100,
+) -> tuple[list[int], list[int], float]:
     """One episode: visited tile indices, actions, return."""
     size = len(grid)
     goal = next((r, c) for r in range(size) for c in range(size) if grid[r][c] == "G")
@@ -104,8 +127,10 @@ def main(argv: list[str] | None = None) -> None:
     table = frozenlake_logs(args.per_style, args.seed)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     table.to_parquet(args.out, index=False)
-    print(f"wrote {args.out}: {table.trajectory.nunique()} trajectories, {len(table)} steps, "
-          f"{len(STYLES)} styles")
+    print(
+        f"wrote {args.out}: {table.trajectory.nunique()} trajectories, {len(table)} steps, "
+        f"{len(STYLES)} styles"
+    )
 
 
 if __name__ == "__main__":

@@ -85,13 +85,14 @@ def make_env(env_id: str, kwargs: Mapping[str, Any]) -> gymnasium.Env:
         # ids like "module:Env-v0" import a module first; a missing one is the env key's fault
         missing = isinstance(e, ImportError | gymnasium.error.DependencyNotInstalled)
         key = ENV_KEY if missing else _env_key(kwargs)
-        raise ConfigError(f"key '{key}': {_call(env_id, kwargs)} failed: "
-                          f"{_one_line(e)}") from None
+        raise ConfigError(f"key '{key}': {_call(env_id, kwargs)} failed: {_one_line(e)}") from None
     if not isinstance(env.action_space, spaces.Discrete):
         space = env.action_space
         env.close()
-        raise ConfigError(f"key '{ENV_KEY}': {env_id} has action space {space}; only Discrete action "
-                          f"spaces can be rolled out (logged actions are integers 0..n-1)")
+        raise ConfigError(
+            f"key '{ENV_KEY}': {env_id} has action space {space}; only Discrete action "
+            f"spaces can be rolled out (logged actions are integers 0..n-1)"
+        )
     return env
 
 
@@ -104,8 +105,10 @@ def check_runs(env: gymnasium.Env, env_id: str, kwargs: Mapping[str, Any]) -> No
         first = int(np.argmax(mask)) if mask.any() else 0
         env.step(int(env.action_space.start) + first)
     except Exception as e:  # noqa: BLE001 - the user's env code: any error it raises is theirs to fix
-        raise ConfigError(f"key '{_env_key(kwargs)}': {_call(env_id, kwargs)} fails on its first reset() "
-                          f"and step(): {_one_line(e)}") from None
+        raise ConfigError(
+            f"key '{_env_key(kwargs)}': {_call(env_id, kwargs)} fails on its first reset() "
+            f"and step(): {_one_line(e)}"
+        ) from None
 
 
 def check_compatible(env: gymnasium.Env, state_dim: int, n_actions: int) -> None:
@@ -114,28 +117,38 @@ def check_compatible(env: gymnasium.Env, state_dim: int, n_actions: int) -> None
 
     env_id = env.spec.id if env.spec is not None else type(env.unwrapped).__name__
     if not isinstance(env.action_space, spaces.Discrete):
-        raise ConfigError(f"key '{ENV_KEY}': {env_id} has action space {env.action_space}; only "
-                          f"Discrete action spaces can be rolled out")
+        raise ConfigError(
+            f"key '{ENV_KEY}': {env_id} has action space {env.action_space}; only "
+            f"Discrete action spaces can be rolled out"
+        )
     try:
         width = spaces.flatdim(env.observation_space)
     except (ValueError, NotImplementedError) as e:
-        raise ConfigError(f"key '{ENV_KEY}': {env_id}'s observation space {env.observation_space} "
-                          f"has no fixed flat width ({_one_line(e)})") from None
+        raise ConfigError(
+            f"key '{ENV_KEY}': {env_id}'s observation space {env.observation_space} "
+            f"has no fixed flat width ({_one_line(e)})"
+        ) from None
     n = int(env.action_space.n)
     if width != state_dim:
         raise ConfigError(
             f"key '{ENV_KEY}': {env_id} observations flatten to {width} features "
             f"({env.observation_space}) but the logs have {state_dim} state columns (s0..s{state_dim - 1}); "
             f"write each state as gymnasium.spaces.flatten(observation_space, obs) or name the env "
-            f"(and {KWARGS_KEY}) the logs were recorded in")
+            f"(and {KWARGS_KEY}) the logs were recorded in"
+        )
     if n != n_actions:
         rest = f"action {n_actions}" if n == n_actions + 1 else f"actions {n_actions}..{n - 1}"
-        unused = f"if the players never took {rest}, set trajectories.n_actions: {n}; " if n > n_actions else ""
+        unused = (
+            f"if the players never took {rest}, set trajectories.n_actions: {n}; "
+            if n > n_actions
+            else ""
+        )
         raise ConfigError(
             f"key '{ENV_KEY}': {env_id} has {n} actions ({env.action_space}) but the logs have "
             f"{n_actions} (trajectories.n_actions, else the width of a 'valid' column, else the largest "
             f"action + 1); {unused}log actions as 0..{n - 1} or name the env (and {KWARGS_KEY}) the "
-            f"logs were recorded in")
+            f"logs were recorded in"
+        )
 
 
 def _mask(env_id: str, info: Mapping[str, Any], n_actions: int) -> np.ndarray:
@@ -143,8 +156,10 @@ def _mask(env_id: str, info: Mapping[str, Any], n_actions: int) -> np.ndarray:
         return np.ones(n_actions, bool)
     mask = np.asarray(info["action_mask"]).astype(bool)
     if mask.shape != (n_actions,):
-        raise ConfigError(f"key '{ENV_KEY}': {env_id} gives info['action_mask'] of shape "
-                          f"{mask.shape}, expected ({n_actions},) for its {n_actions} actions")
+        raise ConfigError(
+            f"key '{ENV_KEY}': {env_id} gives info['action_mask'] of shape "
+            f"{mask.shape}, expected ({n_actions},) for its {n_actions} actions"
+        )
     return mask
 
 
@@ -154,14 +169,22 @@ def _run_env(env_id: str, kwargs: Mapping[str, Any], episode: int, t: int, call,
     try:
         return call(*args, **kw)
     except Exception as e:  # noqa: BLE001 - the user's env code: any error it raises is theirs to fix
-        raise ConfigError(f"key '{_env_key(kwargs)}': {_call(env_id, kwargs)} failed in a rollout (episode "
-                          f"{episode}, step {t}, {call.__name__}()): {_one_line(e)}") from None
+        raise ConfigError(
+            f"key '{_env_key(kwargs)}': {_call(env_id, kwargs)} failed in a rollout (episode "
+            f"{episode}, step {t}, {call.__name__}()): {_one_line(e)}"
+        ) from None
 
 
 def rollout(
-    env_id: str, kwargs: Mapping[str, Any], policy: Policy, n_episodes: int,
-    rng: np.random.Generator, max_steps: int, action_names: tuple[str, ...] = (),
-    feature_names: tuple[str, ...] = (), success_rule: SuccessRule = "terminated",
+    env_id: str,
+    kwargs: Mapping[str, Any],
+    policy: Policy,
+    n_episodes: int,
+    rng: np.random.Generator,
+    max_steps: int,
+    action_names: tuple[str, ...] = (),
+    feature_names: tuple[str, ...] = (),
+    success_rule: SuccessRule = "terminated",
 ) -> Dataset:
     """``n_episodes`` episodes of ``policy`` in ``gymnasium.make(env_id, **kwargs)``, stepped together.
 
@@ -180,7 +203,9 @@ def rollout(
     if max_steps < 1:
         raise ValueError(f"max_steps must be >= 1, got {max_steps}")
     if success_rule not in ("terminated", "terminated_positive_reward"):
-        raise ValueError(f"success_rule must be 'terminated' or 'terminated_positive_reward', got {success_rule!r}")
+        raise ValueError(
+            f"success_rule must be 'terminated' or 'terminated_positive_reward', got {success_rule!r}"
+        )
     seeds = [int(s) for s in rng.integers(2**31, size=n_episodes)]
     envs: list[gymnasium.Env] = []
     try:
@@ -205,25 +230,38 @@ def rollout(
             masks = np.stack([valid[i][-1] for i in live])
             if not masks.any(axis=1).all():
                 i = int(live[np.argmin(masks.any(axis=1))])
-                raise ConfigError(f"key '{ENV_KEY}': {env_id}'s action mask allows no action in episode "
-                                  f"{i} at step {t}, yet the episode has not ended")
+                raise ConfigError(
+                    f"key '{ENV_KEY}': {env_id}'s action mask allows no action in episode "
+                    f"{i} at step {t}, yet the episode has not ended"
+                )
             acts = np.asarray(policy(np.stack([states[i][-1] for i in live]), masks, rng))
             if acts.shape != (len(live),) or not np.issubdtype(acts.dtype, np.integer):
-                raise ValueError(f"{env_id} rollout, step {t}: the policy returned {acts.dtype} actions of "
-                                 f"shape {acts.shape} for {len(live)} states, expected integers of shape ({len(live)},)")
+                raise ValueError(
+                    f"{env_id} rollout, step {t}: the policy returned {acts.dtype} actions of "
+                    f"shape {acts.shape} for {len(live)} states, expected integers of shape ({len(live)},)"
+                )
             in_range = (acts >= 0) & (acts < n)
-            ok = in_range & masks[np.arange(len(live)), np.where(in_range, acts, 0).astype(np.int64)]
+            ok = (
+                in_range & masks[np.arange(len(live)), np.where(in_range, acts, 0).astype(np.int64)]
+            )
             if not ok.all():
                 j = int(np.argmin(ok))
                 a = acts[j]
-                what = (f"action {a} ({action_names[int(a)]})" if in_range[j] and action_names
-                        else f"action {a}")
-                raise ValueError(f"{env_id} rollout, episode {int(live[j])}, step {t}: the policy chose "
-                                 f"{what}, which is not valid there (valid: "
-                                 f"{np.nonzero(masks[j])[0].tolist()} of 0..{n - 1})")
+                what = (
+                    f"action {a} ({action_names[int(a)]})"
+                    if in_range[j] and action_names
+                    else f"action {a}"
+                )
+                raise ValueError(
+                    f"{env_id} rollout, episode {int(live[j])}, step {t}: the policy chose "
+                    f"{what}, which is not valid there (valid: "
+                    f"{np.nonzero(masks[j])[0].tolist()} of 0..{n - 1})"
+                )
             for j, i in enumerate(live):
                 a = int(acts[j])
-                obs, reward, terminated, truncated, info = _run_env(env_id, kwargs, i, t, envs[i].step, start + a)
+                obs, reward, terminated, truncated, info = _run_env(
+                    env_id, kwargs, i, t, envs[i].step, start + a
+                )
                 states[i].append(np.asarray(spaces.flatten(obs_space, obs), np.float32))
                 valid[i].append(_mask(env_id, info, n))
                 actions[i].append(a)
@@ -231,14 +269,27 @@ def rollout(
                 if terminated or truncated:
                     alive[i] = False
                     success[i] = bool(terminated and not truncated) and (
-                        success_rule == "terminated" or float(reward) > 0)
+                        success_rule == "terminated" or float(reward) > 0
+                    )
     finally:
         for env in envs:
             env.close()
-    trajs = [{"states": np.stack(states[i]), "actions": np.asarray(actions[i], np.int64),
-              "valid": np.stack(valid[i]), "rewards": np.asarray(rewards[i], np.float64)}
-             for i in range(n_episodes)]
-    return Dataset.from_trajectories("trajectories", env_name(env_id), n, trajs,
-                                     styles=[-1] * n_episodes, success=success,
-                                     feature_names=tuple(feature_names),
-                                     action_names=tuple(action_names))
+    trajs = [
+        {
+            "states": np.stack(states[i]),
+            "actions": np.asarray(actions[i], np.int64),
+            "valid": np.stack(valid[i]),
+            "rewards": np.asarray(rewards[i], np.float64),
+        }
+        for i in range(n_episodes)
+    ]
+    return Dataset.from_trajectories(
+        "trajectories",
+        env_name(env_id),
+        n,
+        trajs,
+        styles=[-1] * n_episodes,
+        success=success,
+        feature_names=tuple(feature_names),
+        action_names=tuple(action_names),
+    )

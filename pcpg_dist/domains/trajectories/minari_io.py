@@ -84,8 +84,10 @@ def flatten_observations(space: Any, values: Any) -> np.ndarray:
     if isinstance(space, spaces.Discrete):
         idx = np.asarray(values).reshape(-1).astype(np.int64) - int(space.start)
         if idx.size and (idx.min() < 0 or idx.max() >= space.n):
-            raise DataError(f"observation {int(idx[(idx < 0) | (idx >= space.n)][0]) + int(space.start)} "
-                            f"outside {space}")
+            raise DataError(
+                f"observation {int(idx[(idx < 0) | (idx >= space.n)][0]) + int(space.start)} "
+                f"outside {space}"
+            )
         out = np.zeros((len(idx), int(space.n)), np.float32)
         out[np.arange(len(idx)), idx] = 1.0
         return out
@@ -99,10 +101,16 @@ def flatten_observations(space: Any, values: Any) -> np.ndarray:
         out[np.arange(len(idx))[:, None], np.r_[0, np.cumsum(nvec)[:-1]] + idx] = 1.0
         return out
     if isinstance(space, spaces.Tuple) and space.spaces:
-        return np.concatenate([flatten_observations(s, values[i]) for i, s in enumerate(space.spaces)], axis=1)
+        return np.concatenate(
+            [flatten_observations(s, values[i]) for i, s in enumerate(space.spaces)], axis=1
+        )
     if isinstance(space, spaces.Dict) and space.spaces:
-        return np.concatenate([flatten_observations(s, values[k]) for k, s in space.spaces.items()], axis=1)
-    if getattr(space, "is_np_flattenable", False):  # Text, OneOf: rare, so the per-row flatten is fine
+        return np.concatenate(
+            [flatten_observations(s, values[k]) for k, s in space.spaces.items()], axis=1
+        )
+    if getattr(
+        space, "is_np_flattenable", False
+    ):  # Text, OneOf: rare, so the per-row flatten is fine
         return np.stack([spaces.flatten(space, x) for x in values]).astype(np.float32)
     raise DataError(f"observation space {space} cannot be flattened to a fixed-size state vector")
 
@@ -121,10 +129,15 @@ def observation_names(space: Any, prefix: str = "obs") -> list[str]:
         return [f"{prefix}={int(space.start) + i}" for i in range(int(space.n))]
     if isinstance(space, spaces.MultiDiscrete):
         starts = space.start.reshape(-1)
-        return [f"{prefix}[{j}]={int(starts[j]) + v}"
-                for j, n in enumerate(space.nvec.reshape(-1)) for v in range(int(n))]
+        return [
+            f"{prefix}[{j}]={int(starts[j]) + v}"
+            for j, n in enumerate(space.nvec.reshape(-1))
+            for v in range(int(n))
+        ]
     if isinstance(space, spaces.Tuple):
-        return [n for i, s in enumerate(space.spaces) for n in observation_names(s, f"{prefix}.{i}")]
+        return [
+            n for i, s in enumerate(space.spaces) for n in observation_names(s, f"{prefix}.{i}")
+        ]
     if isinstance(space, spaces.Dict):
         return [n for k, s in space.spaces.items() for n in observation_names(s, f"{prefix}.{k}")]
     return [f"{prefix}#{i}" for i in range(spaces.flatdim(space))]
@@ -144,16 +157,22 @@ def _load(dataset_id: str) -> Any:
             warnings.simplefilter("ignore")
             local = list(minari.list_local_datasets())
         close = difflib.get_close_matches(dataset_id, local, n=3)
-        hint = f"; local datasets close to it: {', '.join(close)}" if close else (
-            f"; the {len(local)} local ones include {', '.join(local[:3])}" if local else "")
+        hint = (
+            f"; local datasets close to it: {', '.join(close)}"
+            if close
+            else (f"; the {len(local)} local ones include {', '.join(local[:3])}" if local else "")
+        )
         raise DataError(
             f"minari:{dataset_id}: no local Minari dataset at {path} (Minari looks under "
             f"${ENV_VAR}, else ~/.minari/datasets; now {root}){hint}. Download it with "
-            f"`minari download {dataset_id}` on a machine with network access, or set {ENV_VAR} to the folder that holds it")
+            f"`minari download {dataset_id}` on a machine with network access, or set {ENV_VAR} to the folder that holds it"
+        )
     try:
         return minari.load_dataset(dataset_id, download=False)
     except (ValueError, KeyError, TypeError, OSError, ImportError, pa.ArrowException) as e:
-        raise DataError(f"minari:{dataset_id}: not a readable Minari dataset at {path} ({first_line(e)})") from None
+        raise DataError(
+            f"minari:{dataset_id}: not a readable Minari dataset at {path} ({first_line(e)})"
+        ) from None
 
 
 def _episodes(dataset: Any, dataset_id: str) -> Iterator[Any]:
@@ -162,8 +181,11 @@ def _episodes(dataset: Any, dataset_id: str) -> Iterator[Any]:
     errors = (ValueError, KeyError, TypeError, OSError, pa.ArrowException)
 
     def unreadable(e: BaseException) -> DataError:
-        hint = (f"no such file {e}; does its metadata's total_episodes match the episodes stored?"
-                if isinstance(e, FileNotFoundError) else first_line(e))
+        hint = (
+            f"no such file {e}; does its metadata's total_episodes match the episodes stored?"
+            if isinstance(e, FileNotFoundError)
+            else first_line(e)
+        )
         return DataError(f"minari:{dataset_id}: unreadable episode data ({hint})")
 
     try:
@@ -193,9 +215,14 @@ def _per_row(values: Any, rows: int, what: str, where: str) -> np.ndarray:
 
 def _styles(values: Any, rows: int, where: str) -> np.ndarray:
     v = _per_row(values, rows, STYLE_KEY, where)
-    if v.ndim != 1 or not (np.issubdtype(v.dtype, np.integer) or np.issubdtype(v.dtype, np.bool_)
-                           or (np.issubdtype(v.dtype, np.floating) and np.array_equal(v, np.round(v)))):
-        raise DataError(f"{where}: infos['style'] must hold one integer per step, got {v.dtype} {v.shape}")
+    if v.ndim != 1 or not (
+        np.issubdtype(v.dtype, np.integer)
+        or np.issubdtype(v.dtype, np.bool_)
+        or (np.issubdtype(v.dtype, np.floating) and np.array_equal(v, np.round(v)))
+    ):
+        raise DataError(
+            f"{where}: infos['style'] must hold one integer per step, got {v.dtype} {v.shape}"
+        )
     return v.astype(np.int64)
 
 
@@ -206,7 +233,9 @@ def _valid_rows(infos: dict, rows: int, n_actions: int, where: str) -> np.ndarra
         return None
     mask = np.asarray(infos[key])
     if mask.ndim != 2 or mask.shape[1] != n_actions:
-        raise DataError(f"{where}: infos['{key}'] has shape {mask.shape}, expected ({rows}, {n_actions})")
+        raise DataError(
+            f"{where}: infos['{key}'] has shape {mask.shape}, expected ({rows}, {n_actions})"
+        )
     if len(mask) == rows - 1:  # one per action: nothing is known about the final state
         mask = np.concatenate([mask, np.ones((1, n_actions), mask.dtype)])
     return _per_row(mask, rows, key, where).astype(bool)
@@ -219,7 +248,9 @@ def _metadata_styles(metadata: dict, n_episodes: int, source: str) -> np.ndarray
         return None
     v = np.atleast_1d(np.asarray(raw))
     if not np.issubdtype(v.dtype, np.integer) or v.ndim != 1 or len(v) not in (1, n_episodes):
-        raise DataError(f"{source}: metadata 'style' must be an integer or a list of {n_episodes} integers")
+        raise DataError(
+            f"{source}: metadata 'style' must be an integer or a list of {n_episodes} integers"
+        )
     return np.broadcast_to(v.astype(np.int64), (n_episodes,))
 
 
@@ -240,8 +271,10 @@ def read_minari(dataset_id: str) -> tuple[pa.Table, dict]:
     dataset = _load(dataset_id)
     action_space, obs_space = dataset.action_space, dataset.observation_space
     if not isinstance(action_space, spaces.Discrete):
-        raise DataError(f"{source}: action space {action_space}; pcpg needs a discrete action space "
-                        f"(Discrete(n))")
+        raise DataError(
+            f"{source}: action space {action_space}; pcpg needs a discrete action space "
+            f"(Discrete(n))"
+        )
     n_actions, start = int(action_space.n), int(action_space.start)
     raw_meta = dataset.storage.metadata
     ids, states, actions, rewards, success, lengths, styles, valids = [], [], [], [], [], [], [], []
@@ -253,15 +286,19 @@ def read_minari(dataset_id: str) -> tuple[pa.Table, dict]:
         except DataError as e:
             raise DataError(f"{where}: {e}") from None
         if len(obs) != steps + 1:
-            raise DataError(f"{where}: {len(obs)} observations for {steps} actions (Minari stores one "
-                            f"more observation than actions)")
+            raise DataError(
+                f"{where}: {len(obs)} observations for {steps} actions (Minari stores one "
+                f"more observation than actions)"
+            )
         act = np.asarray(ep.actions).reshape(-1).astype(np.int64) - start
         if len(act) != steps:
             raise DataError(f"{where}: {len(act)} actions for {steps} rewards")
         bad = (act < 0) | (act >= n_actions)
         if bad.any():
-            raise DataError(f"{where}, step {int(np.argmax(bad))}: action {int(act[bad][0]) + start} "
-                            f"outside {action_space}")
+            raise DataError(
+                f"{where}, step {int(np.argmax(bad))}: action {int(act[bad][0]) + start} "
+                f"outside {action_space}"
+            )
         ids.append(int(ep.id))
         states.append(obs)
         actions.append(np.r_[act, -1])
@@ -291,35 +328,57 @@ def read_minari(dataset_id: str) -> tuple[pa.Table, dict]:
     cols["success"] = pa.array(np.repeat(np.asarray(success, bool), lengths_a))
     meta_styles = _metadata_styles(raw_meta, len(ids), source)
     if any(s is not None for s in styles):
-        cols["style"] = pa.array(np.concatenate(
-            [s if s is not None else np.full(n, -1, np.int64) for s, n in zip(styles, lengths, strict=True)]))
+        cols["style"] = pa.array(
+            np.concatenate(
+                [
+                    s if s is not None else np.full(n, -1, np.int64)
+                    for s, n in zip(styles, lengths, strict=True)
+                ]
+            )
+        )
     elif meta_styles is not None:
         cols["style"] = pa.array(np.repeat(meta_styles, lengths_a))
     if any(v is not None for v in valids):
-        check_action_memory(int(sum(lengths)), n_actions, source, f"its action space {action_space}")
-        mask = np.concatenate([v if v is not None else np.ones((n, n_actions), bool)
-                               for v, n in zip(valids, lengths, strict=True)])
+        check_action_memory(
+            int(sum(lengths)), n_actions, source, f"its action space {action_space}"
+        )
+        mask = np.concatenate(
+            [
+                v if v is not None else np.ones((n, n_actions), bool)
+                for v, n in zip(valids, lengths, strict=True)
+            ]
+        )
         cols["valid"] = pa.FixedSizeListArray.from_arrays(pa.array(mask.reshape(-1)), n_actions)
     del states, all_states  # the table holds its own copy
 
     pcpg_meta = raw_meta.get("pcpg") if isinstance(raw_meta.get("pcpg"), dict) else {}
     for key in ("feature_names", "action_names"):  # names pcpg wrote; anything else is not trusted
         value = pcpg_meta.get(key)
-        if value is not None and not (isinstance(value, list) and all(isinstance(x, str) for x in value)):
-            raise DataError(f"{source}: metadata 'pcpg.{key}' is {reprlib.repr(value)}; expected a list of "
-                            f"names (strings), or no such key")
+        if value is not None and not (
+            isinstance(value, list) and all(isinstance(x, str) for x in value)
+        ):
+            raise DataError(
+                f"{source}: metadata 'pcpg.{key}' is {reprlib.repr(value)}; expected a list of "
+                f"names (strings), or no such key"
+            )
     names = pcpg_meta.get("feature_names") or ()
     if len(names) != d:
         names = observation_names(obs_space)
     env_spec = dataset.env_spec
     meta = {
-        "source": source, "dataset_id": dataset_id, "n_actions": n_actions, "action_start": start,
+        "source": source,
+        "dataset_id": dataset_id,
+        "n_actions": n_actions,
+        "action_start": start,
         "feature_names": list(names),
         "action_names": list(pcpg_meta.get("action_names") or ()),
         "env_spec": env_spec.id if env_spec is not None else None,
-        "observation_space": str(obs_space), "action_space": str(action_space),
-        "total_episodes": len(ids), "total_steps": rows - len(ids),
-        "minari_version": str(raw_meta.get("minari_version", "")), "pcpg": pcpg_meta,
+        "observation_space": str(obs_space),
+        "action_space": str(action_space),
+        "total_episodes": len(ids),
+        "total_steps": rows - len(ids),
+        "minari_version": str(raw_meta.get("minari_version", "")),
+        "pcpg": pcpg_meta,
     }
     return pa.table(cols), meta
 
@@ -335,7 +394,9 @@ def export_ids(dataset_id: str, envs: list[str]) -> dict[str, str]:
     base = f"{match['namespace']}/{match['name']}" if match["namespace"] else match["name"]
     ids = {env: f"{base}/{re.sub(r'[^A-Za-z0-9_-]', '_', env)}-v{match['version']}" for env in envs}
     if len(set(ids.values())) != len(ids):
-        raise DataError(f"environments {', '.join(envs)} map to the same Minari ids ({sorted(ids.values())})")
+        raise DataError(
+            f"environments {', '.join(envs)} map to the same Minari ids ({sorted(ids.values())})"
+        )
     return ids
 
 
@@ -351,12 +412,18 @@ def _episode_buffers(ds: Dataset) -> list[Any]:
         term, trunc = done.copy(), done.copy()
         if steps:
             term[-1], trunc[-1] = bool(ds.success[i]), not bool(ds.success[i])
-        out.append(EpisodeBuffer(
-            id=i, observations=ds.states[lo:hi], actions=ds.actions[lo:hi - 1],
-            rewards=ds.rewards[lo:hi - 1], terminations=term, truncations=trunc,
-            # a list, not an array: Minari 0.5.4 cannot decode a 1-D ndarray info
-            infos={STYLE_KEY: [int(ds.styles[i])] * (hi - lo), "valid": ds.valid[lo:hi]},
-        ))
+        out.append(
+            EpisodeBuffer(
+                id=i,
+                observations=ds.states[lo:hi],
+                actions=ds.actions[lo : hi - 1],
+                rewards=ds.rewards[lo : hi - 1],
+                terminations=term,
+                truncations=trunc,
+                # a list, not an array: Minari 0.5.4 cannot decode a 1-D ndarray info
+                infos={STYLE_KEY: [int(ds.styles[i])] * (hi - lo), "valid": ds.valid[lo:hi]},
+            )
+        )
     return out
 
 
@@ -373,8 +440,12 @@ def _deferred_size(storage: Any) -> Any:
         def get_size(self) -> float:
             return 0.0
 
-    return DeferredSize(storage.data_path, storage.observation_space, storage.action_space,
-                        jpeg_encoding=storage.jpeg_encoding)
+    return DeferredSize(
+        storage.data_path,
+        storage.observation_space,
+        storage.action_space,
+        jpeg_encoding=storage.jpeg_encoding,
+    )
 
 
 def _build_prefix() -> str:
@@ -397,8 +468,9 @@ def _remove_stale_builds(out_dir: Path) -> None:
             continue
 
 
-def write_minari(datasets: dict[str, Dataset], out_dir: Path, dataset_id: str,
-                 description: str | None = None) -> dict[str, Path]:
+def write_minari(
+    datasets: dict[str, Dataset], out_dir: Path, dataset_id: str, description: str | None = None
+) -> dict[str, Path]:
     """Write pcpg datasets as Minari datasets under ``out_dir`` (use it as ``$MINARI_DATASETS_PATH``).
 
     One Minari dataset per environment (ids from :func:`export_ids`); episode ``i`` is
@@ -415,38 +487,57 @@ def write_minari(datasets: dict[str, Dataset], out_dir: Path, dataset_id: str,
     ids = export_ids(dataset_id, list(datasets))
     for mid in ids.values():
         if (out_dir / mid).exists():
-            raise DataError(f"{out_dir / mid}: a Minari dataset {mid} already exists there (Minari never "
-                            f"overwrites); pick another --dataset-id or version, or delete it")
+            raise DataError(
+                f"{out_dir / mid}: a Minari dataset {mid} already exists there (Minari never "
+                f"overwrites); pick another --dataset-id or version, or delete it"
+            )
     out_dir.mkdir(parents=True, exist_ok=True)
     # Built under a temporary root inside out_dir and renamed into place when every one is complete:
     # an interrupted export leaves no half dataset (Minari loaded one as valid, with 0 episodes, and
     # refused the rerun because it "already exists").
     _remove_stale_builds(out_dir)
-    build = Path(tempfile.mkdtemp(dir=out_dir, prefix=f"{_build_prefix()}{os.getpid()}-", suffix=".tmp"))
+    build = Path(
+        tempfile.mkdtemp(dir=out_dir, prefix=f"{_build_prefix()}{os.getpid()}-", suffix=".tmp")
+    )
     try:
         with datasets_root(build), warnings.catch_warnings():
             # Minari warns for every unset author/code_permalink/eval_env field: noise for an export.
             warnings.simplefilter("ignore", UserWarning)
             for env, ds in datasets.items():
                 mid = ids[env]
-                text = description or (f"pcpg dataset {ds.domain}-{env}: {ds.n_trajectories} trajectories, "
-                                       f"state {ds.state_dim} features, {ds.n_actions} actions")
+                text = description or (
+                    f"pcpg dataset {ds.domain}-{env}: {ds.n_trajectories} trajectories, "
+                    f"state {ds.state_dim} features, {ds.n_actions} actions"
+                )
                 created = minari.create_dataset_from_buffers(
-                    dataset_id=mid, buffer=[],
+                    dataset_id=mid,
+                    buffer=[],
                     observation_space=spaces.Box(-np.inf, np.inf, (ds.state_dim,), np.float32),
-                    action_space=spaces.Discrete(ds.n_actions), description=text,
-                    data_format=DATA_FORMAT)
+                    action_space=spaces.Discrete(ds.n_actions),
+                    description=text,
+                    data_format=DATA_FORMAT,
+                )
                 storage = _deferred_size(created.storage)
                 storage.update_episodes(_episode_buffers(ds))
-                storage.update_metadata({"dataset_size": type(created.storage).get_size(storage), "pcpg": {
-                    "domain": ds.domain, "env": env, "feature_names": list(ds.feature_names),
-                    "action_names": list(ds.action_names)}})
+                storage.update_metadata(
+                    {
+                        "dataset_size": type(created.storage).get_size(storage),
+                        "pcpg": {
+                            "domain": ds.domain,
+                            "env": env,
+                            "feature_names": list(ds.feature_names),
+                            "action_names": list(ds.action_names),
+                        },
+                    }
+                )
         written = {}
         for mid in ids.values():
             (out_dir / mid).parent.mkdir(parents=True, exist_ok=True)
             if (out_dir / mid).exists():  # made by another process meanwhile
-                raise DataError(f"{out_dir / mid}: a Minari dataset {mid} already exists there (Minari never "
-                                f"overwrites); pick another --dataset-id or version, or delete it")
+                raise DataError(
+                    f"{out_dir / mid}: a Minari dataset {mid} already exists there (Minari never "
+                    f"overwrites); pick another --dataset-id or version, or delete it"
+                )
             (build / mid).rename(out_dir / mid)
             written[mid] = out_dir / mid
     finally:
@@ -462,13 +553,21 @@ def find_dataset_folder(path: Path) -> Path:
     if (path / MANIFEST).is_file():
         return path
     if not path.is_dir():
-        raise DataError(f"{path}: no such folder (expected a pcpg dataset folder or a run's output "
-                        f"folder runs/NAME)")
-    found = [m.parent for pattern in ("cache/data/*/" + MANIFEST, "data/" + MANIFEST, "data/*/" + MANIFEST)
-             for m in path.glob(pattern) if m.is_file()]
+        raise DataError(
+            f"{path}: no such folder (expected a pcpg dataset folder or a run's output "
+            f"folder runs/NAME)"
+        )
+    found = [
+        m.parent
+        for pattern in ("cache/data/*/" + MANIFEST, "data/" + MANIFEST, "data/*/" + MANIFEST)
+        for m in path.glob(pattern)
+        if m.is_file()
+    ]
     if not found:
-        raise DataError(f"{path}: neither a pcpg dataset folder ({MANIFEST}) nor a run's output folder "
-                        f"with cached data (cache/data/<key>/{MANIFEST})")
+        raise DataError(
+            f"{path}: neither a pcpg dataset folder ({MANIFEST}) nor a run's output folder "
+            f"with cached data (cache/data/<key>/{MANIFEST})"
+        )
     return max(found, key=lambda p: (p / MANIFEST).stat().st_mtime)
 
 
@@ -488,6 +587,10 @@ def cli_export_minari(args: argparse.Namespace) -> None:
     print(f"read {folder}")
     for env, mid in ids.items():
         ds = datasets[env]
-        print(f"wrote {written[mid]}  (Minari id {mid}: {ds.n_trajectories} episodes, "
-              f"{ds.n_rows - ds.n_trajectories} steps, state {ds.state_dim}, {ds.n_actions} actions)")
-    print(f"load with {ENV_VAR}={out.resolve()} and minari.load_dataset(ID), or in pcpg as minari:ID")
+        print(
+            f"wrote {written[mid]}  (Minari id {mid}: {ds.n_trajectories} episodes, "
+            f"{ds.n_rows - ds.n_trajectories} steps, state {ds.state_dim}, {ds.n_actions} actions)"
+        )
+    print(
+        f"load with {ENV_VAR}={out.resolve()} and minari.load_dataset(ID), or in pcpg as minari:ID"
+    )

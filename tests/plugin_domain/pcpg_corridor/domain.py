@@ -22,21 +22,33 @@ class CorridorSettings(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    length: int = Field(12, ge=10, le=200, description=(
-        "cells in the corridor; the player starts in the middle"))
-    trajectories_per_style: int = Field(100, ge=2, le=100_000, description=(
-        "noisy trajectories generated per play-style (rusher, collector, explorer)"))
-    noise_max: float = Field(0.2, ge=0.0, lt=1.0, description=(
-        "each trajectory's epsilon is drawn uniformly from [0, noise_max]"))
-    max_steps: int = Field(100, ge=1, description=(
-        "episode cap when generating; reaching it counts as failure"))
+    length: int = Field(
+        12, ge=10, le=200, description=("cells in the corridor; the player starts in the middle")
+    )
+    trajectories_per_style: int = Field(
+        100,
+        ge=2,
+        le=100_000,
+        description=("noisy trajectories generated per play-style (rusher, collector, explorer)"),
+    )
+    noise_max: float = Field(
+        0.2,
+        ge=0.0,
+        lt=1.0,
+        description=("each trajectory's epsilon is drawn uniformly from [0, noise_max]"),
+    )
+    max_steps: int = Field(
+        100, ge=1, description=("episode cap when generating; reaching it counts as failure")
+    )
 
     @model_validator(mode="after")
     def _long_enough(self) -> CorridorSettings:
         explorer = Corridor(self.length).route_length(EXPLORER)
         if self.max_steps < explorer:
-            raise ValueError(f"max_steps ({self.max_steps}) is shorter than the explorer's route "
-                             f"({explorer} steps in a corridor of {self.length})")
+            raise ValueError(
+                f"max_steps ({self.max_steps}) is shorter than the explorer's route "
+                f"({explorer} steps in a corridor of {self.length})"
+            )
         return self
 
 
@@ -52,8 +64,9 @@ class CorridorDomain(Domain):
 
     def generate(self, cfg, show_progress: bool = True):
         s = self.settings(cfg)
-        ds = generate(Corridor(s.length), s.trajectories_per_style, s.noise_max, s.max_steps,
-                      seed=cfg.seed)
+        ds = generate(
+            Corridor(s.length), s.trajectories_per_style, s.noise_max, s.max_steps, seed=cfg.seed
+        )
         return {ds.env: ds}
 
     def hooks(self, cfg, unit: str) -> DomainHooks:

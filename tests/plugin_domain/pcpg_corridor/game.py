@@ -74,10 +74,13 @@ class Corridor:
         """Actions the noiseless ``style`` takes from start to exit."""
         right = self.exit - self.start
         # the collector walks 4 cells left, takes 2 coins and walks the 4 cells back
-        return {RUSHER: right, COLLECTOR: 4 + 2 + 4 + right, EXPLORER: self.start + self.exit}[style]
+        return {RUSHER: right, COLLECTOR: 4 + 2 + 4 + right, EXPLORER: self.start + self.exit}[
+            style
+        ]
 
-    def observe(self, pos: np.ndarray, taken: np.ndarray,
-                seen: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def observe(
+        self, pos: np.ndarray, taken: np.ndarray, seen: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """States (B, 4) float32 and valid masks (B, 3) bool of B players."""
         states = np.column_stack([pos / (self.length - 1), taken, seen]).astype(np.float32)
         on_coin = (pos[:, None] == self.coins) & ~taken
@@ -101,8 +104,15 @@ def scripted(corridor: Corridor, style: int) -> Policy:
     return act
 
 
-def play(corridor: Corridor, policy: Policy, n_episodes: int, rng: np.random.Generator,
-         max_steps: int, epsilon: np.ndarray | None = None, style: int = -1) -> Dataset:
+def play(
+    corridor: Corridor,
+    policy: Policy,
+    n_episodes: int,
+    rng: np.random.Generator,
+    max_steps: int,
+    epsilon: np.ndarray | None = None,
+    style: int = -1,
+) -> Dataset:
     """``n_episodes`` episodes of ``policy``, all stepped together, as a Dataset.
 
     ``epsilon`` (one per episode) replaces each action by a random valid one with that
@@ -147,16 +157,31 @@ def play(corridor: Corridor, policy: Policy, n_episodes: int, rng: np.random.Gen
     st, va = np.stack(trace_s, axis=1), np.stack(trace_v, axis=1)  # (n, steps + 1, ...)
     ac = np.stack(trace_a, axis=1) if trace_a else np.zeros((n, 0), np.int64)
     rw = np.stack(trace_r, axis=1) if trace_r else np.zeros((n, 0))
-    trajectories = [{"states": st[i, :t], "actions": ac[i, : t - 1], "valid": va[i, :t],
-                     "rewards": rw[i, : t - 1]} for i, t in enumerate(lengths)]
+    trajectories = [
+        {
+            "states": st[i, :t],
+            "actions": ac[i, : t - 1],
+            "valid": va[i, :t],
+            "rewards": rw[i, : t - 1],
+        }
+        for i, t in enumerate(lengths)
+    ]
     return Dataset.from_trajectories(
-        "corridor", f"L{corridor.length}", len(ACTION_NAMES), trajectories,
-        styles=[style] * n, success=~alive, epsilon=epsilon,
-        feature_names=FEATURE_NAMES, action_names=ACTION_NAMES)
+        "corridor",
+        f"L{corridor.length}",
+        len(ACTION_NAMES),
+        trajectories,
+        styles=[style] * n,
+        success=~alive,
+        epsilon=epsilon,
+        feature_names=FEATURE_NAMES,
+        action_names=ACTION_NAMES,
+    )
 
 
-def generate(corridor: Corridor, per_style: int, noise_max: float, max_steps: int,
-             seed: int) -> Dataset:
+def generate(
+    corridor: Corridor, per_style: int, noise_max: float, max_steps: int, seed: int
+) -> Dataset:
     """``per_style`` noisy trajectories of every play-style, labelled with their true style."""
     from pcpg_dist.dataset import Dataset
 
@@ -164,12 +189,22 @@ def generate(corridor: Corridor, per_style: int, noise_max: float, max_steps: in
     for style in range(len(STYLES)):
         rng = np.random.default_rng([seed, style])
         epsilon = rng.uniform(0.0, noise_max, per_style)
-        parts.append(play(corridor, scripted(corridor, style), per_style, rng, max_steps,
-                          epsilon=epsilon, style=style))
+        parts.append(
+            play(
+                corridor,
+                scripted(corridor, style),
+                per_style,
+                rng,
+                max_steps,
+                epsilon=epsilon,
+                style=style,
+            )
+        )
     return Dataset.concat(parts)
 
 
-def rollout_fn(corridor: Corridor,
-               max_steps: int) -> Callable[[Policy, int, np.random.Generator], Dataset]:
+def rollout_fn(
+    corridor: Corridor, max_steps: int
+) -> Callable[[Policy, int, np.random.Generator], Dataset]:
     """What the evaluation calls to roll a trained agent out (``DomainHooks.rollout``)."""
     return lambda policy, n, rng: play(corridor, policy, n, rng, max_steps)
