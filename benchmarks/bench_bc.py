@@ -19,10 +19,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from pcpg_dist.bc import BCConfig, train_cells
+from pcpg_dist.common.devices import set_threads
 from pcpg_dist.dataset import load_datasets
-from pcpg_dist.parallel import set_threads
-from pcpg_dist.ranking import (
+from pcpg_dist.stages.bc import BCConfig, train_cells
+from pcpg_dist.stages.ranking import (
     RankConfig,
     performance,
     plan_cells,

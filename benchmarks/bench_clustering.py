@@ -12,7 +12,7 @@ was designed on; 20261124 is a second family, drawn for greedy_mix's final check
 Datasets are cached as Parquet under ``--cache``.
 
 Per dataset and method it prints accuracy (Hungarian), ARI, NMI, the gap to the ceiling (a 5-fold
-cross-validated logistic regression given the true styles, pcpg_dist/ceiling.py) and seconds; then
+cross-validated logistic regression given the true styles, pcpg_dist/stages/clustering/ceiling.py) and seconds; then
 per method the mean and worst gap over E1-E5 and over the held-out layouts. On GridWorld it also
 prints the Bayes rate (``bayes``): the accuracy of the generator's own classifier, which knows each
 style's greedy policy (PBTG's Q-tables) and the noise range, and picks the style of highest
@@ -37,13 +37,13 @@ from pathlib import Path
 
 import numpy as np
 
-from pcpg_dist.ceiling import gap_to_ceiling, supervised_ceiling
-from pcpg_dist.clustering import ClusterConfig, cluster, clustering_metrics
+from pcpg_dist.common.devices import set_threads
 from pcpg_dist.config.stages import PBTGConfig
 from pcpg_dist.dataset import read_parquet, write_parquet
-from pcpg_dist.domains import gridworld as gw
-from pcpg_dist.parallel import set_threads
-from pcpg_dist.pbtg import assemble_dataset, generate_pair
+from pcpg_dist.domains.gridworld import layout as gw
+from pcpg_dist.domains.gridworld.pbtg import assemble_dataset, generate_pair
+from pcpg_dist.stages.clustering.ceiling import gap_to_ceiling, supervised_ceiling
+from pcpg_dist.stages.clustering.cluster import ClusterConfig, cluster, clustering_metrics
 
 METHODS = (
     "bag_auto",
@@ -112,12 +112,12 @@ def minidungeons_units(seeds: list[int]):
 
 def bayes_rate(layout, ds, seed: int = 0, grid: int = 61) -> float:
     """Accuracy of the generator's classifier: each style's greedy policy from its Q-table (as
-    :func:`pcpg_dist.pbtg.generate_pair` learns it for seed ``seed``), the step likelihood
+    :func:`pcpg_dist.domains.gridworld.pbtg.generate_pair` learns it for seed ``seed``), the step likelihood
     ``(1 - eps) [a = greedy] + eps / n_valid``, eps integrated over ``[noise_min, noise_max]``
     (its uniform prior), equal style priors."""
     from scipy.special import logsumexp
 
-    from pcpg_dist.pbtg import pair_seed, q_learning
+    from pcpg_dist.domains.gridworld.pbtg import pair_seed, q_learning
 
     cfg, t = PBTGConfig(), layout.tables  # the configuration :func:`datasets` generates with
     styles = np.unique(ds.styles)

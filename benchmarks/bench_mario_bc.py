@@ -25,12 +25,12 @@ from pathlib import Path
 
 import numpy as np
 
-from pcpg_dist.bc import TrainedCells, init_from, train_cells
+from pcpg_dist.common.devices import set_threads
 from pcpg_dist.config.experiment import load_config
-from pcpg_dist.domains.mario_domain import MarioDomain
-from pcpg_dist.parallel import set_threads
+from pcpg_dist.domains.mario.domain import MarioDomain
 from pcpg_dist.pipeline import evaluate_unit, plan_unit
-from pcpg_dist.ranking import fmt
+from pcpg_dist.stages.bc import TrainedCells, init_from, train_cells
+from pcpg_dist.stages.ranking import fmt
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -10,10 +10,10 @@ import time
 from pathlib import Path
 
 from pcpg_dist.config import load_config
-from pcpg_dist.domains.gridworld_domain import gridworld_layouts
-from pcpg_dist.generate import generate
-from pcpg_dist.pbtg import generate_pair
-from pcpg_dist.ray_utils import init_ray
+from pcpg_dist.domains.gridworld.domain import gridworld_layouts
+from pcpg_dist.domains.gridworld.pbtg import generate_pair
+from pcpg_dist.orchestration.ray_pool import init_ray
+from pcpg_dist.stages.data import generate
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -13,8 +13,8 @@ import time
 from pathlib import Path
 
 from pcpg_dist.config import load_config
-from pcpg_dist.ray_utils import init_ray
-from pcpg_dist.runner import run_experiment
+from pcpg_dist.orchestration.ray_pool import init_ray
+from pcpg_dist.orchestration.runner import run_experiment
 
 ROOT = Path(__file__).resolve().parent.parent
 

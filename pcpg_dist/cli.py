@@ -9,14 +9,14 @@ import shlex
 import sys
 from pathlib import Path
 
-from pcpg_dist.errors import PcpgError, Terminated, catch_sigterm
+from pcpg_dist.common.errors import PcpgError, Terminated, catch_sigterm
 
 
 def _cmd_generate(args: argparse.Namespace) -> None:
+    from pcpg_dist.common.progress import out as console  # results: stdout
     from pcpg_dist.config.overrides import load_config_with
-    from pcpg_dist.generate import generate_to
-    from pcpg_dist.progress import out as console  # results: stdout
-    from pcpg_dist.ray_utils import init_ray
+    from pcpg_dist.orchestration.ray_pool import init_ray
+    from pcpg_dist.stages.data import generate_to
 
     cfg = load_config_with(args.config, args.overrides)
     init_ray(args.ray_address)
@@ -38,11 +38,11 @@ def _check_tracking(args: argparse.Namespace) -> None:
 
 
 def _cmd_run(args: argparse.Namespace) -> None:
+    from pcpg_dist.common.progress import out
     from pcpg_dist.config.overrides import load_config_with
-    from pcpg_dist.progress import out
-    from pcpg_dist.ray_utils import init_ray
-    from pcpg_dist.runner import run_experiment
-    from pcpg_dist.summary import print_summary
+    from pcpg_dist.orchestration.ray_pool import init_ray
+    from pcpg_dist.orchestration.runner import run_experiment
+    from pcpg_dist.reporting.summary import print_summary
 
     cfg = load_config_with(args.config, args.overrides)
     _check_tracking(args)
@@ -74,8 +74,8 @@ def _cmd_run(args: argparse.Namespace) -> None:
 def _cmd_sweep(args: argparse.Namespace) -> None:
     """A grid over config axes, every point together on Ray; shared stages run once."""
     from pcpg_dist.config.overrides import split_sweep_items
-    from pcpg_dist.ray_utils import init_ray
-    from pcpg_dist.sweep import run_sweep
+    from pcpg_dist.orchestration.ray_pool import init_ray
+    from pcpg_dist.orchestration.sweep import run_sweep
 
     axes, fixed = split_sweep_items(args.axes)
     _check_tracking(args)
@@ -112,8 +112,8 @@ def _print_points(res) -> None:
     smallest p, and the clustering accuracy (every column: summary.csv and the report)."""
     from rich.table import Table
 
-    from pcpg_dist.progress import out as console
-    from pcpg_dist.sweep import ps_of
+    from pcpg_dist.common.progress import out as console
+    from pcpg_dist.orchestration.sweep import ps_of
 
     keys = {k for r in res.rows for k in r}
     ps = ps_of(keys)
@@ -140,12 +140,12 @@ def _print_points(res) -> None:
 
 
 def _cmd_report(args: argparse.Namespace) -> None:
-    from pcpg_dist.progress import out as console  # results: stdout
-    from pcpg_dist.report import render, resolve
+    from pcpg_dist.common.progress import out as console  # results: stdout
+    from pcpg_dist.reporting.report import render, resolve
 
     source = resolve(args.target, args.tracking_uri, Path(args.workdir))
     if source.kind == "sweep":  # a sweep's page: its points and figures (HTML only)
-        from pcpg_dist.sweep import render_sweep_report
+        from pcpg_dist.orchestration.sweep import render_sweep_report
 
         out = Path(args.out) if args.out else source.folder
         html_path = render_sweep_report(source.folder, out)
@@ -155,14 +155,14 @@ def _cmd_report(args: argparse.Namespace) -> None:
         html_path, md_path = render(source.folder, out, reproduce_target=source.run_id)
         console.print(f"report: {html_path}\nmarkdown: {md_path}")
     if args.pdf:
-        from pcpg_dist.report import export_pdf
+        from pcpg_dist.reporting.report import export_pdf
 
         console.print(f"pdf: {export_pdf(html_path)}")
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> None:
     """Rerun a logged run in a fresh folder; exit 1 when some metric differs."""
-    from pcpg_dist.reproduce import cli_reproduce
+    from pcpg_dist.orchestration.reproduce import cli_reproduce
 
     code = cli_reproduce(args)
     if code:
@@ -173,14 +173,14 @@ def _cmd_cluster(args: argparse.Namespace) -> None:
     """Step A alone: one clustering per environment on Ray; saves models + labels."""
     import json
 
-    from pcpg_dist.cache import write_files
+    from pcpg_dist.common.progress import out as console  # results: stdout
     from pcpg_dist.config.overrides import load_config_with
     from pcpg_dist.dataset import atomic_write_bytes, confined, load_datasets
     from pcpg_dist.domains import contract
-    from pcpg_dist.generate import generate_to
-    from pcpg_dist.progress import out as console  # results: stdout
-    from pcpg_dist.ray_utils import init_ray, node_gpus, run_tasks
-    from pcpg_dist.runner import cluster_gpus, cluster_task, unit_cluster_gpus
+    from pcpg_dist.orchestration.cache import write_files
+    from pcpg_dist.orchestration.ray_pool import init_ray, node_gpus, run_tasks
+    from pcpg_dist.orchestration.runner import cluster_gpus, cluster_task, unit_cluster_gpus
+    from pcpg_dist.stages.data import generate_to
 
     cfg = load_config_with(args.config, args.overrides)
     init_ray(args.ray_address)
@@ -224,10 +224,10 @@ def _cmd_classify(args: argparse.Namespace) -> None:
     """Label trajectories of a dataset with a fitted clustering model's styles."""
     import pandas as pd
 
-    from pcpg_dist.clustering import clustering_metrics, load_model
+    from pcpg_dist.common.progress import out as console  # results: stdout
+    from pcpg_dist.common.run_folders import check_outside_run
     from pcpg_dist.dataset import atomic_write_bytes, load_dataset
-    from pcpg_dist.progress import out as console  # results: stdout
-    from pcpg_dist.run_folders import check_outside_run
+    from pcpg_dist.stages.clustering.cluster import clustering_metrics, load_model
 
     # by default into the current folder: the dataset's folder may be a signed `pcpg generate` output
     out = Path(args.out) if args.out else Path(Path(args.dataset).stem + ".styles.csv")
@@ -269,7 +269,7 @@ def _cmd_classify(args: argparse.Namespace) -> None:
 
 def check_classify_out(out: Path, model: Path, dataset: Path) -> None:
     """The labels never overwrite the inputs: the dataset (or its manifest), a file of the model."""
-    from pcpg_dist.errors import ConfigError
+    from pcpg_dist.common.errors import ConfigError
 
     out_at = out.resolve()
     if out_at in (dataset.resolve(), dataset.resolve().parent / "manifest.json"):
@@ -289,10 +289,10 @@ def check_classify_out(out: Path, model: Path, dataset: Path) -> None:
 
 def _cmd_tune(args: argparse.Namespace) -> None:
     """Optuna study over k and the network sizes; writes the best parameters as a config."""
+    from pcpg_dist.common.progress import out as console  # results: stdout
     from pcpg_dist.config.overrides import load_config_with
-    from pcpg_dist.progress import out as console  # results: stdout
-    from pcpg_dist.ray_utils import init_ray
-    from pcpg_dist.tuning import open_storage, run_study, tune_settings
+    from pcpg_dist.orchestration.ray_pool import init_ray
+    from pcpg_dist.orchestration.tuning import open_storage, run_study, tune_settings
 
     cfg = load_config_with(args.config, args.overrides)
     storage = open_storage(
@@ -344,7 +344,7 @@ def trial_counts(counts: dict[str, int]) -> str:
 def _cmd_export(args: argparse.Namespace) -> None:
     """`pcpg export FORMAT`: each format's code lives in its own module."""
     if args.what == "onnx":
-        from pcpg_dist.onnx_export import cli_export_onnx
+        from pcpg_dist.reporting.onnx_export import cli_export_onnx
 
         cli_export_onnx(args)
     elif args.what == "minari":
@@ -651,7 +651,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
-    from pcpg_dist.progress import setup_output
+    from pcpg_dist.common.progress import setup_output
 
     setup_output(
         quiet=args.quiet,
@@ -670,7 +670,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"pcpg: error: cannot access{where}: {e.strerror or e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as e:
-        from pcpg_dist import errors
+        from pcpg_dist.common import errors
 
         terminated = isinstance(e, Terminated) or errors.sigterm_received
         print(

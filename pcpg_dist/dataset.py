@@ -32,7 +32,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from pcpg_dist.errors import DataError, first_line
+from pcpg_dist.common.errors import DataError, first_line
 
 SCHEMA_VERSION = 2  # 2: `valid` is a list of booleans (was an int64 bitmask, capped at 63 actions)
 MANIFEST = "manifest.json"

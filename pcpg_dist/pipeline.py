@@ -59,14 +59,14 @@ def partial_styles_note(unit: Unit) -> str | None:
 def cluster_unit(unit: Unit, cluster_cfg, seed: int, ceiling: bool = True) -> UnitClustering:
     """Step A on what the domain says to cluster; scored against true styles when they exist
     (and, with ``ceiling``, against what a classifier given those styles reaches)."""
-    from pcpg_dist.clustering import cluster, clustering_metrics
+    from pcpg_dist.stages.clustering.cluster import cluster, clustering_metrics
 
     result = cluster(unit.clustered, cluster_cfg, seed)
     metrics = {
         f"clustering/{k}": float(v) for k, v in result.metrics.items() if isinstance(v, int | float)
     }
     if has_styles(unit):
-        from pcpg_dist.ceiling import gap_to_ceiling, supervised_ceiling
+        from pcpg_dist.stages.clustering.ceiling import gap_to_ceiling, supervised_ceiling
 
         sup = clustering_metrics(unit.dataset.styles, result.labels)
         metrics.update(
@@ -75,7 +75,7 @@ def cluster_unit(unit: Unit, cluster_cfg, seed: int, ceiling: bool = True) -> Un
         top = supervised_ceiling(unit.dataset, seed=seed) if ceiling else float("nan")
         if np.isfinite(
             top
-        ):  # what a classifier given the true styles reaches (pcpg_dist/ceiling.py)
+        ):  # what a classifier given the true styles reaches (pcpg_dist/stages/clustering/ceiling.py)
             metrics["clustering/ceiling"] = top
             metrics["clustering/gap_to_ceiling"] = gap_to_ceiling(
                 top, metrics["clustering/accuracy"]
@@ -99,7 +99,7 @@ def plan_unit(
     """Step B: every training cell of the unit (PCPG, No Clustering, corrupted labels), ranked by
     the domain's skill score (and the clustering's ``margins`` with ``ranking.style_margin``).
     Corruption cells need true styles to mean anything."""
-    from pcpg_dist.ranking import plan_cells
+    from pcpg_dist.stages.ranking import plan_cells
 
     rank_cfg = rank_cfg or cfg.ranking
     corrupt = cfg.evaluation.corruption_levels if corruption and has_styles(unit) else ()
@@ -131,7 +131,7 @@ def evaluate_unit(
     margins: np.ndarray | None = None,
 ) -> dict[str, float]:
     """Accuracy tables, cross accuracy, rollouts and the domain's extras; finite metrics only."""
-    from pcpg_dist.evaluation import evaluate
+    from pcpg_dist.stages.evaluation import evaluate
 
     result = evaluate(
         unit.dataset,
@@ -154,7 +154,7 @@ def evaluate_unit(
 
 def run_unit(unit: Unit, cfg, out_dir: str | Path | None = None) -> UnitResult:
     """The whole chain in this process (a notebook, a test, one tuning trial)."""
-    from pcpg_dist.bc import train_plan
+    from pcpg_dist.stages.bc import train_plan
 
     clustering = cluster_unit(unit, cfg.clustering, cfg.seed)
     trained = train_plan(

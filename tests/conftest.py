@@ -22,13 +22,13 @@ def ray_session():
     """One in-process Ray with 2 CPUs, shared by every test that needs it, shut down at the end."""
     import ray
 
-    from pcpg_dist.parallel import set_threads
+    from pcpg_dist.common.devices import set_threads
 
     set_threads(1)
     if not ray.is_initialized():
         # the product's own start: a private instance on 127.0.0.1 (never a `ray start` cluster
         # left on the machine), retried if a busy machine makes the node miss Ray's 30 s window
-        from pcpg_dist.ray_utils import init_ray
+        from pcpg_dist.orchestration.ray_pool import init_ray
 
         init_ray(num_cpus=2)
     yield ray
@@ -37,6 +37,6 @@ def ray_session():
 
 @pytest.fixture(autouse=True, scope="session")
 def _one_torch_thread():
-    from pcpg_dist.parallel import set_threads
+    from pcpg_dist.common.devices import set_threads
 
     set_threads(1)

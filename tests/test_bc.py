@@ -10,9 +10,15 @@ import pytest
 import torch
 from bc_toy import expert, make_dataset, rollout
 
-from pcpg_dist.bc import BCConfig, TrainedCells, init_params, train_cells, weighted_loss_and_grad
-from pcpg_dist.errors import ConfigError, DataError
-from pcpg_dist.ranking import Cell, RankConfig, plan_cells, split_trajectories
+from pcpg_dist.common.errors import ConfigError, DataError
+from pcpg_dist.stages.bc import (
+    BCConfig,
+    TrainedCells,
+    init_params,
+    train_cells,
+    weighted_loss_and_grad,
+)
+from pcpg_dist.stages.ranking import Cell, RankConfig, plan_cells, split_trajectories
 
 
 @pytest.fixture(scope="module")
@@ -234,7 +240,7 @@ def test_a_model_whose_tensors_do_not_fit_its_json_is_one_line_at_load(toy, tmp_
 def test_device_config():
     from pydantic import ValidationError
 
-    from pcpg_dist.bc import bc_device
+    from pcpg_dist.stages.bc import bc_device
 
     if not torch.cuda.is_available():
         with pytest.raises(ConfigError, match="bc.device is 'cuda' but torch sees no GPU"):
@@ -249,7 +255,7 @@ def test_device_config():
 
 
 def _resolve(name):
-    from pcpg_dist.bc import resolve_device
+    from pcpg_dist.stages.bc import resolve_device
 
     return resolve_device(name, "bc.device")
 

@@ -15,8 +15,8 @@ from pathlib import Path
 
 import pytest
 
-from pcpg_dist import figures
-from pcpg_dist.report import render
+from pcpg_dist.reporting.report import render
+from pcpg_dist.stages import figures
 
 ROOT = Path(__file__).resolve().parent.parent
 DATA = Path(__file__).parent / "data" / "report_summary"
@@ -138,7 +138,7 @@ def test_protocol_banner_and_sweep_figures_fit_a_phone(browser, report, tmp_path
     and the sweep page shows one figure per row."""
     from test_report import make_sweep
 
-    from pcpg_dist.report import render_sweep
+    from pcpg_dist.reporting.report import render_sweep
 
     ARTIFACTS.mkdir(parents=True, exist_ok=True)
     pg = browser.new_page(viewport={"width": PHONE, "height": 800})

@@ -6,8 +6,8 @@ import json
 
 import pytest
 
-from pcpg_dist.cache import Cache, content_key, write_files
-from pcpg_dist.errors import DataError
+from pcpg_dist.common.errors import DataError
+from pcpg_dist.orchestration.cache import Cache, content_key, write_files
 
 
 def finished(tmp_path) -> Cache:

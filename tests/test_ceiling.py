@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from pcpg_dist import ceiling
+from pcpg_dist.stages.clustering import ceiling
 
 
 def test_the_cap_keeps_or_drops_a_count_whole(monkeypatch):

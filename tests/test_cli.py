@@ -14,12 +14,12 @@ import pytest
 import yaml
 
 from pcpg_dist.cli import main
+from pcpg_dist.common.errors import DataError
 from pcpg_dist.config import load_config
 from pcpg_dist.dataset import load_datasets
-from pcpg_dist.errors import DataError
-from pcpg_dist.generate import generate, generate_to
-from pcpg_dist.pbtg import generate_pair
-from pcpg_dist.ray_utils import run_tasks
+from pcpg_dist.domains.gridworld.pbtg import generate_pair
+from pcpg_dist.orchestration.ray_pool import run_tasks
+from pcpg_dist.stages.data import generate, generate_to
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -54,7 +54,7 @@ def test_data_is_bit_identical_with_one_or_two_workers(ray_session, tmp_path):
     cfg = load_config(tiny_config(tmp_path))
     two = generate(cfg, show_progress=False)  # 1-CPU tasks: two run at once
     layouts = [(e, r) for e in ("E1", "E3") for r in range(4)]
-    from pcpg_dist.domains.gridworld_domain import gridworld_layouts
+    from pcpg_dist.domains.gridworld.domain import gridworld_layouts
 
     lay = {lt.name: lt for lt in gridworld_layouts(cfg)}
     # 2-CPU tasks on a 2-CPU Ray: one worker at a time, in another order.
@@ -136,11 +136,11 @@ def test_classify_writes_the_models_labels_and_warns_on_another_layout(
 ):
     import pandas as pd
 
-    from pcpg_dist.clustering import ClusterConfig, cluster
     from pcpg_dist.config import PBTGConfig
     from pcpg_dist.dataset import write_parquet
-    from pcpg_dist.domains.gridworld import random_layouts
-    from pcpg_dist.pbtg import assemble_dataset
+    from pcpg_dist.domains.gridworld.layout import random_layouts
+    from pcpg_dist.domains.gridworld.pbtg import assemble_dataset
+    from pcpg_dist.stages.clustering.cluster import ClusterConfig, cluster
 
     pbtg = PBTGConfig(episodes=3000, trajectories_per_style=60, dataset_per_style=40)
     same, other = random_layouts(2, 11)
@@ -341,11 +341,11 @@ def test_classify_never_overwrites_its_inputs_or_a_special_file(tmp_path, capsys
     them with the CSV (exit 0); now one line, exit 2, and every input is byte-for-byte as before."""
     import os
 
-    from pcpg_dist.clustering import ClusterConfig, cluster
     from pcpg_dist.config import PBTGConfig
     from pcpg_dist.dataset import atomic_write_bytes, write_parquet
-    from pcpg_dist.domains.gridworld import random_layouts
-    from pcpg_dist.pbtg import assemble_dataset
+    from pcpg_dist.domains.gridworld.layout import random_layouts
+    from pcpg_dist.domains.gridworld.pbtg import assemble_dataset
+    from pcpg_dist.stages.clustering.cluster import ClusterConfig, cluster
 
     pbtg = PBTGConfig(episodes=1000, trajectories_per_style=20, dataset_per_style=10)
     (layout,) = random_layouts(1, 5)
@@ -382,7 +382,7 @@ def test_classify_never_overwrites_its_inputs_or_a_special_file(tmp_path, capsys
 def test_sweep_prints_its_points_numbers_on_stdout(capsys, tmp_path):
     """`pcpg sweep` printed where its table was, and no number: now each point's headline."""
     from pcpg_dist.cli import _print_points
-    from pcpg_dist.sweep import SweepResult
+    from pcpg_dist.orchestration.sweep import SweepResult
 
     rows = [
         {

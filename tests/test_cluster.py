@@ -330,7 +330,7 @@ def test_private_ray_listens_on_loopback_only(cluster, tmp_path):
     """The embedded Ray (no address) is reachable from this machine only."""
     probe = (
         "import os, psutil, ray\n"
-        "from pcpg_dist.ray_utils import init_ray\n"
+        "from pcpg_dist.orchestration.ray_pool import init_ray\n"
         "init_ray(num_cpus=1)\n"
         "pid = psutil.Process()\n"
         "procs = [pid, *pid.children(recursive=True)]\n"

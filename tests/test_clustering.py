@@ -9,7 +9,10 @@ import pytest
 import torch
 from pydantic import ValidationError
 
-from pcpg_dist.clustering import (
+from pcpg_dist.common.devices import set_threads
+from pcpg_dist.common.errors import DataError
+from pcpg_dist.dataset import Dataset
+from pcpg_dist.stages.clustering.cluster import (
     ClusterConfig,
     cluster,
     cluster_sizes,
@@ -17,9 +20,6 @@ from pcpg_dist.clustering import (
     hungarian_mapping,
     load_model,
 )
-from pcpg_dist.dataset import Dataset
-from pcpg_dist.errors import DataError
-from pcpg_dist.parallel import set_threads
 
 # Small and fast: the tests prove behaviour, the benchmark proves the GridWorld targets.
 FAST = dict(
@@ -203,8 +203,8 @@ def test_hungarian_accuracy_with_extra_clusters_and_errors():
 def grid_data():
     """One random style-distinct GridWorld layout, 60 PBTG trajectories per style (seconds)."""
     from pcpg_dist.config.stages import PBTGConfig
-    from pcpg_dist.domains.gridworld import random_layouts
-    from pcpg_dist.pbtg import assemble_dataset, generate_pair
+    from pcpg_dist.domains.gridworld.layout import random_layouts
+    from pcpg_dist.domains.gridworld.pbtg import assemble_dataset, generate_pair
 
     layout = random_layouts(1, seed=12)[0]
     cfg = PBTGConfig(trajectories_per_style=200, dataset_per_style=60)

@@ -8,9 +8,9 @@ from pathlib import Path
 import pytest
 import yaml
 
+from pcpg_dist.common.errors import ConfigError
 from pcpg_dist.config import load_config, parse_config
 from pcpg_dist.config.domains import PAPER_LAYOUTS
-from pcpg_dist.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parent.parent
 EXPERIMENTS = ROOT / "experiments"
@@ -235,8 +235,8 @@ def test_loading_a_config_imports_no_torch_and_no_stage():
     code = (
         "import sys; from pcpg_dist.config.overrides import load_config_with; "
         f"[load_config_with(p) for p in {[str(p) for p in sorted(EXPERIMENTS.glob('*.yaml'))]!r}]; "
-        "heavy = [m for m in ('torch', 'ray', 'mlflow', 'optuna', 'pcpg_dist.bc', 'pcpg_dist.clustering', "
-        "'pcpg_dist.tuning', 'pcpg_dist.runner', 'pcpg_dist.evaluation', 'pcpg_dist.ranking') if m in sys.modules]; "
+        "heavy = [m for m in ('torch', 'ray', 'mlflow', 'optuna', 'pcpg_dist.stages.bc', 'pcpg_dist.stages.clustering.cluster', "
+        "'pcpg_dist.orchestration.tuning', 'pcpg_dist.orchestration.runner', 'pcpg_dist.stages.evaluation', 'pcpg_dist.stages.ranking') if m in sys.modules]; "
         "print(heavy)"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

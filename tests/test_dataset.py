@@ -10,8 +10,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
+from pcpg_dist.common.errors import DataError
 from pcpg_dist.dataset import Dataset, load_dataset, load_datasets, read_parquet, write_datasets
-from pcpg_dist.errors import DataError
 
 
 def small(env: str = "E1", n: int = 5, seed: int = 0) -> Dataset:

@@ -9,9 +9,9 @@ import pandas as pd
 import pytest
 from bc_toy import make_dataset, optimal_return, returns, rollout
 
-from pcpg_dist.bc import BCConfig, train_cells
-from pcpg_dist.evaluation import DomainHooks, EvalConfig, Scorer, evaluate, summarize
-from pcpg_dist.ranking import RankConfig, plan_cells, split_trajectories
+from pcpg_dist.stages.bc import BCConfig, train_cells
+from pcpg_dist.stages.evaluation import DomainHooks, EvalConfig, Scorer, evaluate, summarize
+from pcpg_dist.stages.ranking import RankConfig, plan_cells, split_trajectories
 
 # With k = 2, "wrong" labels at c = 0.5 are a fully random labelling: the clearest check.
 RANK = RankConfig(ps=(1.0, 0.5, 0.25), corruption_mode="wrong")
@@ -163,7 +163,7 @@ def test_style_of_an_empty_cluster_is_none():
     never a style index the domain does not have."""
     from bc_toy import make_dataset
 
-    from pcpg_dist.evaluation import style_of_clusters
+    from pcpg_dist.stages.evaluation import style_of_clusters
 
     ds = make_dataset(40, seed=1)
     labels = np.asarray(ds.styles, np.int64)
@@ -190,7 +190,7 @@ def test_table_4_covers_the_clusters_that_have_agents(tmp_path):
 def test_rollout_tables_and_metrics_give_one_std():
     """The rollout CSVs (and the report, which reads them) and metrics.json (MLflow) quote one
     std for one figure: over seeds, ddof 0 (the CSVs had pandas' ddof 1, sqrt(4/3) larger)."""
-    from pcpg_dist.evaluation import _mean_std, over_seeds
+    from pcpg_dist.stages.evaluation import _mean_std, over_seeds
 
     runs = pd.DataFrame(
         {

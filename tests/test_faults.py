@@ -54,7 +54,7 @@ SERVER_TIMEOUT = 300
 # then uses this Ray): the same command line as `python -m pcpg_dist.cli run ...` otherwise.
 AGENTS = ("ray::DashboardAgent", "ray::RuntimeEnvAgent")  # per-node helpers, not the sweep's
 LAUNCH = (
-    "import sys; from pcpg_dist.ray_utils import init_ray; init_ray(num_cpus=int(sys.argv[1])); "
+    "import sys; from pcpg_dist.orchestration.ray_pool import init_ray; init_ray(num_cpus=int(sys.argv[1])); "
     "from pcpg_dist.cli import main; sys.exit(main(sys.argv[2:]))"
 )
 

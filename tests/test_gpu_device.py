@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
+from pcpg_dist.common.devices import resolve_device, stage_gpus
+from pcpg_dist.common.errors import ConfigError
 from pcpg_dist.config.stages import BCConfig, ClusterConfig, RunnerConfig
-from pcpg_dist.errors import ConfigError
-from pcpg_dist.parallel import resolve_device, stage_gpus
 
 
 def test_stage_gpus_asks_only_where_a_stage_is_on_a_gpu():
@@ -57,7 +57,7 @@ def test_policy_mix_auto_is_the_cpu_fit_where_no_gpu_is_seen():
     import torch
     from test_policy_mix import FAST, goal_seekers
 
-    from pcpg_dist.clustering import cluster, clustering_metrics
+    from pcpg_dist.stages.clustering.cluster import cluster, clustering_metrics
 
     goals = goal_seekers(
         40, seed=7
@@ -77,7 +77,7 @@ def test_only_a_clustering_that_trains_a_network_asks_for_a_gpu():
     from test_policy_mix import goal_seekers
 
     from pcpg_dist.dataset import Dataset
-    from pcpg_dist.runner import trains_a_network
+    from pcpg_dist.orchestration.runner import trains_a_network
 
     continuous = goal_seekers(5, seed=0)
     rng = np.random.default_rng(0)
@@ -103,7 +103,7 @@ def test_only_a_clustering_that_trains_a_network_asks_for_a_gpu():
 
 
 def test_bc_auto_keeps_cpu_only_settings_on_the_cpu():
-    from pcpg_dist.bc import bc_device, runs_on_cpu_only
+    from pcpg_dist.stages.bc import bc_device, runs_on_cpu_only
 
     assert runs_on_cpu_only(BCConfig(batch_size=32)) and runs_on_cpu_only(BCConfig(engine="numba"))
     assert not runs_on_cpu_only(BCConfig())
@@ -116,7 +116,7 @@ def test_run_on_cuda_without_a_gpu_is_refused_before_anything_starts(ray_session
     from test_runner import TINY
 
     from pcpg_dist.config import load_config
-    from pcpg_dist.runner import run_experiment
+    from pcpg_dist.orchestration.runner import run_experiment
 
     path = tmp_path / "tiny.yaml"
     path.write_text(

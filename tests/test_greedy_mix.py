@@ -7,9 +7,14 @@ import numpy as np
 import pytest
 import torch
 
-from pcpg_dist import greedy_mix
-from pcpg_dist.clustering import ClusterConfig, cluster, clustering_metrics, load_model
-from pcpg_dist.errors import DataError
+from pcpg_dist.common.errors import DataError
+from pcpg_dist.stages.clustering import greedy_mix
+from pcpg_dist.stages.clustering.cluster import (
+    ClusterConfig,
+    cluster,
+    clustering_metrics,
+    load_model,
+)
 
 
 def synthetic_steps(
@@ -67,8 +72,8 @@ def e4():
     from pathlib import Path
 
     from pcpg_dist.config.stages import PBTGConfig
-    from pcpg_dist.domains.gridworld import load_layout
-    from pcpg_dist.pbtg import assemble_dataset, generate_pair
+    from pcpg_dist.domains.gridworld.layout import load_layout
+    from pcpg_dist.domains.gridworld.pbtg import assemble_dataset, generate_pair
 
     layout = load_layout(
         Path(__file__).resolve().parents[1] / "pcpg_dist" / "data" / "gridworld" / "E4.txt"
@@ -79,7 +84,7 @@ def e4():
 def test_closes_the_paper_e4_gap_to_the_supervised_ceiling(e4):
     """bag_kmeans leaves ~100 R4 trajectories with R3 (both-bonus routes that share R3's way to
     B2); the supervised ceiling is 0.963. The policy model moves them back."""
-    from pcpg_dist.ceiling import supervised_ceiling
+    from pcpg_dist.stages.clustering.ceiling import supervised_ceiling
 
     top = supervised_ceiling(e4, seed=0)
     km = clustering_metrics(
@@ -96,12 +101,12 @@ def test_split_merge_frees_a_group_no_start_freed():
     points below the supervised ceiling, with a group of one style held in another's cluster.
     Starting from the true styles reaches a *higher* likelihood, so the search, not the model, was
     the limit; split-and-merge moves find that labelling without labels."""
-    from pcpg_dist.ceiling import supervised_ceiling
-    from pcpg_dist.cluster_features import fit_vocabulary
-    from pcpg_dist.clustering import checked_sequences
     from pcpg_dist.config.stages import PBTGConfig
-    from pcpg_dist.domains.gridworld import random_layouts
-    from pcpg_dist.pbtg import assemble_dataset, generate_pair
+    from pcpg_dist.domains.gridworld.layout import random_layouts
+    from pcpg_dist.domains.gridworld.pbtg import assemble_dataset, generate_pair
+    from pcpg_dist.stages.clustering.ceiling import supervised_ceiling
+    from pcpg_dist.stages.clustering.cluster import checked_sequences
+    from pcpg_dist.stages.clustering.features import fit_vocabulary
 
     (layout,) = random_layouts(1, 917_2024, start=16)
     ds = assemble_dataset([generate_pair(layout, r, PBTGConfig(), 0) for r in range(4)])
@@ -176,7 +181,7 @@ def test_margins_are_large_for_clear_styles_and_small_for_trajectories_that_fit_
     ranking.style_margin reads): the fit's labels are their argmax, trajectories that follow one
     style's greedy actions are far from every other cluster, and a trajectory that only visits
     states where two styles act alike is near both."""
-    from pcpg_dist.clustering import _margins
+    from pcpg_dist.stages.clustering.cluster import _margins
 
     steps, styles = synthetic_steps(4, per_style=80)
     fit = greedy_mix.fit(steps, [styles], 3)

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
-from pcpg_dist.domains import gridworld as gw
+from pcpg_dist.common.errors import LayoutError
+from pcpg_dist.domains.gridworld import layout as gw
 from pcpg_dist.domains.base import random_policy
-from pcpg_dist.domains.gridworld_env import GridWorldEnv
-from pcpg_dist.errors import LayoutError
+from pcpg_dist.domains.gridworld.env import GridWorldEnv
 
 LAYOUTS = Path(__file__).resolve().parent.parent / "pcpg_dist" / "data" / "gridworld"
 ENVS = ["E1", "E2", "E3", "E4", "E5"]

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from gymnasium import spaces
 
+from pcpg_dist.common.errors import ConfigError
 from pcpg_dist.domains.base import random_policy
 from pcpg_dist.domains.trajectories.gym_rollout import check_compatible, make_env, rollout
-from pcpg_dist.errors import ConfigError
 
 LAKE = {"is_slippery": False, "map_name": "4x4"}
 LEFT, DOWN, RIGHT, UP = 0, 1, 2, 3  # FrozenLake's actions
@@ -342,8 +342,8 @@ def test_an_env_error_during_rollouts_is_one_config_error_naming_the_env(rng):
 
 # ------------------------------------------------------------------ (f) learning end to end
 def test_bc_agent_trained_on_lake_logs_reaches_the_goal(lake_policy, rng):
-    from pcpg_dist.bc import BCConfig, train_cells
-    from pcpg_dist.ranking import RankConfig, plan_cells, split_trajectories
+    from pcpg_dist.stages.bc import BCConfig, train_cells
+    from pcpg_dist.stages.ranking import RankConfig, plan_cells, split_trajectories
 
     def noisy_expert(states, valid, rng):  # logs that also visit cells off the optimal path
         a = lake_policy(states, valid, rng)

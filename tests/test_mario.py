@@ -11,9 +11,9 @@ import pandas as pd
 import pydantic
 import pytest
 
+from pcpg_dist.common.errors import DataError
 from pcpg_dist.dataset import Dataset
-from pcpg_dist.domains import mario
-from pcpg_dist.errors import DataError
+from pcpg_dist.domains.mario import log as mario
 
 T = "#0,0,0#"
 
@@ -173,7 +173,7 @@ def test_bad_step_strict_names_file_line_episode_step(tmp_path: Path, case: str)
 def test_bad_step_lenient_drops_only_that_step(tmp_path: Path, case: str, caplog) -> None:
     step, why = BAD_STEPS[case]
     path = write(tmp_path, GOOD_A + line("0,0,0,0,0,0", step, "1,0,0,0,0,7"))
-    with caplog.at_level(logging.WARNING, logger="pcpg_dist.domains.mario"):
+    with caplog.at_level(logging.WARNING, logger="pcpg_dist.domains.mario.log"):
         result = mario.load_play_log(path, strict=False)
     assert result.skipped_steps == 1 and result.skipped_episodes == 0
     assert (
@@ -282,7 +282,7 @@ def test_valid_mask_of_the_highest_event(tmp_path: Path) -> None:
 # ------------------------------------------------------------------ held-out split
 def _split(ds: Dataset, seed: int) -> tuple[Dataset, Dataset]:
     try:
-        from pcpg_dist.ranking import split_trajectories  # type: ignore[attr-defined]
+        from pcpg_dist.stages.ranking import split_trajectories  # type: ignore[attr-defined]
     except ImportError:
         return mario.split_episodes(ds, 0.25, seed)
     train_idx, test_idx = split_trajectories(ds.n_trajectories, 0.25, seed)

@@ -16,9 +16,9 @@ import pytest
 import yaml
 
 from pcpg_dist.config import load_config
-from pcpg_dist.domains import mario
-from pcpg_dist.generate import generate, units
-from pcpg_dist.runner import run_experiment
+from pcpg_dist.domains.mario import log as mario
+from pcpg_dist.orchestration.runner import run_experiment
+from pcpg_dist.stages.data import generate, units
 from tests.reference.configs import small_mario_log
 
 EPISODES, STEPS = 60, 150

@@ -13,6 +13,7 @@ import pytest
 from minari.data_collector import EpisodeBuffer
 
 from pcpg_dist.cli import main
+from pcpg_dist.common.errors import DataError
 from pcpg_dist.dataset import Dataset, write_datasets
 from pcpg_dist.domains.trajectories.minari_io import (
     env_name,
@@ -23,7 +24,6 @@ from pcpg_dist.domains.trajectories.minari_io import (
     read_minari,
     write_minari,
 )
-from pcpg_dist.errors import DataError
 
 N_ACTIONS = 5
 

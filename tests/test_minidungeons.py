@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
+from pcpg_dist.common.errors import LayoutError
 from pcpg_dist.domains.base import random_policy
 from pcpg_dist.domains.minidungeons import (
     FEATURES,
@@ -37,7 +38,6 @@ from pcpg_dist.domains.minidungeons.proxies import (
     SAFE_RUNNER,
     SAFETY_FIRST,
 )
-from pcpg_dist.errors import LayoutError
 
 PROPS = {
     "PLAYER_MAX_HP": 30,
@@ -335,7 +335,7 @@ def test_outcome_rollouts_play_the_agents_own_rollout_episodes(tmp_path, monkeyp
     from pcpg_dist.domains.base import Unit
     from pcpg_dist.domains.minidungeons import domain as md_domain
     from pcpg_dist.domains.minidungeons.data import generate_trajectories
-    from pcpg_dist.evaluation import rollout_rng
+    from pcpg_dist.stages.evaluation import rollout_rng
 
     cfg = load_config(
         Path(__file__).resolve().parent.parent / "experiments" / "minidungeons_paper.yaml"

@@ -24,9 +24,9 @@ from pathlib import Path
 
 import pytest
 
-from pcpg_dist import figures
 from pcpg_dist.config import load_config
-from pcpg_dist.runner import RunResult
+from pcpg_dist.orchestration.runner import RunResult
+from pcpg_dist.stages import figures
 from pcpg_dist.tracking import Tracker, log_environment, ui_link
 
 ROOT = Path(__file__).resolve().parent.parent

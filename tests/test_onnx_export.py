@@ -13,12 +13,12 @@ import onnxruntime as ort
 import pytest
 from bc_toy import make_dataset
 
-from pcpg_dist.bc import BCConfig, TrainedCells, train_cells
 from pcpg_dist.cli import main
+from pcpg_dist.common.errors import DataError
 from pcpg_dist.dataset import Dataset
-from pcpg_dist.errors import DataError
-from pcpg_dist.onnx_export import build_model, export_onnx, load_agents_folder
-from pcpg_dist.ranking import RankConfig, plan_cells, split_trajectories
+from pcpg_dist.reporting.onnx_export import build_model, export_onnx, load_agents_folder
+from pcpg_dist.stages.bc import BCConfig, TrainedCells, train_cells
+from pcpg_dist.stages.ranking import RankConfig, plan_cells, split_trajectories
 
 
 def many_actions_dataset(
@@ -303,7 +303,7 @@ HOSTILE_AGENTS = {
 
 @pytest.mark.parametrize("case", HOSTILE_AGENTS)
 def test_hostile_agent_files_are_one_line_and_write_nothing(case, grid, tmp_path, capsys):
-    from pcpg_dist import agent_model
+    from pcpg_dist.tracking import agent_model
 
     layout, edit, says = HOSTILE_AGENTS[case]
     cells = train_toy(grid, "tanh", epochs=0)  # 12 cells, sizes (4, 8, 8, 8, 4)

@@ -6,9 +6,9 @@ import logging
 
 import pandas as pd
 
-from pcpg_dist.cache import Cache
 from pcpg_dist.config import parse_config
-from pcpg_dist.runner import load_units
+from pcpg_dist.orchestration.cache import Cache
+from pcpg_dist.orchestration.runner import load_units
 
 
 def test_a_log_with_some_unknown_styles_says_what_is_left_out(tmp_path, caplog):
@@ -59,7 +59,7 @@ def test_pcpg_run_says_it_too(ray_session, tmp_path, caplog, monkeypatch):
     """The warning lived in load_units, which `pcpg run` and sweeps do not call: they were silent."""
     import pytest
 
-    import pcpg_dist.runner as runner
+    import pcpg_dist.orchestration.runner as runner
 
     class Stop(Exception):
         pass

@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pcpg_dist.domains import gridworld as gw
-from pcpg_dist.pbtg import (
+from pcpg_dist.domains.gridworld import layout as gw
+from pcpg_dist.domains.gridworld.pbtg import (
     PBTGConfig,
     assemble_dataset,
     generate_pair,

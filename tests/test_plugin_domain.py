@@ -351,7 +351,7 @@ def test_broken_plugin_fails_in_one_line_before_clustering(
     """A plugin whose generate, units, score or hooks is broken stops `pcpg run` with one line
     naming the domain, the method and what it returned (or raised), before any Ray task starts:
     no clustering, nothing written but the generated data's cache entry."""
-    import pcpg_dist.runner as runner
+    import pcpg_dist.orchestration.runner as runner
 
     methods, says = BEFORE_CLUSTERING[fault]
     monkeypatch.setitem(registry._loaded, "corridor", broken_corridor(**methods))
@@ -375,10 +375,10 @@ def test_broken_plugin_fails_in_one_line_before_clustering(
 @pytest.fixture(scope="module")
 def corridor_trained(corridor_site, tmp_path_factory):
     """A tiny corridor unit clustered and trained in-process: (cfg, unit, labels, trained)."""
-    from pcpg_dist.bc import train_plan
     from pcpg_dist.config import load_config
     from pcpg_dist.domains import contract
     from pcpg_dist.pipeline import cluster_unit, plan_unit
+    from pcpg_dist.stages.bc import train_plan
 
     small = {
         "corridor": {"length": 12, "trajectories_per_style": 8, "noise_max": 0.2},
@@ -451,7 +451,7 @@ def test_broken_plugin_in_the_evaluation_is_one_line(
 ):
     """extras and rollouts run inside the evaluation (a Ray task in `pcpg run`, whose PcpgError
     reaches the CLI as its one line): what they return is checked where the evaluation gets it."""
-    from pcpg_dist.errors import DomainError
+    from pcpg_dist.common.errors import DomainError
     from pcpg_dist.pipeline import evaluate_unit
 
     cfg, unit, labels, trained = corridor_trained
@@ -484,9 +484,9 @@ def test_good_extras_and_rollouts_pass_through(corridor_trained, monkeypatch, tm
 
 def test_a_built_in_domains_exception_keeps_its_traceback():
     """Only a plugin's exceptions become one line: in a built-in domain it is a bug in pcpg-dist."""
+    from pcpg_dist.common.errors import DomainError
     from pcpg_dist.domains import contract
     from pcpg_dist.domains.base import Domain
-    from pcpg_dist.errors import DomainError
 
     builtin = type("Builtin", (Domain,), {"__module__": "pcpg_dist.domains.fake", "name": "fake"})()
     plugin = type("Plugin", (Domain,), {"name": "fake"})()
@@ -524,7 +524,7 @@ def test_a_plugin_check_config_raising_anything_is_one_line(
 
 def test_an_entry_point_that_is_not_a_domain_says_so(monkeypatch):
     """An entry point naming a plain class failed later with 'check_config raised AttributeError'."""
-    from pcpg_dist.errors import ConfigError
+    from pcpg_dist.common.errors import ConfigError
 
     monkeypatch.setitem(registry.BUILTIN, "notdomain", "collections:OrderedDict")
     with pytest.raises(ConfigError) as e:

@@ -8,7 +8,10 @@ import numpy as np
 import pytest
 import torch
 
-from pcpg_dist.clustering import (
+from pcpg_dist.common.devices import set_threads
+from pcpg_dist.common.errors import DataError
+from pcpg_dist.dataset import Dataset
+from pcpg_dist.stages.clustering.cluster import (
     ClusterConfig,
     cluster,
     clustering_metrics,
@@ -16,9 +19,6 @@ from pcpg_dist.clustering import (
     load_model,
     monotone_features,
 )
-from pcpg_dist.dataset import Dataset
-from pcpg_dist.errors import DataError
-from pcpg_dist.parallel import set_threads
 
 MOVES = np.array([[-1, 0], [0, 1], [1, 0], [0, -1]], float)  # up, right, down, left
 FAST = dict(method="policy_mix", k=4, hidden_size=16, kmeans_n_init=4)

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 import yaml
 
+from pcpg_dist.common.errors import ConfigError
 from pcpg_dist.config import load_config
-from pcpg_dist.domains import gridworld as gw
-from pcpg_dist.domains.gridworld_domain import GridWorldDomain, gridworld_layout, gridworld_layouts
-from pcpg_dist.errors import ConfigError
+from pcpg_dist.domains.gridworld import layout as gw
+from pcpg_dist.domains.gridworld.domain import GridWorldDomain, gridworld_layout, gridworld_layouts
 
 
 def test_same_seed_same_layouts_and_a_prefix_does_not_depend_on_count():

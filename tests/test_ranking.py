@@ -7,9 +7,9 @@ import pytest
 from bc_toy import make_dataset
 from pydantic import ValidationError
 
+from pcpg_dist.common.errors import DataError
 from pcpg_dist.dataset import Dataset
-from pcpg_dist.errors import DataError
-from pcpg_dist.ranking import (
+from pcpg_dist.stages.ranking import (
     RankConfig,
     corrupt_labels,
     n_kept,
@@ -188,7 +188,7 @@ def test_a_score_that_is_not_finite_names_the_trajectory(toy):
 def test_style_margin_ranks_ambiguous_trajectories_last_in_training_and_test_alike(toy):
     """ranking.style_margin: a trajectory whose cluster is barely more likely than the next best
     ranks after every other of its cluster (then by skill, then by id); 0 is the paper's ranking."""
-    from pcpg_dist.ranking import ranked_last
+    from pcpg_dist.stages.ranking import ranked_last
 
     scores = np.array([0.9, 0.8, 0.7, 0.6, 0.5])
     ids = np.arange(5)

@@ -14,9 +14,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from pcpg_dist.cli import main
+from pcpg_dist.common.errors import ConfigError, DataError, LayoutError, PcpgError, TrainingError
 from pcpg_dist.config import parse_config
-from pcpg_dist.domains.gridworld import parse_layout
-from pcpg_dist.errors import ConfigError, DataError, LayoutError, PcpgError, TrainingError
+from pcpg_dist.domains.gridworld.layout import parse_layout
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -103,8 +103,8 @@ class Boom:
 
 
 def test_tampered_model_file_is_rejected_not_executed(tmp_path):
-    from pcpg_dist.bc import BCConfig, TrainedCells, train_cells
-    from pcpg_dist.ranking import RankConfig, plan_cells
+    from pcpg_dist.stages.bc import BCConfig, TrainedCells, train_cells
+    from pcpg_dist.stages.ranking import RankConfig, plan_cells
     from tests.bc_toy import make_dataset
 
     ds = make_dataset(n_per_style=10)
@@ -121,8 +121,8 @@ def test_tampered_model_file_is_rejected_not_executed(tmp_path):
 
 
 def test_tampered_cluster_model_is_rejected(tmp_path):
-    from pcpg_dist.clustering import ClusterConfig, cluster, load_model
     from pcpg_dist.dataset import Dataset
+    from pcpg_dist.stages.clustering.cluster import ClusterConfig, cluster, load_model
 
     rng = np.random.default_rng(0)
     trajs = [
@@ -178,8 +178,8 @@ def test_diverged_training_stops_with_one_line_and_returns_no_weights(engine):
     published as agents with exit 0; now training raises before anything is returned."""
     import dataclasses
 
-    from pcpg_dist.bc import BCConfig, train_cells
-    from pcpg_dist.ranking import RankConfig, plan_cells, split_trajectories
+    from pcpg_dist.stages.bc import BCConfig, train_cells
+    from pcpg_dist.stages.ranking import RankConfig, plan_cells, split_trajectories
     from tests.bc_toy import make_dataset
 
     ds = make_dataset(n_per_style=10)
@@ -211,7 +211,7 @@ def write_log(tmp_path: Path, text: str) -> Path:
     ],
 )
 def test_mario_log_overflow_and_negative_event_name_the_step(tmp_path, text, needle):
-    from pcpg_dist.domains.mario import load_play_log
+    from pcpg_dist.domains.mario.log import load_play_log
 
     with pytest.raises(DataError) as e:
         load_play_log(write_log(tmp_path, text))
@@ -219,14 +219,14 @@ def test_mario_log_overflow_and_negative_event_name_the_step(tmp_path, text, nee
 
 
 def test_mario_log_that_is_not_a_regular_file_is_refused_at_once():
-    from pcpg_dist.domains.mario import load_play_log
+    from pcpg_dist.domains.mario.log import load_play_log
 
     with pytest.raises(DataError, match="/dev/zero: cannot read play log .not a regular file"):
         load_play_log("/dev/zero")
 
 
 def test_non_utf8_layout_is_a_layout_error(tmp_path):
-    from pcpg_dist.domains.gridworld import load_layout
+    from pcpg_dist.domains.gridworld.layout import load_layout
 
     path = tmp_path / "E1.txt"
     path.write_bytes(b"S.\xff\n.G\n")
@@ -357,12 +357,12 @@ def test_tampered_cluster_model_is_one_line(tmp_path, edit):
     allocation (issue 18: tampered `cluster_model.json`)."""
     import json as json_lib
 
-    from pcpg_dist.cluster_models import load_model
-    from pcpg_dist.clustering import cluster
+    from pcpg_dist.common.errors import DataError
     from pcpg_dist.config import ClusterConfig, PBTGConfig
-    from pcpg_dist.domains.gridworld import random_layouts
-    from pcpg_dist.errors import DataError
-    from pcpg_dist.pbtg import assemble_dataset, generate_pair
+    from pcpg_dist.domains.gridworld.layout import random_layouts
+    from pcpg_dist.domains.gridworld.pbtg import assemble_dataset, generate_pair
+    from pcpg_dist.stages.clustering.cluster import cluster
+    from pcpg_dist.stages.clustering.models import load_model
 
     layout = random_layouts(1, 5)[0]
     pbtg = PBTGConfig(episodes=2000, trajectories_per_style=30, dataset_per_style=15)

@@ -4,7 +4,7 @@ run's folder ever embedded.
 
 The fixture is the summary folder of a real tiny GridWorld run (tests/data/report_summary: its
 tables, metrics.json and run.json, as `pcpg run` wrote them); the figures are re-drawn from those
-tables by :func:`pcpg_dist.figures.redraw`, so the figure code runs here too.
+tables by :func:`pcpg_dist.stages.figures.redraw`, so the figure code runs here too.
 """
 
 from __future__ import annotations
@@ -21,9 +21,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from pcpg_dist import figures
-from pcpg_dist.report import build, render, render_sweep
-from pcpg_dist.report_data import table_of
+from pcpg_dist.reporting.report import build, render, render_sweep
+from pcpg_dist.reporting.report_data import table_of
+from pcpg_dist.stages import figures
 
 DATA = Path(__file__).parent / "data" / "report_summary"
 NS = "{http://www.w3.org/1999/xhtml}"
@@ -345,7 +345,7 @@ def test_figures_share_one_p_convention_and_readable_heatmap_text(tmp_path):
 
 def test_quick_config_gets_the_banner_and_the_paper_config_does_not():
     from pcpg_dist.config import load_config
-    from pcpg_dist.report import protocol_differences
+    from pcpg_dist.reporting.report import protocol_differences
 
     root = Path(__file__).resolve().parent.parent / "experiments"
     quick_cfg, paper_cfg = (
@@ -375,7 +375,7 @@ def test_mario_config_lists_every_departure_from_the_paper():
     fine-tuning from the No Clustering agent: the report's protocol table named only the
     clustering method and the network (the audit of the Mario run)."""
     from pcpg_dist.config import load_config
-    from pcpg_dist.report import protocol_differences
+    from pcpg_dist.reporting.report import protocol_differences
 
     cfg = load_config(Path(__file__).resolve().parent.parent / "experiments" / "mario.yaml")
     found = {
@@ -589,7 +589,7 @@ def test_tampered_summary_files_are_one_line_data_errors(case, tmp_path, capsys)
     """A tampered table or JSON file in the summary: exit 2, one line naming the file and what is
     wrong, and no report folder (was a pandas, int() or json traceback, exit 1)."""
     from pcpg_dist.cli import main
-    from pcpg_dist.errors import DataError
+    from pcpg_dist.common.errors import DataError
 
     file, content, says = TAMPERED[case]
     folder = tamper(DATA, tmp_path, file, content)
@@ -808,7 +808,7 @@ def test_fig4_across_environments_plots_the_headline_mean_large_enough(summary, 
     whose tick labels stay readable at half a laptop's width; was three small panels per row."""
     from matplotlib.figure import Figure
 
-    from pcpg_dist.summary import accuracy_figure
+    from pcpg_dist.reporting.summary import accuracy_figure
 
     seen = []
     real = Figure.savefig
@@ -861,7 +861,7 @@ def test_each_environment_section_shows_its_own_figures_and_table4_is_in_style_o
 ):
     """An environment's "this run" lines quoted the run-wide figures; Table 4's line averaged the
     environments' matrices by cluster number, which is arbitrary in each environment."""
-    from pcpg_dist.paper_comparison import cross_summary
+    from pcpg_dist.reporting.paper_comparison import cross_summary
 
     folder = copy_summary(tmp_path)
     pd.DataFrame({"k": range(4), "style": range(4)}).to_csv(
@@ -897,7 +897,7 @@ def test_fig7_line_counts_the_rows_where_a_model_correlates_most_with_its_own_su
 ):
     """The paper's claim is per row; the line gave only the mean diagonal beside it, which held
     where one model correlated more with another cluster's subset than with its own."""
-    from pcpg_dist.paper_comparison import paper_rows
+    from pcpg_dist.reporting.paper_comparison import paper_rows
 
     folder = copy_summary(tmp_path)
     path = folder / "E1" / "correlation.csv"
@@ -919,7 +919,7 @@ def test_fig7_line_counts_the_rows_where_a_model_correlates_most_with_its_own_su
 def test_table3_keeps_each_style_in_its_column_and_table5_spreads_within_an_environment(
     summary, tmp_path
 ):
-    from pcpg_dist.paper_comparison import paper_rows
+    from pcpg_dist.reporting.paper_comparison import paper_rows
 
     folder = copy_summary(tmp_path)
     add_env(folder, "E2", [0, 1, 2, 3], shift=0.0)

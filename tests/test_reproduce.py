@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from pcpg_dist.config import parse_config
-from pcpg_dist.reproduce import Reproduction, compare_metrics, print_reproduction
+from pcpg_dist.orchestration.reproduce import Reproduction, compare_metrics, print_reproduction
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -32,7 +32,7 @@ TINY = {
 
 @pytest.fixture(scope="module")
 def logged_run(ray_session, tmp_path_factory) -> Path:
-    from pcpg_dist.runner import run_experiment
+    from pcpg_dist.orchestration.runner import run_experiment
 
     cfg = parse_config(TINY, source="tiny")
     work = tmp_path_factory.mktemp("logged")
@@ -173,8 +173,8 @@ def test_an_edited_log_is_not_reproduced_even_where_the_metrics_match(tmp_path, 
     exact): the change did not move a metric, but the rerun read other data than the run."""
     import pandas as pd
 
-    from pcpg_dist.reproduce import input_note
-    from pcpg_dist.runner import input_key
+    from pcpg_dist.orchestration.reproduce import input_note
+    from pcpg_dist.orchestration.runner import input_key
 
     log = tmp_path / "logs.parquet"
     table = pd.DataFrame(

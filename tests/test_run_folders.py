@@ -19,7 +19,7 @@ import yaml
 
 from pcpg_dist.cli import main
 from pcpg_dist.config import load_config
-from pcpg_dist.runner import run_experiment
+from pcpg_dist.orchestration.runner import run_experiment
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -105,7 +105,7 @@ def test_outputs_inside_the_folders_a_run_rewrites_are_refused(
 
 # `pcpg run` in a subprocess with Ray started first on 2 CPUs (as tests/test_faults.py does)
 LAUNCH = (
-    "import sys; from pcpg_dist.ray_utils import init_ray; init_ray(num_cpus=2); "
+    "import sys; from pcpg_dist.orchestration.ray_pool import init_ray; init_ray(num_cpus=2); "
     "from pcpg_dist.cli import main; sys.exit(main(sys.argv[1:]))"
 )
 
@@ -270,7 +270,7 @@ def test_agents_swapped_between_environments_are_refused_by_export(small_run, tm
 def test_the_names_written_beside_the_environments_are_all_reserved(small_run):
     """An environment may not be named like a file a run writes beside the environments' folders
     (run_folders.BESIDE_UNITS, checked before clustering): the list covers what a run writes."""
-    from pcpg_dist.run_folders import BESIDE_UNITS
+    from pcpg_dist.common.run_folders import BESIDE_UNITS
 
     envs = {"E1", "E3"}
     beside = {

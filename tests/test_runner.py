@@ -12,7 +12,7 @@ import pytest
 import yaml
 
 from pcpg_dist.config import load_config
-from pcpg_dist.runner import run_experiment
+from pcpg_dist.orchestration.runner import run_experiment
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -167,7 +167,7 @@ def test_interrupted_sweep_resumes_with_same_metrics(first_run, tiny_cfg, monkey
     """Kill the sweep inside evaluation (after training finished); the rerun resumes from there."""
     from mlflow import MlflowClient
 
-    import pcpg_dist.runner as runner
+    import pcpg_dist.orchestration.runner as runner
 
     work, uri, result = first_run
     uri2 = f"sqlite:///{work / 'mlflow2.db'}"
@@ -236,7 +236,7 @@ def test_agents_start_from_no_clustering(first_run, tiny_cfg):
     """bc.init no_clustering: a second round of Ray tasks trains every per-cluster and corrupted
     agent from the No Clustering agent of its p and seed. With 0 fine-tuning epochs each must be
     that agent exactly; the data and clustering come from the cache."""
-    from pcpg_dist.bc import TrainedCells
+    from pcpg_dist.stages.bc import TrainedCells
 
     work, _, _ = first_run
     cfg = tiny_cfg.model_copy(
@@ -271,8 +271,8 @@ def test_the_summary_says_which_stages_came_from_the_cache(tmp_path):
 
     from rich.console import Console
 
-    from pcpg_dist.runner import RunResult
-    from pcpg_dist.summary import print_summary
+    from pcpg_dist.orchestration.runner import RunResult
+    from pcpg_dist.reporting.summary import print_summary
 
     def printed(**kw) -> str:
         out = io.StringIO()
@@ -309,7 +309,7 @@ def test_a_failure_that_is_not_bad_input_leaves_no_empty_run_folder(
 ):
     """Before anything is cached, any failure (here the disk, an OSError; was: only pcpg's own
     errors) removes the folders and the lock file the run created."""
-    import pcpg_dist.runner as runner
+    import pcpg_dist.orchestration.runner as runner
 
     def disk_full(*args, **kwargs):
         raise OSError(28, "No space left on device")

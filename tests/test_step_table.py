@@ -15,10 +15,10 @@ import pytest
 from test_trajectories import tiny_table, write_config
 
 from pcpg_dist.cli import main
+from pcpg_dist.common.errors import DataError
 from pcpg_dist.dataset import Dataset, bool_lists, load_dataset
 from pcpg_dist.domains.trajectories.table import datasets_from_table, read_step_table
-from pcpg_dist.errors import DataError
-from pcpg_dist.ranking import RankConfig, score_dataset
+from pcpg_dist.stages.ranking import RankConfig, score_dataset
 
 
 def full_table() -> pd.DataFrame:
@@ -305,8 +305,8 @@ def test_env_values_that_become_one_unit_name_are_named_as_the_user_wrote_them(t
 def test_string_trajectory_ids_come_back_from_generate_and_classify(tmp_path, capsys) -> None:
     """Ids like 'p10' were numbered 0..n-1 in sorted order and lost: `pcpg classify` wrote
     0, 1, 2, ... that could not be joined back to the user's episodes."""
-    from pcpg_dist.clustering import ClusterConfig, cluster
     from pcpg_dist.dataset import write_parquet
+    from pcpg_dist.stages.clustering.cluster import ClusterConfig, cluster
 
     df = full_table()
     path = tmp_path / "logs.parquet"

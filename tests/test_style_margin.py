@@ -10,7 +10,7 @@ import pytest
 import yaml
 
 from pcpg_dist.config import load_config
-from pcpg_dist.runner import run_experiment
+from pcpg_dist.orchestration.runner import run_experiment
 
 ROOT = Path(__file__).resolve().parent.parent
 

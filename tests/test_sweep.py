@@ -16,6 +16,7 @@ import pytest
 import yaml
 
 from pcpg_dist.cli import main
+from pcpg_dist.common.errors import ConfigError
 from pcpg_dist.config.overrides import (
     load_config_with,
     parse_range,
@@ -23,8 +24,13 @@ from pcpg_dist.config.overrides import (
     split_sweep_items,
     sweep_points,
 )
-from pcpg_dist.errors import ConfigError
-from pcpg_dist.sweep import SWEEP_JSON, plan_sweep, point_slug, run_sweep, write_sweep_files
+from pcpg_dist.orchestration.sweep import (
+    SWEEP_JSON,
+    plan_sweep,
+    point_slug,
+    run_sweep,
+    write_sweep_files,
+)
 
 ROOT = Path(__file__).resolve().parent.parent
 QUICK = ROOT / "experiments" / "quick.yaml"
@@ -368,7 +374,7 @@ def test_sweep_figures_tick_the_swept_values_label_axes_and_keep_equal_lines_vis
     axes were raw keys and the error bars unexplained."""
     import matplotlib.figure
 
-    from pcpg_dist.sweep import draw_sweep
+    from pcpg_dist.orchestration.sweep import draw_sweep
 
     seen = {}
     save = matplotlib.figure.Figure.savefig
@@ -403,7 +409,7 @@ def test_sweep_figures_tick_the_swept_values_label_axes_and_keep_equal_lines_vis
 
 
 def test_best_points_name_the_point_and_its_ties():
-    from pcpg_dist.sweep import best_points
+    from pcpg_dist.orchestration.sweep import best_points
 
     axes, rows = noise_x_k_rows()
     best, where = best_points(axes, rows)

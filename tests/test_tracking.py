@@ -18,9 +18,9 @@ from pathlib import Path
 
 import pytest
 
+from pcpg_dist.common.errors import ServiceError
 from pcpg_dist.config import load_config
-from pcpg_dist.errors import ServiceError
-from pcpg_dist.runner import RunResult
+from pcpg_dist.orchestration.runner import RunResult
 from pcpg_dist.tracking import (
     EXPERIMENT_KIND,
     MAX_PARENT_METRICS,
@@ -658,7 +658,7 @@ def logging_restored(monkeypatch):
 def test_setup_output_silences_library_chatter(monkeypatch, logging_restored):
     import logging
 
-    from pcpg_dist.progress import setup_output
+    from pcpg_dist.common.progress import setup_output
 
     monkeypatch.delenv("RAY_AUTH_MODE", raising=False)
     setup_output()
@@ -713,7 +713,7 @@ def test_a_driver_joining_a_cluster_uses_token_mode_where_a_token_is_at_hand(
     `ray start`, does not read the token file by itself."""
     import os
 
-    from pcpg_dist.progress import setup_output
+    from pcpg_dist.common.progress import setup_output
 
     token = tmp_path / "auth_token"
     for present, mode in ((False, None), (True, "token")):

@@ -18,10 +18,10 @@ import pytest
 import yaml
 
 from pcpg_dist.cli import main
+from pcpg_dist.common.errors import ConfigError, DataError
 from pcpg_dist.config import load_config
 from pcpg_dist.domains.trajectories.example_logs import frozenlake_logs
 from pcpg_dist.domains.trajectories.table import datasets_from_table, read_step_table
-from pcpg_dist.errors import ConfigError, DataError
 from pcpg_dist.pipeline import run_unit
 
 
@@ -520,7 +520,7 @@ def test_own_logs_end_to_end_with_gymnasium_rollouts(ray_session, tmp_path) -> N
     """Four clear styles on FrozenLake 8x8, never used to choose anything: clustering within 3
     points of the supervised ceiling, PCPG above No Clustering at p = 1, agents rolled out in the
     real Gymnasium env."""
-    from pcpg_dist.runner import run_experiment
+    from pcpg_dist.orchestration.runner import run_experiment
 
     path = tmp_path / "lake.parquet"
     frozenlake_logs(per_style=150, seed=7).to_parquet(path, index=False)

@@ -14,9 +14,9 @@ import pytest
 import yaml
 
 from pcpg_dist.cli import main
+from pcpg_dist.common.errors import ConfigError, DataError
 from pcpg_dist.config import load_config, parse_config
-from pcpg_dist.errors import ConfigError, DataError
-from pcpg_dist.tuning import (
+from pcpg_dist.orchestration.tuning import (
     PARAMS,
     TuneConfig,
     apply_params,
@@ -165,7 +165,7 @@ def test_sizes_the_clusterer_ignores_are_not_searched(tmp_path):
     from bc_toy import make_dataset
 
     from pcpg_dist.domains.base import Unit
-    from pcpg_dist.tuning import searched_space
+    from pcpg_dist.orchestration.tuning import searched_space
 
     discrete = make_dataset(40, seed=0)  # grid positions: few distinct states
     continuous = replace(
@@ -359,7 +359,7 @@ def test_small_study_writes_best_config_and_mlflow_children(ray_session, tmp_pat
     assert 0.3 < m["pcpg_accuracy"] <= 1.0 and "E1/ari" in m
 
     # `pcpg run` of the best config in the study's folder reuses the data the study cached
-    from pcpg_dist.runner import run_experiment
+    from pcpg_dist.orchestration.runner import run_experiment
 
     ran = run_experiment(best, workdir=workdir, track=False, show_progress=False)
     assert ran.out_dir == workdir.resolve() / "tinytune"
@@ -580,7 +580,7 @@ def test_the_trial_count_line_reads_as_words():
     from optuna.trial import TrialState
 
     from pcpg_dist.cli import trial_counts
-    from pcpg_dist.tuning import _state_counts
+    from pcpg_dist.orchestration.tuning import _state_counts
 
     study = optuna.create_study(direction="maximize")
     for state in (TrialState.PRUNED, TrialState.COMPLETE, TrialState.PRUNED, TrialState.FAIL):
@@ -660,7 +660,7 @@ def test_an_optuna_storage_of_the_wrong_kind_says_what_is_allowed(tmp_path, caps
 
 
 def test_a_study_name_becomes_one_safe_folder():
-    from pcpg_dist.tuning import _study_folder
+    from pcpg_dist.orchestration.tuning import _study_folder
 
     assert _study_folder("probe-k34") == "probe-k34"
     for name in ("../x", "a/b", "..", "x" * 200, "é"):

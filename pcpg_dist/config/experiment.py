@@ -4,7 +4,7 @@ Each stage's and each built-in domain's settings are their own models (:mod:`.st
 :mod:`.domains`); this module composes them. ``domain:`` takes any registered domain name
 (:mod:`pcpg_dist.domains.registry`); a third-party domain's settings sit under a section of its own
 name, validated by the domain's ``settings_model``. A bad file fails at load with one line naming
-the key, the value and what is allowed (:class:`~pcpg_dist.errors.ConfigError`).
+the key, the value and what is allowed (:class:`~pcpg_dist.common.errors.ConfigError`).
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from typing import Annotated, Any
 import yaml
 from pydantic import Field, ValidationError, field_validator, model_validator
 
+from pcpg_dist.common.errors import ConfigError, PcpgError
 from pcpg_dist.config.domains import (
     GridWorldConfig,
     MarioLoadConfig,
@@ -26,6 +27,7 @@ from pcpg_dist.config.domains import (
     TrajectoriesConfig,
     safe_name,
 )
+from pcpg_dist.config.schema import StrictModel
 from pcpg_dist.config.stages import (
     LIKELIHOOD_METHODS,
     BCConfig,
@@ -36,8 +38,6 @@ from pcpg_dist.config.stages import (
     RunnerConfig,
     TuneConfig,
 )
-from pcpg_dist.errors import ConfigError, PcpgError
-from pcpg_dist.schema import StrictModel
 
 MAX_SHOWN = 200  # characters of a value quoted in an error message
 MAX_CONFIG_BYTES = 1 << 20  # a config is a page of settings; a megabyte is far beyond any real one

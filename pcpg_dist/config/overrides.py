@@ -31,7 +31,7 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from pcpg_dist.errors import ConfigError
+from pcpg_dist.common.errors import ConfigError
 
 MAX_POINTS = 10_000  # a sweep of more points is a typo, not an experiment
 _NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")

@@ -12,7 +12,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, field_validator, model_validator
 
-from pcpg_dist.schema import StrictModel
+from pcpg_dist.config.schema import StrictModel
 
 DEFAULT_PS = (1.0, 0.75, 0.5, 0.25, 0.1)
 MAX_SEED = 2**32 - 1  # NumPy's legacy seeding and torch.manual_seed both take any of these

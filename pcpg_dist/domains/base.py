@@ -117,7 +117,7 @@ class Domain:
         if self.settings_model is not None:
             from pydantic import ValidationError
 
-            from pcpg_dist.errors import ConfigError
+            from pcpg_dist.common.errors import ConfigError
 
             try:
                 return self.settings_model.model_validate(cfg.plugin)
@@ -173,7 +173,7 @@ class Domain:
 
     def generate(self, cfg: ExperimentConfig, show_progress: bool = True) -> dict[str, Dataset]:
         """Every dataset of the config, keyed by environment name (Ray is initialised; a domain
-        may fan out with :func:`pcpg_dist.ray_utils.run_tasks`)."""
+        may fan out with :func:`pcpg_dist.orchestration.ray_pool.run_tasks`)."""
         raise NotImplementedError(f"domain {self.name!r} does not generate or load data")
 
     def manifest(self, cfg: ExperimentConfig, datasets: dict[str, Dataset]) -> dict[str, Any]:
@@ -183,7 +183,7 @@ class Domain:
     def units(self, cfg: ExperimentConfig, datasets: dict[str, Dataset]) -> list[Unit]:
         """Evaluation units; default: one per dataset with a seeded trajectory split
         (``ranking.test_fraction``, ``ranking.split_seed``)."""
-        from pcpg_dist.ranking import split_trajectories
+        from pcpg_dist.stages.ranking import split_trajectories
 
         return [
             Unit(

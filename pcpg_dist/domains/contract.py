@@ -2,7 +2,7 @@
 
 A domain may come from a third-party package (docs/writing-a-domain.md), so what its methods
 return is input like a config or a file: it is checked here, at the boundary, and a value pcpg
-cannot use stops the run with one :class:`~pcpg_dist.errors.DomainError` line naming the domain,
+cannot use stops the run with one :class:`~pcpg_dist.common.errors.DomainError` line naming the domain,
 the method, what it returned and what is allowed, before the stage that would have tripped over
 it (a bad ``generate`` or ``units`` before any clustering). An exception raised inside a
 *plugin's* method becomes such a line too; one raised inside a built-in domain is a bug in
@@ -25,8 +25,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from pcpg_dist.common.errors import DomainError, PcpgError, first_line
 from pcpg_dist.domains.base import Domain, DomainHooks, ScoreFn, Unit
-from pcpg_dist.errors import DomainError, PcpgError, first_line
 
 if TYPE_CHECKING:
     from pcpg_dist.config import ExperimentConfig
@@ -127,7 +127,7 @@ def units(cfg: ExperimentConfig, datasets: dict[str, Dataset]) -> list[Unit]:
     the skill score and the hooks each unit will use are asked for once, so a broken one fails
     here, before any clustering, not after training."""
     from pcpg_dist.dataset import Dataset
-    from pcpg_dist.ranking import score_dataset
+    from pcpg_dist.stages.ranking import score_dataset
 
     domain = cfg.domain_object
     with calling(domain, "units"):
@@ -201,7 +201,7 @@ def units(cfg: ExperimentConfig, datasets: dict[str, Dataset]) -> list[Unit]:
 # --------------------------------------------------------------------------- stages
 def score(cfg: ExperimentConfig) -> ScoreFn | None:
     """The domain's skill score (None = the paper's Performance) as a function returning floats;
-    their shape and finiteness are checked by :func:`pcpg_dist.ranking.score_dataset`."""
+    their shape and finiteness are checked by :func:`pcpg_dist.stages.ranking.score_dataset`."""
     domain = cfg.domain_object
     with calling(domain, "score"):
         fn = domain.score(cfg)

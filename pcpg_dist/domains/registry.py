@@ -16,15 +16,15 @@ import difflib
 from importlib import import_module
 from importlib.metadata import entry_points
 
-from pcpg_dist.errors import ConfigError
+from pcpg_dist.common.errors import ConfigError
 
 ENTRY_POINT_GROUP = "pcpg_dist.domains"
 
 #: name -> "module:attribute" of the built-in domains
 BUILTIN: dict[str, str] = {
-    "gridworld": "pcpg_dist.domains.gridworld_domain:GridWorldDomain",
+    "gridworld": "pcpg_dist.domains.gridworld.domain:GridWorldDomain",
     "minidungeons": "pcpg_dist.domains.minidungeons.domain:MiniDungeonsDomain",
-    "mario": "pcpg_dist.domains.mario_domain:MarioDomain",
+    "mario": "pcpg_dist.domains.mario.domain:MarioDomain",
     "trajectories": "pcpg_dist.domains.trajectories.domain:TrajectoriesDomain",
 }
 

@@ -98,7 +98,7 @@ def run_all(work: Path) -> dict[str, dict[str, float]]:
     import yaml
 
     from pcpg_dist.config import load_config
-    from pcpg_dist.runner import run_experiment
+    from pcpg_dist.orchestration.runner import run_experiment
 
     work.mkdir(parents=True, exist_ok=True)
     raws = {
@@ -127,7 +127,7 @@ if __name__ == "__main__":
     import ray
 
     os.environ.setdefault("RAY_AUTH_MODE", "disabled")
-    from pcpg_dist.parallel import set_threads
+    from pcpg_dist.common.devices import set_threads
 
     set_threads(1)
     ray.init(

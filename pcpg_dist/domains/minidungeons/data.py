@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from pcpg_dist.common.errors import ConfigError
 from pcpg_dist.dataset import Dataset
 from pcpg_dist.domains.base import Policy
 from pcpg_dist.domains.minidungeons.game import (
@@ -22,7 +23,6 @@ from pcpg_dist.domains.minidungeons.game import (
 )
 from pcpg_dist.domains.minidungeons.level import LEVELS_TEST, LEVELS_TRAIN, Level, load_level
 from pcpg_dist.domains.minidungeons.proxies import N_PROXIES, PROXY_NAMES, act
-from pcpg_dist.errors import ConfigError
 
 DOMAIN = "minidungeons"
 DEFAULT_NOISE = (0.0, 0.2)

@@ -48,7 +48,7 @@ class MiniDungeonsDomain(Domain):
     def generate(self, cfg, show_progress: bool = True):
         from pcpg_dist.dataset import Dataset
         from pcpg_dist.domains.minidungeons import N_PROXIES
-        from pcpg_dist.ray_utils import run_tasks
+        from pcpg_dist.orchestration.ray_pool import run_tasks
 
         md = cfg.minidungeons
         levels = [*md.train_levels, *md.test_levels]
@@ -64,8 +64,8 @@ class MiniDungeonsDomain(Domain):
         }
 
     def units(self, cfg, datasets) -> list[Unit]:
+        from pcpg_dist.common.errors import DataError
         from pcpg_dist.dataset import Dataset
-        from pcpg_dist.errors import DataError
 
         md = cfg.minidungeons
         missing = [lv for lv in (*md.train_levels, *md.test_levels) if lv not in datasets]
@@ -87,7 +87,7 @@ class MiniDungeonsDomain(Domain):
         import pandas as pd
 
         from pcpg_dist.domains.minidungeons import PROXY_NAMES, outcome_stats
-        from pcpg_dist.evaluation import rollout_rng, style_of_clusters
+        from pcpg_dist.stages.evaluation import rollout_rng, style_of_clusters
 
         dataset, test_idx = unit.dataset, unit.test_idx
         style = style_of_clusters(dataset, labels, cfg.clustering.k)

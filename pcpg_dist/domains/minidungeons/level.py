@@ -6,7 +6,7 @@ never from the checkout's ``shared/`` folder, so an installed wheel works offlin
 
 Grid characters: ``.`` floor, ``#`` wall, ``T`` treasure, ``P`` potion, ``M`` monster, ``E`` exit,
 ``S`` start. Row 0 is the top line; a position is ``(row, col)``. Every malformed file raises
-:class:`~pcpg_dist.errors.LayoutError` naming the file and the line.
+:class:`~pcpg_dist.common.errors.LayoutError` naming the file and the line.
 """
 
 from __future__ import annotations
@@ -19,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pcpg_dist.common.errors import LayoutError
 from pcpg_dist.config.domains import LEVELS_TEST, LEVELS_TRAIN, MAX_LEVEL_BYTES
-from pcpg_dist.errors import LayoutError
 
 # Tile codes of :attr:`Level.grid` (the start is stored as floor; its position is kept apart).
 FLOOR, WALL, TREASURE, POTION, MONSTER, EXIT = 0, 1, 2, 3, 4, 5

@@ -23,8 +23,8 @@ def minari_fingerprint(dataset_id: str) -> list[list]:
     """Names, sizes and SHA-256 of a local Minari dataset's files (its content, for the cache key)."""
     import minari
 
+    from pcpg_dist.common.errors import DataError, first_line
     from pcpg_dist.dataset import sha256_file
-    from pcpg_dist.errors import DataError, first_line
 
     try:
         root = Path(minari.storage.get_dataset_path(dataset_id))
@@ -122,7 +122,7 @@ class TrajectoriesDomain(Domain):
 
         def column(ds) -> np.ndarray:
             if ds.skill is None:
-                from pcpg_dist.errors import DataError
+                from pcpg_dist.common.errors import DataError
 
                 raise DataError(
                     f"dataset {ds.env}: no recorded skill column '{how}' (trajectories.score)"

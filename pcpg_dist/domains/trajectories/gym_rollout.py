@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
-from pcpg_dist.errors import ConfigError
+from pcpg_dist.common.errors import ConfigError
 
 if TYPE_CHECKING:
     import gymnasium

@@ -32,9 +32,9 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
+from pcpg_dist.common.errors import DataError, first_line
 from pcpg_dist.config.domains import MINARI_ID, minari_id_problem
 from pcpg_dist.dataset import MANIFEST, Dataset, check_action_memory, load_datasets
-from pcpg_dist.errors import DataError, first_line
 
 ENV_VAR = "MINARI_DATASETS_PATH"
 STYLE_KEY = "style"
@@ -573,7 +573,7 @@ def find_dataset_folder(path: Path) -> Path:
 
 def cli_export_minari(args: argparse.Namespace) -> None:
     """``pcpg export minari RUN_OR_DATA --out DIR [--dataset-id ID]``."""
-    from pcpg_dist.run_folders import check_outside_run
+    from pcpg_dist.common.run_folders import check_outside_run
 
     check_outside_run(Path(args.out))
     folder = find_dataset_folder(Path(args.source))

@@ -12,7 +12,7 @@ The contract (docs/bring-your-own-data.md), one row per step:
 
 A trajectory whose last row still has an action gets a closing row that repeats its last state
 with action -1 (pcpg's datasets end every trajectory on a state). Every problem is one
-:class:`~pcpg_dist.errors.DataError` naming the file, the column and the row (0-based, in file
+:class:`~pcpg_dist.common.errors.DataError` naming the file, the column and the row (0-based, in file
 order); nothing is written before the whole table has passed.
 """
 
@@ -29,6 +29,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
+from pcpg_dist.common.errors import DataError, first_line
 from pcpg_dist.dataset import (
     MAX_ACTIONS,
     MAX_STYLES,
@@ -38,7 +39,6 @@ from pcpg_dist.dataset import (
     check_parquet_memory,
     unreadable_parquet,
 )
-from pcpg_dist.errors import DataError, first_line
 
 DOMAIN = "trajectories"
 REQUIRED = ("trajectory", "t", "action")

@@ -1,0 +1,128 @@
+"""Content-keyed units of work: a finished unit is never recomputed, a damaged one never used.
+
+A unit's key hashes its config slice and its inputs' keys. Its folder ``ROOT/<stage>/<key>/`` is
+complete when ``done.json`` exists; that file is written last (atomically) and records the size
+and SHA-256 of every file in the folder. A unit killed halfway is simply redone; a finished unit
+whose files were truncated, edited or removed since fails its check and is recomputed, never
+published. Only the driver writes here: tasks return their files as bytes (:func:`files_of`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+from pathlib import Path
+from typing import Any
+
+from pcpg_dist.common.errors import DataError
+from pcpg_dist.dataset import atomic_write_bytes, confined, sha256_file
+
+DONE = "done.json"
+
+
+def content_key(*parts: Any) -> str:
+    """A short stable hash of JSON-able parts (pydantic models are dumped first)."""
+
+    def norm(x: Any) -> Any:
+        if hasattr(x, "model_dump"):
+            return x.model_dump(mode="json")
+        if isinstance(x, Path):
+            return str(x)
+        if isinstance(x, dict):
+            return {str(k): norm(v) for k, v in x.items()}
+        if isinstance(x, list | tuple):
+            return [norm(v) for v in x]
+        return x
+
+    blob = json.dumps([norm(p) for p in parts], sort_keys=True, default=str)
+    return hashlib.sha256(blob.encode()).hexdigest()[:20]
+
+
+def _listing(folder: Path) -> dict[str, list]:
+    """``relative path -> [size, sha256]`` of every file under ``folder`` but the marker."""
+    return {
+        p.relative_to(folder).as_posix(): [p.stat().st_size, sha256_file(p)]
+        for p in sorted(folder.rglob("*"))
+        if p.is_file() and p.name != DONE
+    }
+
+
+def files_of(folder: str | Path) -> dict[str, bytes]:
+    """Every file under ``folder`` as ``relative path -> bytes`` (what a task returns)."""
+    folder = Path(folder)
+    return {
+        p.relative_to(folder).as_posix(): p.read_bytes()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }
+
+
+def write_files(folder: Path, files: dict[str, bytes]) -> None:
+    """Write a task's returned files under ``folder``; a name that would leave it is refused."""
+    for rel, blob in files.items():
+        target = folder
+        for part in rel.split("/"):
+            target = confined(target, part, "result file")
+        target.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_bytes(target, blob)
+
+
+class Cache:
+    """Unit folders under ``root``; ``done(stage, key)`` says whether a unit finished intact."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = Path(root)
+        self.rejected: list[str] = []  # units whose files failed their check (recomputed)
+
+    def path(self, stage: str, key: str) -> Path:
+        return self.root / stage / key
+
+    def done(self, stage: str, key: str) -> dict | None:
+        """The unit's ``done.json`` info if it finished and its files are intact, else ``None``."""
+        folder = self.path(stage, key)
+        marker = folder / DONE
+        if not marker.is_file():
+            return None
+        try:
+            info = json.loads(marker.read_text())
+            files = info.get("files") if isinstance(info, dict) else None
+        except (ValueError, UnicodeDecodeError):
+            files = None
+        if not isinstance(files, dict) or _listing(folder) != files:
+            self.rejected.append(f"{stage}/{key}")
+            return None
+        return info
+
+    def start(self, stage: str, key: str) -> Path:
+        """A clean folder for a unit about to be (re)computed."""
+        path = self.path(stage, key)
+        if path.exists():
+            shutil.rmtree(path)
+        path.mkdir(parents=True)
+        return path
+
+    def finish(self, stage: str, key: str, info: dict) -> None:
+        folder = self.path(stage, key)
+        atomic_write_bytes(
+            folder / DONE,
+            json.dumps(
+                {**info, "files": _listing(folder)}, indent=1, sort_keys=True, default=str
+            ).encode(),
+        )
+
+    def store(self, stage: str, key: str, files: dict[str, bytes], info: dict) -> Path:
+        """Start, write a task's files and finish a unit in one call (the driver's only write)."""
+        folder = self.start(stage, key)
+        write_files(folder, files)
+        self.finish(stage, key, info)
+        return folder
+
+    def read_json(self, stage: str, key: str, name: str) -> Any:
+        try:
+            return json.loads((self.path(stage, key) / name).read_text())
+        except (OSError, ValueError) as e:
+            raise DataError(
+                f"cache entry {stage}/{key}/{name} is unreadable ({e}); delete the folder "
+                f"{self.path(stage, key)} and rerun"
+            ) from None

@@ -1,0 +1,316 @@
+"""The trained agents as ONNX: one model per environment, for game engines and other runtimes.
+
+``agents_<env>.onnx`` holds every cell of the environment as stacked weights; a batch row picks
+its cell by index, so one session serves any mix of styles, skill levels and seeds:
+
+- inputs: ``state`` float32 (B, d), ``valid`` bool (B, n_actions), ``cell`` int64 (B,);
+- outputs: ``action`` int64 (B,), the greedy valid action, ties to the lowest index (exactly
+  :meth:`pcpg_dist.stages.bc.TrainedCells.predict`), or -1 for a row with no valid action; ``logits``
+  float32 (B, n_actions), -inf where the action is invalid.
+
+``agents_<env>.json`` beside it (also in the model's ``metadata_props``) lists each cell index with
+its key, kind, style k, p, seed and c. The graph is built with ``onnx.helper`` from plain
+operators (Gather, MatMul, Add, Tanh/Relu, Where, ArgMax; opset 13), so it loads in any ONNX
+runtime and the bytes depend on the weights alone.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from pcpg_dist.common.errors import DataError, ServiceError, first_line
+
+OPSET = (
+    13  # Gather, MatMul, Where, ArgMax(select_last_index): all there; old enough for most runtimes
+)
+IR_VERSION = 7  # the IR of opset 13, so older runtimes read the file too
+FORMAT = 1
+
+
+# --------------------------------------------------------------------------- reading agents
+def load_agents_folder(folder: Path) -> dict:
+    """``{env: TrainedCells}`` from an agents folder.
+
+    Two layouts: a run's output (``<env>/groupNNN.pt|.json``, written by ``pcpg run``) and the
+    MLflow ``agents`` model's artifacts (``<env>.npz|.json``, see :mod:`pcpg_dist.tracking.agent_model`).
+    Every file is checked (:func:`check_cells`), a run's against its ``index.json`` and summary
+    (:func:`~pcpg_dist.common.run_folders.check_run_agents`), and every env name must be a plain name, since it becomes a file name: a DataError
+    naming the file otherwise.
+    """
+    from pcpg_dist.common.run_folders import check_run_agents
+    from pcpg_dist.dataset import confined
+    from pcpg_dist.stages.bc import TrainedCells, check_cells
+
+    folder = Path(folder)
+    check_run_agents(folder)  # a run's agents: the files it wrote, for the environments it reports
+    out = {}
+    for env_dir in sorted(p for p in folder.iterdir() if p.is_dir()):
+        groups = sorted(env_dir.glob("*.pt"))
+        if groups:
+            confined(folder, env_dir.name, f"{env_dir}: env folder")
+            parts = []
+            for g in groups:
+                parts.append(TrainedCells.load(g))  # checked against its JSON (check_cells)
+            out[env_dir.name] = TrainedCells.concat(parts)
+    npz = sorted(folder.glob("*.npz"))
+    if npz:
+        from pcpg_dist.stages.ranking import CellSpec
+        from pcpg_dist.tracking import agent_model
+
+        for path in npz:
+            source = path.with_suffix(".json")
+            try:
+                env = agent_model.read_env_agents(path)
+            except agent_model.AgentFileError as e:
+                raise DataError(str(e)) from None
+            confined(folder, env.env, f"{source}: env")
+            if env.env != path.stem:
+                raise DataError(
+                    f"{source}: env {env.env!r} does not match the file's name "
+                    f"(expected {path.stem!r}, as in {path.name})"
+                )
+            if env.env in out:
+                raise DataError(
+                    f"{source}: env {env.env!r} is also in {folder / env.env}/; keep one"
+                )
+            specs = tuple(CellSpec(s.key, s.kind, s.k, s.p, s.seed, s.c) for s in env.specs)
+            cells = TrainedCells(
+                specs,
+                env.sizes,
+                env.activation,
+                env.params,
+                env.mean,
+                env.std,
+                np.zeros(len(specs), np.float32),
+            )
+            check_cells(source, cells)
+            out[env.env] = cells
+    if not out:
+        raise DataError(
+            f"{folder}: no trained agents (expected <env>/*.pt from pcpg run, "
+            f"or <env>.npz from the MLflow agents model)"
+        )
+    return out
+
+
+def resolve_agents(target: str, tracking_uri: str | None, workdir: Path) -> Path:
+    """The agents folder of RUN: a run's output folder, an MLflow run id or an experiment name
+    (its newest top-level run)."""
+    from pcpg_dist.reporting.report import sweep_refusal
+
+    path = Path(target)
+    if (path / "agents").is_dir():
+        return path / "agents"
+    sweep_refusal(
+        target, tracking_uri, "pcpg export onnx"
+    )  # a whole sweep has no one set of agents
+    if path.is_dir() and any(path.glob("*/*.pt")):
+        return path
+    if path.exists():
+        raise DataError(
+            f"{path}: no trained agents here (expected {path}/agents/<env>/*.pt, "
+            f"written by pcpg run)"
+        )
+    from mlflow.exceptions import MlflowException
+
+    from pcpg_dist.tracking import find_run
+
+    run, uri = find_run(target, tracking_uri)
+    run_id = run.data.tags.get("mlflow.parentRunId", run.info.run_id)  # an environment's child run
+    import mlflow.artifacts
+
+    local = Path(workdir) / ".export-cache" / run_id
+    try:
+        got = mlflow.artifacts.download_artifacts(
+            artifact_uri=f"runs:/{run_id}/agents", dst_path=str(local), tracking_uri=uri
+        )
+    except (MlflowException, OSError) as e:
+        raise ServiceError(f"run {run_id} at {uri} has no agents model ({first_line(e)})") from None
+    folder = Path(got) / "artifacts" / "agents"
+    if not folder.is_dir():
+        raise DataError(f"run {run_id}: the agents model has no artifacts/agents folder")
+    return folder
+
+
+# --------------------------------------------------------------------------- the graph
+def cell_table(cells) -> list[dict]:
+    """One entry per cell index: what a caller needs to pick a cell (style k, p, seed)."""
+    return [{"index": i, **asdict(s)} for i, s in enumerate(cells.specs)]
+
+
+def sidecar(env: str, cells) -> dict:
+    """The JSON written beside ``agents_<env>.onnx`` (the same table is in its metadata)."""
+    pcpg = [s for s in cells.specs if s.kind == "pcpg"]
+    return {
+        "format": FORMAT,
+        "env": env,
+        "model": f"agents_{env}.onnx",
+        "state_dim": cells.state_dim,
+        "n_actions": cells.n_actions,
+        "activation": cells.activation,
+        "sizes": list(cells.sizes),
+        "inputs": {
+            "state": f"float32 (B, {cells.state_dim})",
+            "valid": f"bool (B, {cells.n_actions}), true = action allowed",
+            "cell": "int64 (B,), an index into cells",
+        },
+        "outputs": {
+            "action": "int64 (B,): greedy valid action (ties to the lowest index), "
+            "-1 where no action is valid",
+            "logits": f"float32 (B, {cells.n_actions}), -inf where invalid",
+        },
+        "styles": sorted({s.k for s in pcpg}),
+        "ps": sorted({s.p for s in pcpg}, reverse=True),
+        "seeds": sorted({s.seed for s in cells.specs}),
+        "cells": cell_table(cells),
+    }
+
+
+def build_model(env: str, cells):
+    """The ONNX model of one environment's ensemble (a :class:`~pcpg_dist.stages.bc.TrainedCells`)."""
+    import onnx
+    from onnx import TensorProto, helper, numpy_helper
+
+    from pcpg_dist.stages.bc import ACTIVATIONS
+
+    d, n_actions, n_layers = cells.state_dim, cells.n_actions, len(cells.sizes) - 1
+    if cells.activation not in ACTIVATIONS:
+        raise DataError(
+            f"env {env}: activation {cells.activation!r} has no ONNX export (relu, tanh)"
+        )
+
+    def const(name: str, value: np.ndarray):
+        return numpy_helper.from_array(np.ascontiguousarray(value), name)
+
+    inits = [
+        const("mean", cells.mean.astype(np.float32)),
+        const("std", cells.std.astype(np.float32)),
+        const("axis1", np.array([1], np.int64)),
+        const("neg_inf", np.array(-np.inf, np.float32)),
+        const("no_action", np.array(-1, np.int64)),
+        const("zero", np.array(0.0, np.float32)),
+    ]
+    nodes = [
+        helper.make_node("Gather", ["mean", "cell"], ["m"], axis=0),
+        helper.make_node("Gather", ["std", "cell"], ["s"], axis=0),
+        helper.make_node("Sub", ["state", "m"], ["centred"]),
+        helper.make_node("Div", ["centred", "s"], ["h0"]),
+    ]
+    h = "h0"
+    for layer in range(n_layers):
+        w, b = f"W{layer}", f"b{layer}"
+        inits += [
+            const(w, cells.params[w].astype(np.float32)),
+            const(b, cells.params[b].astype(np.float32)),
+        ]
+        # (B, 1, in) @ (B, in, out): each row meets its own cell's weights
+        nodes += [
+            helper.make_node("Gather", [w, "cell"], [f"{w}_rows"], axis=0),
+            helper.make_node("Gather", [b, "cell"], [f"{b}_rows"], axis=0),
+            helper.make_node("Unsqueeze", [h, "axis1"], [f"{h}_row"]),
+            helper.make_node("MatMul", [f"{h}_row", f"{w}_rows"], [f"z{layer}_row"]),
+            helper.make_node("Squeeze", [f"z{layer}_row", "axis1"], [f"z{layer}"]),
+        ]
+        last = layer == n_layers - 1
+        pre = "raw_logits" if last else f"pre{layer + 1}"
+        nodes.append(helper.make_node("Add", [f"z{layer}", f"{b}_rows"], [pre]))
+        if not last:
+            h = f"h{layer + 1}"
+            nodes.append(
+                helper.make_node("Relu" if cells.activation == "relu" else "Tanh", [pre], [h])
+            )
+    nodes += [
+        helper.make_node("Where", ["valid", "raw_logits", "neg_inf"], ["logits"]),
+        helper.make_node("ArgMax", ["logits"], ["best"], axis=1, keepdims=0, select_last_index=0),
+        helper.make_node("Cast", ["valid"], ["valid_f"], to=TensorProto.FLOAT),
+        helper.make_node("ReduceMax", ["valid_f"], ["any_f"], axes=[1], keepdims=0),
+        helper.make_node("Greater", ["any_f", "zero"], ["any_valid"]),
+        helper.make_node("Where", ["any_valid", "best", "no_action"], ["action"]),
+    ]
+    graph = helper.make_graph(
+        nodes,
+        f"pcpg_agents_{env}",
+        inputs=[
+            helper.make_tensor_value_info("state", TensorProto.FLOAT, ["batch", d]),
+            helper.make_tensor_value_info("valid", TensorProto.BOOL, ["batch", n_actions]),
+            helper.make_tensor_value_info("cell", TensorProto.INT64, ["batch"]),
+        ],
+        outputs=[
+            helper.make_tensor_value_info("action", TensorProto.INT64, ["batch"]),
+            helper.make_tensor_value_info("logits", TensorProto.FLOAT, ["batch", n_actions]),
+        ],
+        initializer=inits,
+    )
+    import pcpg_dist
+
+    model = helper.make_model(
+        graph,
+        opset_imports=[helper.make_opsetid("", OPSET)],
+        producer_name="pcpg-dist",
+        producer_version=pcpg_dist.__version__,
+        doc_string=f"pcpg agents of env {env}: {len(cells.specs)} cells; "
+        f"pick one per row with the cell input (see metadata pcpg.cells)",
+    )
+    model.ir_version = IR_VERSION
+    meta = sidecar(env, cells)
+    props = {
+        "pcpg.format": str(FORMAT),
+        "pcpg.env": env,
+        "pcpg.state_dim": str(d),
+        "pcpg.n_actions": str(n_actions),
+        "pcpg.cells": json.dumps(meta["cells"]),
+    }
+    helper.set_model_props(model, props)
+    onnx.checker.check_model(model, full_check=True)
+    return model
+
+
+def export_onnx(ensembles: dict, out: Path) -> list[Path]:
+    """Write ``agents_<env>.onnx`` + ``agents_<env>.json`` per environment; returns the paths.
+
+    Every env name is checked and every model built before the first file is written, so a bad
+    env writes nothing, not even ``out``.
+    """
+    from pcpg_dist.dataset import atomic_write_bytes, confined
+
+    out = Path(out)
+    models = {}
+    for env, cells in sorted(ensembles.items()):
+        confined(out, env, "env")  # the env becomes a file name under out
+        models[env] = build_model(env, cells)
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    for env, model in models.items():
+        onnx_path, json_path = out / f"agents_{env}.onnx", out / f"agents_{env}.json"
+        atomic_write_bytes(onnx_path, model.SerializeToString(deterministic=True))
+        atomic_write_bytes(
+            json_path, (json.dumps(sidecar(env, ensembles[env]), indent=1) + "\n").encode()
+        )
+        written += [onnx_path, json_path]
+    return written
+
+
+def cli_export_onnx(args: argparse.Namespace) -> None:
+    """``pcpg export onnx RUN --out DIR``."""
+    from pcpg_dist.common.run_folders import check_outside_run
+
+    check_outside_run(Path(args.out))
+    with tempfile.TemporaryDirectory() as tmp:
+        workdir = Path(args.workdir) if args.workdir else Path(tmp)
+        folder = resolve_agents(args.run, args.tracking_uri, workdir)
+        ensembles = load_agents_folder(folder)
+        for path in export_onnx(ensembles, Path(args.out)):
+            extra = ""
+            if path.suffix == ".onnx":
+                cells = ensembles[path.stem.removeprefix("agents_")]
+                extra = (
+                    f"  ({len(cells.specs)} cells, state {cells.state_dim}, "
+                    f"{cells.n_actions} actions)"
+                )
+            print(f"wrote {path}{extra}")

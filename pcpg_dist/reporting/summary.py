@@ -1,0 +1,208 @@
+"""Across environments: summary metrics, tables, a figure, and the terminal summary table."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from pcpg_dist.dataset import atomic_write_bytes
+
+
+def _mean(values: list[float]) -> float:
+    vals = [v for v in values if v == v]
+    return float(np.mean(vals)) if vals else float("nan")
+
+
+def summary_metrics(
+    per_env: dict[str, dict[str, float]], clusters: dict[str, dict[str, float]]
+) -> dict[str, float]:
+    """Each metric's mean over environments, plus ``<env>/<metric>`` for every environment."""
+    merged = {e: {**clusters.get(e, {}), **m} for e, m in per_env.items()}
+    names = sorted({k for m in merged.values() for k in m})
+    out = {n: _mean([m[n] for m in merged.values() if n in m]) for n in names}
+    for env, m in merged.items():
+        out.update({f"{env}/{k}": v for k, v in m.items()})
+    return out
+
+
+def accuracy_table(per_env: dict[str, dict[str, float]], ps: tuple[float, ...]) -> pd.DataFrame:
+    rows = []
+    for env, m in per_env.items():
+        for p in ps:
+            rows.append(
+                {
+                    "env": env,
+                    "p": p,
+                    "pcpg": m.get(f"pcpg/accuracy/p{p:g}", np.nan),
+                    "pcpg_std": m.get(f"pcpg/accuracy/p{p:g}/std", np.nan),
+                    "no_clustering": m.get(f"baseline/accuracy/p{p:g}", np.nan),
+                    "no_clustering_std": m.get(f"baseline/accuracy/p{p:g}/std", np.nan),
+                    # on the same rows as PCPG at this p, like the majority class
+                    "random": m.get(f"random/accuracy/p{p:g}", np.nan),
+                    "majority": m.get(f"majority/accuracy/p{p:g}", np.nan),
+                }
+            )
+    return pd.DataFrame(rows)
+
+
+def write_summary(
+    cfg,
+    summary: Path,
+    eval_dirs: dict[str, Path],
+    per_env: dict[str, dict[str, float]],
+    clusters: dict[str, dict[str, float]],
+) -> dict[str, float]:
+    """Write a new ``summary`` folder (metrics, tables, figures, per-environment folders); return
+    metrics. The folder must not exist: the runner builds it aside and swaps it in when complete
+    (:func:`pcpg_dist.orchestration.runner._finish_point`), so a killed write never mixes two runs' files."""
+    summary = Path(summary)
+    summary.mkdir(parents=True)
+    metrics = summary_metrics(per_env, clusters)
+    atomic_write_bytes(
+        summary / "metrics.json", json.dumps(metrics, indent=1, sort_keys=True).encode()
+    )
+    acc = accuracy_table(per_env, cfg.ranking.ps)
+    acc.to_csv(summary / "accuracy_vs_p.csv", index=False)
+    acc.to_json(summary / "accuracy_vs_p.json", orient="records", indent=1)
+    clus = pd.DataFrame([{"env": e, **m} for e, m in clusters.items()])
+    clus.to_csv(summary / "clustering.csv", index=False)
+    clus.to_json(summary / "clustering.json", orient="records", indent=1)
+    for env, d in eval_dirs.items():
+        shutil.copytree(d, summary / env, ignore=shutil.ignore_patterns("done.json"))
+    accuracy_figure(acc, summary / "accuracy_vs_p.png")
+    return metrics
+
+
+def long_accuracy(acc: pd.DataFrame) -> pd.DataFrame:
+    """The wide summary table as (env, method, p, mean, std) rows, as one environment's table is."""
+    parts = []
+    for method, mean, std in (
+        ("pcpg", "pcpg", "pcpg_std"),
+        ("no_clustering", "no_clustering", "no_clustering_std"),
+        ("majority", "majority", None),
+        ("random", "random", None),
+    ):
+        part = acc[["env", "p"]].assign(method=method, mean=acc[mean], std=acc[std] if std else 0.0)
+        parts.append(part)
+    return pd.concat(parts, ignore_index=True)
+
+
+def accuracy_figure(acc: pd.DataFrame, path: Path) -> None:
+    """Fig. 4 across environments: the mean over environments (the numbers the report's headline
+    quotes) as one panel large enough to read at half a laptop's width, each environment a thin
+    line of its method's colour behind it (each environment's own Fig. 4 is in its section)."""
+    import matplotlib
+    from matplotlib.figure import Figure
+
+    from pcpg_dist.stages.figures import METHODS, accuracy_axes, method_legend, style
+
+    long = long_accuracy(acc)
+    envs = list(dict.fromkeys(acc["env"]))
+    mean = long.groupby(["method", "p"], as_index=False, sort=False)[["mean", "std"]].mean()
+    bigger = {
+        "font.size": 11,
+        "axes.titlesize": 12,
+        "axes.labelsize": 11,
+        "legend.fontsize": 10,
+        "xtick.labelsize": 10,
+        "ytick.labelsize": 10,
+        "lines.linewidth": 2.0,
+        "lines.markersize": 6,
+    }
+    with style(), matplotlib.rc_context(bigger):
+        fig = Figure(figsize=(5.6, 4.2))
+        ax = fig.subplots()
+        if len(envs) > 1:
+            for env in envs:
+                for method in ("pcpg", "no_clustering"):
+                    d = long[(long["env"] == env) & (long["method"] == method)].sort_values("p")
+                    ax.plot(
+                        d.p,
+                        d["mean"],
+                        color=METHODS[method]["color"],
+                        lw=0.8,
+                        alpha=0.35,
+                        ls=METHODS[method]["ls"],
+                    )
+        accuracy_axes(ax, mean)
+        ax.set_title(
+            f"Mean over {len(envs)} environment{'s' if len(envs) != 1 else ''}"
+            + (" (thin lines: each one)" if len(envs) > 1 else "")
+        )
+        handles, labels = method_legend(ax)
+        fig.legend(handles, labels, loc="lower center", ncol=2, bbox_to_anchor=(0.5, 0))
+        fig.tight_layout(rect=(0, 0.14, 1, 1))
+        fig.savefig(path)
+
+
+def print_summary(result, console) -> None:
+    """The terminal summary: accuracy per p (PCPG vs No Clustering), clustering quality, times."""
+    from rich.table import Table
+
+    m = result.metrics
+    ps = sorted(
+        {
+            float(k.split("/p")[1].split("/")[0])
+            for k in m
+            if k.startswith("pcpg/accuracy/p") and k.count("/") == 2
+        },
+        reverse=True,
+    )
+    t = Table(title="Accuracy on held-out trajectories (mean over environments)")
+    t.add_column("p", justify="right")
+    t.add_column("PCPG", justify="right")
+    t.add_column("No Clustering", justify="right")
+    t.add_column("majority class", justify="right")
+    t.add_column("random", justify="right")
+    for p in ps:
+        t.add_row(
+            f"{p:g}",
+            f"{m.get(f'pcpg/accuracy/p{p:g}', float('nan')):.3f}",
+            f"{m.get(f'baseline/accuracy/p{p:g}', float('nan')):.3f}",
+            f"{m.get(f'majority/accuracy/p{p:g}', float('nan')):.3f}",
+            f"{m.get(f'random/accuracy/p{p:g}', float('nan')):.3f}",
+        )
+    console.print(t)
+    c = Table(title="Clustering")
+    cols = [
+        k
+        for k in (
+            "ari",
+            "nmi",
+            "accuracy",
+            "ceiling",
+            "gap_to_ceiling",
+            "silhouette",
+            "fit_seconds",
+        )
+        if any(f"clustering/{k}" in v for v in result.clustering.values())
+    ]
+    c.add_column("env")
+    shown = {"gap_to_ceiling": "gap", "silhouette": "silh.", "fit_seconds": "fit s"}
+    for k in cols:
+        c.add_column(shown.get(k, k), justify="right")
+    for env, cm in result.clustering.items():
+        c.add_row(env, *[f"{cm.get(f'clustering/{k}', float('nan')):.3f}" for k in cols])
+    console.print(c)
+    extra = [f"{k}={m[k]:.3f}" for k in ("cross/diagonal_mean",) if k in m]
+    extra += [
+        f"{k}={m[k]:.2f}"
+        for k in sorted(m)
+        if k.startswith("reward_distance/style") and k.count("/") == 1
+    ]
+    if extra:
+        console.print("  ".join(extra))
+    console.print(stage_times(result))
+
+
+def stage_times(result) -> str:
+    """``time per stage: ...`` for the stages this run computed; the ones served from the cache are
+    named as such (their recorded seconds are those of the run that computed them)."""
+    cached = list(getattr(result, "cached_stages", []) or [])
+    ran = ", ".join(f"{k} {v:.1f}s" for k, v in result.stage_seconds.items() if k not in cached)
+    line = f"time per stage: {ran or 'none'}"
+    return f"{line}; from the cache: {', '.join(cached)}" if cached else line

@@ -1,0 +1,523 @@
+"""The trained agents of a run as one MLflow pyfunc model (models-from-code: nothing pickled).
+
+``mlflow.pyfunc.load_model(f"runs:/{run_id}/agents").predict(df)`` (or ``mlflow models serve``)
+returns one action per row of ``df``; the columns (docs/agents.md):
+
+- ``env``: the environment; may be left out only when the model has exactly one;
+- ``style``: the cluster index k, or -1 for the No-Clustering baseline; ``p``: the skill level
+  (a trained p, e.g. 1, 0.5, 0.1); ``seed``: optional, default the lowest trained seed;
+- ``valid``: optional list of n_actions booleans per row (absent or null = every action valid);
+- ``s0..s{d-1}``: the state features of that environment.
+
+This file runs in the serving process on its own: it imports numpy, pandas and mlflow only (no
+torch, no pcpg_dist), which is why the weights travel as ``<env>.npz`` + ``<env>.json`` rather
+than the run's torch files. Every bad request raises :class:`AgentRequestError`: HTTP 400 with a
+one-line message that names the row, the column and what is allowed.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib.metadata
+import json
+import logging
+import os
+import sys
+import warnings
+import zipfile
+from collections.abc import Iterator
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import mlflow.models
+import mlflow.pyfunc
+import numpy as np
+import pandas as pd
+from mlflow.exceptions import MlflowException
+from mlflow.protos.databricks_pb2 import INTERNAL_ERROR, INVALID_PARAMETER_VALUE
+
+# One tqdm bar per artifact download (dozens of lines outside a terminal) is noise when the model
+# loads in a process that imported this file: the serving process, or a user's after `load`.
+os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
+
+NC_STYLE = -1  # the `style` of the No-Clustering baseline (top p of every trajectory)
+_NO_SEED = -(2**62)  # "no seed given": the lowest trained one
+_log = logging.getLogger(__name__)
+REQUIREMENTS = ("mlflow", "numpy", "pandas")  # all that this file imports
+
+
+class OneLineError(MlflowException):
+    """An error whose ``message`` stays one line when the scoring server answers it.
+
+    MLflow 3.17's scoring server rewrites the ``message`` of an exception raised in predict to
+    ``"Failed to predict data '<the whole request as a DataFrame>'. \\nError: ..."``: several
+    lines, as long as the request. This message keeps its first value.
+    """
+
+    @property
+    def message(self) -> str:
+        return self._line
+
+    @message.setter
+    def message(self, value: str) -> None:
+        if not hasattr(self, "_line"):
+            self._line = " ".join(str(value).split())
+
+
+class AgentRequestError(OneLineError):
+    """A bad request: HTTP 400, ``{"error_code": "INVALID_PARAMETER_VALUE", "message": ...}``."""
+
+    def __init__(self, message: str) -> None:
+        super().__init__(message, error_code=INVALID_PARAMETER_VALUE)
+
+
+@dataclass(frozen=True)
+class CellInfo:
+    """What one trained cell is (the fields of ``pcpg_dist.stages.ranking.CellSpec``)."""
+
+    key: str
+    kind: str  # "pcpg", "nc" (No Clustering) or "corrupt"
+    k: int  # the style (cluster index); -1 for "nc"
+    p: float
+    seed: int
+    c: float = 0.0
+
+
+def _show(v) -> str:
+    """A request value as the user wrote it (NumPy scalars shown as plain numbers)."""
+    return repr(v.item() if isinstance(v, np.generic) else v)
+
+
+def _names(values) -> str:
+    return ", ".join(f"{v:g}" if isinstance(v, float) else str(v) for v in values)
+
+
+@dataclass(frozen=True, eq=False)
+class EnvAgents:
+    """Every cell of one environment as stacked NumPy arrays (as ``TrainedCells``, no torch)."""
+
+    env: str
+    specs: tuple[CellInfo, ...]
+    sizes: tuple[int, ...]
+    activation: str
+    params: dict[str, np.ndarray]  # W{l} (cells, in, out), b{l} (cells, out)
+    mean: np.ndarray  # (cells, d)
+    std: np.ndarray
+
+    @property
+    def state_dim(self) -> int:
+        return self.sizes[0]
+
+    @property
+    def n_actions(self) -> int:
+        return self.sizes[-1]
+
+    def predict(self, states: np.ndarray, valid: np.ndarray, cell: int) -> np.ndarray:
+        """Greedy valid action of one cell: the same float32 arithmetic as ``TrainedCells``."""
+        h = (states.astype(np.float32) - self.mean[cell]) / self.std[cell]
+        n_layers = len(self.sizes) - 1
+        for layer in range(n_layers):
+            h = h @ self.params[f"W{layer}"][cell] + self.params[f"b{layer}"][cell]
+            if layer < n_layers - 1:
+                h = np.maximum(h, 0) if self.activation == "relu" else np.tanh(h)
+        return np.argmax(np.where(valid, h, -np.inf), axis=1)
+
+    # ------------------------------------------------------------------ picking cells
+    def cell_of(self, row: int, style: int, p: float, seed: int | None) -> int:
+        """The cell index of (style, p, seed), or an error listing what is trained."""
+        kind = "nc" if style == NC_STYLE else "pcpg"
+        picks = [(i, s) for i, s in enumerate(self.specs) if s.kind in ("pcpg", "nc")]
+        styles = sorted({s.k for _, s in picks if s.kind == "pcpg"})
+        same_style = [(i, s) for i, s in picks if s.kind == kind and (kind == "nc" or s.k == style)]
+        where = f"row {row}: env {self.env!r}"
+        if not same_style:
+            raise AgentRequestError(
+                f"{where}: style {style} is not trained; trained styles: "
+                f"{_names(styles)} (and {NC_STYLE} = No Clustering)"
+            )
+        same_p = [(i, s) for i, s in same_style if abs(s.p - p) <= 1e-9 * max(1.0, abs(p))]
+        if not same_p:
+            ps = sorted({s.p for _, s in same_style}, reverse=True)
+            raise AgentRequestError(
+                f"{where}: p={p:g} is not trained for style {style}; trained p: {_names(ps)}"
+            )
+        if seed is None:
+            return min(same_p, key=lambda x: x[1].seed)[0]
+        for i, s in same_p:
+            if s.seed == seed:
+                return i
+        raise AgentRequestError(
+            f"{where}: seed {seed} is not trained for style {style} at p={p:g}; "
+            f"trained seeds: {_names(sorted(s.seed for _, s in same_p))}"
+        )
+
+
+# ---------------------------------------------------------------------- files
+def write_env_agents(path: str | Path, env: str, cells) -> Path:
+    """``path.npz`` (the arrays) + ``path.json`` (cells, sizes) from a ``TrainedCells``."""
+    path = Path(path).with_suffix("")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    arrays = {
+        **{n: np.ascontiguousarray(v, np.float32) for n, v in cells.params.items()},
+        "mean": np.asarray(cells.mean, np.float32),
+        "std": np.asarray(cells.std, np.float32),
+    }
+    np.savez(path.with_suffix(".npz"), **arrays)
+    meta = {
+        "format": 1,
+        "env": env,
+        "sizes": list(cells.sizes),
+        "activation": cells.activation,
+        "specs": [asdict(CellInfo(s.key, s.kind, s.k, s.p, s.seed, s.c)) for s in cells.specs],
+    }
+    path.with_suffix(".json").write_text(json.dumps(meta, indent=1))
+    return path.with_suffix(".npz")
+
+
+class AgentFileError(ValueError):
+    """An ``<env>.npz`` + ``<env>.json`` pair that cannot be read: one line naming the file."""
+
+
+# what a missing or garbage file, or JSON that is not the mapping write_env_agents makes, raises
+_UNREADABLE = (
+    OSError,
+    ValueError,
+    TypeError,
+    KeyError,
+    EOFError,
+    RecursionError,
+    zipfile.BadZipFile,
+)
+
+
+def _unreadable(path: Path, e: Exception) -> AgentFileError:
+    cause = " ".join(str(e).split())[:200]
+    return AgentFileError(f"{path}: unreadable agents file ({type(e).__name__}: {cause})")
+
+
+def read_env_agents(path: str | Path) -> EnvAgents:
+    """The agents :func:`write_env_agents` wrote; :class:`AgentFileError` naming the file that
+    cannot be read. Whether sizes, specs and weights agree is checked by the code that builds on
+    them (``pcpg_dist.reporting.onnx_export.check_cells``)."""
+    path = Path(path).with_suffix("")
+    json_path, npz_path = path.with_suffix(".json"), path.with_suffix(".npz")
+    try:
+        meta = json.loads(json_path.read_text())
+        specs = tuple(CellInfo(**s) for s in meta["specs"])
+        sizes = tuple(meta["sizes"])
+        env, activation = meta["env"], meta["activation"]
+    except _UNREADABLE as e:
+        raise _unreadable(json_path, e) from None
+    try:
+        with np.load(npz_path, allow_pickle=False) as z:  # a pickled array is refused, never run
+            arrays = {n: z[n] for n in z.files}
+        params = {f"{w}{i}": arrays[f"{w}{i}"] for i in range(len(sizes) - 1) for w in "Wb"}
+        mean, std = arrays["mean"], arrays["std"]
+    except _UNREADABLE as e:
+        raise _unreadable(npz_path, e) from None
+    return EnvAgents(env, specs, sizes, activation, params, mean, std)
+
+
+def read_all(folder: str | Path) -> dict[str, EnvAgents]:
+    return {e.env: e for e in (read_env_agents(p) for p in sorted(Path(folder).glob("*.npz")))}
+
+
+# ---------------------------------------------------------------------- logging helpers
+# INFO and warnings MLflow emits while logging or loading a model whose signature, input example
+# and requirements are all given: they say nothing a user could act on.
+_CHATTY = (
+    "mlflow.pyfunc",
+    "mlflow.models",
+    "mlflow.models.model",
+    "mlflow.models.signature",
+    "mlflow.models.utils",
+    "mlflow.utils.environment",
+    "mlflow.utils.requirements_utils",
+    "mlflow.types",
+    "mlflow.tracking._model_registry",
+    "mlflow.store.artifact",
+)
+
+
+@contextlib.contextmanager
+def quiet_logging() -> Iterator[None]:
+    """Within the block: MLflow's model-logging loggers at ERROR, its Python warnings ignored, no
+    artifact progress bars. Levels and settings are restored afterwards."""
+    loggers = [logging.getLogger(n) for n in _CHATTY]
+    levels = [lg.level for lg in loggers]
+    bar = os.environ.get("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR")
+    os.environ["MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR"] = "false"
+    for lg in loggers:
+        lg.setLevel(logging.ERROR)
+    try:
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", module=r"mlflow(\.|$)")
+            yield
+    finally:
+        for lg, level in zip(loggers, levels, strict=True):
+            lg.setLevel(level)
+        if bar is None:
+            os.environ.pop("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", None)
+        else:
+            os.environ["MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR"] = bar
+
+
+def load(model_uri: str, tracking_uri: str | None = None):
+    """``mlflow.pyfunc.load_model`` without download bars or MLflow chatter, e.g.
+    ``load(f"runs:/{run_id}/agents", "sqlite:///mlflow.db")``."""
+    with quiet_logging():
+        if tracking_uri:
+            mlflow.set_tracking_uri(tracking_uri)
+        return mlflow.pyfunc.load_model(model_uri)
+
+
+def signature(agents: dict[str, EnvAgents]):
+    """Column names and types. Every column is optional to MLflow so that a missing one reaches
+    :meth:`PcpgAgents.predict` and gets its one-line error; ``style``, ``seed`` and ``valid`` are
+    ``Any`` because MLflow 3.17's enforcement would turn a style of 1.5 into 1, a NaN inside a
+    ``valid`` list into True, and fail on a batch where only some rows give a seed."""
+    from mlflow.models import ModelSignature
+    from mlflow.types import ColSpec, Schema
+    from mlflow.types.schema import AnyType
+
+    d = max(a.state_dim for a in agents.values())
+    inputs = [
+        ColSpec("string", "env", required=False),
+        ColSpec(AnyType(), "style", required=False),
+        ColSpec("double", "p", required=False),
+        ColSpec(AnyType(), "seed", required=False),
+        ColSpec(AnyType(), "valid", required=False),
+        *(ColSpec("double", f"s{j}", required=False) for j in range(d)),
+    ]
+    return ModelSignature(inputs=Schema(inputs), outputs=Schema([ColSpec("long", "action")]))
+
+
+def input_example(agents: dict[str, EnvAgents]) -> pd.DataFrame:
+    """One row per environment with a style and p that are trained and a mid-range state."""
+    d = max(a.state_dim for a in agents.values())
+    rows = []
+    for env, a in sorted(agents.items()):
+        spec = next(
+            (s for s in a.specs if s.kind == "pcpg"), next(s for s in a.specs if s.kind == "nc")
+        )
+        i = a.specs.index(spec)
+        row = {
+            "env": env,
+            "style": spec.k if spec.kind == "pcpg" else NC_STYLE,
+            "p": spec.p,
+            "seed": spec.seed,
+            "valid": [True] * a.n_actions,
+        }
+        row.update(
+            {f"s{j}": round(float(a.mean[i][j]), 3) if j < a.state_dim else None for j in range(d)}
+        )
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def pip_requirements() -> list[str]:
+    """Exact versions of what this file imports, so MLflow infers nothing when logging."""
+    return [f"{name}=={importlib.metadata.version(name)}" for name in REQUIREMENTS]
+
+
+def conda_env() -> dict:
+    """The model's environment, given whole: MLflow then neither infers requirements nor looks
+    up a pip version (``pip`` is absent from a uv environment and MLflow warns about it)."""
+    python = ".".join(map(str, sys.version_info[:3]))
+    return {
+        "name": "pcpg-agents",
+        "channels": ["conda-forge"],
+        "dependencies": [f"python={python}", "pip", {"pip": pip_requirements()}],
+    }
+
+
+# ---------------------------------------------------------------------- request checks
+def _missing(v) -> bool:
+    return v is None or (isinstance(v, float) and v != v)
+
+
+def _number(v) -> float:
+    """``v`` as a float; NaN for anything but a plain number (None, bools, strings, lists)."""
+    if isinstance(v, bool | np.bool_) or not isinstance(v, int | float | np.integer | np.floating):
+        return float("nan")
+    return float(v)
+
+
+def _floats(df: pd.DataFrame, cols: list[str], rows: np.ndarray) -> np.ndarray:
+    """(rows, cols) float64; NaN where a value is missing or not a number."""
+    block = df[cols].iloc[rows]
+    if all(
+        pd.api.types.is_numeric_dtype(t) and not pd.api.types.is_bool_dtype(t) for t in block.dtypes
+    ):
+        return block.to_numpy(np.float64)
+    return np.array([[_number(v) for v in block[c]] for c in cols], np.float64).T.reshape(
+        len(rows), len(cols)
+    )
+
+
+def _integers(df: pd.DataFrame, col: str, rows: np.ndarray, optional: bool) -> np.ndarray:
+    """Whole numbers of ``col`` at ``rows``; ``_NO_SEED`` where optional and missing."""
+    if col in df and pd.api.types.is_integer_dtype(df[col].dtype):
+        return df[col].to_numpy(np.int64)[rows]
+    values = df[col].to_numpy(object)[rows] if col in df else np.full(len(rows), None, object)
+    out = np.empty(len(rows), np.int64)
+    for j, v in enumerate(values):
+        if optional and _missing(v):
+            out[j] = _NO_SEED
+            continue
+        x = _number(v)
+        if not (np.isfinite(x) and x == int(x) and abs(x) < 2**53):
+            raise AgentRequestError(
+                f"row {rows[j]}: column {col!r} must be a whole number, got {_show(v)}"
+            )
+        out[j] = int(x)
+    return out
+
+
+def _valid_rows(df: pd.DataFrame, rows: np.ndarray, env: str, n_actions: int) -> np.ndarray:
+    if "valid" not in df:
+        return np.ones((len(rows), n_actions), bool)
+    values = df["valid"].to_numpy(object)[rows]
+    if len(values) and all(isinstance(v, list | tuple | np.ndarray) for v in values):
+        try:
+            block = np.array(list(values))  # the common case, checked in one go
+        except ValueError:  # lists of different lengths: found row by row below
+            block = np.zeros(0)
+        if (
+            block.dtype == bool
+            and block.shape == (len(rows), n_actions)
+            and block.any(axis=1).all()
+        ):
+            return block
+    out = np.ones((len(rows), n_actions), bool)
+    what = f"a list of {n_actions} booleans (true/false) for env {env!r}, or null for all valid"
+    for j, v in enumerate(values):
+        if _missing(v):
+            continue
+        if not isinstance(v, list | tuple | np.ndarray):
+            raise AgentRequestError(
+                f"row {rows[j]}: column 'valid' must be {what}; got {type(v).__name__} {_show(v)}"
+            )
+        if np.ndim(v) != 1 or len(v) != n_actions:
+            got = f"a list of {len(v)}" if np.ndim(v) == 1 else f"an array of shape {np.shape(v)}"
+            raise AgentRequestError(f"row {rows[j]}: column 'valid' must be {what}; got {got}")
+        arr = np.asarray(v)
+        if arr.dtype != bool:
+            bad = next(i for i, x in enumerate(v) if not isinstance(x, bool | np.bool_))
+            raise AgentRequestError(
+                f"row {rows[j]}: column 'valid' must be {what}; item {bad} is {_show(v[bad])}"
+            )
+        if not arr.any():
+            raise AgentRequestError(
+                f"row {rows[j]}: column 'valid' has no true item; at least one action must be valid"
+            )
+        out[j] = arr
+    return out
+
+
+def _states(df: pd.DataFrame, rows: np.ndarray, env: str, d: int) -> np.ndarray:
+    for j in range(d):
+        if f"s{j}" not in df:
+            raise AgentRequestError(
+                f"row {rows[0]}: column 's{j}' is missing; env {env!r} has {d} "
+                f"state features s0..s{d - 1}"
+            )
+    states = _floats(df, [f"s{j}" for j in range(d)], rows)
+    bad = ~np.isfinite(states)
+    if bad.any():
+        r, j = np.argwhere(bad)[0]
+        raise AgentRequestError(
+            f"row {rows[r]}: column 's{j}' must be a finite number, got "
+            f"{_show(df[f's{j}'].iloc[rows[r]])} (env {env!r} has {d} state features s0..s{d - 1})"
+        )
+    extra = [c for c in df.columns if c.startswith("s") and c[1:].isdigit() and int(c[1:]) >= d]
+    for c in extra:
+        set_ = ~df[c].iloc[rows].isna().to_numpy()
+        if set_.any():
+            raise AgentRequestError(
+                f"row {rows[np.argmax(set_)]}: column {c!r} is set, but env {env!r} "
+                f"has {d} state features s0..s{d - 1}"
+            )
+    return states
+
+
+# ---------------------------------------------------------------------- the model
+class PcpgAgents(mlflow.pyfunc.PythonModel):
+    def load_context(self, context) -> None:
+        self.agents = read_all(context.artifacts["agents"])
+
+    def _envs(self, df: pd.DataFrame) -> np.ndarray:
+        names = sorted(self.agents)
+        env = df["env"].to_numpy(object) if "env" in df else np.full(len(df), None, object)
+        missing = np.array([_missing(v) for v in env], bool)
+        if missing.any():
+            if len(names) != 1:
+                raise AgentRequestError(
+                    f"row {int(np.argmax(missing))}: column 'env' is missing; this "
+                    f"model has environments {_names(names)}: name one per row"
+                )
+            env = np.where(missing, names[0], env)
+        for i, v in enumerate(env):
+            if not isinstance(v, str) or v not in self.agents:
+                raise AgentRequestError(
+                    f"row {i}: env {_show(v)} is not in this model; environments: {_names(names)}"
+                )
+        return env
+
+    def predict(self, context, model_input: pd.DataFrame, params=None) -> np.ndarray:
+        try:
+            df = pd.DataFrame(model_input).reset_index(drop=True)
+        except (TypeError, ValueError) as e:
+            raise AgentRequestError(f"the request must be a table of rows ({e})") from None
+        try:
+            return self._predict(df)
+        except AgentRequestError:
+            raise
+        except (
+            Exception
+        ) as e:  # a bug, not a bad request: HTTP 500, one line; the log has the traceback
+            _log.exception("pcpg agents model failed")
+            raise OneLineError(
+                f"internal error of the pcpg agents model ({type(e).__name__}: {e}); "
+                f"the server log has the traceback",
+                error_code=INTERNAL_ERROR,
+            ) from None
+
+    def _predict(self, df: pd.DataFrame) -> np.ndarray:
+        for col in ("style", "p"):
+            if col not in df:
+                raise AgentRequestError(
+                    f"column {col!r} is missing; every row needs style (cluster "
+                    f"index, {NC_STYLE} = No Clustering) and p (skill level)"
+                )
+        out = np.empty(len(df), np.int64)
+        envs = self._envs(df)
+        for env in dict.fromkeys(envs):  # each environment, then each cell: one batched pass
+            agents = self.agents[env]
+            rows = np.nonzero(envs == env)[0]
+            style = _integers(df, "style", rows, optional=False)
+            seed = _integers(df, "seed", rows, optional=True)
+            p = _floats(df, ["p"], rows)[:, 0]
+            if not np.isfinite(p).all():
+                r = int(np.argmax(~np.isfinite(p)))
+                raise AgentRequestError(
+                    f"row {rows[r]}: column 'p' must be a number, got "
+                    f"{_show(df['p'].iloc[rows[r]])}"
+                )
+            combos = pd.MultiIndex.from_arrays([style, p, seed])
+            codes, uniques = pd.factorize(combos)
+            cell = np.empty(len(rows), np.int64)
+            for j, (s, p_j, sd) in enumerate(uniques):  # each distinct (style, p, seed) once
+                first = rows[int(np.argmax(codes == j))]
+                cell[codes == j] = agents.cell_of(
+                    int(first), int(s), float(p_j), None if sd == _NO_SEED else int(sd)
+                )
+            states = _states(df, rows, env, agents.state_dim)
+            valid = _valid_rows(df, rows, env, agents.n_actions)
+            for c in np.unique(cell):
+                sel = cell == c
+                out[rows[sel]] = agents.predict(states[sel], valid[sel], int(c))
+        return out
+
+
+mlflow.models.set_model(PcpgAgents())
