@@ -51,7 +51,7 @@ AGENTS_INDEX = (
 
 #: the files and folders a run writes beside its environments' folders (summary/, agents/, report/,
 #: a sweep's folder); an environment of one of these names would collide with them only once every
-#: stage had run (tests/test_run_folders.py checks the list against a real run)
+#: stage had run (tests/common/test_run_folders.py checks the list against a real run)
 BESIDE_UNITS = frozenset(
     {
         "metrics.json",

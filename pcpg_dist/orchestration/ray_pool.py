@@ -44,7 +44,7 @@ def _private_node() -> Iterator[None]:
 
     - keep ``_node_ip_address="127.0.0.1"`` as given: Ray 2.60's ``ray.init`` swaps a loopback
       address for the machine's network address, and its servers then listen on every interface.
-      On loopback, GCS, raylet and workers listen on 127.0.0.1 only (tests/test_cluster.py checks
+      On loopback, GCS, raylet and workers listen on 127.0.0.1 only (tests/ops/test_ray_cluster.py checks
       the sockets);
     - let the node's dashboard agent take a free port instead of Ray's fixed default (52365): a
       `ray start` cluster begun on the same machine while a run holds that port gets a head

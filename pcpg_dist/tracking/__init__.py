@@ -2,7 +2,7 @@
 
 Embedded default: ``sqlite:///<cwd>/mlflow.db`` with artifacts in ``<cwd>/mlruns``. For a team:
 ``MLFLOW_TRACKING_URI=http://host:5000`` (an ``mlflow server`` on PostgreSQL with proxied
-artifacts, see tracking/README.md). Everything here runs in the driver (threads allowed).
+artifacts, see ops/README.md). Everything here runs in the driver (threads allowed).
 
 Laid out for review (docs/team-mode.md): the experiment carries ``mlflow.experimentKind`` so the
 UI opens on its runs table; the parent run holds at most :data:`MAX_PARENT_METRICS` headline

@@ -1,7 +1,7 @@
 """Small configs of the three paper domains whose metrics are stored in ``metrics.json``.
 
 The numbers were made with the code *before* the domain-seam redesign (commit db903a5) by
-``uv run python tests/reference/configs.py``; ``tests/test_reference.py`` runs the same configs with
+``uv run python tests/reference/configs.py``; ``tests/e2e/test_reference.py`` runs the same configs with
 today's code and must get the same numbers. Regenerate only when a change of numbers is intended,
 and say so in the commit.
 
