@@ -3,8 +3,8 @@
 Kept apart from evaluation.py so the numbers can be computed (and tested) without plotting, and
 the plots re-drawn from saved tables.
 
-One look for every figure the project draws (per environment here, across environments in
-:mod:`pcpg_dist.reporting.summary`):
+One look for every figure the project draws (per environment, and across environments in
+:func:`accuracy_figure`):
 
 - p on the x axis always increases left to right (0.1 ... 1), ticks at the p values run;
 - colours from the Okabe-Ito palette (distinguishable with every common colour-vision
@@ -111,6 +111,65 @@ def method_legend(ax) -> tuple[list, list[str]]:
         key=lambda hl: order.index(hl[1]) if hl[1] in order else len(order),
     )
     return [h for h, _ in ranked], [lab for _, lab in ranked]
+
+
+def long_accuracy(acc: pd.DataFrame) -> pd.DataFrame:
+    """The wide summary table as (env, method, p, mean, std) rows, as one environment's table is."""
+    parts = []
+    for method, mean, std in (
+        ("pcpg", "pcpg", "pcpg_std"),
+        ("no_clustering", "no_clustering", "no_clustering_std"),
+        ("majority", "majority", None),
+        ("random", "random", None),
+    ):
+        part = acc[["env", "p"]].assign(method=method, mean=acc[mean], std=acc[std] if std else 0.0)
+        parts.append(part)
+    return pd.concat(parts, ignore_index=True)
+
+
+def accuracy_figure(acc: pd.DataFrame, path: Path) -> None:
+    """Fig. 4 across environments: the mean over environments (the numbers the report's headline
+    quotes) as one panel large enough to read at half a laptop's width, each environment a thin
+    line of its method's colour behind it (each environment's own Fig. 4 is in its section)."""
+    from matplotlib.figure import Figure
+
+    long = long_accuracy(acc)
+    envs = list(dict.fromkeys(acc["env"]))
+    mean = long.groupby(["method", "p"], as_index=False, sort=False)[["mean", "std"]].mean()
+    bigger = {
+        "font.size": 11,
+        "axes.titlesize": 12,
+        "axes.labelsize": 11,
+        "legend.fontsize": 10,
+        "xtick.labelsize": 10,
+        "ytick.labelsize": 10,
+        "lines.linewidth": 2.0,
+        "lines.markersize": 6,
+    }
+    with style(), matplotlib.rc_context(bigger):
+        fig = Figure(figsize=(5.6, 4.2))
+        ax = fig.subplots()
+        if len(envs) > 1:
+            for env in envs:
+                for method in ("pcpg", "no_clustering"):
+                    d = long[(long["env"] == env) & (long["method"] == method)].sort_values("p")
+                    ax.plot(
+                        d.p,
+                        d["mean"],
+                        color=METHODS[method]["color"],
+                        lw=0.8,
+                        alpha=0.35,
+                        ls=METHODS[method]["ls"],
+                    )
+        accuracy_axes(ax, mean)
+        ax.set_title(
+            f"Mean over {len(envs)} environment{'s' if len(envs) != 1 else ''}"
+            + (" (thin lines: each one)" if len(envs) > 1 else "")
+        )
+        handles, labels = method_legend(ax)
+        fig.legend(handles, labels, loc="lower center", ncol=2, bbox_to_anchor=(0.5, 0))
+        fig.tight_layout(rect=(0, 0.14, 1, 1))
+        fig.savefig(path)
 
 
 def _save(fig, path: Path) -> Path:
@@ -287,8 +346,6 @@ def redraw(summary: Path, greedy: bool = True) -> list[Path]:
     Everything but Fig. 8 (it draws the rollouts themselves, which are not kept): use it after a
     style change, or on a summary downloaded from MLflow. Returns the PNGs written.
     """
-    from pcpg_dist.reporting.summary import accuracy_figure
-
     summary = Path(summary)
     written = []
     if (summary / "accuracy_vs_p.csv").is_file():

@@ -808,7 +808,7 @@ def test_fig4_across_environments_plots_the_headline_mean_large_enough(summary, 
     whose tick labels stay readable at half a laptop's width; was three small panels per row."""
     from matplotlib.figure import Figure
 
-    from pcpg_dist.reporting.summary import accuracy_figure
+    from pcpg_dist.stages.figures import accuracy_figure
 
     seen = []
     real = Figure.savefig
