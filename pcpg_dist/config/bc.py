@@ -1,0 +1,120 @@
+"""Config of Step C (section ``bc``): the behavioural-cloning policy and its training."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field, field_validator, model_validator
+
+from pcpg_dist.config.limits import MAX_COUNT
+from pcpg_dist.config.schema import StrictModel
+
+
+class BCConfig(StrictModel):
+    """The behavioural-cloning policy and its training (Step C)."""
+
+    hidden_layers: int = Field(3, ge=0, le=8, description="Hidden layers of the MLP (paper: 3).")
+    hidden_size: int = Field(5, ge=1, le=1024, description="Units per hidden layer (paper: 5).")
+    activation: Literal["relu", "tanh"] = Field(
+        "tanh",
+        description=(
+            "Hidden activation. tanh by default: with 5-unit layers relu units die and some seeds "
+            "lose a style (measured on GridWorld, docs/bc_and_evaluation.md)."
+        ),
+    )
+    epochs: int = Field(
+        2000,
+        ge=0,
+        le=MAX_COUNT,
+        description=(
+            "Full-batch Adam steps (paper: '2000 episodes'); with batch_size, passes over the rows."
+        ),
+    )
+    batch_size: int | None = Field(
+        None,
+        ge=1,
+        le=10**9,
+        description=(
+            "Rows per Adam step; null (the paper) trains full batch. Set it where cells hold tens of "
+            "thousands of distinct rows (Mario): one epoch is then one pass over a cell's rows, "
+            "shuffled once from the cell's seed, in blocks of this many. Numba engine only."
+        ),
+    )
+    lr: float = Field(0.01, gt=0.0, le=100.0, description="Adam learning rate (finite, > 0).")
+    init: Literal["scratch", "no_clustering"] = Field(
+        "scratch",
+        description=(
+            "scratch (the paper): every agent starts from its seeded initialisation. no_clustering: "
+            "the No Clustering agents train first, then every other agent (per cluster, corrupted "
+            "labels) starts from the No Clustering agent of its p and seed and trains "
+            "finetune_epochs on its own rows, so it keeps what all players share (docs/mario.md)."
+        ),
+    )
+    finetune_epochs: int | None = Field(
+        None,
+        ge=0,
+        le=MAX_COUNT,
+        description=(
+            "Epochs of the agents that start from No Clustering (init no_clustering; null: epochs)."
+        ),
+    )
+    betas: tuple[float, float] = Field(
+        (0.9, 0.999), description="Adam beta1, beta2, each in [0, 1)."
+    )
+    eps: float = Field(1e-8, gt=0.0, le=1.0, description="Adam epsilon (finite, > 0).")
+    device: Literal["cpu", "cuda", "auto"] = Field(
+        "cpu",
+        description=(
+            "Where to train: 'auto' uses a GPU where there is one (the CPU with batch_size or engine "
+            "numba, which run there only); 'cuda' fails without one. Ray tasks on a GPU ask for "
+            "runner.gpus_per_task GPUs."
+        ),
+    )
+    dtype: Literal["float32", "float64"] = Field("float32", description="Training precision.")
+    engine: Literal["auto", "numba", "torch"] = Field(
+        "auto",
+        description=(
+            "'numba': fused compiled CPU kernel (fastest on CPU, float32 only); 'torch': stacked "
+            "baddbmm/bmm passes (runs on a GPU too); 'auto': numba on CPU in float32, else torch."
+        ),
+    )
+    dedupe: bool = Field(
+        True,
+        description=(
+            "Train on distinct (state, valid, action) rows weighted by their counts: same loss and "
+            "gradient as the raw rows, far fewer rows where states repeat."
+        ),
+    )
+    bucket_overhead_rows: int = Field(
+        20000,
+        ge=0,
+        le=10**12,
+        description=(
+            "Padding (in cell-rows) worth one extra bucket; 0 = one bucket per distinct row count, "
+            "very large = pad everything to the largest cell."
+        ),
+    )
+
+    @field_validator("betas")
+    @classmethod
+    def _betas(cls, v: tuple[float, float]) -> tuple[float, float]:
+        for i, b in enumerate(v):
+            if not 0.0 <= b < 1.0:
+                raise ValueError(f"Adam beta{i + 1} must lie in [0, 1), got {b}")
+        return v
+
+    @model_validator(mode="after")
+    def _batch_engine(self) -> BCConfig:
+        if self.batch_size is not None and (
+            self.engine == "torch" or self.device == "cuda" or self.dtype != "float32"
+        ):
+            raise ValueError(
+                "batch_size needs the numba engine (device cpu, dtype float32, "
+                "engine auto or numba); set batch_size: null for the others"
+            )
+        if self.engine == "numba" and (self.device == "cuda" or self.dtype != "float32"):
+            raise ValueError(
+                f"engine numba runs on the CPU in float32 only (got device {self.device}, "
+                f"dtype {self.dtype}); use engine auto or torch"
+            )
+        return self

@@ -1,0 +1,116 @@
+"""Config of Step A (section ``clustering``): the method (one of the table in
+:mod:`pcpg_dist.config.clusterers`) and the settings of its fit."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field
+
+from pcpg_dist.config.clusterers import ClusterMethod
+from pcpg_dist.config.schema import StrictModel
+
+
+class ClusterConfig(StrictModel):
+    """Step A settings. The default method, bag_auto (greedy_mix on discrete states), is the best
+    label-free clusterer on 20 held-out random GridWorld layouts and falls back to the paper's
+    lstm_dec on continuous states (see docs/clustering.md); lstm_dec stays available by name."""
+
+    method: ClusterMethod = Field(
+        "bag_auto",
+        description="lstm_dec: autoencoder + DEC loss (the paper); lstm_kmeans: k-means on "
+        "pretrained latents; summary_kmeans: k-means on length, final and mean state; "
+        "visits_kmeans: k-means (cosine) on which distinct states a trajectory visits (for "
+        "discrete-state games; no network, seconds); bag_kmeans: weighted k-means (cosine) on "
+        "distinct rows of visited states + state-actions + final state; bag_mop: a mixture of k "
+        "policies (EM) started from bag_kmeans; greedy_mix: a mixture of k greedy policies with one "
+        "uniform noise level, refined from bag_kmeans (discrete states); bag_auto: greedy_mix, "
+        "or lstm_dec where states are continuous; "
+        "policy_mix: a mixture of k neural policies (hard EM) started from k-means on the "
+        "monotone features' gain and mean, for continuous states (docs/clustering.md).",
+    )
+    k: int = Field(4, ge=1, le=1000, description="Number of clusters (play-styles).")
+    hidden_size: int = Field(
+        32, ge=1, le=1024, description="LSTM hidden units of encoder and decoder."
+    )
+    latent_size: int = Field(8, ge=1, le=512, description="Size of the latent trajectory code z.")
+    pooling: Literal["last", "last_mean"] = Field(
+        "last",
+        description="Encoder summary: the last "
+        "hidden state, or the last beside the mean hidden state over all steps.",
+    )
+    pretrain_epochs: int = Field(
+        25, ge=0, le=10_000, description="Epochs on reconstruction loss alone."
+    )
+    dec_epochs: int = Field(
+        8,
+        ge=0,
+        le=10_000,
+        description="Epochs on reconstruction + clustering loss "
+        "(lstm_dec only); the target distribution is refreshed every epoch.",
+    )
+    cluster_weight: float = Field(
+        0.1,
+        ge=0.0,
+        le=1e4,
+        description="Weight of the DEC KL term against the reconstruction MSE (IDEC's gamma).",
+    )
+    alpha: float = Field(
+        1.0, gt=0.0, le=1e3, description="Degrees of freedom of the Student-t kernel."
+    )
+    batch_size: int = Field(
+        256,
+        ge=1,
+        le=1_000_000,
+        description="Trajectories per batch (batches are cut from trajectories sorted by length).",
+    )
+    lr: float = Field(3e-3, gt=0.0, le=1.0, description="Adam learning rate.")
+    dec_tol: float = Field(
+        0.001,
+        ge=0.0,
+        le=1.0,
+        description="Stop DEC early once fewer than this "
+        "fraction of labels change between epochs (0 = run all dec_epochs).",
+    )
+    kmeans_n_init: int = Field(
+        10, ge=1, le=1000, description="k-means restarts (best inertia kept)."
+    )
+    pretrain_tol: float = Field(
+        0.0,
+        ge=0.0,
+        le=1.0,
+        description="LSTM methods: stop pretraining early once an epoch "
+        "lowers the reconstruction MSE by less than this fraction (0 = run all pretrain_epochs).",
+    )
+    device: Literal["cpu", "cuda", "auto"] = Field(
+        "cpu",
+        description="Where the neural methods (lstm_dec, lstm_kmeans, policy_mix, and "
+        "bag_auto's fallback) train: 'cpu'; 'cuda' (a GPU; an error if none); 'auto' (a GPU "
+        "where there is one). Their Ray tasks then ask for runner.gpus_per_task GPUs. The bag, "
+        "greedy and k-means methods always run on the CPU.",
+    )
+    em_iterations: int = Field(
+        10,
+        ge=1,
+        le=10_000,
+        description="policy_mix: at most this many EM rounds (policies "
+        "refitted to the labels, then every trajectory moved to its most likely policy).",
+    )
+    policy_steps: int = Field(
+        50, ge=1, le=100_000, description="policy_mix: full-batch Adam steps per EM round."
+    )
+    policy_lr: float = Field(0.01, gt=0.0, le=1.0, description="policy_mix: Adam learning rate.")
+    em_tol: float = Field(
+        0.005,
+        ge=0.0,
+        le=1.0,
+        description="policy_mix: stop once fewer than this fraction of "
+        "labels change in an EM round (0 = run all em_iterations).",
+    )
+    silhouette_sample: int = Field(
+        4000,
+        ge=2,
+        le=1_000_000,
+        description="At most this many points "
+        "(seeded sample) for the silhouette score, which is O(n^2).",
+    )
