@@ -20,8 +20,9 @@ import numpy as np
 import torch
 
 from pcpg_dist.common.devices import set_threads
+from pcpg_dist.config.stages import BCConfig
 from pcpg_dist.dataset import load_datasets
-from pcpg_dist.stages.bc import BCConfig, train_cells
+from pcpg_dist.stages.bc import train_cells
 from pcpg_dist.stages.ranking import (
     RankConfig,
     performance,

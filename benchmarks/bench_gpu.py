@@ -30,7 +30,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_clustering import datasets, minidungeons_units  # noqa: E402
 
 from pcpg_dist.common.devices import set_threads  # noqa: E402
-from pcpg_dist.stages.bc import BCConfig, train_cells  # noqa: E402
+from pcpg_dist.config.stages import BCConfig  # noqa: E402
+from pcpg_dist.stages.bc import train_cells  # noqa: E402
 from pcpg_dist.stages.clustering.cluster import ClusterConfig, cluster, clustering_metrics  # noqa: E402
 from pcpg_dist.stages.ranking import RankConfig, plan_cells, split_trajectories  # noqa: E402
 

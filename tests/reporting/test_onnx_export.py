@@ -15,9 +15,10 @@ from bc_toy import make_dataset
 
 from pcpg_dist.cli import main
 from pcpg_dist.common.errors import DataError
+from pcpg_dist.config.stages import BCConfig
 from pcpg_dist.dataset import Dataset
 from pcpg_dist.reporting.onnx_export import build_model, export_onnx, load_agents_folder
-from pcpg_dist.stages.bc import BCConfig, TrainedCells, train_cells
+from pcpg_dist.stages.bc import TrainedCells, train_cells
 from pcpg_dist.stages.ranking import RankConfig, plan_cells, split_trajectories
 
 

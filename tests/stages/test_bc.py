@@ -11,8 +11,8 @@ import torch
 from bc_toy import expert, make_dataset, rollout
 
 from pcpg_dist.common.errors import ConfigError, DataError
+from pcpg_dist.config.stages import BCConfig
 from pcpg_dist.stages.bc import (
-    BCConfig,
     TrainedCells,
     init_params,
     train_cells,
@@ -255,7 +255,7 @@ def test_device_config():
 
 
 def _resolve(name):
-    from pcpg_dist.stages.bc import resolve_device
+    from pcpg_dist.common.devices import resolve_device
 
     return resolve_device(name, "bc.device")
 

@@ -9,7 +9,8 @@ import pandas as pd
 import pytest
 from bc_toy import make_dataset, optimal_return, returns, rollout
 
-from pcpg_dist.stages.bc import BCConfig, train_cells
+from pcpg_dist.config.stages import BCConfig
+from pcpg_dist.stages.bc import train_cells
 from pcpg_dist.stages.evaluation import DomainHooks, EvalConfig, Scorer, evaluate, summarize
 from pcpg_dist.stages.ranking import RankConfig, plan_cells, split_trajectories
 

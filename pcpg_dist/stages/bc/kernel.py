@@ -1,4 +1,4 @@
-"""A fused CPU kernel that trains many tiny MLP policies at once (the CPU engine of bc.py).
+"""A fused CPU kernel that trains many tiny MLP policies at once (the numba engine of Step C).
 
 Why numba and not batched torch: for a 3x5 MLP ``torch.bmm`` over (cells, rows, 5) x (cells, 5, 5)
 runs at ~0.2 GFLOP/s on CPU and per-op overhead dominates, while one compiled loop per cell keeps

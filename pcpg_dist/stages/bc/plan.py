@@ -1,0 +1,58 @@
+"""``bc.init``: training a unit's cells in one or two rounds (from scratch, or fine-tuned from
+the No Clustering agent of the same p and seed).
+
+Why apart from :mod:`~pcpg_dist.stages.bc.train`: the runner runs the two rounds as separate
+Ray tasks and needs the split, the starting parameters and the fine-tuning settings on their own.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from pcpg_dist.common.errors import DataError
+from pcpg_dist.config.stages import BCConfig
+from pcpg_dist.stages.bc.train import train_cells
+from pcpg_dist.stages.bc.trained import TrainedCells
+from pcpg_dist.stages.ranking import Cell
+
+
+def split_for_init(cells: Sequence[Cell], cfg: BCConfig) -> tuple[list[Cell], list[Cell]]:
+    """(cells that start from their seeded init, cells that start from a No Clustering agent):
+    with ``bc.init: no_clustering`` the No Clustering cells train first, the others after."""
+    if cfg.init == "scratch":
+        return list(cells), []
+    return [c for c in cells if c.spec.kind == "nc"], [c for c in cells if c.spec.kind != "nc"]
+
+
+def init_from(cells: Sequence[Cell], base: TrainedCells) -> list[list[np.ndarray]]:
+    """Each cell's starting parameters: the No Clustering agent in ``base`` of its p and seed."""
+    table = {(s.p, s.seed): i for i, s in enumerate(base.specs) if s.kind == "nc"}
+    missing = [c.key for c in cells if (c.spec.p, c.spec.seed) not in table]
+    if missing:
+        raise DataError(
+            f"bc.init no_clustering: cell {missing[0]} has no No Clustering agent of "
+            "its p and seed to start from"
+        )
+    return [base.cell_params(table[(c.spec.p, c.spec.seed)]) for c in cells]
+
+
+def finetune_config(cfg: BCConfig) -> BCConfig:
+    """The settings of the cells that start from No Clustering (``finetune_epochs`` epochs)."""
+    return (
+        cfg
+        if cfg.finetune_epochs is None
+        else cfg.model_copy(update={"epochs": cfg.finetune_epochs})
+    )
+
+
+def train_plan(cells: Sequence[Cell], cfg: BCConfig) -> TrainedCells:
+    """Train a unit's planned cells in this process, honouring ``bc.init`` (the runner does the
+    same as two rounds of Ray tasks)."""
+    first, rest = split_for_init(cells, cfg)
+    base = train_cells(first, cfg)
+    if not rest:
+        return base
+    tuned = train_cells(rest, finetune_config(cfg), init_from(rest, base))
+    return TrainedCells.concat([base, tuned]).select([c.key for c in cells])
