@@ -12,9 +12,9 @@ import tempfile
 import time
 from pathlib import Path
 
+from pcpg_dist.api.run import run_experiment
 from pcpg_dist.config import load_config
 from pcpg_dist.orchestration.ray_pool import init_ray
-from pcpg_dist.orchestration.runner import run_experiment
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -39,9 +39,9 @@ def one(n: int) -> dict:
     import psutil
     import ray
 
+    from pcpg_dist.api.run import run_experiment
     from pcpg_dist.config import parse_config
     from pcpg_dist.orchestration.ray_pool import init_ray
-    from pcpg_dist.orchestration.runner import run_experiment
 
     cfg = parse_config({**CONFIG, "gridworld": {"random_layouts": {"count": n, "seed": 2024}}})
     init_ray()

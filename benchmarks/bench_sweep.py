@@ -19,9 +19,9 @@ import tempfile
 import time
 from pathlib import Path
 
+from pcpg_dist.api.run import run_experiment
 from pcpg_dist.config.overrides import load_config_with
 from pcpg_dist.orchestration.ray_pool import init_ray
-from pcpg_dist.orchestration.runner import run_experiment
 from pcpg_dist.orchestration.sweep import run_sweep
 
 ROOT = Path(__file__).resolve().parent.parent

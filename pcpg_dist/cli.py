@@ -32,16 +32,17 @@ def _cmd_generate(args: argparse.Namespace) -> None:
 def _check_tracking(args: argparse.Namespace) -> None:
     """Fail in seconds on a dead MLflow server, before Ray and torch start."""
     if not args.no_tracking:
-        from pcpg_dist.tracking import check_tracking_uri, default_tracking_uri
+        from pcpg_dist.tracking.connection import check_tracking_uri
+        from pcpg_dist.tracking.store import default_tracking_uri
 
         check_tracking_uri(args.tracking_uri or default_tracking_uri())
 
 
 def _cmd_run(args: argparse.Namespace) -> None:
+    from pcpg_dist.api.run import run_experiment
     from pcpg_dist.common.progress import out
     from pcpg_dist.config.overrides import load_config_with
     from pcpg_dist.orchestration.ray_pool import init_ray
-    from pcpg_dist.orchestration.runner import run_experiment
     from pcpg_dist.reporting.summary import print_summary
 
     cfg = load_config_with(args.config, args.overrides)
@@ -59,7 +60,8 @@ def _cmd_run(args: argparse.Namespace) -> None:
         result, out
     )  # results on stdout; plain print below: commands stay one copyable line
     if result.parent_run_id:
-        from pcpg_dist.tracking import default_tracking_uri, ui_link
+        from pcpg_dist.tracking.logged import ui_link
+        from pcpg_dist.tracking.store import default_tracking_uri
 
         uri = args.tracking_uri or default_tracking_uri()
         print(f"MLflow parent run: {result.parent_run_id}")
@@ -98,7 +100,8 @@ def _cmd_sweep(args: argparse.Namespace) -> None:
     print(f"table: {res.out_dir / 'summary.csv'}")
     print(f"report: {res.out_dir / 'report.html'}  ({len(res.figures)} figures)")
     if res.parent_run_id:
-        from pcpg_dist.tracking import default_tracking_uri, ui_link
+        from pcpg_dist.tracking.logged import ui_link
+        from pcpg_dist.tracking.store import default_tracking_uri
 
         uri = args.tracking_uri or default_tracking_uri()
         print(f"MLflow sweep run: {res.parent_run_id}")
@@ -173,13 +176,15 @@ def _cmd_cluster(args: argparse.Namespace) -> None:
     """Step A alone: one clustering per environment on Ray; saves models + labels."""
     import json
 
+    from pcpg_dist.common.files import atomic_write_bytes, confined
     from pcpg_dist.common.progress import out as console  # results: stdout
     from pcpg_dist.config.overrides import load_config_with
-    from pcpg_dist.dataset import atomic_write_bytes, confined, load_datasets
+    from pcpg_dist.dataset import load_datasets
     from pcpg_dist.domains import contract
     from pcpg_dist.orchestration.cache import write_files
     from pcpg_dist.orchestration.ray_pool import init_ray, node_gpus, run_tasks
-    from pcpg_dist.orchestration.runner import cluster_gpus, cluster_task, unit_cluster_gpus
+    from pcpg_dist.orchestration.resources import cluster_gpus, unit_cluster_gpus
+    from pcpg_dist.pipeline.tasks import cluster_task
     from pcpg_dist.stages.data import generate_to
 
     cfg = load_config_with(args.config, args.overrides)
@@ -224,9 +229,10 @@ def _cmd_classify(args: argparse.Namespace) -> None:
     """Label trajectories of a dataset with a fitted clustering model's styles."""
     import pandas as pd
 
+    from pcpg_dist.common.files import atomic_write_bytes
     from pcpg_dist.common.progress import out as console  # results: stdout
     from pcpg_dist.common.run_folders import check_outside_run
-    from pcpg_dist.dataset import atomic_write_bytes, load_dataset
+    from pcpg_dist.dataset import load_dataset
     from pcpg_dist.stages.clustering.cluster import clustering_metrics, load_model
 
     # by default into the current folder: the dataset's folder may be a signed `pcpg generate` output
@@ -344,7 +350,7 @@ def trial_counts(counts: dict[str, int]) -> str:
 def _cmd_export(args: argparse.Namespace) -> None:
     """`pcpg export FORMAT`: each format's code lives in its own module."""
     if args.what == "onnx":
-        from pcpg_dist.reporting.onnx_export import cli_export_onnx
+        from pcpg_dist.api.export import cli_export_onnx
 
         cli_export_onnx(args)
     elif args.what == "minari":

@@ -9,34 +9,17 @@ published. Only the driver writes here: tasks return their files as bytes (:func
 
 from __future__ import annotations
 
-import hashlib
 import json
 import shutil
 from pathlib import Path
 from typing import Any
 
 from pcpg_dist.common.errors import DataError
-from pcpg_dist.dataset import atomic_write_bytes, confined, sha256_file
+from pcpg_dist.common.file_bytes import files_of, write_files  # noqa: F401 (the cache's own API)
+from pcpg_dist.common.files import atomic_write_bytes, sha256_file
+from pcpg_dist.common.keys import content_key  # noqa: F401 (the cache's own API)
 
 DONE = "done.json"
-
-
-def content_key(*parts: Any) -> str:
-    """A short stable hash of JSON-able parts (pydantic models are dumped first)."""
-
-    def norm(x: Any) -> Any:
-        if hasattr(x, "model_dump"):
-            return x.model_dump(mode="json")
-        if isinstance(x, Path):
-            return str(x)
-        if isinstance(x, dict):
-            return {str(k): norm(v) for k, v in x.items()}
-        if isinstance(x, list | tuple):
-            return [norm(v) for v in x]
-        return x
-
-    blob = json.dumps([norm(p) for p in parts], sort_keys=True, default=str)
-    return hashlib.sha256(blob.encode()).hexdigest()[:20]
 
 
 def _listing(folder: Path) -> dict[str, list]:
@@ -46,26 +29,6 @@ def _listing(folder: Path) -> dict[str, list]:
         for p in sorted(folder.rglob("*"))
         if p.is_file() and p.name != DONE
     }
-
-
-def files_of(folder: str | Path) -> dict[str, bytes]:
-    """Every file under ``folder`` as ``relative path -> bytes`` (what a task returns)."""
-    folder = Path(folder)
-    return {
-        p.relative_to(folder).as_posix(): p.read_bytes()
-        for p in sorted(folder.rglob("*"))
-        if p.is_file()
-    }
-
-
-def write_files(folder: Path, files: dict[str, bytes]) -> None:
-    """Write a task's returned files under ``folder``; a name that would leave it is refused."""
-    for rel, blob in files.items():
-        target = folder
-        for part in rel.split("/"):
-            target = confined(target, part, "result file")
-        target.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write_bytes(target, blob)
 
 
 class Cache:

@@ -136,7 +136,7 @@ def code_notes(run: dict, cfg) -> list[str]:
     ]
     if changed:
         notes.append("package versions changed: " + ", ".join(changed))
-    from pcpg_dist.orchestration.runner import CODE_VERSION
+    from pcpg_dist.pipeline.declared import CODE_VERSION
 
     if str(run.get("code_version", CODE_VERSION)) != str(CODE_VERSION):
         notes.append(
@@ -156,7 +156,7 @@ def input_note(run: dict, cfg) -> tuple[str | None, bool]:
     surely does not. None when the keys agree or the run predates the record. The key holds the
     domain's settings as well as its files' digests, so where the config's hash changed too (a
     setting added to the schema since), a different key is said but not taken for changed data."""
-    from pcpg_dist.orchestration.runner import input_key
+    from pcpg_dist.pipeline.declared import input_key
 
     logged = run.get("input_key")
     if logged is None:
@@ -186,7 +186,7 @@ def reproduce(
 ) -> Reproduction:
     """Rerun the run recorded in ``summary`` (Ray initialised by the caller) and compare;
     ``source``: what the user named (a run id, a folder) for the new run's recorded command."""
-    from pcpg_dist.orchestration.runner import run_experiment
+    from pcpg_dist.api.run import run_experiment
 
     summary = Path(summary)
     run = read_run(summary / "run.json")

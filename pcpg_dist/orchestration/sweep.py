@@ -37,8 +37,8 @@ from pathlib import Path
 from typing import Any
 
 from pcpg_dist.common.errors import ConfigError, DataError
+from pcpg_dist.common.files import atomic_write_bytes
 from pcpg_dist.config.overrides import apply_overrides, parse_overrides, read_raw, sweep_points
-from pcpg_dist.dataset import atomic_write_bytes
 
 STD = "/std"
 SWEEP_JSON = (
@@ -126,7 +126,7 @@ def best_points(
     """The sweep run's headline: ``best/<metric>`` for clustering accuracy, PCPG accuracy at the
     largest p and PCPG's lead at the smallest p, and for each the point that has it (its MLflow
     run name; ``(+n tied)`` when other points have the same value)."""
-    from pcpg_dist.tracking import point_label
+    from pcpg_dist.tracking.runs import point_label
 
     ps = _p_keys(rows)
     keys = [
@@ -190,7 +190,7 @@ def _run_finished(uri: str | None, run_id: Any) -> bool:
     from mlflow import MlflowClient
     from mlflow.exceptions import MlflowException
 
-    from pcpg_dist.tracking import default_tracking_uri
+    from pcpg_dist.tracking.store import default_tracking_uri
 
     try:
         info = MlflowClient(uri or default_tracking_uri()).get_run(run_id).info
@@ -225,7 +225,7 @@ def plan_sweep(
 ) -> SweepPlan:
     """Validate the sweep (every point's config) and name its points' folders; nothing runs."""
     from pcpg_dist.config.experiment import parse_config
-    from pcpg_dist.orchestration.runner import Point
+    from pcpg_dist.orchestration.points import Point
 
     config = Path(config)
     raw, section = read_raw(config)
@@ -273,6 +273,7 @@ def run_sweep(
     command: str = "",
 ) -> SweepResult:
     """Run (or resume) a sweep over ``axes_args`` (``KEY=v1,v2``) and the file's ``sweep:`` section."""
+    from pcpg_dist.api.hooks import OutputsAndTracking
     from pcpg_dist.orchestration.runner import run_points
 
     t0 = time.perf_counter()
@@ -288,7 +289,7 @@ def run_sweep(
     description = plan.description
     tracker = None
     if track:
-        from pcpg_dist.tracking import SweepTracker
+        from pcpg_dist.tracking.trackers import SweepTracker
 
         sweep_key = hashlib.sha256(
             json.dumps([base.hash(), [[_describe(c)] for c in combos]], sort_keys=True).encode()
@@ -301,10 +302,10 @@ def run_sweep(
             run_points(
                 todo,
                 root / "cache",
-                tracking_uri=tracking_uri,
-                track=track,
+                hooks=OutputsAndTracking(
+                    tracking_uri, track, show_progress, tracker.parent_id if tracker else None
+                ),
                 show_progress=show_progress,
-                sweep_parent_id=tracker.parent_id if tracker else None,
             )
             if todo
             else []
@@ -465,7 +466,7 @@ def draw_sweep(out: Path, axes: dict[str, list], rows: list[dict[str, Any]]) -> 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from pcpg_dist.tracking import short_keys
+    from pcpg_dist.tracking.runs import short_keys
 
     metrics = [
         k
@@ -567,7 +568,7 @@ def draw_sweep(out: Path, axes: dict[str, list], rows: list[dict[str, Any]]) -> 
 
 def read_sweep_record(folder: Path) -> dict[str, Any]:
     """``sweep.json`` of a sweep folder, its fields checked (one line naming the file and field)."""
-    from pcpg_dist.reporting.report_data import read_json
+    from pcpg_dist.common.files import read_json
 
     path = Path(folder) / SWEEP_JSON
     if not path.is_file():

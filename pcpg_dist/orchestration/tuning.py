@@ -109,7 +109,7 @@ def apply_params(cfg: ExperimentConfig, params: dict[str, int]) -> ExperimentCon
 def objective_key(cfg: ExperimentConfig, tune: TuneConfig) -> str:
     """Everything that changes a trial's numbers; a study is only resumed with the same key."""
     from pcpg_dist.orchestration.cache import content_key
-    from pcpg_dist.orchestration.runner import CODE_VERSION, data_key
+    from pcpg_dist.pipeline.declared import CODE_VERSION, data_key
 
     space = tune.model_dump(
         exclude={
@@ -435,8 +435,9 @@ def run_study(
 
     from pcpg_dist.common.progress import progress_bar
     from pcpg_dist.orchestration.cache import Cache
+    from pcpg_dist.orchestration.points import load_units
     from pcpg_dist.orchestration.ray_pool import node_gpus
-    from pcpg_dist.orchestration.runner import bc_gpus, cluster_gpus, load_units
+    from pcpg_dist.orchestration.resources import bc_gpus, cluster_gpus
 
     tune = tune_settings(cfg, n_trials)
     # a trial clusters and trains: it asks for a GPU where either stage runs on one (a setting no
@@ -691,8 +692,8 @@ def write_outputs(
     """``best_config.yaml`` (checked by loading it back), ``trials.csv`` and ``score_vs_k.png``."""
     import yaml
 
+    from pcpg_dist.common.files import atomic_write_bytes
     from pcpg_dist.config import load_config
-    from pcpg_dist.dataset import atomic_write_bytes
 
     out.mkdir(parents=True, exist_ok=True)
     path = out / "best_config.yaml"
@@ -759,7 +760,9 @@ class StudyTracker:
     def start(
         cfg: ExperimentConfig, study_name: str, storage: str, uri: str | None, study: Any
     ) -> StudyTracker:
-        from pcpg_dist.tracking import ROLE, _retry, open_experiment
+        from pcpg_dist.tracking.connection import _retry
+        from pcpg_dist.tracking.runs import open_experiment
+        from pcpg_dist.tracking.tags import ROLE
 
         uri, client, exp_id = open_experiment(cfg.name, uri)
         found = _retry(
@@ -790,7 +793,9 @@ class StudyTracker:
         """A child run for every finished trial not logged yet (so a crash never loses one)."""
         from optuna.trial import TrialState
 
-        from pcpg_dist.tracking import ROLE, _client, _log_metrics, _log_params, _retry
+        from pcpg_dist.tracking.connection import _client, _retry
+        from pcpg_dist.tracking.logged import _log_metrics, _log_params
+        from pcpg_dist.tracking.tags import ROLE
 
         client = _client(self.uri)
         for t in study.get_trials(
@@ -827,7 +832,8 @@ class StudyTracker:
             self.logged.add(t.number)
 
     def finish(self, result: TuneResult) -> None:
-        from pcpg_dist.tracking import _client, _log_metrics, _retry
+        from pcpg_dist.tracking.connection import _client, _retry
+        from pcpg_dist.tracking.logged import _log_metrics
 
         client = _client(self.uri)
         _log_metrics(
@@ -845,7 +851,7 @@ class StudyTracker:
 
     def fail(self, status: str = "KILLED") -> None:
         """Mark the study's run ended: KILLED when interrupted, FAILED when no trial completed."""
-        from pcpg_dist.tracking import _client, _retry
+        from pcpg_dist.tracking.connection import _client, _retry
 
         with contextlib.suppress(Exception):  # best effort while already failing
             _retry(_client(self.uri).set_terminated, self.parent_id, status, attempts=2)

@@ -17,9 +17,9 @@ import psutil
 import pytest
 import yaml
 
+from pcpg_dist.api.run import run_experiment
 from pcpg_dist.cli import main
 from pcpg_dist.config import load_config
-from pcpg_dist.orchestration.runner import run_experiment
 
 ROOT = Path(__file__).resolve().parents[2]
 

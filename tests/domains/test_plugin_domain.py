@@ -351,13 +351,13 @@ def test_broken_plugin_fails_in_one_line_before_clustering(
     """A plugin whose generate, units, score or hooks is broken stops `pcpg run` with one line
     naming the domain, the method and what it returned (or raised), before any Ray task starts:
     no clustering, nothing written but the generated data's cache entry."""
-    import pcpg_dist.orchestration.runner as runner
+    from pcpg_dist.orchestration.runner import Batch
 
     methods, says = BEFORE_CLUSTERING[fault]
     monkeypatch.setitem(registry._loaded, "corridor", broken_corridor(**methods))
     stages = []
     monkeypatch.setattr(
-        runner, "_run_stage", lambda description, *a, **k: stages.append(description) or 0
+        Batch, "run_jobs", lambda self, stage, *a, **k: stages.append(stage.description) or 0
     )
     work = tmp_path / "w"
     code, err = run_cli(

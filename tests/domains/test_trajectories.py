@@ -520,7 +520,7 @@ def test_own_logs_end_to_end_with_gymnasium_rollouts(ray_session, tmp_path) -> N
     """Four clear styles on FrozenLake 8x8, never used to choose anything: clustering within 3
     points of the supervised ceiling, PCPG above No Clustering at p = 1, agents rolled out in the
     real Gymnasium env."""
-    from pcpg_dist.orchestration.runner import run_experiment
+    from pcpg_dist.api.run import run_experiment
 
     path = tmp_path / "lake.parquet"
     frozenlake_logs(per_style=150, seed=7).to_parquet(path, index=False)
@@ -609,7 +609,7 @@ def test_a_minari_path_that_is_not_an_id_is_refused_at_load_before_any_folder_is
 
 def test_a_huge_action_number_is_refused_before_its_mask_is_built(tmp_path, monkeypatch) -> None:
     """One action 999999 in a 26 KB table made a (rows x 10^6) mask: 23.5 GB, then a silent kill."""
-    import pcpg_dist.config.stages as stages
+    import pcpg_dist.common.memory as stages
 
     monkeypatch.setattr(stages, "machine_memory", lambda: 8 << 30)  # the same answer on any machine
     df = tiny_table(n_traj=400)

@@ -15,9 +15,9 @@ import pandas as pd
 import pytest
 import yaml
 
+from pcpg_dist.api.run import run_experiment
 from pcpg_dist.config import load_config
 from pcpg_dist.domains.mario import log as mario
-from pcpg_dist.orchestration.runner import run_experiment
 from pcpg_dist.stages.data import generate, units
 from tests.reference.configs import small_mario_log
 

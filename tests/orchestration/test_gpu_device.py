@@ -77,7 +77,7 @@ def test_only_a_clustering_that_trains_a_network_asks_for_a_gpu():
     from test_policy_mix import goal_seekers
 
     from pcpg_dist.dataset import Dataset
-    from pcpg_dist.orchestration.runner import trains_a_network
+    from pcpg_dist.orchestration.resources import trains_a_network
 
     continuous = goal_seekers(5, seed=0)
     rng = np.random.default_rng(0)
@@ -115,8 +115,8 @@ def test_run_on_cuda_without_a_gpu_is_refused_before_anything_starts(ray_session
     import yaml
     from test_runner import TINY
 
+    from pcpg_dist.api.run import run_experiment
     from pcpg_dist.config import load_config
-    from pcpg_dist.orchestration.runner import run_experiment
 
     path = tmp_path / "tiny.yaml"
     path.write_text(

@@ -8,7 +8,7 @@ import pandas as pd
 
 from pcpg_dist.config import parse_config
 from pcpg_dist.orchestration.cache import Cache
-from pcpg_dist.orchestration.runner import load_units
+from pcpg_dist.orchestration.points import load_units
 
 
 def test_a_log_with_some_unknown_styles_says_what_is_left_out(tmp_path, caplog):
@@ -59,7 +59,8 @@ def test_pcpg_run_says_it_too(ray_session, tmp_path, caplog, monkeypatch):
     """The warning lived in load_units, which `pcpg run` and sweeps do not call: they were silent."""
     import pytest
 
-    import pcpg_dist.orchestration.runner as runner
+    from pcpg_dist.api.run import run_experiment
+    from pcpg_dist.orchestration.runner import Batch
 
     class Stop(Exception):
         pass
@@ -81,10 +82,10 @@ def test_pcpg_run_says_it_too(ray_session, tmp_path, caplog, monkeypatch):
         source="partial",
     )
     monkeypatch.setattr(
-        runner, "_run_stage", lambda *a, **k: (_ for _ in ()).throw(Stop())
+        Batch, "run_jobs", lambda *a, **k: (_ for _ in ()).throw(Stop())
     )  # stop at Step A
     with caplog.at_level(logging.WARNING, logger="pcpg_dist"), pytest.raises(Stop):
-        runner.run_experiment(cfg, workdir=tmp_path / "runs", track=False, show_progress=False)
+        run_experiment(cfg, workdir=tmp_path / "runs", track=False, show_progress=False)
     assert [r.getMessage().split(":")[1] for r in caplog.records] == [
         " 1 of 4 trajectories have style -1 (unknown)"
     ]

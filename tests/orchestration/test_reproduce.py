@@ -32,7 +32,7 @@ TINY = {
 
 @pytest.fixture(scope="module")
 def logged_run(ray_session, tmp_path_factory) -> Path:
-    from pcpg_dist.orchestration.runner import run_experiment
+    from pcpg_dist.api.run import run_experiment
 
     cfg = parse_config(TINY, source="tiny")
     work = tmp_path_factory.mktemp("logged")
@@ -174,7 +174,7 @@ def test_an_edited_log_is_not_reproduced_even_where_the_metrics_match(tmp_path, 
     import pandas as pd
 
     from pcpg_dist.orchestration.reproduce import input_note
-    from pcpg_dist.orchestration.runner import input_key
+    from pcpg_dist.pipeline.declared import input_key
 
     log = tmp_path / "logs.parquet"
     table = pd.DataFrame(

@@ -11,8 +11,8 @@ import pandas as pd
 import pytest
 import yaml
 
+from pcpg_dist.api.run import run_experiment
 from pcpg_dist.config import load_config
-from pcpg_dist.orchestration.runner import run_experiment
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -167,19 +167,19 @@ def test_interrupted_sweep_resumes_with_same_metrics(first_run, tiny_cfg, monkey
     """Kill the sweep inside evaluation (after training finished); the rerun resumes from there."""
     from mlflow import MlflowClient
 
-    import pcpg_dist.orchestration.runner as runner
+    import pcpg_dist.pipeline.tasks as tasks
 
     work, uri, result = first_run
     uri2 = f"sqlite:///{work / 'mlflow2.db'}"
-    real = runner.evaluate_task
+    real = tasks.evaluate_task
 
     def dying(*args, **kwargs):
         raise RuntimeError("simulated crash in the evaluation stage")
 
-    monkeypatch.setattr(runner, "evaluate_task", dying)
+    monkeypatch.setattr(tasks, "evaluate_task", dying)
     with pytest.raises(RuntimeError, match="simulated crash"):
         run_experiment(tiny_cfg, workdir=work / "runs2", tracking_uri=uri2, show_progress=False)
-    monkeypatch.setattr(runner, "evaluate_task", real)
+    monkeypatch.setattr(tasks, "evaluate_task", real)
     client = MlflowClient(uri2)
     exp = client.get_experiment_by_name("tiny")
     assert [r.info.status for r in client.search_runs([exp.experiment_id])] == ["KILLED"]
@@ -271,7 +271,7 @@ def test_the_summary_says_which_stages_came_from_the_cache(tmp_path):
 
     from rich.console import Console
 
-    from pcpg_dist.orchestration.runner import RunResult
+    from pcpg_dist.orchestration.points import RunResult
     from pcpg_dist.reporting.summary import print_summary
 
     def printed(**kw) -> str:
@@ -309,12 +309,12 @@ def test_a_failure_that_is_not_bad_input_leaves_no_empty_run_folder(
 ):
     """Before anything is cached, any failure (here the disk, an OSError; was: only pcpg's own
     errors) removes the folders and the lock file the run created."""
-    import pcpg_dist.orchestration.runner as runner
+    import pcpg_dist.orchestration.points as points
 
     def disk_full(*args, **kwargs):
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(runner, "load_or_generate", disk_full)
+    monkeypatch.setattr(points, "load_or_generate", disk_full)
     with pytest.raises(OSError, match="No space"):
         run_experiment(tiny_cfg, workdir=tmp_path / "runs", track=False, show_progress=False)
     assert not (tmp_path / "runs").exists()

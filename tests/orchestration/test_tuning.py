@@ -359,7 +359,7 @@ def test_small_study_writes_best_config_and_mlflow_children(ray_session, tmp_pat
     assert 0.3 < m["pcpg_accuracy"] <= 1.0 and "E1/ari" in m
 
     # `pcpg run` of the best config in the study's folder reuses the data the study cached
-    from pcpg_dist.orchestration.runner import run_experiment
+    from pcpg_dist.api.run import run_experiment
 
     ran = run_experiment(best, workdir=workdir, track=False, show_progress=False)
     assert ran.out_dir == workdir.resolve() / "tinytune"

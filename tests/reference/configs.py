@@ -97,8 +97,8 @@ def run_all(work: Path) -> dict[str, dict[str, float]]:
     """Every reference config through `pcpg run` (no tracking); metrics without timings."""
     import yaml
 
+    from pcpg_dist.api.run import run_experiment
     from pcpg_dist.config import load_config
-    from pcpg_dist.orchestration.runner import run_experiment
 
     work.mkdir(parents=True, exist_ok=True)
     raws = {

@@ -25,9 +25,10 @@ from pathlib import Path
 import pytest
 
 from pcpg_dist.config import load_config
-from pcpg_dist.orchestration.runner import RunResult
+from pcpg_dist.orchestration.points import RunResult
 from pcpg_dist.stages import figures
-from pcpg_dist.tracking import Tracker, log_environment, ui_link
+from pcpg_dist.tracking.logged import ui_link
+from pcpg_dist.tracking.trackers import Tracker, log_environment
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = Path(__file__).parents[1] / "data" / "report_summary"
@@ -35,7 +36,7 @@ ARTIFACTS = (
     Path(os.environ.get("PCPG_TEST_ARTIFACTS", ROOT / "outputs" / "test-artifacts")) / "mlflow_ui"
 )
 WIDTH = 1280
-ML = "workflowType=machine_learning"  # MLflow 3.17's UI switch for classic ML pages (see tracking.ui_link)
+ML = "workflowType=machine_learning"  # MLflow 3.17's UI switch for classic ML pages (see tracking.logged.ui_link)
 
 pytestmark = pytest.mark.slow
 

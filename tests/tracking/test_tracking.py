@@ -20,19 +20,16 @@ import pytest
 
 from pcpg_dist.common.errors import ServiceError
 from pcpg_dist.config import load_config
-from pcpg_dist.orchestration.runner import RunResult
-from pcpg_dist.tracking import (
-    EXPERIMENT_KIND,
-    MAX_PARENT_METRICS,
-    SweepTracker,
-    Tracker,
+from pcpg_dist.orchestration.points import RunResult
+from pcpg_dist.tracking.runs import (
     find_run,
-    log_environment,
     open_experiment,
     point_label,
     short_keys,
     sweep_points_of,
 )
+from pcpg_dist.tracking.tags import EXPERIMENT_KIND, MAX_PARENT_METRICS
+from pcpg_dist.tracking.trackers import SweepTracker, Tracker, log_environment
 
 ROOT = Path(__file__).resolve().parents[2]
 REFERENCE = json.loads((ROOT / "tests" / "reference" / "metrics.json").read_text())["gridworld"]
@@ -340,11 +337,11 @@ def test_damaged_store_with_runs_is_one_line(cfg, tmp_path):
     con.execute("UPDATE alembic_version SET version_num = 'not_a_revision'")
     con.commit()
     con.close()
-    import pcpg_dist.tracking as tracking
+    from pcpg_dist.tracking import store
 
-    tracking._prepared.discard(uri)  # a new process would check again
+    store._prepared.discard(uri)  # a new process would check again
     with pytest.raises(ServiceError) as err:
-        tracking.prepare_store(uri)
+        store.prepare_store(uri)
     msg = str(err.value)
     assert "\n" not in msg and str(db) in msg and "1 runs" in msg
     assert list(tmp_path.glob("mlflow.db.backup-*"))
@@ -544,7 +541,7 @@ def test_parent_budget_keeps_every_p_and_the_clustering_trio_and_drops_duplicate
     """quick.yaml's parent (ps 1, 0.5, 0.1) logged `pcpg/accuracy/p0.1` but not `baseline/accuracy/p0.1`
     (the budget had gone to `corruption/baseline/accuracy`, equal to `baseline/accuracy/p1`, and to
     timings); a sweep's point logged the whole sweep's stage times as its own."""
-    from pcpg_dist.tracking import parent_metrics
+    from pcpg_dist.tracking.logged import parent_metrics
 
     result = make_result(tmp_path)
     m = result.metrics
@@ -634,7 +631,7 @@ def test_written_files_follow_the_umask(tmp_path):
     """atomic_write_bytes (every table, manifest and run.json) no longer leaves 0600 files."""
     import os
 
-    from pcpg_dist.dataset import FILE_MODE, atomic_write_bytes
+    from pcpg_dist.common.files import FILE_MODE, atomic_write_bytes
 
     atomic_write_bytes(tmp_path / "x.json", b"{}")
     mask = os.umask(0o022)
@@ -811,7 +808,7 @@ def _binary_server() -> str:
 
 
 def test_a_failed_calls_reason_is_its_os_error_not_urllib3s_paragraph():
-    from pcpg_dist.tracking import _reason
+    from pcpg_dist.tracking.connection import _reason
 
     text = (
         "API request to endpoint /api/2.0/mlflow/runs/get failed with exception HTTPConnectionPool(host="
@@ -863,16 +860,16 @@ class _Counting:
 def test_a_server_that_hangs_is_reported_after_one_call_not_five(monkeypatch):
     """A server that takes connections and never answers cost every call MLflow's timeout x its
     tries, five times over (~30 min at the defaults); now one call and a /health probe."""
-    from pcpg_dist import tracking
+    from pcpg_dist.tracking import connection
 
     monkeypatch.setenv("MLFLOW_HTTP_REQUEST_TIMEOUT", "1")
     monkeypatch.setenv("MLFLOW_HTTP_REQUEST_BACKOFF_FACTOR", "0")
-    monkeypatch.setattr(tracking, "HEALTH_TIMEOUT", 1.0)
+    monkeypatch.setattr(connection, "HEALTH_TIMEOUT", 1.0)
     server = _Silent()
     try:
         client = _Counting(server.uri)
         with pytest.raises(ServiceError) as e:
-            tracking._retry(client.get_experiment_by_name, "x")
+            connection._retry(client.get_experiment_by_name, "x")
         assert client.calls == 1
         tries = 1 + int(os.environ["MLFLOW_HTTP_REQUEST_MAX_RETRIES"])  # MLflow's own, per call
         assert (
@@ -890,14 +887,14 @@ def test_a_server_that_refuses_is_still_retried(monkeypatch):
     """Refused connections are a restart, not a hang: all five attempts are made."""
     import socket
 
-    from pcpg_dist import tracking
+    from pcpg_dist.tracking import connection
 
     with socket.socket() as s:  # a free port with nothing listening
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     monkeypatch.setenv("MLFLOW_HTTP_REQUEST_BACKOFF_FACTOR", "0")
-    monkeypatch.setattr(tracking.time, "sleep", lambda s: None)
+    monkeypatch.setattr(connection.time, "sleep", lambda s: None)
     client = _Counting(f"http://127.0.0.1:{port}")
     with pytest.raises(ServiceError, match="failed"):
-        tracking._retry(client.get_experiment_by_name, "x")
+        connection._retry(client.get_experiment_by_name, "x")
     assert client.calls == 5

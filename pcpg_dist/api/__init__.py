@@ -1,0 +1,1 @@
+"""The api layer: what a command does, composed of the runner, tracking and reporting."""
