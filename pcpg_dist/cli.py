@@ -116,7 +116,7 @@ def _print_points(res) -> None:
     from rich.table import Table
 
     from pcpg_dist.common.progress import out as console
-    from pcpg_dist.orchestration.sweep import ps_of
+    from pcpg_dist.reporting.sweep_files import ps_of
 
     keys = {k for r in res.rows for k in r}
     ps = ps_of(keys)
@@ -143,12 +143,13 @@ def _print_points(res) -> None:
 
 
 def _cmd_report(args: argparse.Namespace) -> None:
+    from pcpg_dist.api.report import resolve
     from pcpg_dist.common.progress import out as console  # results: stdout
-    from pcpg_dist.reporting.report import render, resolve
+    from pcpg_dist.reporting.report import render
 
     source = resolve(args.target, args.tracking_uri, Path(args.workdir))
     if source.kind == "sweep":  # a sweep's page: its points and figures (HTML only)
-        from pcpg_dist.orchestration.sweep import render_sweep_report
+        from pcpg_dist.reporting.sweep_page import render_sweep_report
 
         out = Path(args.out) if args.out else source.folder
         html_path = render_sweep_report(source.folder, out)
@@ -158,7 +159,7 @@ def _cmd_report(args: argparse.Namespace) -> None:
         html_path, md_path = render(source.folder, out, reproduce_target=source.run_id)
         console.print(f"report: {html_path}\nmarkdown: {md_path}")
     if args.pdf:
-        from pcpg_dist.reporting.report import export_pdf
+        from pcpg_dist.reporting.pdf import export_pdf
 
         console.print(f"pdf: {export_pdf(html_path)}")
 
@@ -174,55 +175,23 @@ def _cmd_reproduce(args: argparse.Namespace) -> None:
 
 def _cmd_cluster(args: argparse.Namespace) -> None:
     """Step A alone: one clustering per environment on Ray; saves models + labels."""
-    import json
-
-    from pcpg_dist.common.files import atomic_write_bytes, confined
+    from pcpg_dist.api.cluster import cluster
+    from pcpg_dist.common.files import confined
     from pcpg_dist.common.progress import out as console  # results: stdout
     from pcpg_dist.config.overrides import load_config_with
-    from pcpg_dist.dataset import load_datasets
-    from pcpg_dist.domains import contract
-    from pcpg_dist.orchestration.cache import write_files
-    from pcpg_dist.orchestration.ray_pool import init_ray, node_gpus, run_tasks
-    from pcpg_dist.orchestration.resources import cluster_gpus, unit_cluster_gpus
-    from pcpg_dist.pipeline.tasks import cluster_task
-    from pcpg_dist.stages.data import generate_to
+    from pcpg_dist.orchestration.ray_pool import init_ray
 
     cfg = load_config_with(args.config, args.overrides)
     init_ray(args.ray_address)
-    gpus = cluster_gpus(cfg, node_gpus())  # a GPU setting no node can serve fails before any work
     out = Path(args.out)
-    if args.data:
-        datasets = load_datasets(Path(args.data))
-    else:
-        datasets = generate_to(cfg, out / "data", show_progress=not args.quiet)
-    # the same units (split, per-level scaling, valid sets) as `pcpg run` clusters
-    units = {u.name: u for u in contract.units(cfg, datasets)}
-    envs = list(units)
-    folders = {e: confined(out, e, "unit name") for e in envs}
-    results = run_tasks(
-        cluster_task,
-        [(units[e], cfg.clustering, cfg.seed, cfg.runner.cpus_per_task) for e in envs],
-        "Step A: clustering",
-        num_cpus=cfg.runner.cpus_per_task,
-        show_progress=not args.quiet,
-        num_gpus=[unit_cluster_gpus(gpus, cfg.clustering, units[e].clustered) for e in envs],
-    )
-    for env, res in zip(envs, results, strict=True):
-        write_files(folders[env] / "model", res["model"])
-        atomic_write_bytes(folders[env] / "labels.json", json.dumps(res["labels"]).encode())
-        if res["margins"] is not None:  # nats to the next-best cluster (a likelihood clusterer)
-            atomic_write_bytes(folders[env] / "margins.json", json.dumps(res["margins"]).encode())
-        else:  # never an earlier clustering's margins beside these labels
-            (folders[env] / "margins.json").unlink(missing_ok=True)
-        atomic_write_bytes(
-            folders[env] / "metrics.json", json.dumps(res["metrics"], indent=1).encode()
-        )
+    results = cluster(cfg, out, Path(args.data) if args.data else None, not args.quiet)
+    for env, res in results.items():
         shown = ", ".join(
             f"{k.split('/')[1]} {v:.3f}"
             for k, v in res["metrics"].items()
             if k.split("/")[1] in ("ari", "nmi", "accuracy", "silhouette", "fit_seconds")
         )
-        console.print(f"{env}: {shown}  model: {folders[env] / 'model'}")
+        console.print(f"{env}: {shown}  model: {confined(out, env, 'unit name') / 'model'}")
 
 
 def _cmd_classify(args: argparse.Namespace) -> None:
@@ -233,7 +202,7 @@ def _cmd_classify(args: argparse.Namespace) -> None:
     from pcpg_dist.common.progress import out as console  # results: stdout
     from pcpg_dist.common.run_folders import check_outside_run
     from pcpg_dist.dataset import load_dataset
-    from pcpg_dist.stages.clustering.cluster import clustering_metrics, load_model
+    from pcpg_dist.stages.clustering import clustering_metrics, load_model
 
     # by default into the current folder: the dataset's folder may be a signed `pcpg generate` output
     out = Path(args.out) if args.out else Path(Path(args.dataset).stem + ".styles.csv")

@@ -360,3 +360,20 @@ def test_reproduce_by_mlflow_run_id_downloads_to_a_private_folder_it_removes(
     assert list(private.iterdir()) == []
     redone = json.loads(next(fresh.glob("*/summary/run.json")).read_text())
     assert redone["command"] == f"pcpg reproduce {parent.info.run_id}"
+
+
+@pytest.mark.slow
+def test_the_in_process_executor_gives_the_ray_runs_numbers(first_run, tiny_cfg, tmp_path):
+    """The runner runs the same declared pipeline through either executor: same numbers."""
+    from pcpg_dist.orchestration.executors import LocalExecutor
+
+    _, _, on_ray = first_run
+    here = run_experiment(
+        tiny_cfg,
+        workdir=tmp_path / "runs",
+        track=False,
+        show_progress=False,
+        executor=LocalExecutor(),
+    )
+    assert results_only(here.metrics) == results_only(on_ray.metrics)
+    assert here.computed == {"data": 1, "clustering": 1, "train_groups": 1, "evaluations": 1}
