@@ -166,7 +166,7 @@ def _cmd_report(args: argparse.Namespace) -> None:
 
 def _cmd_reproduce(args: argparse.Namespace) -> None:
     """Rerun a logged run in a fresh folder; exit 1 when some metric differs."""
-    from pcpg_dist.orchestration.reproduce import cli_reproduce
+    from pcpg_dist.api.reproduce import cli_reproduce
 
     code = cli_reproduce(args)
     if code:

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from pcpg_dist.config import parse_config
-from pcpg_dist.orchestration.reproduce import Reproduction, compare_metrics, print_reproduction
+from pcpg_dist.api.reproduce import Reproduction, compare_metrics, print_reproduction
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -173,7 +173,7 @@ def test_an_edited_log_is_not_reproduced_even_where_the_metrics_match(tmp_path, 
     exact): the change did not move a metric, but the rerun read other data than the run."""
     import pandas as pd
 
-    from pcpg_dist.orchestration.reproduce import input_note
+    from pcpg_dist.api.reproduce import input_note
     from pcpg_dist.pipeline.declared import input_key
 
     log = tmp_path / "logs.parquet"

@@ -246,8 +246,8 @@ def print_reproduction(rep: Reproduction, file: TextIO | None = None) -> None:
 
 def cli_reproduce(args) -> int:
     """`pcpg reproduce RUN`: exit 0 when every metric matches, 1 when some differ."""
+    from pcpg_dist.api.report import resolve_summary
     from pcpg_dist.orchestration.ray_pool import init_ray
-    from pcpg_dist.reporting.report import resolve_summary
 
     if (
         args.rtol < 0
