@@ -9,9 +9,10 @@ import pandas as pd
 import pytest
 from bc_toy import make_dataset, optimal_return, returns, rollout
 
-from pcpg_dist.config.stages import BCConfig
+from pcpg_dist.config.stages import BCConfig, EvalConfig
+from pcpg_dist.domains.base import DomainHooks
 from pcpg_dist.stages.bc import train_cells
-from pcpg_dist.stages.evaluation import DomainHooks, EvalConfig, Scorer, evaluate, summarize
+from pcpg_dist.stages.evaluation import Scorer, evaluate, summarize
 from pcpg_dist.stages.ranking import RankConfig, plan_cells, split_trajectories
 
 # With k = 2, "wrong" labels at c = 0.5 are a fully random labelling: the clearest check.
@@ -191,7 +192,8 @@ def test_table_4_covers_the_clusters_that_have_agents(tmp_path):
 def test_rollout_tables_and_metrics_give_one_std():
     """The rollout CSVs (and the report, which reads them) and metrics.json (MLflow) quote one
     std for one figure: over seeds, ddof 0 (the CSVs had pandas' ddof 1, sqrt(4/3) larger)."""
-    from pcpg_dist.stages.evaluation import _mean_std, over_seeds
+    from pcpg_dist.stages.evaluation import over_seeds
+    from pcpg_dist.stages.evaluation.results import mean_std
 
     runs = pd.DataFrame(
         {
@@ -206,5 +208,5 @@ def test_rollout_tables_and_metrics_give_one_std():
         assert table.loc[method, "mean"] == pytest.approx(np.mean(values))
         assert table.loc[method, "std"] == pytest.approx(np.std(values))  # ddof 0
         assert (table.loc[method, "mean"], table.loc[method, "std"]) == pytest.approx(
-            _mean_std(values)
+            mean_std(values)
         )
