@@ -12,7 +12,7 @@ from pydantic import ValidationError
 from pcpg_dist.common.devices import set_threads
 from pcpg_dist.common.errors import DataError
 from pcpg_dist.dataset import Dataset
-from pcpg_dist.stages.clustering.cluster import (
+from pcpg_dist.stages.clustering import (
     ClusterConfig,
     cluster,
     cluster_sizes,

@@ -8,11 +8,12 @@ import pytest
 import torch
 
 from pcpg_dist.common.errors import DataError
-from pcpg_dist.stages.clustering import greedy_mix
-from pcpg_dist.stages.clustering.cluster import (
+from pcpg_dist.stages.clustering import (
     ClusterConfig,
     cluster,
     clustering_metrics,
+    greedy_likelihood,
+    greedy_mix,
     load_model,
 )
 
@@ -58,8 +59,8 @@ def test_ascent_never_lowers_the_likelihood(eps):
     ones = np.ones(len(styles))
     labels, sweeps = greedy_mix.ascend(steps, ones, start, 3, eps, max_sweeps=100)
     assert sweeps < 100  # converged: a sweep with no move
-    before = greedy_mix.log_likelihood(steps, ones, start, 3, eps)
-    assert greedy_mix.log_likelihood(steps, ones, labels, 3, eps) > before
+    before = greedy_likelihood.log_likelihood(steps, ones, start, 3, eps)
+    assert greedy_likelihood.log_likelihood(steps, ones, labels, 3, eps) > before
     # a local optimum: no single trajectory can still raise the likelihood by moving
     relabelled, more = greedy_mix.ascend(steps, ones, labels, 3, eps, max_sweeps=100)
     np.testing.assert_array_equal(relabelled, labels)
@@ -104,8 +105,8 @@ def test_split_merge_frees_a_group_no_start_freed():
     from pcpg_dist.config.stages import PBTGConfig
     from pcpg_dist.domains.gridworld.layout import random_layouts
     from pcpg_dist.domains.gridworld.pbtg import assemble_dataset, generate_pair
+    from pcpg_dist.stages.clustering import checked_sequences
     from pcpg_dist.stages.clustering.ceiling import supervised_ceiling
-    from pcpg_dist.stages.clustering.cluster import checked_sequences
     from pcpg_dist.stages.clustering.features import fit_vocabulary
 
     (layout,) = random_layouts(1, 917_2024, start=16)
@@ -143,7 +144,7 @@ def test_model_saves_and_labels_unseen_trajectories(tmp_path, e4):
 
 
 def test_bad_inputs_and_files_fail_with_one_data_error(tmp_path, e4):
-    from tests.test_clustering import drifting_walks
+    from tests.stages.test_clustering import drifting_walks
 
     with pytest.raises(DataError, match="greedy_mix: most states .* occur once"):
         cluster(drifting_walks(10, seed=0), ClusterConfig(method="greedy_mix"), seed=0)
@@ -181,7 +182,7 @@ def test_margins_are_large_for_clear_styles_and_small_for_trajectories_that_fit_
     ranking.style_margin reads): the fit's labels are their argmax, trajectories that follow one
     style's greedy actions are far from every other cluster, and a trajectory that only visits
     states where two styles act alike is near both."""
-    from pcpg_dist.stages.clustering.cluster import _margins
+    from pcpg_dist.stages.clustering.metrics import likelihood_margins as _margins
 
     steps, styles = synthetic_steps(4, per_style=80)
     fit = greedy_mix.fit(steps, [styles], 3)
@@ -203,5 +204,7 @@ def test_margins_are_large_for_clear_styles_and_small_for_trajectories_that_fit_
         steps.n_states,
         4,
     )
-    both = greedy_mix.scores(one, greedy_mix._weights(one, fit.noise), fit.votes, fit.log_share)[0]
+    both = greedy_mix.scores(
+        one, greedy_likelihood.vote_weights(one, fit.noise), fit.votes, fit.log_share
+    )[0]
     assert abs(both[c0] - both[c1]) < 1.0 < min(both[c0], both[c1]) - both.min()

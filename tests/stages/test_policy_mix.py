@@ -11,7 +11,7 @@ import torch
 from pcpg_dist.common.devices import set_threads
 from pcpg_dist.common.errors import DataError
 from pcpg_dist.dataset import Dataset
-from pcpg_dist.stages.clustering.cluster import (
+from pcpg_dist.stages.clustering import (
     ClusterConfig,
     cluster,
     clustering_metrics,

@@ -21,7 +21,7 @@ import numpy as np
 from scipy import sparse
 
 from pcpg_dist.dataset import Dataset
-from pcpg_dist.stages.clustering.models import row_ids
+from pcpg_dist.stages.clustering.states import row_ids
 
 MAX_VOCAB = 20_000  # at most this many visited states / state-actions kept as features
 

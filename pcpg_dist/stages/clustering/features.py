@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import sparse
 
-from pcpg_dist.stages.clustering.models import row_ids
+from pcpg_dist.stages.clustering.states import row_ids, state_columns
 
 MAX_STATES = 20_000  # most frequent distinct states kept as columns
 
@@ -39,22 +39,13 @@ class BagVocabulary:
         return 2 * len(self.states) + len(self.sa_keys)
 
 
-def _state_columns(states: np.ndarray, vocab_states: np.ndarray) -> np.ndarray:
-    """Column of every state row in ``vocab_states`` (-1 = not in the vocabulary)."""
-    both = np.concatenate([vocab_states.astype(np.float32), np.asarray(states, np.float32)])
-    inv, _ = row_ids(both)
-    col_of = np.full(inv.max() + 1, -1, np.int64)
-    col_of[inv[: len(vocab_states)]] = np.arange(len(vocab_states))
-    return col_of[inv[len(vocab_states) :]]
-
-
 def fit_vocabulary(states: np.ndarray, actions: np.ndarray, n_actions: int) -> BagVocabulary:
     """The columns of :func:`bag_matrix`, fitted on one dataset's rows."""
     ids, first = row_ids(states)
     counts = np.bincount(ids)
     keep = np.argsort(-counts, kind="stable")[:MAX_STATES]
     vocab = np.ascontiguousarray(states, np.float32)[first[keep]]
-    cols = _state_columns(states, vocab)
+    cols = state_columns(states, vocab)
     ok = (cols >= 0) & (actions >= 0)
     sa = np.unique(cols[ok] * n_actions + actions[ok])
     return BagVocabulary(vocab, sa.astype(np.int64), int(n_actions))
@@ -67,7 +58,7 @@ def bag_matrix(
     n = len(offsets) - 1
     v = len(vocab.states)
     traj = np.repeat(np.arange(n), np.diff(offsets))
-    cols = _state_columns(states, vocab.states)
+    cols = state_columns(states, vocab.states)
     ok = cols >= 0
     rows_s, cols_s = traj[ok], cols[ok]
     key = cols * vocab.n_actions + actions

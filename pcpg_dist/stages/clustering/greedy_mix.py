@@ -29,7 +29,7 @@ so they are collapsed once and carry their count.
 group of one style's trajectories that the start put with another style can hold together there
 (each is best where the rest of its group is). Starts with more clusters than k give such a group
 a cluster of its own; merging clusters down to k by likelihood then joins it to the style it
-belongs to. So the caller (``pcpg_dist.stages.clustering.cluster``) passes k-means starts with k, k + 1 and
+belongs to. So the caller (``pcpg_dist.stages.clustering.bags``) passes k-means starts with k, k + 1 and
 k + 2 clusters, each from three k-means seeds (on E1-E5 at three data seeds and four clustering
 seeds, one k-means seed per size left 4 of 60 fits more than a point below the supervised
 ceiling, three seeds 1; docs/clustering.md).
@@ -43,8 +43,10 @@ supervised ceiling from 59 of 60 to 60 of 60 (docs/clustering.md).
 **Noise level.** One ``eps`` shared by all trajectories. Which one matters where a group sits in
 another style's cluster (a near-tie that a small eps breaks and a large one keeps), so the ascent
 runs once per level of :data:`NOISE_LEVELS`, and of all starts and levels the labelling with the
-highest *profile* likelihood (maximised over eps on :data:`NOISE_GRID`) is kept. No labels are
-read anywhere.
+highest *profile* likelihood (maximised over eps on
+:data:`.greedy_likelihood.NOISE_GRID`) is kept. No labels are read anywhere.
+
+The likelihood and the ascent live in :mod:`.greedy_likelihood`; this module searches with them.
 """
 
 from __future__ import annotations
@@ -52,247 +54,26 @@ from __future__ import annotations
 import warnings
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 from scipy import sparse
 from scipy.optimize import linear_sum_assignment
-from scipy.special import logsumexp
+
+from pcpg_dist.stages.clustering.features import dedup_rows
+from pcpg_dist.stages.clustering.greedy_likelihood import (
+    Steps,
+    ascend,
+    cluster_counts,
+    cluster_terms,
+    marginal,
+    per_state_votes,
+    profile_log_likelihood,
+    size_term,
+    vote_weights,
+    votes,
+)
 
 #: the shared noise levels the ascent is run at (the best by profile likelihood is kept)
 NOISE_LEVELS = (0.05, 0.1, 0.15, 0.2, 0.3)
-#: the grid the profile likelihood is maximised over
-NOISE_GRID = np.linspace(0.02, 0.5, 25)
-
-
-@dataclass(frozen=True)
-class Steps:
-    """The steps of a dataset as the model sees them: per trajectory, counts of (state, action)."""
-
-    counts: sparse.csr_matrix  # (n, S * A) how often trajectory i took action a in state s
-    valid: np.ndarray  # (S, A) bool: the valid actions of each state
-    n_actions: int
-
-    @property
-    def n_states(self) -> int:
-        return self.valid.shape[0]
-
-    @staticmethod
-    def build(
-        state_ids: np.ndarray,
-        actions: np.ndarray,
-        valid_rows: np.ndarray,
-        row_traj: np.ndarray,
-        n: int,
-        n_states: int,
-        n_actions: int,
-    ) -> Steps:
-        """From per-row state ids (-1 = unknown state, skipped), actions (-1 = none), valid masks."""
-        step = (actions >= 0) & (state_ids >= 0)
-        s, a = state_ids[step], actions[step].astype(np.int64)
-        valid = np.zeros((n_states, n_actions), bool)
-        valid[s] = np.asarray(valid_rows, bool)[step]
-        valid[s, a] = True  # an action taken is valid, whatever the mask says
-        counts = sparse.csr_matrix(
-            (np.ones(len(s)), (row_traj[step], s * n_actions + a)), shape=(n, n_states * n_actions)
-        )
-        counts.sum_duplicates()
-        return Steps(counts, valid, int(n_actions))
-
-    @staticmethod
-    def of_dataset(dataset, states: np.ndarray, vocab_states: np.ndarray) -> Steps:
-        """A dataset's steps over the distinct states of a bag vocabulary (other states skipped)."""
-        from pcpg_dist.stages.clustering.features import _state_columns
-
-        return Steps.build(
-            _state_columns(states, vocab_states),
-            np.asarray(dataset.actions, np.int64),
-            dataset.valid,
-            dataset.row_trajectory,
-            dataset.n_trajectories,
-            len(vocab_states),
-            int(dataset.n_actions),
-        )
-
-
-def _marginal(v: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """``F`` of the module doc for vote rows ``v`` (..., A): log-mean-exp over the valid actions."""
-    nv = np.maximum(valid.sum(-1), 1)
-    return logsumexp(np.where(valid, v, -np.inf), axis=-1) - np.log(nv)
-
-
-def _lam(steps: Steps, eps: float) -> np.ndarray:
-    """(S,) the vote weight lam(eps, n(s)) of one step in each state."""
-    return np.log1p((1.0 - eps) * np.maximum(steps.valid.sum(1), 1) / eps)
-
-
-def _weights(steps: Steps, eps: float) -> sparse.csr_matrix:
-    """Each trajectory's (state, action) counts times the vote weight lam(eps, n(s))."""
-    c = steps.counts.tocoo()
-    w = sparse.csr_matrix(
-        (c.data * _lam(steps, eps)[c.col // steps.n_actions], (c.row, c.col)), shape=c.shape
-    )
-    w.sort_indices()
-    return w
-
-
-def cluster_counts(steps: Steps, labels: np.ndarray, mult: np.ndarray, k: int) -> np.ndarray:
-    """(k, S, A) how often each cluster's trajectories took a in s (``mult`` = copies of each row).
-    The votes at noise eps are these counts times ``_lam(steps, eps)[s]``."""
-    n = len(labels)
-    m = sparse.csr_matrix((mult, (labels, np.arange(n))), shape=(k, n))
-    return np.asarray((m @ steps.counts).todense()).reshape(k, steps.n_states, steps.n_actions)
-
-
-def votes(steps: Steps, labels: np.ndarray, mult: np.ndarray, k: int, eps: float) -> np.ndarray:
-    """(k, S, A) summed vote weights of each cluster's steps at noise ``eps``."""
-    return cluster_counts(steps, labels, mult, k) * _lam(steps, eps)[None, :, None]
-
-
-def _size_terms(sizes: np.ndarray) -> float:
-    nz = sizes[sizes > 0]
-    return float((nz * np.log(nz / nz.sum())).sum())
-
-
-def _steps_per_state(steps: Steps, mult: np.ndarray) -> np.ndarray:
-    """(S,) how many steps were taken in each state (``mult`` = copies of each row)."""
-    return np.asarray(steps.counts.T @ mult).reshape(steps.n_states, steps.n_actions).sum(1)
-
-
-def _cluster_terms(steps: Steps, counts: np.ndarray, eps: float) -> np.ndarray:
-    """(k,) each cluster's sum over the seen states of F (the module doc) at noise ``eps``."""
-    seen = steps.valid.any(1)
-    v = counts[:, seen] * _lam(steps, eps)[seen][None, :, None]
-    return _marginal(v, steps.valid[seen][None]).sum(1)
-
-
-def _log_likelihood(
-    steps: Steps, per_state: np.ndarray, counts: np.ndarray, size_terms: float, eps: float
-) -> float:
-    """The module doc's formula from its parts: sum over steps of log(eps / n(s)), the clusters' F
-    terms, the size prior."""
-    stray = float((per_state * np.log(eps / np.maximum(steps.valid.sum(1), 1))).sum())
-    return stray + float(_cluster_terms(steps, counts, eps).sum()) + size_terms
-
-
-def log_likelihood(steps: Steps, mult: np.ndarray, labels: np.ndarray, k: int, eps: float) -> float:
-    """The collapsed log-likelihood of a labelling at noise ``eps`` (the module doc's formula)."""
-    return _log_likelihood(
-        steps,
-        _steps_per_state(steps, mult),
-        cluster_counts(steps, labels, mult, k),
-        _size_terms(np.bincount(labels, mult, minlength=k)),
-        eps,
-    )
-
-
-def profile_log_likelihood(
-    steps: Steps, mult: np.ndarray, labels: np.ndarray, k: int
-) -> tuple[float, float]:
-    """``(max over eps of log_likelihood, that eps)`` on :data:`NOISE_GRID`."""
-    per_state, counts = _steps_per_state(steps, mult), cluster_counts(steps, labels, mult, k)
-    size = _size_terms(np.bincount(labels, mult, minlength=k))
-    ll = [_log_likelihood(steps, per_state, counts, size, float(e)) for e in NOISE_GRID]
-    i = int(np.argmax(ll))
-    return ll[i], float(NOISE_GRID[i])
-
-
-@numba.njit(cache=True)
-def _lme(v, valid):
-    """log-mean-exp of v over the valid entries (``_marginal`` of one row)."""
-    top, nv = -np.inf, 0
-    for a in range(v.shape[0]):
-        if valid[a]:
-            nv += 1
-            top = max(top, v[a])
-    if nv == 0:
-        return 0.0
-    total = 0.0
-    for a in range(v.shape[0]):
-        if valid[a]:
-            total += np.exp(v[a] - top)
-    return top + np.log(total) - np.log(nv)
-
-
-@numba.njit(cache=True)
-def _size_term(n, total):
-    return n * np.log(n / total) if n > 0 else 0.0
-
-
-@numba.njit(cache=True)
-def _ascend(indptr, pstate, pw, valid, v, labels, mult, sizes, max_sweeps):
-    """Coordinate ascent: each row (with its ``mult`` copies) moves to the cluster that raises the
-    collapsed log-likelihood most; ``v`` and ``sizes`` are updated in place. Returns the sweeps."""
-    k, n_states, n_actions = v.shape
-    total = sizes.sum()
-    tmp = np.empty(n_actions)
-    f = np.empty((k, n_states))  # F of every (cluster, state), kept current as rows move
-    for c in range(k):
-        for s in range(n_states):
-            f[c, s] = _lme(v[c, s], valid[s])
-    for sweep in range(max_sweeps):
-        moves = 0
-        for u in range(labels.shape[0]):
-            c0, m = labels[u], mult[u]
-            lose = _size_term(sizes[c0] - m, total) - _size_term(sizes[c0], total)
-            for p in range(indptr[u], indptr[u + 1]):
-                s = pstate[p]
-                for a in range(n_actions):
-                    tmp[a] = v[c0, s, a] - m * pw[p, a]
-                lose += _lme(tmp, valid[s]) - f[c0, s]
-            best, best_c = 0.0, c0
-            for c in range(k):
-                if c == c0:
-                    continue
-                gain = _size_term(sizes[c] + m, total) - _size_term(sizes[c], total)
-                for p in range(indptr[u], indptr[u + 1]):
-                    s = pstate[p]
-                    for a in range(n_actions):
-                        tmp[a] = v[c, s, a] + m * pw[p, a]
-                    gain += _lme(tmp, valid[s]) - f[c, s]
-                if lose + gain > best + 1e-9:
-                    best, best_c = lose + gain, c
-            if best_c != c0:
-                for p in range(indptr[u], indptr[u + 1]):
-                    s = pstate[p]
-                    for a in range(n_actions):
-                        v[c0, s, a] -= m * pw[p, a]
-                        v[best_c, s, a] += m * pw[p, a]
-                    f[c0, s] = _lme(v[c0, s], valid[s])
-                    f[best_c, s] = _lme(v[best_c, s], valid[s])
-                sizes[c0] -= m
-                sizes[best_c] += m
-                labels[u] = best_c
-                moves += 1
-        if moves == 0:
-            return sweep + 1
-    return max_sweeps
-
-
-def _per_state(weights: sparse.csr_matrix, n_actions: int):
-    """Row u's votes grouped by state: ``(indptr (n+1,), state (P,), votes (P, A))``."""
-    w = weights.tocoo()
-    n_states = weights.shape[1] // n_actions
-    key = w.row.astype(np.int64) * n_states + w.col // n_actions
-    pairs, pair_of = np.unique(key, return_inverse=True)
-    pw = np.zeros((len(pairs), n_actions))
-    np.add.at(pw, (pair_of, w.col % n_actions), w.data)
-    indptr = np.searchsorted(pairs // n_states, np.arange(weights.shape[0] + 1)).astype(np.int64)
-    return indptr, (pairs % n_states).astype(np.int64), pw
-
-
-def ascend(
-    steps: Steps, mult: np.ndarray, labels: np.ndarray, k: int, eps: float, max_sweeps: int
-) -> tuple[np.ndarray, int]:
-    """The coordinate ascent of the module doc at noise ``eps``: ``(labels, sweeps)``."""
-    w = _weights(steps, eps)
-    labels = np.array(labels, np.int64)
-    v = votes(steps, labels, mult, k, eps)
-    sizes = np.bincount(labels, mult, minlength=k).astype(np.float64)
-    indptr, pstate, pw = _per_state(w, steps.n_actions)
-    sweeps = _ascend(
-        indptr, pstate, pw, steps.valid, v, labels, np.asarray(mult, np.float64), sizes, max_sweeps
-    )
-    return labels, sweeps
 
 
 @dataclass(frozen=True)
@@ -320,15 +101,15 @@ def _merge_gain(
 ) -> tuple[float, float]:
     """``(change in log-likelihood, merged cluster's F term)`` of merging clusters a and b: only the
     pair's F terms and size terms change."""
-    merged = float(_cluster_terms(steps, (counts[a] + counts[b])[None], eps)[0])
+    merged = float(cluster_terms(steps, (counts[a] + counts[b])[None], eps)[0])
     total = sizes.sum()
     delta = (
         merged
         - terms[a]
         - terms[b]
-        + _size_term(sizes[a] + sizes[b], total)
-        - _size_term(sizes[a], total)
-        - _size_term(sizes[b], total)
+        + size_term(sizes[a] + sizes[b], total)
+        - size_term(sizes[a], total)
+        - size_term(sizes[b], total)
     )
     return delta, merged
 
@@ -343,7 +124,7 @@ def merge_down(
     labels = np.array(labels, np.int64)
     n_clusters = int(labels.max(initial=0)) + 1
     counts = cluster_counts(steps, labels, mult, n_clusters)
-    terms = _cluster_terms(steps, counts, eps)
+    terms = cluster_terms(steps, counts, eps)
     sizes = np.bincount(labels, mult, minlength=n_clusters).astype(np.float64)
     while n_clusters > k:
         best = None
@@ -394,7 +175,7 @@ def split_merge(
     accepted = 0
     for _ in range(max_rounds):
         counts = cluster_counts(steps, labels, mult, k)
-        terms = _cluster_terms(steps, counts, eps)
+        terms = cluster_terms(steps, counts, eps)
         sizes = np.bincount(labels, mult, minlength=k).astype(np.float64)
         gains = [
             (_merge_gain(steps, counts, terms, sizes, a, b, eps)[0], a, b)
@@ -453,8 +234,6 @@ def fit(
 
     Rows with identical (state, action) counts are the same to the model and are collapsed first.
     """
-    from pcpg_dist.stages.clustering.features import dedup_rows
-
     first, mult, inv = dedup_rows(steps.counts)
     uniq = Steps(steps.counts[first], steps.valid, steps.n_actions)
     best, scored = None, {}
@@ -521,7 +300,7 @@ def scores(
     ``own``: each trajectory's cluster in the fit that made ``v``; its own cluster is then scored
     without its votes, as the ascent scores a move (so it never votes for itself).
     """
-    indptr, state, d = _per_state(weights, steps.n_actions)
+    indptr, state, d = per_state_votes(weights, steps.n_actions)
     traj = np.repeat(np.arange(weights.shape[0]), np.diff(indptr))
     valid = steps.valid[state]
     out = np.zeros((weights.shape[0], v.shape[0]))
@@ -530,7 +309,7 @@ def scores(
         if own is not None:
             base = base - np.where((own[traj] == c)[:, None], d, 0.0)
         out[:, c] = np.bincount(
-            traj, _marginal(base + d, valid) - _marginal(base, valid), minlength=weights.shape[0]
+            traj, marginal(base + d, valid) - marginal(base, valid), minlength=weights.shape[0]
         )
     return out + log_share[None, :]
 
@@ -539,9 +318,9 @@ def fit_scores(steps: Steps, fit: GreedyMixFit) -> np.ndarray:
     """(n, k) each trajectory's :func:`scores` under the fitted clusters, its own cluster's votes
     without it. The fit's label is the row maximum for nearly every trajectory (the ascent stopped
     where none moves, at the noise level it ran at; these scores are at the fitted level)."""
-    return scores(steps, _weights(steps, fit.noise), fit.votes, fit.log_share, fit.labels)
+    return scores(steps, vote_weights(steps, fit.noise), fit.votes, fit.log_share, fit.labels)
 
 
 def predict(steps: Steps, v: np.ndarray, log_share: np.ndarray, eps: float) -> np.ndarray:
     """Labels of (new) trajectories under fitted votes: the cluster their steps raise most."""
-    return scores(steps, _weights(steps, eps), v, log_share).argmax(1)
+    return scores(steps, vote_weights(steps, eps), v, log_share).argmax(1)

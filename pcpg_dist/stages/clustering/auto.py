@@ -1,0 +1,51 @@
+"""Which clusterer actually runs on a dataset, and whether it trains a network there.
+
+A method of :data:`pcpg_dist.config.clusterers.CLUSTERERS` may refuse continuous states
+(``greedy_mix``: a per-state policy cannot be estimated where every state is new) or hand them to
+another method (``bag_auto`` falls back to ``lstm_dec``). States count as continuous where most
+state rows are distinct. Numpy only, so the runner can ask before it asks Ray for a GPU.
+"""
+
+from __future__ import annotations
+
+from pcpg_dist.common.errors import DataError
+from pcpg_dist.config.clusterers import CLUSTERERS
+from pcpg_dist.config.clustering import ClusterConfig
+from pcpg_dist.stages.clustering.states import checked_sequences, mostly_distinct_states
+
+
+def falls_back_to_lstm(dataset) -> bool:
+    """Whether ``bag_auto`` clusters ``dataset`` with lstm_dec (continuous states) rather than
+    greedy_mix."""
+    return mostly_distinct_states(checked_sequences(dataset)[0])
+
+
+def needs_network(cluster_cfg: ClusterConfig, dataset) -> bool:
+    """Whether Step A trains a network on ``dataset`` (a unit's clustering input): a method with a
+    continuous-state fallback (``bag_auto``) trains one only where it falls back to a method that
+    does, so on discrete states its task needs no GPU."""
+    spec = CLUSTERERS[cluster_cfg.method]
+    if spec.continuous_fallback is not None:
+        if falls_back_to_lstm(dataset):
+            return CLUSTERERS[spec.continuous_fallback].trains_network
+        return spec.trains_network
+    return spec.trains_network
+
+
+def resolve_method(cfg: ClusterConfig, dataset, states, metrics: dict[str, float]) -> ClusterConfig:
+    """``cfg`` with the method that runs on ``states``: refused where the method needs discrete
+    states and they are continuous, switched to its fallback where it has one (noted in
+    ``metrics``)."""
+    spec = CLUSTERERS[cfg.method]
+    if spec.discrete_states_only and mostly_distinct_states(states):
+        raise DataError(
+            f"clustering.method {cfg.method}: most states of {dataset.domain}-{dataset.env} "
+            "occur once (continuous states), so a per-state policy cannot be estimated; "
+            "use bag_auto, policy_mix or lstm_dec"
+        )
+    if spec.continuous_fallback is not None and mostly_distinct_states(states):
+        # Continuous states (Mario): every state is new, a visitation bag says nothing; the
+        # sequence model is the one that can still see a style there.
+        cfg = cfg.model_copy(update={"method": spec.continuous_fallback})
+        metrics["auto_fell_back_to_lstm"] = 1.0
+    return cfg

@@ -1,0 +1,143 @@
+"""``policy_mix``: a mixture of k neural policies pi_c(a | s) (shared trunk, k heads) fitted by
+hard EM over whole trajectories, started from k-means on the gain and mean of the features that
+never decrease within a trajectory (counters); for continuous states."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from sklearn.cluster import KMeans
+
+from pcpg_dist.common.devices import resolve_device
+from pcpg_dist.common.errors import DataError
+from pcpg_dist.config.clustering import ClusterConfig
+from pcpg_dist.stages.clustering.metrics import likelihood_margins
+from pcpg_dist.stages.clustering.model import ClusterModel, Fitted
+from pcpg_dist.stages.clustering.policy_network import (
+    PolicyMixture,
+    policy_inputs,
+    trajectory_scores,
+)
+from pcpg_dist.stages.clustering.states import fit_normaliser, summary_features
+
+
+def monotone_features(states: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """Indices of the state features that never decrease within any trajectory and do change
+    somewhere: counters (steps, kills, treasure, ...), found without labels."""
+    step = np.diff(states.astype(np.float64), axis=0)
+    within = np.ones(len(step), bool)
+    within[offsets[1:-1] - 1] = False  # the step from one trajectory's last row to the next's first
+    step = step[within]
+    if not len(step):
+        return np.zeros(0, np.int64)
+    return np.flatnonzero((step >= -1e-9).all(axis=0) & (step > 1e-9).any(axis=0))
+
+
+def counter_summary(states: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """Per trajectory: each counter's gain (last - first) and mean, standardised; without counters,
+    the standardised [length, final state, mean state] of ``summary_kmeans``."""
+    cols = monotone_features(states, offsets)
+    if cols.size:
+        x = states[:, cols].astype(np.float64)
+        gain = x[offsets[1:] - 1] - x[offsets[:-1]]
+        feats = np.column_stack(
+            [gain, np.add.reduceat(x, offsets[:-1], axis=0) / np.diff(offsets)[:, None]]
+        )
+    else:
+        feats = summary_features(states, offsets)
+    mean, std = fit_normaliser(feats)
+    return (feats - mean) / std
+
+
+def _fit_policy_mix(
+    dataset,
+    states: np.ndarray,
+    offsets: np.ndarray,
+    cfg: ClusterConfig,
+    seed: int,
+    metrics: dict[str, float],
+) -> tuple[np.ndarray, PolicyMixture, np.ndarray, np.ndarray]:
+    """Hard EM for a mixture of k policies over whole trajectories (call inside a forked torch RNG).
+
+    Start: k-means on :func:`counter_summary`. Each round refits the k policy heads (and the shared
+    trunk) to the current labels by ``policy_steps`` full-batch Adam steps on the steps' log
+    likelihood, then moves every trajectory to the policy under which its actions are most likely
+    (+ log cluster share). Stops when fewer than ``em_tol`` of the labels moved.
+    """
+    n = len(offsets) - 1
+    mean, std = fit_normaliser(states)
+    inputs = policy_inputs(dataset, states, mean, std)
+    s, a, valid, traj = inputs
+    if not len(a):
+        raise DataError(
+            f"policy_mix: {dataset.domain}-{dataset.env} has no step with an action "
+            "(it clusters by the actions taken)"
+        )
+    labels = (
+        KMeans(n_clusters=cfg.k, n_init=cfg.kmeans_n_init, random_state=seed)
+        .fit_predict(counter_summary(states, offsets))
+        .astype(np.int64)
+    )
+    device = resolve_device(cfg.device, "clustering.device")
+    gen = torch.Generator().manual_seed(seed)
+    policy = PolicyMixture(states.shape[1], cfg.hidden_size, cfg.k, dataset.n_actions)
+    policy.reset_parameters(gen)  # drawn on the CPU from the local generator, then moved
+    policy.to(device)
+    inputs = tuple(t.to(device) for t in inputs)
+    s, a, valid, traj = inputs
+    opt = torch.optim.Adam(policy.parameters(), lr=cfg.policy_lr)
+    rounds, moved = 0, 1.0
+    while rounds < cfg.em_iterations:
+        rounds += 1
+        own = torch.from_numpy(labels).to(device)[traj]
+        with torch.no_grad():
+            share = np.bincount(labels, minlength=cfg.k) / n
+            policy.log_prior.copy_(torch.from_numpy(np.log(np.maximum(share, 1e-12))).float())
+        for _ in range(cfg.policy_steps):
+            lp = policy.step_log_probs(s, a, valid)
+            loss = -lp.gather(0, own[None]).mean()
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+        with torch.no_grad():
+            new = trajectory_scores(policy, inputs, n).argmax(0).cpu().numpy().astype(np.int64)
+        moved = float((new != labels).mean())
+        labels = new
+        if moved < cfg.em_tol:
+            break
+    # the prior stays the one the final labels were drawn with, so predict() gives them back
+    metrics.update(
+        {"em_rounds": float(rounds), "em_last_moved": moved, "policy_nll": float(loss.detach())}
+    )
+    return labels, policy.cpu(), mean, std
+
+
+def fit_policy_mix(
+    dataset, states: np.ndarray, offsets: np.ndarray, cfg: ClusterConfig, seed: int, metrics: dict
+) -> Fitted:
+    """policy_mix: the EM labels, the posteriors over the k policies as latents, and each
+    trajectory's likelihood margin over the next best policy."""
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        labels, policy, mean, std = _fit_policy_mix(dataset, states, offsets, cfg, seed, metrics)
+    model = ClusterModel(
+        cfg.method,
+        cfg.model_dump(),
+        states.shape[1],
+        mean,
+        std,
+        np.eye(cfg.k, dtype=np.float32),
+        None,
+        tuple(dataset.feature_names),
+        policy=policy,
+    )
+    latents = model.features(dataset)
+    n = len(offsets) - 1
+    with torch.no_grad():
+        margins = likelihood_margins(
+            trajectory_scores(policy, policy_inputs(dataset, states, mean, std), n)
+            .T.double()
+            .numpy(),
+            labels,
+        )
+    return Fitted(labels, latents, model, margins)

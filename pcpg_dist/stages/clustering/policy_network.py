@@ -1,0 +1,89 @@
+"""The network of ``policy_mix``: k policies over one shared trunk, and the steps it scores.
+
+A trajectory's score for cluster c is its log prior plus the summed log-likelihood of its actions
+under policy c; the saved model (:mod:`.model`) and the fit (:mod:`.policy_mix`) both use it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+from torch import nn
+
+from pcpg_dist.common.errors import DataError
+
+
+class PolicyMixture(nn.Module):
+    """k policies pi_c(a | s) over one shared tanh MLP trunk: k softmax heads of n_actions logits.
+
+    ``policy_mix`` clusters with it: a trajectory's score for cluster c is log prior_c plus the sum
+    of log pi_c(a_t | s_t) over its steps (the transitions are the same for every style, so they
+    cancel). The states are normalised with the training mean/std before the trunk.
+    """
+
+    def __init__(self, state_dim: int, hidden_size: int, k: int, n_actions: int) -> None:
+        super().__init__()
+        self.k, self.n_actions = int(k), int(n_actions)
+        self.trunk = nn.Sequential(
+            nn.Linear(state_dim, hidden_size),
+            nn.Tanh(),
+            nn.Linear(hidden_size, hidden_size),
+            nn.Tanh(),
+        )
+        self.heads = nn.Linear(hidden_size, self.k * self.n_actions)
+        self.register_buffer("log_prior", torch.full((self.k,), -math.log(self.k)))
+
+    def reset_parameters(self, generator: torch.Generator) -> None:
+        """PyTorch's default init, drawn from a local generator (see SequenceAutoencoder)."""
+        with torch.no_grad():
+            for lin in (self.trunk[0], self.trunk[2], self.heads):
+                bound = 1.0 / math.sqrt(lin.in_features)
+                lin.weight.uniform_(-bound, bound, generator=generator)
+                lin.bias.uniform_(-bound, bound, generator=generator)
+
+    def step_log_probs(
+        self, states: torch.Tensor, actions: torch.Tensor, valid: torch.Tensor
+    ) -> torch.Tensor:
+        """(k, rows): log pi_c(a_t | s_t) of every step under every head, invalid actions masked."""
+        logits = self.heads(self.trunk(states)).view(len(states), self.k, self.n_actions)
+        logits = logits.permute(1, 0, 2).masked_fill(~valid, -1e9)
+        picked = actions.expand(self.k, -1).unsqueeze(-1)
+        return torch.log_softmax(logits, -1).gather(2, picked).squeeze(-1)
+
+
+def policy_inputs(dataset, states: np.ndarray, mean: np.ndarray, std: np.ndarray):
+    """The steps a policy mixture scores: normalised states, actions, valid masks, trajectory index.
+
+    Only rows with an action (every row but a trajectory's last); a taken action always counts as
+    valid, so a log whose valid mask disagrees with its actions cannot give -inf scores.
+    """
+    actions = np.asarray(dataset.actions, np.int64)
+    n_actions = int(dataset.n_actions)
+    rows = np.flatnonzero(actions >= 0)
+    if rows.size and actions[rows].max() >= n_actions:
+        raise DataError(
+            f"{dataset.domain}-{dataset.env}: action {int(actions[rows].max())} "
+            f"outside 0..{n_actions - 1}"
+        )
+    valid = np.asarray(dataset.valid, bool)[rows].copy()
+    valid[np.arange(rows.size), actions[rows]] = True
+    traj = dataset.row_trajectory[rows]
+    norm = ((states[rows] - mean) / std).astype(np.float32)
+    return (
+        torch.from_numpy(norm),
+        torch.from_numpy(actions[rows]),
+        torch.from_numpy(valid),
+        torch.from_numpy(traj),
+    )
+
+
+def trajectory_scores(policy: PolicyMixture, inputs, n: int) -> torch.Tensor:
+    """(k, n): log prior + summed step log-likelihood of each trajectory under each policy."""
+    s, a, valid, traj = inputs
+    lp = policy.step_log_probs(s, a, valid)
+    return (
+        torch.zeros(policy.k, n, device=lp.device).index_add_(1, traj, lp)
+        + policy.log_prior[:, None]
+    )
