@@ -19,7 +19,7 @@ class BCConfig(StrictModel):
         "tanh",
         description=(
             "Hidden activation. tanh by default: with 5-unit layers relu units die and some seeds "
-            "lose a style (measured on GridWorld, docs/bc_and_evaluation.md)."
+            "lose a style (measured on the built-in grid game, docs/bc_and_evaluation.md)."
         ),
     )
     epochs: int = Field(
@@ -36,8 +36,9 @@ class BCConfig(StrictModel):
         le=10**9,
         description=(
             "Rows per Adam step; null (the paper) trains full batch. Set it where cells hold tens of "
-            "thousands of distinct rows (Mario): one epoch is then one pass over a cell's rows, "
-            "shuffled once from the cell's seed, in blocks of this many. Numba engine only."
+            "thousands of distinct rows (counters that make every step distinct): one epoch is "
+            "then one pass over a cell's rows, shuffled once from the cell's seed, in blocks of "
+            "this many. Numba engine only."
         ),
     )
     lr: float = Field(0.01, gt=0.0, le=100.0, description="Adam learning rate (finite, > 0).")
