@@ -8,7 +8,6 @@ folder, reached without symlinks); nothing takes a path from a file's content.
 from __future__ import annotations
 
 import base64
-import json
 import math
 import re
 import reprlib
@@ -19,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from pcpg_dist.common.errors import DataError
+from pcpg_dist.common.files import read_json
 
 MAX_ROWS = 30  # rows of a table shown on the page; the file has them all
 MAX_IMAGE_BYTES = 8_000_000  # a figure larger than this is not inlined (the file is named instead)
@@ -105,16 +105,6 @@ def files_in(folder: Path, root: Path, suffix: str) -> list[Path]:
     if folder.is_symlink() or not folder.is_dir():
         return []
     return sorted(p for p in folder.iterdir() if p.suffix == suffix and inside(p, root))
-
-
-def read_json(path: Path) -> dict:
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, ValueError, RecursionError) as e:  # RecursionError: brackets nested too deep
-        raise DataError(f"{path}: unreadable ({e})") from None
-    if not isinstance(data, dict):
-        raise DataError(f"{path}: expected a JSON object, found {type(data).__name__}")
-    return data
 
 
 def _as_float(v) -> float | None:

@@ -17,16 +17,11 @@ one-line message that names the row, the column and what is allowed.
 
 from __future__ import annotations
 
-import contextlib
-import importlib.metadata
 import json
 import logging
 import os
-import sys
-import warnings
 import zipfile
-from collections.abc import Iterator
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import mlflow.models
@@ -152,28 +147,7 @@ class EnvAgents:
         )
 
 
-# ---------------------------------------------------------------------- files
-def write_env_agents(path: str | Path, env: str, cells) -> Path:
-    """``path.npz`` (the arrays) + ``path.json`` (cells, sizes) from a ``TrainedCells``."""
-    path = Path(path).with_suffix("")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    arrays = {
-        **{n: np.ascontiguousarray(v, np.float32) for n, v in cells.params.items()},
-        "mean": np.asarray(cells.mean, np.float32),
-        "std": np.asarray(cells.std, np.float32),
-    }
-    np.savez(path.with_suffix(".npz"), **arrays)
-    meta = {
-        "format": 1,
-        "env": env,
-        "sizes": list(cells.sizes),
-        "activation": cells.activation,
-        "specs": [asdict(CellInfo(s.key, s.kind, s.k, s.p, s.seed, s.c)) for s in cells.specs],
-    }
-    path.with_suffix(".json").write_text(json.dumps(meta, indent=1))
-    return path.with_suffix(".npz")
-
-
+# ---------------------------------------------------------------------- files (agent_packaging writes them)
 class AgentFileError(ValueError):
     """An ``<env>.npz`` + ``<env>.json`` pair that cannot be read: one line naming the file."""
 
@@ -222,113 +196,16 @@ def read_all(folder: str | Path) -> dict[str, EnvAgents]:
     return {e.env: e for e in (read_env_agents(p) for p in sorted(Path(folder).glob("*.npz")))}
 
 
-# ---------------------------------------------------------------------- logging helpers
-# INFO and warnings MLflow emits while logging or loading a model whose signature, input example
-# and requirements are all given: they say nothing a user could act on.
-_CHATTY = (
-    "mlflow.pyfunc",
-    "mlflow.models",
-    "mlflow.models.model",
-    "mlflow.models.signature",
-    "mlflow.models.utils",
-    "mlflow.utils.environment",
-    "mlflow.utils.requirements_utils",
-    "mlflow.types",
-    "mlflow.tracking._model_registry",
-    "mlflow.store.artifact",
-)
-
-
-@contextlib.contextmanager
-def quiet_logging() -> Iterator[None]:
-    """Within the block: MLflow's model-logging loggers at ERROR, its Python warnings ignored, no
-    artifact progress bars. Levels and settings are restored afterwards."""
-    loggers = [logging.getLogger(n) for n in _CHATTY]
-    levels = [lg.level for lg in loggers]
-    bar = os.environ.get("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR")
-    os.environ["MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR"] = "false"
-    for lg in loggers:
-        lg.setLevel(logging.ERROR)
-    try:
-        with warnings.catch_warnings():
-            warnings.filterwarnings("ignore", module=r"mlflow(\.|$)")
-            yield
-    finally:
-        for lg, level in zip(loggers, levels, strict=True):
-            lg.setLevel(level)
-        if bar is None:
-            os.environ.pop("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", None)
-        else:
-            os.environ["MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR"] = bar
-
-
 def load(model_uri: str, tracking_uri: str | None = None):
     """``mlflow.pyfunc.load_model`` without download bars or MLflow chatter, e.g.
-    ``load(f"runs:/{run_id}/agents", "sqlite:///mlflow.db")``."""
+    ``load(f"runs:/{run_id}/agents", "sqlite:///mlflow.db")`` (never while serving: hence the
+    import of pcpg_dist in here, not at the top)."""
+    from pcpg_dist.tracking.mlflow_quiet import quiet_logging
+
     with quiet_logging():
         if tracking_uri:
             mlflow.set_tracking_uri(tracking_uri)
         return mlflow.pyfunc.load_model(model_uri)
-
-
-def signature(agents: dict[str, EnvAgents]):
-    """Column names and types. Every column is optional to MLflow so that a missing one reaches
-    :meth:`PcpgAgents.predict` and gets its one-line error; ``style``, ``seed`` and ``valid`` are
-    ``Any`` because MLflow 3.17's enforcement would turn a style of 1.5 into 1, a NaN inside a
-    ``valid`` list into True, and fail on a batch where only some rows give a seed."""
-    from mlflow.models import ModelSignature
-    from mlflow.types import ColSpec, Schema
-    from mlflow.types.schema import AnyType
-
-    d = max(a.state_dim for a in agents.values())
-    inputs = [
-        ColSpec("string", "env", required=False),
-        ColSpec(AnyType(), "style", required=False),
-        ColSpec("double", "p", required=False),
-        ColSpec(AnyType(), "seed", required=False),
-        ColSpec(AnyType(), "valid", required=False),
-        *(ColSpec("double", f"s{j}", required=False) for j in range(d)),
-    ]
-    return ModelSignature(inputs=Schema(inputs), outputs=Schema([ColSpec("long", "action")]))
-
-
-def input_example(agents: dict[str, EnvAgents]) -> pd.DataFrame:
-    """One row per environment with a style and p that are trained and a mid-range state."""
-    d = max(a.state_dim for a in agents.values())
-    rows = []
-    for env, a in sorted(agents.items()):
-        spec = next(
-            (s for s in a.specs if s.kind == "pcpg"), next(s for s in a.specs if s.kind == "nc")
-        )
-        i = a.specs.index(spec)
-        row = {
-            "env": env,
-            "style": spec.k if spec.kind == "pcpg" else NC_STYLE,
-            "p": spec.p,
-            "seed": spec.seed,
-            "valid": [True] * a.n_actions,
-        }
-        row.update(
-            {f"s{j}": round(float(a.mean[i][j]), 3) if j < a.state_dim else None for j in range(d)}
-        )
-        rows.append(row)
-    return pd.DataFrame(rows)
-
-
-def pip_requirements() -> list[str]:
-    """Exact versions of what this file imports, so MLflow infers nothing when logging."""
-    return [f"{name}=={importlib.metadata.version(name)}" for name in REQUIREMENTS]
-
-
-def conda_env() -> dict:
-    """The model's environment, given whole: MLflow then neither infers requirements nor looks
-    up a pip version (``pip`` is absent from a uv environment and MLflow warns about it)."""
-    python = ".".join(map(str, sys.version_info[:3]))
-    return {
-        "name": "pcpg-agents",
-        "channels": ["conda-forge"],
-        "dependencies": [f"python={python}", "pip", {"pip": pip_requirements()}],
-    }
 
 
 # ---------------------------------------------------------------------- request checks

@@ -138,7 +138,7 @@ def test_protocol_banner_and_sweep_figures_fit_a_phone(browser, report, tmp_path
     and the sweep page shows one figure per row."""
     from test_report import make_sweep
 
-    from pcpg_dist.reporting.report import render_sweep
+    from pcpg_dist.reporting.sweep_page import render_sweep
 
     ARTIFACTS.mkdir(parents=True, exist_ok=True)
     pg = browser.new_page(viewport={"width": PHONE, "height": 800})

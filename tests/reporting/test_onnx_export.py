@@ -13,11 +13,12 @@ import onnxruntime as ort
 import pytest
 from bc_toy import make_dataset
 
+from pcpg_dist.api.export import load_agents_folder
 from pcpg_dist.cli import main
 from pcpg_dist.common.errors import DataError
 from pcpg_dist.config.stages import BCConfig
 from pcpg_dist.dataset import Dataset
-from pcpg_dist.reporting.onnx_export import build_model, export_onnx, load_agents_folder
+from pcpg_dist.reporting.onnx_export import build_model, export_onnx
 from pcpg_dist.stages.bc import TrainedCells, train_cells
 from pcpg_dist.stages.ranking import RankConfig, plan_cells, split_trajectories
 
@@ -304,13 +305,13 @@ HOSTILE_AGENTS = {
 
 @pytest.mark.parametrize("case", HOSTILE_AGENTS)
 def test_hostile_agent_files_are_one_line_and_write_nothing(case, grid, tmp_path, capsys):
-    from pcpg_dist.tracking import agent_model
+    from pcpg_dist.tracking import agent_packaging
 
     layout, edit, says = HOSTILE_AGENTS[case]
     cells = train_toy(grid, "tanh", epochs=0)  # 12 cells, sizes (4, 8, 8, 8, 4)
     agents = tmp_path / "run" / "agents"
     if layout == "npz":  # the MLflow agents model's artifacts
-        agent_model.write_env_agents(agents / "E1", "E1", cells)
+        agent_packaging.write_env_agents(agents / "E1", "E1", cells)
         meta_file = agents / "E1.json"
     else:  # pcpg run's output
         cells.save(agents / "E1" / "group000")

@@ -21,8 +21,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from pcpg_dist.reporting.report import build, render, render_sweep
+from pcpg_dist.reporting.report import build, render
 from pcpg_dist.reporting.report_data import table_of
+from pcpg_dist.reporting.sweep_page import render_sweep
 from pcpg_dist.stages import figures
 
 DATA = Path(__file__).parents[1] / "data" / "report_summary"

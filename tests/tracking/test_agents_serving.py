@@ -25,7 +25,8 @@ import pytest
 from bc_toy import make_dataset
 from test_onnx_export import many_actions_dataset, train_toy
 
-from pcpg_dist.tracking import Tracker, open_experiment
+from pcpg_dist.tracking.runs import open_experiment
+from pcpg_dist.tracking.trackers import Tracker
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "agents.md"
 

@@ -19,13 +19,12 @@ from pathlib import Path
 import pytest
 
 from pcpg_dist.common.errors import ServiceError
+from pcpg_dist.common.point_labels import point_label, short_keys
 from pcpg_dist.config import load_config
 from pcpg_dist.orchestration.points import RunResult
 from pcpg_dist.tracking.runs import (
     find_run,
     open_experiment,
-    point_label,
-    short_keys,
     sweep_points_of,
 )
 from pcpg_dist.tracking.tags import EXPERIMENT_KIND, MAX_PARENT_METRICS
