@@ -121,6 +121,112 @@ def _softmax(lg, e, mx, tot, rows, n_actions):  # pragma: no cover - compiled
             tot[k] += x
 
 
+@njit(inline="always", fastmath=_FM)
+def _output_grad(h, g, mx, tot, wb, actb, rows, n_actions, n_layers):  # pragma: no cover - compiled
+    """Softmax over actions of the logits ``h[n_layers]``; g[0] = w * (softmax - onehot)."""
+    _softmax(h[n_layers], g[0], mx, tot, rows, n_actions)
+    for a in range(n_actions):
+        for k in range(rows):
+            g[0, a, k] = g[0, a, k] / tot[k] * wb[k]
+    for k in range(rows):
+        g[0, actb[k], k] -= wb[k]
+
+
+@njit(inline="always", fastmath=_FM)
+def _backward(h, g, th, grad, sizes, w_off, b_off, rows, relu):  # pragma: no cover - compiled
+    """``grad`` of every weight and bias from the output gradient in g[0]; g[0] and g[1] take
+    turns holding the gradient of the current layer's output."""
+    n_layers = len(sizes) - 1
+    cur = 0
+    for layer in range(n_layers - 1, -1, -1):
+        fin = sizes[layer]
+        fout = sizes[layer + 1]
+        wo = w_off[layer]
+        bo = b_off[layer]
+        for j in range(fout):
+            acc = np.float32(0.0)
+            for k in range(rows):
+                acc += g[cur, j, k]
+            grad[bo + j] = acc
+        for i in range(fin):
+            for j in range(fout):
+                acc = np.float32(0.0)
+                for k in range(rows):
+                    acc += h[layer, i, k] * g[cur, j, k]
+                grad[wo + i * fout + j] = acc
+        if layer > 0:
+            nxt = 1 - cur
+            for i in range(fin):
+                for k in range(rows):
+                    g[nxt, i, k] = 0.0
+                for j in range(fout):
+                    w = th[wo + i * fout + j]
+                    for k in range(rows):
+                        g[nxt, i, k] += w * g[cur, j, k]
+                if relu:
+                    for k in range(rows):
+                        if h[layer, i, k] <= 0.0:
+                            g[nxt, i, k] = 0.0
+                else:
+                    for k in range(rows):
+                        g[nxt, i, k] *= 1.0 - h[layer, i, k] * h[layer, i, k]
+            cur = nxt
+
+
+@njit(inline="always", fastmath=_FM)
+def _adam(th, m, v, grad, n_params, step, lr, beta1, beta2, eps):  # pragma: no cover - compiled
+    """One Adam step on ``th``, exactly as ``torch.optim.Adam`` (no weight decay, no amsgrad)."""
+    bc1 = 1.0 - beta1**step
+    bc2 = np.sqrt(1.0 - beta2**step)
+    for p in range(n_params):
+        m[p] = beta1 * m[p] + (1.0 - beta1) * grad[p]
+        v[p] = beta2 * v[p] + (1.0 - beta2) * grad[p] * grad[p]
+        th[p] -= lr / bc1 * m[p] / (np.sqrt(v[p]) / bc2 + eps)
+
+
+@njit(inline="always", fastmath=_FM)
+def _cell_loss(
+    xt,
+    neg,
+    acts,
+    wn,
+    r0,
+    n,
+    nb,
+    batch,
+    h,
+    g,
+    negb,
+    actb,
+    wb,
+    mx,
+    tot,
+    th,
+    sizes,
+    w_off,
+    b_off,
+    relu,
+):  # pragma: no cover - compiled
+    """The loss over the whole cell after training, block by block (full batch: the rows are
+    already in the buffers)."""
+    n_layers = len(sizes) - 1
+    n_actions = sizes[n_layers]
+    rows = n
+    loss = 0.0
+    for blk in range(nb):
+        if nb > 1:
+            k0 = blk * batch
+            rows = min(n, k0 + batch) - k0
+            _load(xt, neg, acts, wn, r0 + k0, rows, np.float32(1.0), h, negb, actb, wb)
+        _forward(h, th, negb, sizes, w_off, b_off, rows, relu)
+        lg = h[n_layers]
+        _softmax(lg, g[0], mx, tot, rows, n_actions)
+        for k in range(rows):
+            a = actb[k]
+            loss -= wb[k] * (lg[a, k] - mx[k] - np.log(tot[k]))
+    return loss
+
+
 @njit(cache=True, fastmath=_FM, parallel=True)
 def train_kernel(
     xt,
@@ -189,66 +295,10 @@ def train_kernel(
                     rows = min(n, k0 + batch) - k0
                     _load(xt, neg, acts, wn, r0 + k0, rows, np.float32(n / rows), h, negb, actb, wb)
                 _forward(h, th, negb, sizes, w_off, b_off, rows, relu)
-                # ---- softmax over actions; g[0] = w * (softmax - onehot)
-                _softmax(h[n_layers], g[0], mx, tot, rows, n_actions)
-                for a in range(n_actions):
-                    for k in range(rows):
-                        g[0, a, k] = g[0, a, k] / tot[k] * wb[k]
-                for k in range(rows):
-                    g[0, actb[k], k] -= wb[k]
-                # ---- backward
-                cur = 0
-                for layer in range(n_layers - 1, -1, -1):
-                    fin = sizes[layer]
-                    fout = sizes[layer + 1]
-                    wo = w_off[layer]
-                    bo = b_off[layer]
-                    for j in range(fout):
-                        acc = np.float32(0.0)
-                        for k in range(rows):
-                            acc += g[cur, j, k]
-                        grad[bo + j] = acc
-                    for i in range(fin):
-                        for j in range(fout):
-                            acc = np.float32(0.0)
-                            for k in range(rows):
-                                acc += h[layer, i, k] * g[cur, j, k]
-                            grad[wo + i * fout + j] = acc
-                    if layer > 0:
-                        nxt = 1 - cur
-                        for i in range(fin):
-                            for k in range(rows):
-                                g[nxt, i, k] = 0.0
-                            for j in range(fout):
-                                w = th[wo + i * fout + j]
-                                for k in range(rows):
-                                    g[nxt, i, k] += w * g[cur, j, k]
-                            if relu:
-                                for k in range(rows):
-                                    if h[layer, i, k] <= 0.0:
-                                        g[nxt, i, k] = 0.0
-                            else:
-                                for k in range(rows):
-                                    g[nxt, i, k] *= 1.0 - h[layer, i, k] * h[layer, i, k]
-                        cur = nxt
-                # ---- Adam
-                bc1 = 1.0 - beta1**step
-                bc2 = np.sqrt(1.0 - beta2**step)
-                for p in range(n_params):
-                    m[p] = beta1 * m[p] + (1.0 - beta1) * grad[p]
-                    v[p] = beta2 * v[p] + (1.0 - beta2) * grad[p] * grad[p]
-                    th[p] -= lr / bc1 * m[p] / (np.sqrt(v[p]) / bc2 + eps)
-            # ---- the final loss over the whole cell, block by block
-            loss = 0.0
-            for blk in range(nb):
-                if nb > 1:
-                    k0 = blk * batch
-                    rows = min(n, k0 + batch) - k0
-                    _load(xt, neg, acts, wn, r0 + k0, rows, np.float32(1.0), h, negb, actb, wb)
-                _forward(h, th, negb, sizes, w_off, b_off, rows, relu)
-                lg = h[n_layers]
-                _softmax(lg, g[0], mx, tot, rows, n_actions)
-                for k in range(rows):
-                    a = actb[k]
-                    loss -= wb[k] * (lg[a, k] - mx[k] - np.log(tot[k]))
-            loss_out[c] = loss
+                _output_grad(h, g, mx, tot, wb, actb, rows, n_actions, n_layers)
+                _backward(h, g, th, grad, sizes, w_off, b_off, rows, relu)
+                _adam(th, m, v, grad, n_params, step, lr, beta1, beta2, eps)
+            loss_out[c] = _cell_loss(
+                xt, neg, acts, wn, r0, n, nb, batch, h, g, negb, actb, wb, mx, tot, th, sizes,
+                w_off, b_off, relu,
+            )  # fmt: skip
