@@ -18,12 +18,9 @@ order with CSR-style ``offsets``, so a trajectory is a slice and subsets are che
 
 from __future__ import annotations
 
-import errno
 import hashlib
 import json
 import os
-import re
-import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -33,6 +30,14 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from pcpg_dist.common.errors import DataError, first_line
+from pcpg_dist.common.files import (
+    FILE_MODE,
+    SAFE_NAME,
+    atomic_write_bytes,
+    confined,
+    sha256_file,
+    temp_beside,
+)
 
 SCHEMA_VERSION = 2  # 2: `valid` is a list of booleans (was an int64 bitmask, capped at 63 actions)
 MANIFEST = "manifest.json"
@@ -41,10 +46,6 @@ MAX_STYLES = (
     100_000  # style ids index count tables (np.bincount): a style of 10**12 would be terabytes
 )
 MAX_MANIFEST_BYTES = 64 << 20  # a manifest lists files and a config: kilobytes
-# mkstemp creates 0600 files; written files get what open() would give them under the user's umask.
-_UMASK = os.umask(0o022)
-os.umask(_UMASK)
-FILE_MODE = 0o666 & ~_UMASK
 
 
 @dataclass(frozen=True, eq=False)
@@ -492,7 +493,7 @@ def check_action_memory(rows: int, n_actions: int, source: str, origin: str) -> 
     """Refuse, before the ``(rows, n_actions)`` validity mask is built, a number of actions whose
     mask and BC outputs would not fit in half this machine's memory (a 26 KB table with one action
     999999 asked for 8 GB and more, and the process was killed without a word)."""
-    from pcpg_dist.config.stages import check_memory
+    from pcpg_dist.common.memory import check_memory
 
     try:
         check_memory(
@@ -544,20 +545,6 @@ def bool_lists(column: pa.ChunkedArray | pa.Array, n_actions: int, source: str) 
 
 
 # --------------------------------------------------------------------- files
-SAFE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$")
-
-
-def confined(base: Path, name: str, what: str = "name") -> Path:
-    """``base / name`` for a name that came from data (an env, a manifest entry): one plain file or
-    folder name, never a path that could leave ``base``; a DataError otherwise."""
-    if not isinstance(name, str) or not SAFE_NAME.match(name) or ".." in name or len(name) > 200:
-        raise DataError(
-            f"{what} {str(name)[:80]!r} is not a plain name (letters, digits, '_', '.', '+', "
-            f"'-'; no '/', no '..'): refusing to use it as a path under {base}"
-        )
-    return Path(base) / name
-
-
 def file_name(domain: str, env: str) -> str:
     return f"{domain}-{env}.parquet"
 
@@ -574,51 +561,10 @@ def content_digest(ds: Dataset) -> str:
     return h.hexdigest()[:20]
 
 
-def sha256_file(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
-def _temp_beside(path: Path) -> tuple[int, str]:
-    """A temporary file in ``path``'s folder; an error names ``path`` (not the temporary name)."""
-    if path.is_dir():
-        raise IsADirectoryError(errno.EISDIR, "it is a folder; name a file", str(path))
-    if path.exists() and not path.is_file():  # a FIFO or a device: the rename would replace it
-        raise OSError(
-            errno.EINVAL,
-            "it is not a regular file (a FIFO, socket or device); name a regular file",
-            str(path),
-        )
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        return tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    except OSError as e:
-        raise OSError(e.errno, e.strerror, str(path)) from None
-
-
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write to a temporary file beside ``path`` and rename it: a crash never leaves a half file."""
-    path = Path(path)
-    fd, tmp = _temp_beside(path)
-    os.fchmod(fd, FILE_MODE)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def write_parquet(dataset: Dataset, path: Path) -> str:
     """Write one dataset atomically; returns its SHA-256."""
     path = Path(path)
-    fd, tmp = _temp_beside(path)
+    fd, tmp = temp_beside(path)
     os.fchmod(fd, FILE_MODE)
     os.close(fd)
     try:
@@ -664,7 +610,7 @@ def unreadable_parquet(path: Path, error: Exception, reads: str = DATASET_READS)
 def check_parquet_memory(files: Sequence[Path], source: str, reads: str = DATASET_READS) -> None:
     """Refuse Parquet input whose decoded size, read from the file footers before any data, would
     not fit in half this machine's memory (a 'small' file can hold a huge, well-compressed table)."""
-    from pcpg_dist.config.stages import gib, machine_memory
+    from pcpg_dist.common.memory import gib, machine_memory
 
     need, rows = 0, 0
     for f in files:

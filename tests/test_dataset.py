@@ -295,7 +295,7 @@ def test_a_dataset_path_that_is_not_a_regular_file_is_refused(tmp_path):
 def test_memory_for_a_parquet_file_is_estimated_from_its_footer(tmp_path, monkeypatch):
     """Simulated small machine: the table's decoded size (from the footer) is compared with half
     the memory before a single row is read."""
-    from pcpg_dist.config import stages
+    from pcpg_dist.common import memory as stages
     from pcpg_dist.domains.trajectories.table import read_step_table
 
     write_datasets(tmp_path, [small(n=50)], {})
@@ -312,7 +312,7 @@ def test_memory_for_a_parquet_file_is_estimated_from_its_footer(tmp_path, monkey
 
 def test_a_write_that_cannot_happen_names_the_target_not_a_temporary_file(tmp_path, capsys):
     """`pcpg classify --out FOLDER` said `cannot access .FOLDER.ib_9sz9s.tmp: Is a directory`."""
-    from pcpg_dist.dataset import atomic_write_bytes
+    from pcpg_dist.common.files import atomic_write_bytes
 
     (tmp_path / "out").mkdir()
     with pytest.raises(IsADirectoryError) as e:

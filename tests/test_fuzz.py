@@ -313,7 +313,7 @@ def mutate_manifest(directory: Path, rng: random.Random) -> str:
 
 def mutate_parquet_meta(directory: Path, rng: random.Random) -> str:
     """Change the Parquet file's pcpg metadata and re-sign it in the manifest (a crafted dataset)."""
-    from pcpg_dist.dataset import sha256_file
+    from pcpg_dist.common.files import sha256_file
 
     file = next(directory.glob("*.parquet"))
     table = pq.read_table(file)

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from pcpg_dist.common.errors import ConfigError, DataError
+from pcpg_dist.common.files import atomic_write_bytes, read_json, sha256_file
 
 REWRITTEN = ("cache", "summary", "agents")
 
@@ -88,8 +89,6 @@ def check_unit_name(name: str) -> None:
 def write_agents_index(agents: Path) -> None:
     """Record the SHA-256 of every file of ``agents/<env>/``, per environment, so a file moved,
     swapped or deleted between environments is found (the cells carry no environment name)."""
-    from pcpg_dist.dataset import atomic_write_bytes, sha256_file
-
     envs = {
         env.name: {f.name: sha256_file(f) for f in sorted(env.iterdir()) if f.is_file()}
         for env in sorted(agents.iterdir())
@@ -128,9 +127,6 @@ def check_run_agents(agents: Path) -> None:
 
 
 def _check_agents_index(agents: Path) -> None:
-    from pcpg_dist.dataset import sha256_file
-    from pcpg_dist.reporting.report_data import read_json
-
     path = agents / AGENTS_INDEX
     if not path.exists():
         return

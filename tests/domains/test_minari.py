@@ -340,7 +340,7 @@ def test_a_sigkilled_export_leaves_a_temporary_root_the_next_export_removes(
     minari_root.mkdir(parents=True)
     script = (
         "import time, numpy as np, sys\n"
-        "sys.path.insert(0, 'tests')\n"
+        "sys.path.insert(0, 'tests/domains')\n"
         "from test_minari import pcpg_dataset\n"
         "from pcpg_dist.domains.trajectories import minari_io\n"
         "real = minari_io._episode_buffers\n"

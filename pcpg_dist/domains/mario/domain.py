@@ -18,7 +18,7 @@ class MarioDomain(Domain):
     settings_key = "mario"
 
     def data_key(self, cfg) -> list[Any]:
-        from pcpg_dist.dataset import sha256_file
+        from pcpg_dist.common.files import sha256_file
 
         log = cfg.mario.path
         return [

@@ -24,7 +24,7 @@ def minari_fingerprint(dataset_id: str) -> list[list]:
     import minari
 
     from pcpg_dist.common.errors import DataError, first_line
-    from pcpg_dist.dataset import sha256_file
+    from pcpg_dist.common.files import sha256_file
 
     try:
         root = Path(minari.storage.get_dataset_path(dataset_id))
@@ -57,7 +57,7 @@ class TrajectoriesDomain(Domain):
                 env.close()
 
     def data_key(self, cfg) -> list[Any]:
-        from pcpg_dist.dataset import sha256_file
+        from pcpg_dist.common.files import sha256_file
         from pcpg_dist.domains.trajectories.table import parquet_files
 
         s = cfg.trajectories
