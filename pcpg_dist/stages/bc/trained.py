@@ -180,7 +180,7 @@ class TrainedCells:
 
     @staticmethod
     def load(path: str | Path) -> TrainedCells:
-        from pcpg_dist.stages.clustering.models import read_tensors
+        from pcpg_dist.stages.clustering.model_io import read_tensors
 
         path = Path(path).with_suffix("")
         # torch's own text for a file it cannot read spans lines and advises weights_only=False
