@@ -65,29 +65,26 @@ def sidecar(env: str, cells) -> dict:
     }
 
 
-def build_model(env: str, cells):
-    """The ONNX model of one environment's ensemble (a :class:`~pcpg_dist.stages.bc.TrainedCells`)."""
-    import onnx
-    from onnx import TensorProto, helper, numpy_helper
+def _const(name: str, value: np.ndarray):
+    """An initializer (a constant tensor of the graph)."""
+    from onnx import numpy_helper
 
-    from pcpg_dist.stages.bc import ACTIVATIONS
+    return numpy_helper.from_array(np.ascontiguousarray(value), name)
 
-    d, n_actions, n_layers = cells.state_dim, cells.n_actions, len(cells.sizes) - 1
-    if cells.activation not in ACTIVATIONS:
-        raise DataError(
-            f"env {env}: activation {cells.activation!r} has no ONNX export (relu, tanh)"
-        )
 
-    def const(name: str, value: np.ndarray):
-        return numpy_helper.from_array(np.ascontiguousarray(value), name)
+def _graph_body(cells) -> tuple[list, list]:
+    """The initializers and nodes: normalise the state by the row's cell, run its layers (each row
+    meets its own cell's weights), mask invalid actions and take the greedy one."""
+    from onnx import TensorProto, helper
 
+    n_layers = len(cells.sizes) - 1
     inits = [
-        const("mean", cells.mean.astype(np.float32)),
-        const("std", cells.std.astype(np.float32)),
-        const("axis1", np.array([1], np.int64)),
-        const("neg_inf", np.array(-np.inf, np.float32)),
-        const("no_action", np.array(-1, np.int64)),
-        const("zero", np.array(0.0, np.float32)),
+        _const("mean", cells.mean.astype(np.float32)),
+        _const("std", cells.std.astype(np.float32)),
+        _const("axis1", np.array([1], np.int64)),
+        _const("neg_inf", np.array(-np.inf, np.float32)),
+        _const("no_action", np.array(-1, np.int64)),
+        _const("zero", np.array(0.0, np.float32)),
     ]
     nodes = [
         helper.make_node("Gather", ["mean", "cell"], ["m"], axis=0),
@@ -99,8 +96,8 @@ def build_model(env: str, cells):
     for layer in range(n_layers):
         w, b = f"W{layer}", f"b{layer}"
         inits += [
-            const(w, cells.params[w].astype(np.float32)),
-            const(b, cells.params[b].astype(np.float32)),
+            _const(w, cells.params[w].astype(np.float32)),
+            _const(b, cells.params[b].astype(np.float32)),
         ]
         # (B, 1, in) @ (B, in, out): each row meets its own cell's weights
         nodes += [
@@ -126,6 +123,22 @@ def build_model(env: str, cells):
         helper.make_node("Greater", ["any_f", "zero"], ["any_valid"]),
         helper.make_node("Where", ["any_valid", "best", "no_action"], ["action"]),
     ]
+    return inits, nodes
+
+
+def build_model(env: str, cells):
+    """The ONNX model of one environment's ensemble (a :class:`~pcpg_dist.stages.bc.TrainedCells`)."""
+    import onnx
+    from onnx import TensorProto, helper
+
+    from pcpg_dist.stages.bc import ACTIVATIONS
+
+    d, n_actions = cells.state_dim, cells.n_actions
+    if cells.activation not in ACTIVATIONS:
+        raise DataError(
+            f"env {env}: activation {cells.activation!r} has no ONNX export (relu, tanh)"
+        )
+    inits, nodes = _graph_body(cells)
     graph = helper.make_graph(
         nodes,
         f"pcpg_agents_{env}",

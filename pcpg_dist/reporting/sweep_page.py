@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -96,29 +98,19 @@ class SweepPage:
     fixed: list[tuple[str, str]]
 
 
-def build_sweep(folder: Path, out_dir: Path) -> SweepPage:
-    """The page model of a sweep folder (``sweep.json``, ``summary.csv``, the figures it names and
-    each point's ``report/report.html`` and ``summary/run.json`` below ``points/``)."""
-    import base64
-    import os
-    import re
+def _num(r, k):
+    """A row's metric as a float, None where it is blank or NaN (not measured)."""
+    v = r.get(k)
+    return v if isinstance(v, float) and not math.isnan(v) else None
 
+
+def _point_rows(
+    folder: Path, out_dir: Path, rows: list[dict], axes: dict, metrics: list[str]
+) -> tuple[list[dict], dict | None]:
+    """The table rows (cells, link to the point's report) and the first point's ``run.json``, for
+    the command and provenance of the whole sweep."""
     from pcpg_dist.common.errors import DataError
-    from pcpg_dist.reporting.report_data import MAX_IMAGE_BYTES
 
-    folder, out_dir = Path(folder), Path(out_dir)
-    record = read_sweep_record(folder)
-    axes = record["axes"]
-    table = folder / "summary.csv"
-    if not inside(table, folder):
-        raise DataError(f"{folder}: no summary.csv (a regular file) beside {SWEEP_JSON}")
-    rows = read_sweep_rows(table, axes)
-    keys = [
-        k
-        for k in dict.fromkeys(k for r in rows for k in r)
-        if k not in axes and k != "point" and not k.endswith(SWEEP_STD)
-    ]
-    metrics = _sweep_columns(keys)
     points_dir = folder / "points"
     # a point's folder is one listed in points/ (never a path read from summary.csv)
     listed = (
@@ -145,24 +137,18 @@ def build_sweep(folder: Path, out_dir: Path) -> SweepPage:
                 "point": str(r.get("point", "")),
             }
         )
-    headers = [
-        *axes,
-        *(
-            sweep_metric_label(k) + (" ± std" if any(k + SWEEP_STD in r for r in rows) else "")
-            for k in metrics
-        ),
-    ]
+    return shown, run
 
-    def num(r, k):
-        v = r.get(k)
-        return v if isinstance(v, float) and not math.isnan(v) else None
 
+def _sweep_headline(rows: list[dict], axes: dict, metrics: list[str]) -> list[str]:
+    """The headline sentences: the best point by PCPG accuracy (mean over p), how often PCPG leads
+    No Clustering, and the best clustering accuracy."""
     ps = [k.removeprefix("pcpg/accuracy/p") for k in metrics if k.startswith("pcpg/accuracy/p")]
     headline_lines = []
     scored = [
-        (sum(num(r, f"pcpg/accuracy/p{p}") or 0.0 for p in ps) / max(len(ps), 1), i)
+        (sum(_num(r, f"pcpg/accuracy/p{p}") or 0.0 for p in ps) / max(len(ps), 1), i)
         for i, r in enumerate(rows)
-        if ps and all(num(r, f"pcpg/accuracy/p{p}") is not None for p in ps)
+        if ps and all(_num(r, f"pcpg/accuracy/p{p}") is not None for p in ps)
     ]
     if scored:
         _, best = max(scored, key=lambda t: (t[0], -t[1]))  # the first of equals
@@ -170,9 +156,9 @@ def build_sweep(folder: Path, out_dir: Path) -> SweepPage:
         where = ", ".join(f"{a}={plain(r.get(a))}" for a in axes)
         parts = []
         for p in ps:
-            lead = num(r, f"pcpg_lead/p{p}")
+            lead = _num(r, f"pcpg_lead/p{p}")
             parts.append(
-                f"{num(r, f'pcpg/accuracy/p{p}'):.3f} at p={p}"
+                f"{_num(r, f'pcpg/accuracy/p{p}'):.3f} at p={p}"
                 + (f" (lead over No Clustering {lead:+.3f})" if lead is not None else "")
             )
         headline_lines.append(
@@ -180,7 +166,7 @@ def build_sweep(folder: Path, out_dir: Path) -> SweepPage:
             + "; ".join(parts)
             + "."
         )
-    leads = [num(r, f"pcpg_lead/p{p}") for r in rows for p in ps]
+    leads = [_num(r, f"pcpg_lead/p{p}") for r in rows for p in ps]
     leads = [v for v in leads if v is not None]
     if leads:
         headline_lines.append(
@@ -189,13 +175,13 @@ def build_sweep(folder: Path, out_dir: Path) -> SweepPage:
             f"{max(leads):+.3f}."
         )
     acc = [
-        (num(r, "clustering/accuracy"), i)
+        (_num(r, "clustering/accuracy"), i)
         for i, r in enumerate(rows)
-        if num(r, "clustering/accuracy") is not None
+        if _num(r, "clustering/accuracy") is not None
     ]
     if acc:
         v, i = max(acc, key=lambda t: (t[0], -t[1]))
-        gap = num(rows[i], "clustering/gap_to_ceiling")
+        gap = _num(rows[i], "clustering/gap_to_ceiling")
         headline_lines.append(
             f"Best clustering accuracy {v:.3f} at "
             + ", ".join(f"{a}={plain(rows[i].get(a))}" for a in axes)
@@ -206,7 +192,19 @@ def build_sweep(folder: Path, out_dir: Path) -> SweepPage:
             )
             + "."
         )
+    return headline_lines
 
+
+def _sweep_figures(
+    folder: Path, record: dict, keys: list[str], metrics: list[str], rows: list[dict]
+) -> list[tuple[str, list[dict]]]:
+    """The figures ``sweep.json`` names, inlined and captioned, grouped by axis in metric order."""
+    import base64
+
+    from pcpg_dist.common.errors import DataError
+    from pcpg_dist.reporting.report_data import MAX_IMAGE_BYTES
+
+    axes = record["axes"]
     safe = {re.sub(r"[^A-Za-z0-9._-]+", "_", k): k for k in keys}
     safe_axes = {re.sub(r"[^A-Za-z0-9._-]+", "_", a): a for a in axes}
     by_axis: dict[str, list[dict]] = {a: [] for a in axes}
@@ -223,7 +221,7 @@ def build_sweep(folder: Path, out_dir: Path) -> SweepPage:
         metric, axis = safe.get(metric_part, metric_part), safe_axes.get(axis_part, axis_part)
         others = [a for a in axes if a != axis]
         # as the figure drew them (sweep.draw_sweep): bars only where a point has a std over seeds
-        bars = any((num(r, metric + SWEEP_STD) or 0.0) > 0 for r in rows)
+        bars = any((_num(r, metric + SWEEP_STD) or 0.0) > 0 for r in rows)
         caption = (
             f"{sweep_metric_label(metric)} against {axis}"
             + (f"; one line per value of {', '.join(others)}" if others else "")
@@ -243,6 +241,11 @@ def build_sweep(folder: Path, out_dir: Path) -> SweepPage:
             }
         )
     figures = [(a, sorted(f, key=lambda f: f["order"])) for a, f in by_axis.items() if f]
+    return figures
+
+
+def _sweep_provenance(run: dict | None, n_rows: int) -> tuple[str, list[tuple[str, str]]]:
+    """The command that ran the sweep (without a point's suffix) and its provenance facts."""
     command = "—"
     provenance: list[tuple[str, str]] = []
     if run is not None:
@@ -254,7 +257,39 @@ def build_sweep(folder: Path, out_dir: Path) -> SweepPage:
             ("base seed", str(run.get("config", {}).get("seed", "—"))),
             ("repetition seeds", plain(run.get("config", {}).get("seeds"))),
         ]
-    provenance.append(("points", str(len(rows))))
+    provenance.append(("points", str(n_rows)))
+    return command, provenance
+
+
+def build_sweep(folder: Path, out_dir: Path) -> SweepPage:
+    """The page model of a sweep folder (``sweep.json``, ``summary.csv``, the figures it names and
+    each point's ``report/report.html`` and ``summary/run.json`` below ``points/``)."""
+    from pcpg_dist.common.errors import DataError
+
+    folder, out_dir = Path(folder), Path(out_dir)
+    record = read_sweep_record(folder)
+    axes = record["axes"]
+    table = folder / "summary.csv"
+    if not inside(table, folder):
+        raise DataError(f"{folder}: no summary.csv (a regular file) beside {SWEEP_JSON}")
+    rows = read_sweep_rows(table, axes)
+    keys = [
+        k
+        for k in dict.fromkeys(k for r in rows for k in r)
+        if k not in axes and k != "point" and not k.endswith(SWEEP_STD)
+    ]
+    metrics = _sweep_columns(keys)
+    shown, run = _point_rows(folder, out_dir, rows, axes, metrics)
+    headers = [
+        *axes,
+        *(
+            sweep_metric_label(k) + (" ± std" if any(k + SWEEP_STD in r for r in rows) else "")
+            for k in metrics
+        ),
+    ]
+    headline_lines = _sweep_headline(rows, axes, metrics)
+    figures = _sweep_figures(folder, record, keys, metrics, rows)
+    command, provenance = _sweep_provenance(run, len(rows))
     return SweepPage(
         title=f"Sweep: {record['name']}",
         description=record["description"],
