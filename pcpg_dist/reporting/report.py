@@ -25,6 +25,7 @@ from pcpg_dist.common.errors import ConfigError
 from pcpg_dist.common.files import atomic_write_bytes
 from pcpg_dist.common.run_folders import check_outside_run
 from pcpg_dist.config.experiment import ExperimentConfig
+from pcpg_dist.reporting.formatting import accuracy_pivot, fmt, table_of
 from pcpg_dist.reporting.jinja import jinja_environment
 from pcpg_dist.reporting.paper_comparison import (  # noqa: F401 - paper_numbers/PROTOCOL re-exported
     PAPER_DOMAINS,
@@ -39,15 +40,12 @@ from pcpg_dist.reporting.paper_comparison import (  # noqa: F401 - paper_numbers
 from pcpg_dist.reporting.report_data import (
     PaperRow,
     Section,
-    accuracy_pivot,
     figure_of,
     files_in,
-    fmt,
     inside,
     read_csv,
     read_metrics,
     read_run,
-    table_of,
 )
 
 # The domain of a config that names none (the config model's own default), read from the config

@@ -21,8 +21,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from pcpg_dist.reporting.formatting import table_of
 from pcpg_dist.reporting.report import build, render
-from pcpg_dist.reporting.report_data import table_of
 from pcpg_dist.reporting.sweep_page import render_sweep
 from pcpg_dist.stages import figures
 
