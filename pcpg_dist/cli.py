@@ -264,10 +264,11 @@ def check_classify_out(out: Path, model: Path, dataset: Path) -> None:
 
 def _cmd_tune(args: argparse.Namespace) -> None:
     """Optuna study over k and the network sizes; writes the best parameters as a config."""
+    from pcpg_dist.api.tune import tune
     from pcpg_dist.common.progress import out as console  # results: stdout
     from pcpg_dist.config.overrides import load_config_with
     from pcpg_dist.orchestration.ray_pool import init_ray
-    from pcpg_dist.orchestration.tuning import open_storage, run_study, tune_settings
+    from pcpg_dist.orchestration.tuning import open_storage, tune_settings
 
     cfg = load_config_with(args.config, args.overrides)
     storage = open_storage(
@@ -275,7 +276,7 @@ def _cmd_tune(args: argparse.Namespace) -> None:
     )  # before Ray starts
     _check_tracking(args)
     init_ray(args.ray_address)
-    res = run_study(
+    res = tune(
         cfg,
         storage_url=storage,
         workdir=Path(args.workdir),

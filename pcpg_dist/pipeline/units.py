@@ -8,6 +8,7 @@ the same preprocessed input, ranks by the domain's skill score and evaluates the
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -35,6 +36,7 @@ class UnitResult:
     clustering: UnitClustering
     metrics: dict[str, float]
     tables: dict[str, Any] = field(default_factory=dict)
+    stopped: str | None = None  # why ``run_unit``'s ``after_cluster`` stopped it after Step A
 
 
 def has_styles(unit: Unit) -> bool:
@@ -59,7 +61,7 @@ def partial_styles_note(unit: Unit) -> str | None:
 def cluster_unit(unit: Unit, cluster_cfg, seed: int, ceiling: bool = True) -> UnitClustering:
     """Step A on what the domain says to cluster; scored against true styles when they exist
     (and, with ``ceiling``, against what a classifier given those styles reaches)."""
-    from pcpg_dist.stages.clustering.cluster import cluster, clustering_metrics
+    from pcpg_dist.stages.clustering import cluster, clustering_metrics
 
     result = cluster(unit.clustered, cluster_cfg, seed)
     metrics = {
@@ -152,15 +154,52 @@ def evaluate_unit(
     return metrics
 
 
-def run_unit(unit: Unit, cfg, out_dir: str | Path | None = None) -> UnitResult:
-    """The whole chain in this process (a notebook, a test, one tuning trial)."""
+def run_unit(
+    unit: Unit,
+    cfg,
+    out_dir: str | Path | None = None,
+    *,
+    ceiling: bool = True,
+    rank_cfg=None,
+    eval_cfg=None,
+    seeds=None,
+    corruption: bool = True,
+    rollouts: bool = True,
+    extras: bool = True,
+    after_cluster: Callable[[UnitClustering], str | None] | None = None,
+) -> UnitResult:
+    """The whole chain in this process (a notebook, a test, one tuning trial).
+
+    The keyword options are those of :func:`cluster_unit`, :func:`plan_unit` and
+    :func:`evaluate_unit` (a tuning trial skips what its score does not use); ``after_cluster``
+    sees Step A's result and may return a reason to stop there (the result's ``stopped``)."""
     from pcpg_dist.stages.bc import train_plan
 
-    clustering = cluster_unit(unit, cfg.clustering, cfg.seed)
-    trained = train_plan(
-        plan_unit(unit, clustering.labels, cfg, margins=clustering.margins), cfg.bc
+    clustering = cluster_unit(unit, cfg.clustering, cfg.seed, ceiling=ceiling)
+    if after_cluster is not None:
+        reason = after_cluster(clustering)
+        if reason is not None:
+            return UnitResult(clustering, dict(clustering.metrics), stopped=reason)
+    cells = plan_unit(
+        unit,
+        clustering.labels,
+        cfg,
+        rank_cfg=rank_cfg,
+        seeds=seeds,
+        corruption=corruption,
+        margins=clustering.margins,
     )
+    trained = train_plan(cells, cfg.bc)
     metrics = evaluate_unit(
-        unit, clustering.labels, trained, cfg, out_dir, margins=clustering.margins
+        unit,
+        clustering.labels,
+        trained,
+        cfg,
+        out_dir,
+        rank_cfg=rank_cfg,
+        eval_cfg=eval_cfg,
+        rollouts=rollouts,
+        extras=extras,
+        margins=clustering.margins,
     )
     return UnitResult(clustering, {**clustering.metrics, **metrics})

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import yaml
 
+from pcpg_dist.api.tune import tune
 from pcpg_dist.cli import main
 from pcpg_dist.common.errors import ConfigError, DataError
 from pcpg_dist.config import load_config, parse_config
@@ -23,7 +24,6 @@ from pcpg_dist.orchestration.tuning import (
     best_config_data,
     open_storage,
     rdb_url,
-    run_study,
     suggest,
     trial_task,
     tune_settings,
@@ -316,7 +316,7 @@ def test_small_study_writes_best_config_and_mlflow_children(ray_session, tmp_pat
     )
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     journal = tmp_path / "journal.log"
-    res = run_study(
+    res = tune(
         cfg,
         storage_url=str(journal),
         workdir=workdir,
@@ -373,7 +373,7 @@ def test_resume_continues_the_trial_count_and_retries_stale_trials(ray_session, 
     cfg = config(tmp_path)
     name, journal = unique("resume"), str(tmp_path / "journal.log")
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
-    first = run_study(
+    first = tune(
         cfg,
         storage_url=journal,
         workdir=workdir,
@@ -388,7 +388,7 @@ def test_resume_continues_the_trial_count_and_retries_stale_trials(ray_session, 
 
     study = optuna.load_study(study_name=name, storage=JournalStorage(JournalFileBackend(journal)))
     orphan = study.ask({"k": optuna.distributions.IntDistribution(2, 4)})
-    second = run_study(
+    second = tune(
         cfg,
         storage_url=journal,
         workdir=workdir,
@@ -422,7 +422,7 @@ def test_resume_continues_the_trial_count_and_retries_stale_trials(ray_session, 
     assert len(numbers) == len(set(numbers)) == 4
     # a changed objective must not silently mix into the same study
     with pytest.raises(ConfigError, match="other data, search space or objective"):
-        run_study(
+        tune(
             config(tmp_path, penalty=0.5),
             storage_url=journal,
             workdir=workdir,
@@ -441,7 +441,7 @@ def test_a_raising_trial_is_recorded_failed_and_the_study_goes_on(ray_session, t
     cfg = config(tmp_path, n_trials=3, enqueue=[{"k": 3}, {"k": 2}, {"k": 4}])
     name, journal = unique("raise"), str(tmp_path / "journal.log")
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
-    res = run_study(
+    res = tune(
         cfg,
         storage_url=journal,
         workdir=workdir,
@@ -492,7 +492,7 @@ def test_postgres_storage_with_heartbeats_retries_a_dead_drivers_trial(
         storage.record_heartbeat(orphan._trial_id)
         time.sleep(3)
         # the dead driver's study has no objective key yet: adopt it, as `pcpg tune` would
-        res = run_study(
+        res = tune(
             cfg,
             storage_url=POSTGRES,
             workdir=workdir,
@@ -519,7 +519,7 @@ def test_postgres_storage_with_heartbeats_retries_a_dead_drivers_trial(
 def test_repeated_parameters_are_computed_once(ray_session, tmp_path, workdir):
     """Startup trials can draw the same point; results are deterministic, so it runs once."""
     cfg = config(tmp_path, n_trials=3, k_range=[2, 2], bc_layers_range=[1, 1], bc_widths=[8])
-    res = run_study(
+    res = tune(
         cfg,
         storage_url=str(tmp_path / "j.log"),
         workdir=workdir,
@@ -550,7 +550,7 @@ def test_a_mistake_found_after_loading_the_data_leaves_no_study_behind(
     with pytest.raises(
         ConfigError, match=r"tuning.environments: \['E9'\] not in the data's environments \['E1'\]"
     ):
-        run_study(
+        tune(
             config(tmp_path, environments=["E9"]),
             storage_url=str(journal),
             workdir=workdir,
@@ -561,7 +561,7 @@ def test_a_mistake_found_after_loading_the_data_leaves_no_study_behind(
         )
     assert optuna.get_all_study_names(JournalStorage(JournalFileBackend(str(journal)))) == []
     assert not (tmp_path / "out").exists()
-    res = run_study(
+    res = tune(
         config(tmp_path),
         storage_url=str(journal),
         workdir=workdir,
@@ -580,13 +580,13 @@ def test_the_trial_count_line_reads_as_words():
     from optuna.trial import TrialState
 
     from pcpg_dist.cli import trial_counts
-    from pcpg_dist.orchestration.tuning import _state_counts
+    from pcpg_dist.orchestration.tuning import state_counts
 
     study = optuna.create_study(direction="maximize")
     for state in (TrialState.PRUNED, TrialState.COMPLETE, TrialState.PRUNED, TrialState.FAIL):
         trial = study.ask()
         study.tell(trial, 0.5 if state == TrialState.COMPLETE else None, state=state)
-    assert trial_counts(_state_counts(study)) == "1 complete, 2 pruned, 1 failed"
+    assert trial_counts(state_counts(study)) == "1 complete, 2 pruned, 1 failed"
     assert trial_counts({}) == "none"
 
 
@@ -598,13 +598,13 @@ def test_an_extended_study_draws_new_points(ray_session, tmp_path, workdir):
         tmp_path, n_startup_trials=10
     )  # both calls draw at random (as while trials are pruned)
     name, journal = unique("extend"), str(tmp_path / "journal.log")
-    first = run_study(
+    first = tune(
         cfg, storage_url=journal, workdir=workdir, track=False, show_progress=False, study_name=name
     )
     # a study other than NAME-tune writes to a folder of its own (a second study overwrote the first's)
     assert first.out_dir == Path(workdir).resolve() / "tinytune" / "tuning" / name
     assert (first.out_dir / "best_config.yaml").is_file()
-    run_study(
+    tune(
         cfg,
         storage_url=journal,
         workdir=workdir,
@@ -636,7 +636,7 @@ def test_a_study_where_no_trial_completes_marks_its_mlflow_run_failed(
     )  # k = 4: always pruned
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     with pytest.raises(DataError, match="no trial completed"):
-        run_study(
+        tune(
             cfg,
             storage_url=str(tmp_path / "journal.log"),
             workdir=workdir,
@@ -660,10 +660,10 @@ def test_an_optuna_storage_of_the_wrong_kind_says_what_is_allowed(tmp_path, caps
 
 
 def test_a_study_name_becomes_one_safe_folder():
-    from pcpg_dist.orchestration.tuning import _study_folder
+    from pcpg_dist.orchestration.tuning import study_folder
 
-    assert _study_folder("probe-k34") == "probe-k34"
+    assert study_folder("probe-k34") == "probe-k34"
     for name in ("../x", "a/b", "..", "x" * 200, "é"):
-        folder = _study_folder(name)
+        folder = study_folder(name)
         assert "/" not in folder and folder not in (".", "..") and len(folder) <= 80, folder
-    assert _study_folder("a/b") != _study_folder("a:b")  # made safe alike, told apart by the hash
+    assert study_folder("a/b") != study_folder("a:b")  # made safe alike, told apart by the hash

@@ -1,7 +1,8 @@
 """An Optuna journal file that refuses a file which is not a journal, before anything is written.
 
-Imported by :func:`pcpg_dist.orchestration.tuning.open_storage` only when a journal is opened, so that importing
-``pcpg_dist.orchestration.tuning`` (every Ray worker running a trial does) does not import Optuna's storages.
+Imported by :func:`pcpg_dist.orchestration.tuning.storage.open_storage` only when a journal is
+opened, so that importing ``pcpg_dist.orchestration.tuning`` (every Ray worker running a trial
+does) does not import Optuna's storages.
 """
 
 from __future__ import annotations
