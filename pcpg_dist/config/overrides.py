@@ -19,93 +19,27 @@ range ``start:stop:step`` (stop included), or the YAML section::
 from __future__ import annotations
 
 import copy
-import difflib
 import itertools
 import json
 import math
 import re
 import reprlib
-import typing
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel
-
+from pcpg_dist.common import messages
 from pcpg_dist.common.errors import ConfigError
+from pcpg_dist.config.experiment import parse_config, valid_keys
+from pcpg_dist.config.yaml_io import load_yaml_text, read_yaml
 
 MAX_POINTS = 10_000  # a sweep of more points is a typo, not an experiment
 _NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
 _OPEN_SECTIONS = {"plugin", "gymnasium_kwargs"}  # free-form mappings: any sub-key is allowed
 
 
-def _leaf_keys(model: type[BaseModel], prefix: str = "") -> list[str]:
-    """Every settable dotted key. An optional section (``gridworld.random_layouts: {count, seed} |
-    None``) is settable whole and key by key (``gridworld.random_layouts.count=2``)."""
-    out: list[str] = []
-    for name, field in model.model_fields.items():
-        key = f"{prefix}{name}"
-        ann = field.annotation
-        if isinstance(ann, type) and issubclass(ann, BaseModel):
-            out += _leaf_keys(ann, key + ".")
-            continue
-        out.append(key)
-        for arg in typing.get_args(ann):  # Optional[Model]: its keys too
-            if isinstance(arg, type) and issubclass(arg, BaseModel):
-                out += _leaf_keys(arg, key + ".")
-    return out
-
-
-def valid_keys(domain: str | None = None) -> list[str]:
-    """Every dotted key a config can set (a plugin domain's own keys are checked by its model)."""
-    from pcpg_dist.config.experiment import ExperimentConfig
-
-    keys = _leaf_keys(ExperimentConfig)
-    if domain:
-        from pcpg_dist.domains import registry
-
-        try:
-            model = registry.get(domain).settings_model
-        except Exception:  # noqa: BLE001 - an unknown domain is reported by the config itself
-            model = None
-        if (
-            isinstance(model, type)
-            and issubclass(model, BaseModel)
-            and domain not in ExperimentConfig.model_fields
-        ):
-            keys += _leaf_keys(model, domain + ".")
-    return keys
-
-
 def closest_key(key: str, domain: str | None) -> str | None:
-    """The valid key nearest to a misspelt ``key`` (a section name for a misspelt section), or None."""
-    keys = valid_keys(domain)
-    depth = key.count(".")
-    sections = {k.rsplit(".", k.count(".") - depth)[0] for k in keys if k.count(".") > depth}
-    close = difflib.get_close_matches(key, [*keys, *sorted(sections)], n=1, cutoff=0.5)
-    if not close:
-        return None
-    head, tops = key.split(".")[0], {k.split(".")[0] for k in keys}
-    if (
-        "." in key
-        and head not in tops
-        and not difflib.get_close_matches(head, tops, n=1, cutoff=0.6)
-    ):
-        # a section unlike any (another domain's, or an abbreviation like `eval`): only a setting of
-        # the same name is a useful guess (`eval.greedy` -> evaluation.greedy, not `corridor.length`
-        # -> mario.event)
-        name, guess = key.rsplit(".", 1)[1], close[0].rsplit(".", 1)[-1]
-        if not difflib.get_close_matches(name, [guess], n=1, cutoff=0.6):
-            return None
-    return close[0]
-
-
-def unknown_key_message(key: str, domain: str | None) -> str:
-    """What a config file (or a plugin's section) says of a key that is no setting: the closest one."""
-    close = closest_key(key, domain)
-    hint = f"; did you mean {close!r}?" if close else " (check the spelling)"
-    if "." not in key:
-        return f"unknown top-level key '{key[:120]}' — not a section or setting of a config{hint}"
-    return f"unknown key '{key[:120]}' — not a setting of section '{key.rsplit('.', 1)[0][:120]}'{hint}"
+    """The valid key of a config for ``domain`` nearest to a misspelt ``key``, or None."""
+    return messages.closest_key(key, valid_keys(domain))
 
 
 def check_key(key: str, domain: str | None) -> None:
@@ -128,8 +62,6 @@ def check_key(key: str, domain: str | None) -> None:
 def parse_value(text: str) -> Any:
     """A command-line value as a config file's YAML reads it: ``1e-3`` a number, ``1:30`` text (YAML
     1.1 would read them as text and as the base-60 integer 90)."""
-    from pcpg_dist.config.experiment import load_yaml_text
-
     text = text.strip()
     if _NUMBER.match(text):
         return int(text) if re.fullmatch(r"[+-]?\d+", text) else float(text)
@@ -199,8 +131,6 @@ def parse_overrides(items: list[str]) -> dict[str, Any]:
 
 def read_raw(path: str | Path) -> tuple[dict, dict | None]:
     """The config mapping of a YAML file (bounded read) and its ``sweep:`` section, split off."""
-    from pcpg_dist.config.experiment import read_yaml
-
     raw = read_yaml(Path(path))
     if not isinstance(raw, dict):
         raise ConfigError(f"{path}: a config must be a YAML mapping of keys to values")
@@ -211,8 +141,6 @@ def read_raw(path: str | Path) -> tuple[dict, dict | None]:
 def load_config_with(path: str | Path, overrides: list[str] | None = None):
     """:func:`~pcpg_dist.config.load_config` with ``key=value`` overrides applied before validation
     (a ``sweep:`` section is not part of a single run's config and is left out)."""
-    from pcpg_dist.config.experiment import parse_config
-
     path = Path(path)
     raw, _ = read_raw(path)
     raw = apply_overrides(raw, parse_overrides(overrides or []))

@@ -22,6 +22,8 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
+from pcpg_dist.common.messages import settable_keys, unknown_key_message
+
 if TYPE_CHECKING:
     from pydantic import BaseModel
 
@@ -126,14 +128,28 @@ class Domain:
                 key = ".".join(str(p) for p in (self.name, *err["loc"]))
                 shown = "missing" if err["type"] == "missing" else repr(err.get("input"))[:200]
                 if err["type"] == "extra_forbidden":
-                    from pcpg_dist.config.overrides import unknown_key_message
-
-                    raise ConfigError(unknown_key_message(key, self.name)) from None
+                    raise ConfigError(unknown_key_message(key, self._config_keys(cfg))) from None
                 raise ConfigError(
                     f"key '{key}': value {shown} is not allowed — "
                     f"{err['msg'].removeprefix('Value error, ')}"
                 ) from None
         return None
+
+    def _config_keys(self, cfg: ExperimentConfig) -> list[str]:
+        """Every key a config for this domain can set (its own settings' too), for a did-you-mean;
+        read from ``cfg``'s model so the domain API needs nothing of the config layer at runtime."""
+        from pydantic import BaseModel
+
+        config_model = type(cfg)
+        keys = settable_keys(config_model)
+        model = self.settings_model
+        if (
+            isinstance(model, type)
+            and issubclass(model, BaseModel)
+            and self.name not in config_model.model_fields
+        ):
+            keys += settable_keys(model, self.name + ".")
+        return keys
 
     def check_config(self, cfg: ExperimentConfig) -> None:
         """Cheap checks when a config is loaded (files exist, ...); raise PcpgError or ValueError.
@@ -183,7 +199,7 @@ class Domain:
     def units(self, cfg: ExperimentConfig, datasets: dict[str, Dataset]) -> list[Unit]:
         """Evaluation units; default: one per dataset with a seeded trajectory split
         (``ranking.test_fraction``, ``ranking.split_seed``)."""
-        from pcpg_dist.stages.ranking import split_trajectories
+        from pcpg_dist.domains.defaults import split_trajectories
 
         return [
             Unit(

@@ -127,7 +127,7 @@ def units(cfg: ExperimentConfig, datasets: dict[str, Dataset]) -> list[Unit]:
     the skill score and the hooks each unit will use are asked for once, so a broken one fails
     here, before any clustering, not after training."""
     from pcpg_dist.dataset import Dataset
-    from pcpg_dist.stages.ranking import score_dataset
+    from pcpg_dist.domains.defaults import score_dataset
 
     domain = cfg.domain_object
     with calling(domain, "units"):
@@ -201,7 +201,7 @@ def units(cfg: ExperimentConfig, datasets: dict[str, Dataset]) -> list[Unit]:
 # --------------------------------------------------------------------------- stages
 def score(cfg: ExperimentConfig) -> ScoreFn | None:
     """The domain's skill score (None = the paper's Performance) as a function returning floats;
-    their shape and finiteness are checked by :func:`pcpg_dist.stages.ranking.score_dataset`."""
+    their shape and finiteness are checked by :func:`pcpg_dist.domains.defaults.score_dataset`."""
     domain = cfg.domain_object
     with calling(domain, "score"):
         fn = domain.score(cfg)

@@ -22,37 +22,11 @@ from pcpg_dist.config.stages import RankConfig
 from pcpg_dist.dataset import Dataset
 from pcpg_dist.domains.base import ScoreFn
 
-
-def performance(dataset: Dataset, beta: float = 0.1) -> np.ndarray:
-    """Eq. 3 of the paper: ``(1/|X|) * (1 if X ends in a goal state else beta)``.
-
-    |X| is the number of states of the trajectory; "goal" is ``dataset.success``. Shorter
-    successful trajectories score highest, failures are scaled down by ``beta``.
-    """
-    lengths = dataset.lengths.astype(np.float64)
-    return np.where(dataset.success, 1.0, beta) / lengths
-
-
-def split_trajectories(n: int, test_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """A seeded random split of positions 0..n-1 into sorted (train, test) index arrays.
-
-    ``round`` decides the test size; with ``test_fraction > 0`` at least one trajectory is held
-    out (the evaluation needs one) and at least one stays in training.
-    """
-    if n < 1:
-        raise DataError("cannot split an empty dataset")
-    if not 0.0 <= test_fraction < 1.0:
-        raise DataError(f"test_fraction must lie in [0, 1), got {test_fraction}")
-    n_test = min(n - 1, int(round(test_fraction * n)))
-    if test_fraction > 0:
-        if n < 2:
-            raise DataError(
-                f"ranking.test_fraction: {n} trajectory cannot be split into training "
-                "and test trajectories (need at least 2)"
-            )
-        n_test = max(1, n_test)
-    perm = np.random.default_rng(seed).permutation(n)
-    return np.sort(perm[n_test:]), np.sort(perm[:n_test])
+# the default split and skill score belong to the domain API (a domain's units() and score() fall
+# back on them); Step B and its many callers keep reaching them here
+from pcpg_dist.domains.defaults import performance as performance
+from pcpg_dist.domains.defaults import score_dataset as score_dataset
+from pcpg_dist.domains.defaults import split_trajectories as split_trajectories
 
 
 def n_kept(n: int, p: float) -> int:
@@ -97,7 +71,7 @@ def _no_margins(dataset: Dataset) -> str:
 def check_margins_come(cfg, datasets: Sequence[Dataset]) -> None:
     """Before Step A: a DataError if ``ranking.style_margin`` will find a clustering without
     margins (``bag_auto`` on continuous states), rather than after every unit was clustered."""
-    from pcpg_dist.stages.clustering.cluster import falls_back_to_lstm
+    from pcpg_dist.stages.clustering import falls_back_to_lstm
 
     if cfg.ranking.style_margin > 0 and cfg.clustering.method == "bag_auto":
         for d in datasets:
@@ -119,27 +93,6 @@ def ranked_last(margins: np.ndarray | None, cfg: RankConfig, dataset: Dataset) -
             f"style margins must have shape ({dataset.n_trajectories},), got {margins.shape}"
         )
     return margins < cfg.style_margin
-
-
-def score_dataset(dataset: Dataset, cfg: RankConfig, score: ScoreFn | None = None) -> np.ndarray:
-    """Scores from a domain's own ``score`` callable, or Performance (Eq. 3) by default."""
-    values = performance(dataset, cfg.beta) if score is None else np.asarray(score(dataset), float)
-    if values.shape != (dataset.n_trajectories,):
-        raise DataError(
-            f"domain {dataset.domain!r}: its score function returned shape {values.shape} for "
-            f"{dataset.env}; it must return one number per trajectory, shape "
-            f"({dataset.n_trajectories},)"
-        )
-    if not np.isfinite(values).all():
-        bad = np.flatnonzero(~np.isfinite(values))
-        raise DataError(
-            f"{dataset.domain}-{dataset.env}: the skill score of trajectory "
-            f"{dataset.trajectory_ids[bad[0]]} is {values[bad[0]]} ({len(bad)} of "
-            f"{dataset.n_trajectories} trajectories not finite); Step B ranks by finite scores: "
-            f"check the domain's score setting and the values it adds up (rewards near "
-            f"float64's limit overflow when summed)"
-        )
-    return values
 
 
 def threshold(

@@ -235,7 +235,7 @@ def test_loading_a_config_imports_no_torch_and_no_stage():
     code = (
         "import sys; from pcpg_dist.config.overrides import load_config_with; "
         f"[load_config_with(p) for p in {[str(p) for p in sorted(EXPERIMENTS.glob('*.yaml'))]!r}]; "
-        "heavy = [m for m in ('torch', 'ray', 'mlflow', 'optuna', 'pcpg_dist.stages.bc', 'pcpg_dist.stages.clustering.cluster', "
+        "heavy = [m for m in ('torch', 'ray', 'mlflow', 'optuna', 'pcpg_dist.stages.bc', 'pcpg_dist.stages.clustering.step', "
         "'pcpg_dist.orchestration.tuning', 'pcpg_dist.orchestration.runner', 'pcpg_dist.stages.evaluation', 'pcpg_dist.stages.ranking') if m in sys.modules]; "
         "print(heavy)"
     )
@@ -372,7 +372,7 @@ def test_a_key_given_twice_in_the_file_is_refused_naming_both_lines(tmp_path, te
 
 def test_a_key_that_extends_a_merged_mapping_is_no_repeat():
     text = "name: t\n_: &b {epochs: 5, lr: 0.5}\nbc:\n  <<: *b\n  lr: 0.1\n"
-    from pcpg_dist.config.experiment import load_yaml_text
+    from pcpg_dist.config.yaml_io import load_yaml_text
 
     assert load_yaml_text(text, "x.yaml")["bc"] == {"epochs": 5, "lr": 0.1}
 

@@ -38,8 +38,8 @@ class MarioDomain(Domain):
         return {result.dataset.env: result.dataset}
 
     def units(self, cfg, datasets) -> list[Unit]:
+        from pcpg_dist.domains.defaults import split_trajectories
         from pcpg_dist.domains.mario.log import valid_mask_from, with_valid
-        from pcpg_dist.stages.ranking import split_trajectories
 
         units = []
         for env, ds in datasets.items():
