@@ -103,7 +103,8 @@ class Boom:
 
 
 def test_tampered_model_file_is_rejected_not_executed(tmp_path):
-    from pcpg_dist.stages.bc import BCConfig, TrainedCells, train_cells
+    from pcpg_dist.config.stages import BCConfig
+    from pcpg_dist.stages.bc import TrainedCells, train_cells
     from pcpg_dist.stages.ranking import RankConfig, plan_cells
     from tests.bc_toy import make_dataset
 
@@ -122,7 +123,7 @@ def test_tampered_model_file_is_rejected_not_executed(tmp_path):
 
 def test_tampered_cluster_model_is_rejected(tmp_path):
     from pcpg_dist.dataset import Dataset
-    from pcpg_dist.stages.clustering.cluster import ClusterConfig, cluster, load_model
+    from pcpg_dist.stages.clustering import ClusterConfig, cluster, load_model
 
     rng = np.random.default_rng(0)
     trajs = [
@@ -178,7 +179,8 @@ def test_diverged_training_stops_with_one_line_and_returns_no_weights(engine):
     published as agents with exit 0; now training raises before anything is returned."""
     import dataclasses
 
-    from pcpg_dist.stages.bc import BCConfig, train_cells
+    from pcpg_dist.config.stages import BCConfig
+    from pcpg_dist.stages.bc import train_cells
     from pcpg_dist.stages.ranking import RankConfig, plan_cells, split_trajectories
     from tests.bc_toy import make_dataset
 
@@ -265,7 +267,8 @@ def test_cluster_refuses_a_dataset_whose_env_would_leave_out(tmp_path, capsys, r
 
     import pyarrow.parquet as pq
 
-    from pcpg_dist.dataset import sha256_file, write_datasets
+    from pcpg_dist.common.files import sha256_file
+    from pcpg_dist.dataset import write_datasets
     from tests.bc_toy import make_dataset
 
     data = tmp_path / "deep" / "data"
@@ -361,8 +364,7 @@ def test_tampered_cluster_model_is_one_line(tmp_path, edit):
     from pcpg_dist.config import ClusterConfig, PBTGConfig
     from pcpg_dist.domains.gridworld.layout import random_layouts
     from pcpg_dist.domains.gridworld.pbtg import assemble_dataset, generate_pair
-    from pcpg_dist.stages.clustering.cluster import cluster
-    from pcpg_dist.stages.clustering.models import load_model
+    from pcpg_dist.stages.clustering import cluster, load_model
 
     layout = random_layouts(1, 5)[0]
     pbtg = PBTGConfig(episodes=2000, trajectories_per_style=30, dataset_per_style=15)
