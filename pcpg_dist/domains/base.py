@@ -15,14 +15,15 @@ See docs/writing-a-domain.md for a worked example.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
 import numpy as np
 
 from pcpg_dist.common.messages import settable_keys, unknown_key_message
+from pcpg_dist.domains.defaults import in_process
 
 if TYPE_CHECKING:
     from pydantic import BaseModel
@@ -36,6 +37,19 @@ Policy = Callable[[np.ndarray, np.ndarray, np.random.Generator], np.ndarray]
 
 #: A domain's own skill score: one float per trajectory, higher = more skilled.
 ScoreFn = Callable[["Dataset"], np.ndarray]
+
+
+class FanOut(Protocol):
+    """How a domain spreads its data generation over workers without knowing who they are:
+    ``fan_out(fn, calls, description, show_progress=True) -> [fn(*args) for args in calls]``."""
+
+    def __call__(
+        self,
+        fn: Callable[..., Any],
+        calls: Sequence[tuple],
+        description: str,
+        show_progress: bool = True,
+    ) -> list[Any]: ...
 
 
 def random_policy(states: np.ndarray, valid: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -187,9 +201,12 @@ class Domain:
         except PackageNotFoundError:
             return None
 
-    def generate(self, cfg: ExperimentConfig, show_progress: bool = True) -> dict[str, Dataset]:
-        """Every dataset of the config, keyed by environment name (Ray is initialised; a domain
-        may fan out with :func:`pcpg_dist.orchestration.ray_pool.run_tasks`)."""
+    def generate(
+        self, cfg: ExperimentConfig, show_progress: bool = True, fan_out: FanOut = in_process
+    ) -> dict[str, Dataset]:
+        """Every dataset of the config, keyed by environment name. Batches of independent calls
+        go through ``fan_out(fn, calls, description, show_progress=...)`` (results in call order):
+        pcpg passes one that runs them as Ray tasks, so the domain never imports Ray itself."""
         raise NotImplementedError(f"domain {self.name!r} does not generate or load data")
 
     def manifest(self, cfg: ExperimentConfig, datasets: dict[str, Dataset]) -> dict[str, Any]:

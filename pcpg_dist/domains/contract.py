@@ -15,6 +15,7 @@ The runner, the pipeline, ``pcpg cluster`` and tuning call the domain only throu
 from __future__ import annotations
 
 import contextlib
+import inspect
 import math
 import numbers
 import sys
@@ -26,7 +27,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from pcpg_dist.common.errors import DomainError, PcpgError, first_line
-from pcpg_dist.domains.base import Domain, DomainHooks, ScoreFn, Unit
+from pcpg_dist.domains.base import Domain, DomainHooks, FanOut, ScoreFn, Unit
+from pcpg_dist.domains.defaults import in_process
 
 if TYPE_CHECKING:
     from pcpg_dist.config import ExperimentConfig
@@ -81,13 +83,18 @@ def data_key(cfg: ExperimentConfig) -> list[Any]:
     return list(key)
 
 
-def generate(cfg: ExperimentConfig, show_progress: bool = True) -> dict[str, Dataset]:
-    """The domain's datasets: a non-empty dict of environment name -> Dataset, one per environment."""
+def generate(
+    cfg: ExperimentConfig, show_progress: bool = True, fan_out: FanOut = in_process
+) -> dict[str, Dataset]:
+    """The domain's datasets: a non-empty dict of environment name -> Dataset, one per environment.
+
+    ``fan_out`` runs the domain's batches of calls (the orchestration passes one that runs them
+    as Ray tasks; by default they run here, one after another)."""
     from pcpg_dist.dataset import Dataset
 
     domain = cfg.domain_object
     with calling(domain, "generate"):
-        datasets = domain.generate(cfg, show_progress)
+        datasets = _call_generate(domain, cfg, show_progress, fan_out)
     allowed = "it must return a non-empty dict of environment name -> Dataset"
     if not isinstance(datasets, dict):
         raise _fail(domain, "generate", f"returned {_kind(datasets)}; {allowed}")
@@ -110,6 +117,28 @@ def generate(cfg: ExperimentConfig, show_progress: bool = True) -> dict[str, Dat
             )
         envs[ds.env] = name
     return datasets
+
+
+def _call_generate(
+    domain: Domain, cfg: ExperimentConfig, show_progress: bool, fan_out: FanOut
+) -> Any:
+    """``domain.generate`` called the way its signature allows: ``fan_out`` by keyword where it
+    names one, ``show_progress`` where it takes a second argument, so a plugin written as
+    ``generate(self, cfg)`` or ``generate(self, cfg, show_progress)`` keeps working."""
+    try:
+        params = list(inspect.signature(domain.generate).parameters.values())
+    except (TypeError, ValueError):  # a callable without a signature: call it as pcpg always has
+        return domain.generate(cfg, show_progress)
+    kwargs = {"fan_out": fan_out} if any(p.name == "fan_out" for p in params) else {}
+    positional = [
+        p
+        for p in params
+        if p.name != "fan_out"
+        and p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD, p.VAR_POSITIONAL)
+    ]
+    if len(positional) >= 2 or any(p.kind is p.VAR_POSITIONAL for p in positional):
+        return domain.generate(cfg, show_progress, **kwargs)
+    return domain.generate(cfg, **kwargs)
 
 
 def manifest(cfg: ExperimentConfig, datasets: dict[str, Dataset]) -> dict[str, Any]:

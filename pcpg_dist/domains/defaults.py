@@ -1,18 +1,24 @@
-"""The domain API's defaults: the trajectory split and the paper's skill score.
+"""The domain API's defaults: the trajectory split, the paper's skill score, the in-process fan-out.
 
 A domain that defines no ``units`` splits each dataset with :func:`split_trajectories`, and one
-whose ``score`` returns None is ranked by :func:`performance` (Eq. 3). They live with the domain
+whose ``score`` returns None is ranked by :func:`performance` (Eq. 3). A domain's ``generate``
+hands batches of calls to a fan-out: the orchestration passes one that runs them as Ray tasks
+(``pcpg_dist.orchestration.ray_pool.fan_out``); a domain used on its own (a test, a notebook,
+:func:`pcpg_dist.domains.check.check_domain`) gets :func:`in_process`, a plain loop. Results are
+the same either way: every call is deterministic in its arguments. They live with the domain
 API, not with Step B, so that the API (and the contract that checks a domain's score) needs
 nothing above it; Step B (``pcpg_dist.stages.ranking``) calls the very same functions.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from pcpg_dist.common.errors import DataError
+from pcpg_dist.common.progress import progress_bar
 
 if TYPE_CHECKING:
     from pcpg_dist.config.ranking import RankConfig
@@ -71,3 +77,21 @@ def score_dataset(dataset: Dataset, cfg: RankConfig, score: ScoreFn | None = Non
             f"float64's limit overflow when summed)"
         )
     return values
+
+
+def in_process(
+    fn: Callable[..., Any],
+    calls: Sequence[tuple],
+    description: str,
+    show_progress: bool = True,
+) -> list[Any]:
+    """Run ``fn(*args)`` for every ``args`` in ``calls`` here, one after another, with the same
+    progress bar the Ray fan-out shows; results in call order."""
+    results: list[Any] = []
+    if not calls:
+        return results
+    with progress_bar(description, total=len(calls), enabled=show_progress) as advance:
+        for args in calls:
+            results.append(fn(*args))
+            advance(1, description=description)
+    return results

@@ -14,6 +14,7 @@ from pcpg_dist.config import ExperimentConfig
 from pcpg_dist.dataset import Dataset, load_datasets
 from pcpg_dist.domains import contract
 from pcpg_dist.domains.base import Unit
+from pcpg_dist.orchestration import ray_pool
 from pcpg_dist.orchestration.cache import Cache
 from pcpg_dist.pipeline.declared import data_key
 
@@ -107,7 +108,7 @@ def load_or_generate(
     path = cache.path("data", key)
     if cache.done("data", key) is None:
         # generated and validated in memory first: bad input leaves nothing behind
-        datasets = contract.generate(cfg, show_progress)
+        datasets = contract.generate(cfg, show_progress, fan_out=ray_pool.fan_out)
         cache.start("data", key)
         write_to(cfg, datasets, path)
         cache.finish("data", key, {"stage": "data"})

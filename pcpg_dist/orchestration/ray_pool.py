@@ -347,6 +347,17 @@ def run_tasks(
     return results
 
 
+def fan_out(
+    fn: Callable[..., Any],
+    calls: Sequence[tuple],
+    description: str,
+    show_progress: bool = True,
+) -> list[Any]:
+    """A domain's fan-out (:class:`pcpg_dist.domains.base.FanOut`) on Ray: every call a 1-CPU
+    task, results in call order; what ``contract.generate`` is given where Ray is initialised."""
+    return run_tasks(fn, calls, description, show_progress=show_progress)
+
+
 def _abandon(refs: list[Any]) -> None:
     """After one task failed (or Ctrl-C): cancel the tasks still in flight and read those that
     already ended, so that Ray does not print their errors as unhandled after the one-line error."""

@@ -13,22 +13,26 @@ from pcpg_dist.common.provenance import provenance
 from pcpg_dist.config import ExperimentConfig
 from pcpg_dist.dataset import Dataset, write_datasets
 from pcpg_dist.domains import contract
-from pcpg_dist.domains.base import Unit
+from pcpg_dist.domains.base import FanOut, Unit
+from pcpg_dist.domains.defaults import in_process
 
 __all__ = ["Unit", "generate", "generate_to", "units"]
 
 
-def generate(cfg: ExperimentConfig, show_progress: bool = True) -> dict[str, Dataset]:
-    """Every dataset file of the config's domain, keyed by env (Ray must be initialised)."""
-    return contract.generate(cfg, show_progress)
+def generate(
+    cfg: ExperimentConfig, show_progress: bool = True, fan_out: FanOut = in_process
+) -> dict[str, Dataset]:
+    """Every dataset file of the config's domain, keyed by env; the domain's batches of calls go
+    through ``fan_out`` (the orchestration passes its Ray fan-out; by default they run here)."""
+    return contract.generate(cfg, show_progress, fan_out)
 
 
 def generate_to(
-    cfg: ExperimentConfig, out_dir: Path, show_progress: bool = True
+    cfg: ExperimentConfig, out_dir: Path, show_progress: bool = True, fan_out: FanOut = in_process
 ) -> dict[str, Dataset]:
     """Generate and write ``out_dir/<domain>-<env>.parquet`` + ``manifest.json``."""
     t0 = time.perf_counter()
-    datasets = generate(cfg, show_progress)
+    datasets = generate(cfg, show_progress, fan_out)
     write_to(cfg, datasets, out_dir, time.perf_counter() - t0)
     return datasets
 

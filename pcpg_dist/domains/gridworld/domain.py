@@ -10,7 +10,8 @@ from __future__ import annotations
 from functools import lru_cache
 from typing import Any
 
-from pcpg_dist.domains.base import Domain, DomainHooks
+from pcpg_dist.domains.base import Domain, DomainHooks, FanOut
+from pcpg_dist.domains.defaults import in_process
 
 
 @lru_cache(maxsize=8)
@@ -70,13 +71,12 @@ class GridWorldDomain(Domain):
             layouts = [gw.layout_text(e) for e in gw.environments]
         return [self.name, cfg.seed, cfg.pbtg, gw.units, layouts]
 
-    def generate(self, cfg, show_progress: bool = True):
+    def generate(self, cfg, show_progress: bool = True, fan_out: FanOut = in_process):
         from pcpg_dist.domains.gridworld.pbtg import assemble_dataset, generate_pair
-        from pcpg_dist.orchestration.ray_pool import run_tasks
 
         layouts = gridworld_layouts(cfg)
         calls = [(layout, r, cfg.pbtg, cfg.seed) for layout in layouts for r in range(4)]
-        pairs = run_tasks(generate_pair, calls, "PBTG (E, R)", show_progress=show_progress)
+        pairs = fan_out(generate_pair, calls, "PBTG (E, R)", show_progress=show_progress)
         return {lt.name: assemble_dataset(pairs[4 * i : 4 * i + 4]) for i, lt in enumerate(layouts)}
 
     def manifest(self, cfg, datasets) -> dict[str, Any]:

@@ -10,7 +10,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from pcpg_dist.domains.base import Domain, Unit
+from pcpg_dist.domains.base import Domain, FanOut, Unit
+from pcpg_dist.domains.defaults import in_process
 
 
 class MarioDomain(Domain):
@@ -27,7 +28,7 @@ class MarioDomain(Domain):
             sha256_file(log) if log is not None and log.is_file() else "shipped",
         ]
 
-    def generate(self, cfg, show_progress: bool = True):
+    def generate(self, cfg, show_progress: bool = True, fan_out: FanOut = in_process):
         from pcpg_dist.domains.mario.log import load
 
         result = load(cfg.mario)

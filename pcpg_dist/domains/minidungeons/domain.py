@@ -15,7 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from pcpg_dist.domains.base import Domain, DomainHooks, Unit, standardised
+from pcpg_dist.domains.base import Domain, DomainHooks, FanOut, Unit, standardised
+from pcpg_dist.domains.defaults import in_process
 
 
 def _part(level: str, proxy: int, runs: int, seed: int, noise: tuple[float, float], max_steps: int):
@@ -45,10 +46,9 @@ class MiniDungeonsDomain(Domain):
     name = "minidungeons"
     settings_key = "minidungeons"
 
-    def generate(self, cfg, show_progress: bool = True):
+    def generate(self, cfg, show_progress: bool = True, fan_out: FanOut = in_process):
         from pcpg_dist.dataset import Dataset
         from pcpg_dist.domains.minidungeons import N_PROXIES
-        from pcpg_dist.orchestration.ray_pool import run_tasks
 
         md = cfg.minidungeons
         levels = [*md.train_levels, *md.test_levels]
@@ -57,7 +57,7 @@ class MiniDungeonsDomain(Domain):
             for lv in levels
             for p in range(N_PROXIES)
         ]
-        parts = run_tasks(_part, calls, "proxies (level, proxy)", show_progress=show_progress)
+        parts = fan_out(_part, calls, "proxies (level, proxy)", show_progress=show_progress)
         return {
             lv: Dataset.concat(parts[i * N_PROXIES : (i + 1) * N_PROXIES], renumber=True)
             for i, lv in enumerate(levels)

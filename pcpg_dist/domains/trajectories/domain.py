@@ -14,7 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from pcpg_dist.domains.base import Domain, DomainHooks, ScoreFn, Unit
+from pcpg_dist.domains.base import Domain, DomainHooks, FanOut, ScoreFn, Unit
+from pcpg_dist.domains.defaults import in_process
 
 BUILTIN_SCORES = ("return", "length", "-length")
 
@@ -73,7 +74,7 @@ class TrajectoriesDomain(Domain):
             content,
         ]
 
-    def generate(self, cfg, show_progress: bool = True):
+    def generate(self, cfg, show_progress: bool = True, fan_out: FanOut = in_process):
         from pcpg_dist.domains.trajectories.table import (
             StepTable,
             datasets_from_table,
