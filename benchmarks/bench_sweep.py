@@ -20,9 +20,9 @@ import time
 from pathlib import Path
 
 from pcpg_dist.api.run import run_experiment
+from pcpg_dist.api.sweep import run_sweep
 from pcpg_dist.config.overrides import load_config_with
 from pcpg_dist.orchestration.ray_pool import init_ray
-from pcpg_dist.orchestration.sweep import run_sweep
 
 ROOT = Path(__file__).resolve().parent.parent
 AXES = ["bc.hidden_size=8,16,32", "bc.lr=0.001,0.003,0.01,0.03"]

@@ -75,9 +75,9 @@ def _cmd_run(args: argparse.Namespace) -> None:
 
 def _cmd_sweep(args: argparse.Namespace) -> None:
     """A grid over config axes, every point together on Ray; shared stages run once."""
+    from pcpg_dist.api.sweep import run_sweep
     from pcpg_dist.config.overrides import split_sweep_items
     from pcpg_dist.orchestration.ray_pool import init_ray
-    from pcpg_dist.orchestration.sweep import run_sweep
 
     axes, fixed = split_sweep_items(args.axes)
     _check_tracking(args)

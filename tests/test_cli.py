@@ -140,7 +140,7 @@ def test_classify_writes_the_models_labels_and_warns_on_another_layout(
     from pcpg_dist.dataset import write_parquet
     from pcpg_dist.domains.gridworld.layout import random_layouts
     from pcpg_dist.domains.gridworld.pbtg import assemble_dataset
-    from pcpg_dist.stages.clustering.cluster import ClusterConfig, cluster
+    from pcpg_dist.stages.clustering import ClusterConfig, cluster
 
     pbtg = PBTGConfig(episodes=3000, trajectories_per_style=60, dataset_per_style=40)
     same, other = random_layouts(2, 11)
@@ -341,11 +341,12 @@ def test_classify_never_overwrites_its_inputs_or_a_special_file(tmp_path, capsys
     them with the CSV (exit 0); now one line, exit 2, and every input is byte-for-byte as before."""
     import os
 
+    from pcpg_dist.common.files import atomic_write_bytes
     from pcpg_dist.config import PBTGConfig
-    from pcpg_dist.dataset import atomic_write_bytes, write_parquet
+    from pcpg_dist.dataset import write_parquet
     from pcpg_dist.domains.gridworld.layout import random_layouts
     from pcpg_dist.domains.gridworld.pbtg import assemble_dataset
-    from pcpg_dist.stages.clustering.cluster import ClusterConfig, cluster
+    from pcpg_dist.stages.clustering import ClusterConfig, cluster
 
     pbtg = PBTGConfig(episodes=1000, trajectories_per_style=20, dataset_per_style=10)
     (layout,) = random_layouts(1, 5)
@@ -381,8 +382,8 @@ def test_classify_never_overwrites_its_inputs_or_a_special_file(tmp_path, capsys
 
 def test_sweep_prints_its_points_numbers_on_stdout(capsys, tmp_path):
     """`pcpg sweep` printed where its table was, and no number: now each point's headline."""
+    from pcpg_dist.api.sweep import SweepResult
     from pcpg_dist.cli import _print_points
-    from pcpg_dist.orchestration.sweep import SweepResult
 
     rows = [
         {

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from pcpg_dist.config import parse_config
 from pcpg_dist.api.reproduce import Reproduction, compare_metrics, print_reproduction
+from pcpg_dist.config import parse_config
 
 ROOT = Path(__file__).resolve().parents[2]
 

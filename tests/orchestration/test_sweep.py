@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from pcpg_dist.api.sweep import run_sweep
 from pcpg_dist.cli import main
 from pcpg_dist.common.errors import ConfigError
 from pcpg_dist.config.overrides import (
@@ -24,13 +25,9 @@ from pcpg_dist.config.overrides import (
     split_sweep_items,
     sweep_points,
 )
-from pcpg_dist.orchestration.sweep import (
-    SWEEP_JSON,
-    plan_sweep,
-    point_slug,
-    run_sweep,
-    write_sweep_files,
-)
+from pcpg_dist.orchestration.sweep import plan_sweep, point_slug
+from pcpg_dist.reporting.sweep_files import SWEEP_JSON
+from pcpg_dist.reporting.sweep_page import write_sweep_files
 
 ROOT = Path(__file__).resolve().parents[2]
 QUICK = ROOT / "experiments" / "quick.yaml"
@@ -299,7 +296,7 @@ def test_sweep_files_describe_only_the_last_sweep_and_render_again(tmp_path, cap
 def test_report_of_a_sweeps_mlflow_run_and_reproduce_names_a_point(tmp_path, capsys):
     """The run id `pcpg sweep` prints ("MLflow sweep run: ID"): report rendered the sweep's page from
     its logged files (it crashed: no 'summary' artifacts); reproduce names one of its point runs."""
-    from pcpg_dist.tracking import SweepTracker, Tracker
+    from pcpg_dist.tracking.trackers import SweepTracker, Tracker
 
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     plan = plan_sweep(
@@ -374,7 +371,7 @@ def test_sweep_figures_tick_the_swept_values_label_axes_and_keep_equal_lines_vis
     axes were raw keys and the error bars unexplained."""
     import matplotlib.figure
 
-    from pcpg_dist.orchestration.sweep import draw_sweep
+    from pcpg_dist.reporting.sweep_figures import draw_sweep
 
     seen = {}
     save = matplotlib.figure.Figure.savefig
