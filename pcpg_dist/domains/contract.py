@@ -70,10 +70,16 @@ def calling(domain: Domain, method: str) -> Iterator[None]:
         raise _fail(domain, method, f"raised {type(e).__name__}: {first_line(e)}") from e
 
 
+def the_domain(cfg: ExperimentConfig, domain: Domain | None) -> Domain:
+    """``domain`` where one is given (:func:`pcpg_dist.domains.check.check_domain` checks a domain
+    not registered yet), else the config's."""
+    return cfg.domain_object if domain is None else domain
+
+
 # --------------------------------------------------------------------------- data
-def data_key(cfg: ExperimentConfig) -> list[Any]:
+def data_key(cfg: ExperimentConfig, domain: Domain | None = None) -> list[Any]:
     """The domain's data key (the cache key of its data)."""
-    domain = cfg.domain_object
+    domain = the_domain(cfg, domain)
     with calling(domain, "data_key"):
         key = domain.data_key(cfg)
     if not isinstance(key, list | tuple):
@@ -84,7 +90,10 @@ def data_key(cfg: ExperimentConfig) -> list[Any]:
 
 
 def generate(
-    cfg: ExperimentConfig, show_progress: bool = True, fan_out: FanOut = in_process
+    cfg: ExperimentConfig,
+    show_progress: bool = True,
+    fan_out: FanOut = in_process,
+    domain: Domain | None = None,
 ) -> dict[str, Dataset]:
     """The domain's datasets: a non-empty dict of environment name -> Dataset, one per environment.
 
@@ -92,7 +101,7 @@ def generate(
     as Ray tasks; by default they run here, one after another)."""
     from pcpg_dist.dataset import Dataset
 
-    domain = cfg.domain_object
+    domain = the_domain(cfg, domain)
     with calling(domain, "generate"):
         datasets = _call_generate(domain, cfg, show_progress, fan_out)
     allowed = "it must return a non-empty dict of environment name -> Dataset"
@@ -141,9 +150,11 @@ def _call_generate(
     return domain.generate(cfg, **kwargs)
 
 
-def manifest(cfg: ExperimentConfig, datasets: dict[str, Dataset]) -> dict[str, Any]:
+def manifest(
+    cfg: ExperimentConfig, datasets: dict[str, Dataset], domain: Domain | None = None
+) -> dict[str, Any]:
     """The domain's extra provenance for the data's manifest.json."""
-    domain = cfg.domain_object
+    domain = the_domain(cfg, domain)
     with calling(domain, "manifest"):
         extra = domain.manifest(cfg, datasets)
     if not isinstance(extra, dict):
@@ -151,14 +162,16 @@ def manifest(cfg: ExperimentConfig, datasets: dict[str, Dataset]) -> dict[str, A
     return extra
 
 
-def units(cfg: ExperimentConfig, datasets: dict[str, Dataset]) -> list[Unit]:
+def units(
+    cfg: ExperimentConfig, datasets: dict[str, Dataset], domain: Domain | None = None
+) -> list[Unit]:
     """The domain's evaluation units, checked (names, datasets, held-out indices in range); then
     the skill score and the hooks each unit will use are asked for once, so a broken one fails
     here, before any clustering, not after training."""
     from pcpg_dist.dataset import Dataset
     from pcpg_dist.domains.defaults import score_dataset
 
-    domain = cfg.domain_object
+    domain = the_domain(cfg, domain)
     with calling(domain, "units"):
         found = domain.units(cfg, datasets)
     allowed = "it must return a non-empty list of Unit"
@@ -219,19 +232,19 @@ def units(cfg: ExperimentConfig, datasets: dict[str, Dataset]) -> list[Unit]:
                 f"same {n} trajectories as its dataset",
             )
         out.append(replace(u, test_idx=test.astype(np.int64)))
-    fn = score(cfg)
+    fn = score(cfg, domain)
     for u in out:
         if fn is not None:
             score_dataset(u.dataset, cfg.ranking, fn)
-        hooks(cfg, u.name)
+        hooks(cfg, u.name, domain)
     return out
 
 
 # --------------------------------------------------------------------------- stages
-def score(cfg: ExperimentConfig) -> ScoreFn | None:
+def score(cfg: ExperimentConfig, domain: Domain | None = None) -> ScoreFn | None:
     """The domain's skill score (None = the paper's Performance) as a function returning floats;
     their shape and finiteness are checked by :func:`pcpg_dist.domains.defaults.score_dataset`."""
-    domain = cfg.domain_object
+    domain = the_domain(cfg, domain)
     with calling(domain, "score"):
         fn = domain.score(cfg)
     if fn is None:
@@ -260,10 +273,10 @@ def score(cfg: ExperimentConfig) -> ScoreFn | None:
     return checked
 
 
-def hooks(cfg: ExperimentConfig, unit: str) -> DomainHooks | None:
+def hooks(cfg: ExperimentConfig, unit: str, domain: Domain | None = None) -> DomainHooks | None:
     """The domain's hooks for ``unit``, each wrapped so a plugin's exception is one line; a
     rollout must return a Dataset of the episodes asked for."""
-    domain = cfg.domain_object
+    domain = the_domain(cfg, domain)
     with calling(domain, "hooks"):
         found = domain.hooks(cfg, unit)
     if found is None:

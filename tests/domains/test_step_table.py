@@ -306,7 +306,7 @@ def test_string_trajectory_ids_come_back_from_generate_and_classify(tmp_path, ca
     """Ids like 'p10' were numbered 0..n-1 in sorted order and lost: `pcpg classify` wrote
     0, 1, 2, ... that could not be joined back to the user's episodes."""
     from pcpg_dist.dataset import write_parquet
-    from pcpg_dist.stages.clustering.cluster import ClusterConfig, cluster
+    from pcpg_dist.stages.clustering import ClusterConfig, cluster
 
     df = full_table()
     path = tmp_path / "logs.parquet"
