@@ -26,13 +26,14 @@ CHILD = r"""
 import json, resource, sys, time
 from pcpg_dist.common.devices import set_threads
 set_threads(1)
-from pcpg_dist.domains.trajectories.table import datasets_from_table, read_step_table
+from pcpg_dist.domains.trajectories.table import datasets_from_table
+from pcpg_dist.domains.trajectories.table_files import read_step_table
 t0 = time.perf_counter()
 (ds,) = datasets_from_table(read_step_table(sys.argv[1])).values()
 load = time.perf_counter() - t0
 out = {"load_seconds": load, "trajectories": ds.n_trajectories, "rows": ds.n_rows}
 if sys.argv[2] != "none":
-    from pcpg_dist.stages.clustering.cluster import cluster, clustering_metrics
+    from pcpg_dist.stages.clustering import cluster, clustering_metrics
     from pcpg_dist.config import ClusterConfig
     cfg = ClusterConfig(k=4, method=sys.argv[2], pretrain_epochs=1, dec_epochs=1, batch_size=1024)
     t0 = time.perf_counter()

@@ -296,7 +296,7 @@ def test_memory_for_a_parquet_file_is_estimated_from_its_footer(tmp_path, monkey
     """Simulated small machine: the table's decoded size (from the footer) is compared with half
     the memory before a single row is read."""
     from pcpg_dist.common import memory as stages
-    from pcpg_dist.domains.trajectories.table import read_step_table
+    from pcpg_dist.domains.trajectories.table_files import read_step_table
 
     write_datasets(tmp_path, [small(n=50)], {})
     path = tmp_path / "toy-E1.parquet"

@@ -306,7 +306,8 @@ def test_step_table_style_out_of_range_names_the_row(tmp_path, style, needle):
     """A style id indexes count tables (np.bincount in the ceiling): 10**12 would ask for terabytes."""
     import pyarrow as pa
 
-    from pcpg_dist.domains.trajectories.table import StepTable, datasets_from_table
+    from pcpg_dist.domains.trajectories.table import datasets_from_table
+    from pcpg_dist.domains.trajectories.table_files import StepTable
 
     table = pa.table(
         {
@@ -325,7 +326,8 @@ def test_step_table_style_out_of_range_names_the_row(tmp_path, style, needle):
 def test_step_table_with_an_env_per_row_is_refused(tmp_path):
     import pyarrow as pa
 
-    from pcpg_dist.domains.trajectories.table import MAX_ENVS, StepTable, datasets_from_table
+    from pcpg_dist.domains.trajectories.table import MAX_ENVS, datasets_from_table
+    from pcpg_dist.domains.trajectories.table_files import StepTable
 
     n = MAX_ENVS + 1
     table = pa.table(

@@ -21,7 +21,8 @@ from pcpg_dist.cli import main
 from pcpg_dist.common.errors import ConfigError, DataError
 from pcpg_dist.config import load_config
 from pcpg_dist.domains.trajectories.example_logs import frozenlake_logs
-from pcpg_dist.domains.trajectories.table import datasets_from_table, read_step_table
+from pcpg_dist.domains.trajectories.table import datasets_from_table
+from pcpg_dist.domains.trajectories.table_files import read_step_table
 from pcpg_dist.pipeline import run_unit
 
 

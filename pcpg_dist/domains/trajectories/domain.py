@@ -59,7 +59,7 @@ class TrajectoriesDomain(Domain):
 
     def data_key(self, cfg) -> list[Any]:
         from pcpg_dist.common.files import sha256_file
-        from pcpg_dist.domains.trajectories.table import parquet_files
+        from pcpg_dist.domains.trajectories.table_files import parquet_files
 
         s = cfg.trajectories
         if s.path.startswith("minari:"):
@@ -75,9 +75,9 @@ class TrajectoriesDomain(Domain):
         ]
 
     def generate(self, cfg, show_progress: bool = True, fan_out: FanOut = in_process):
-        from pcpg_dist.domains.trajectories.table import (
+        from pcpg_dist.domains.trajectories.table import datasets_from_table
+        from pcpg_dist.domains.trajectories.table_files import (
             StepTable,
-            datasets_from_table,
             read_step_table,
             safe_env_name,
         )

@@ -44,7 +44,7 @@ DATA_FORMAT = "arrow"  # installed with minari[arrow]; hdf5 would need h5py
 
 def env_name(dataset_id: str) -> str:
     """The ``env`` value (a folder name) of a Minari dataset: its id with unsafe characters -> '_'."""
-    from pcpg_dist.domains.trajectories.table import safe_env_name
+    from pcpg_dist.domains.trajectories.table_files import safe_env_name
 
     return safe_env_name(dataset_id)
 
