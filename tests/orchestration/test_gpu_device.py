@@ -55,9 +55,9 @@ def test_cuda_without_a_gpu_is_one_line_and_auto_is_the_cpu():
 def test_policy_mix_auto_is_the_cpu_fit_where_no_gpu_is_seen():
     """MiniDungeons' clusterer with ``device: auto``: on a machine without a GPU, the CPU's labels."""
     import torch
-    from test_policy_mix import FAST, goal_seekers
+    from stages.test_policy_mix import FAST, goal_seekers
 
-    from pcpg_dist.stages.clustering.cluster import cluster, clustering_metrics
+    from pcpg_dist.stages.clustering import cluster, clustering_metrics
 
     goals = goal_seekers(
         40, seed=7
@@ -74,10 +74,10 @@ def test_policy_mix_auto_is_the_cpu_fit_where_no_gpu_is_seen():
 
 def test_only_a_clustering_that_trains_a_network_asks_for_a_gpu():
     """``bag_auto`` trains a network only where it falls back to lstm_dec (continuous states)."""
-    from test_policy_mix import goal_seekers
+    from stages.test_policy_mix import goal_seekers
 
     from pcpg_dist.dataset import Dataset
-    from pcpg_dist.orchestration.resources import trains_a_network
+    from pcpg_dist.stages.clustering.auto import needs_network
 
     continuous = goal_seekers(5, seed=0)
     rng = np.random.default_rng(0)
@@ -92,14 +92,14 @@ def test_only_a_clustering_that_trains_a_network_asks_for_a_gpu():
     ]  # 9 distinct states
     discrete = Dataset.from_trajectories("toy", "grid", 4, grid, [0] * 20, [True] * 20)
     auto = ClusterConfig(method="bag_auto")
-    assert trains_a_network(auto, continuous) and not trains_a_network(auto, discrete)
+    assert needs_network(auto, continuous) and not needs_network(auto, discrete)
     for method, neural in (
         ("lstm_dec", True),
         ("policy_mix", True),
         ("greedy_mix", False),
         ("bag_kmeans", False),
     ):
-        assert trains_a_network(ClusterConfig(method=method), discrete) is neural
+        assert needs_network(ClusterConfig(method=method), discrete) is neural
 
 
 def test_bc_auto_keeps_cpu_only_settings_on_the_cpu():

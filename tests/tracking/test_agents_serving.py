@@ -23,7 +23,7 @@ import numpy as np
 import pandas as pd
 import pytest
 from bc_toy import make_dataset
-from test_onnx_export import many_actions_dataset, train_toy
+from reporting.test_onnx_export import many_actions_dataset, train_toy
 
 from pcpg_dist.tracking.runs import open_experiment
 from pcpg_dist.tracking.trackers import Tracker
