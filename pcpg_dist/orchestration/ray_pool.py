@@ -297,6 +297,13 @@ def run_tasks(
     )
     limit = max(1, max_in_flight or len(calls))
     results: list[Any] = [None] * len(calls)
+
+    def keep(i: int, value: Any) -> None:
+        if on_result is not None:
+            on_result(i, value)
+        else:
+            results[i] = value
+
     index: dict[Any, int] = {}
     submitted = 0
 
@@ -310,37 +317,7 @@ def run_tasks(
     with progress_bar(description, total=len(calls), enabled=show_progress) as advance:
         try:
             submit()
-            idle_since = time.monotonic()
-            while index:
-                done, _ = ray.wait(list(index), num_returns=1, timeout=2.0)
-                if not done:
-                    if time.monotonic() - idle_since > 5 and show_progress:
-                        waiting = _waiting_for(
-                            num_cpus,
-                            len(index),
-                            max((gpus[i] for i in index.values()), default=0.0),
-                        )
-                        advance(
-                            0, description=f"{description} ({waiting})" if waiting else description
-                        )
-                    continue
-                idle_since = time.monotonic()
-                for ref in done:
-                    i = index.pop(ref)
-                    try:
-                        value = ray.get(ref)
-                    except ray.exceptions.RayTaskError as e:
-                        # A user mistake inside a task surfaces as the project's own one-line error.
-                        if isinstance(e.cause, PcpgError):
-                            raise e.cause from None
-                        raise
-                    if on_result is not None:
-                        on_result(i, value)
-                    else:
-                        results[i] = value
-                    del value
-                    advance(1, description=description)
-                submit()
+            _collect(index, submit, advance, description, num_cpus, gpus, show_progress, keep)
         except BaseException:
             _abandon(list(index))
             raise
@@ -356,6 +333,46 @@ def fan_out(
     """A domain's fan-out (:class:`pcpg_dist.domains.base.FanOut`) on Ray: every call a 1-CPU
     task, results in call order; what ``contract.generate`` is given where Ray is initialised."""
     return run_tasks(fn, calls, description, show_progress=show_progress)
+
+
+def _collect(
+    index: dict[Any, int],
+    submit: Callable[[], None],
+    advance: Callable[..., None],
+    description: str,
+    num_cpus: int,
+    gpus: list[float],
+    show_progress: bool,
+    keep: Callable[[int, Any], None],
+) -> None:
+    """Wait for the tasks in ``index`` (ref -> call number), ``keep`` each result as it comes,
+    submit more as slots free up; while nothing finishes, the bar says what the tasks wait for."""
+    import ray
+
+    idle_since = time.monotonic()
+    while index:
+        done, _ = ray.wait(list(index), num_returns=1, timeout=2.0)
+        if not done:
+            if time.monotonic() - idle_since > 5 and show_progress:
+                waiting = _waiting_for(
+                    num_cpus, len(index), max((gpus[i] for i in index.values()), default=0.0)
+                )
+                advance(0, description=f"{description} ({waiting})" if waiting else description)
+            continue
+        idle_since = time.monotonic()
+        for ref in done:
+            i = index.pop(ref)
+            try:
+                value = ray.get(ref)
+            except ray.exceptions.RayTaskError as e:
+                # A user mistake inside a task surfaces as the project's own one-line error.
+                if isinstance(e.cause, PcpgError):
+                    raise e.cause from None
+                raise
+            keep(i, value)
+            del value
+            advance(1, description=description)
+        submit()
 
 
 def _abandon(refs: list[Any]) -> None:
