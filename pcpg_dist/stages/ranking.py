@@ -27,6 +27,7 @@ from pcpg_dist.domains.base import ScoreFn
 from pcpg_dist.domains.defaults import performance as performance
 from pcpg_dist.domains.defaults import score_dataset as score_dataset
 from pcpg_dist.domains.defaults import split_trajectories as split_trajectories
+from pcpg_dist.stages.cell_rows import SubsetRows
 
 
 def n_kept(n: int, p: float) -> int:
@@ -231,43 +232,35 @@ class Cell:
         return int(self.valid.shape[1])
 
 
-def dedupe_rows(
-    states: np.ndarray,
-    valid: np.ndarray,
-    actions: np.ndarray,
-    weights: np.ndarray | None = None,
-    return_inverse: bool = False,
-) -> tuple[np.ndarray, ...]:
-    """Collapse equal (state, valid, action) rows into one row whose weight is their total.
-
-    A weighted mean of per-row losses over distinct rows equals the mean over raw rows (and so
-    does its gradient): GridWorld has at most 400 states, so this shrinks ~10^4 steps to ~10^2.
-    With ``return_inverse`` also returns, per input row, the index of its distinct row.
-    """
-    weights = np.ones(len(actions)) if weights is None else np.asarray(weights, np.float64)
-    states = np.ascontiguousarray(states, np.float32)
-    key = np.concatenate(
-        [
-            states.view(np.int32).astype(np.int64),
-            valid.astype(np.int64),
-            actions[:, None].astype(np.int64),
-        ],
-        axis=1,
-    )
-    uniq, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
-    inverse = inverse.reshape(-1)
-    out = (
-        states[first],
-        valid[first],
-        actions[first],
-        np.bincount(inverse, weights=weights, minlength=len(uniq)),
-    )
-    return (*out, inverse) if return_inverse else out
-
-
 def fmt(x: float) -> str:
     """Short, stable text of a p or c in keys and metric names: 1, 0.75, 0.1."""
     return f"{x:g}"
+
+
+def _checked_labels(dataset: Dataset, labels: np.ndarray) -> np.ndarray:
+    """One cluster index >= 0 per trajectory, as int64."""
+    labels = np.asarray(labels, dtype=np.int64)
+    if labels.shape != (dataset.n_trajectories,):
+        raise DataError(f"labels must have shape ({dataset.n_trajectories},), got {labels.shape}")
+    if (labels < 0).any():
+        raise DataError("labels must be cluster indices >= 0 (got a negative label)")
+    return labels
+
+
+def _input_scale(dataset: Dataset, train_idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and std (1 where a feature is constant) of the environment's training steps: every
+    model of an environment sees its inputs on this one scale."""
+    row_traj = dataset.row_trajectory
+    steps = dataset.step_rows
+    in_train = np.zeros(dataset.n_trajectories, bool)
+    in_train[train_idx] = True
+    train_rows = steps[in_train[row_traj[steps]]]
+    if not len(train_rows):
+        raise DataError(f"dataset {dataset.domain}-{dataset.env}: no training steps")
+    mean = dataset.states[train_rows].mean(axis=0).astype(np.float32)
+    std = dataset.states[train_rows].std(axis=0).astype(np.float32)
+    std = np.where(std > 1e-6, std, 1.0).astype(np.float32)
+    return mean, std
 
 
 def plan_cells(
@@ -295,61 +288,14 @@ def plan_cells(
     ``cfg.style_margin`` (:func:`ranked_last`; it applies to PCPG and corrupted cells, whose c = 0
     is PCPG, not to No Clustering, which has no clusters).
     """
-    labels = np.asarray(labels, dtype=np.int64)
-    if labels.shape != (dataset.n_trajectories,):
-        raise DataError(f"labels must have shape ({dataset.n_trajectories},), got {labels.shape}")
-    if (labels < 0).any():
-        raise DataError("labels must be cluster indices >= 0 (got a negative label)")
+    labels = _checked_labels(dataset, labels)
     k = int(labels.max()) + 1 if k is None else int(k)
     train_idx = np.asarray(train_idx, dtype=np.int64)
     scores = score_dataset(dataset, cfg, score)
     last = ranked_last(margins, cfg, dataset)
     ids = dataset.trajectory_ids
-    row_traj = dataset.row_trajectory
-    steps = dataset.step_rows
-    in_train = np.zeros(dataset.n_trajectories, bool)
-    in_train[train_idx] = True
-    train_rows = steps[in_train[row_traj[steps]]]
-    if not len(train_rows):
-        raise DataError(f"dataset {dataset.domain}-{dataset.env}: no training steps")
-    mean = dataset.states[train_rows].mean(axis=0).astype(np.float32)
-    std = dataset.states[train_rows].std(axis=0).astype(np.float32)
-    std = np.where(std > 1e-6, std, 1.0).astype(np.float32)
-    # distinct (state, valid, action) rows of the whole environment, found once; a subset's
-    # rows and counts are then one bincount
-    if dedupe:
-        d_states, d_valid, d_actions, _, inverse = dedupe_rows(
-            dataset.states[steps],
-            dataset.valid_mask[steps],
-            dataset.actions[steps],
-            return_inverse=True,
-        )
-    cache: dict[bytes, tuple[np.ndarray, ...]] = {}
-
-    def rows_of(idx: np.ndarray, what: str) -> tuple[np.ndarray, ...]:
-        if idx.size == 0:
-            raise DataError(
-                f"dataset {dataset.domain}-{dataset.env}: subset {what} is empty "
-                f"(no training trajectory carries that label)"
-            )
-        h = idx.tobytes()
-        if h not in cache:
-            member = np.zeros(dataset.n_trajectories, bool)
-            member[idx] = True
-            sel = member[row_traj[steps]]
-            if dedupe:
-                counts = np.bincount(inverse[sel], minlength=len(d_actions)).astype(np.float64)
-                keep = np.nonzero(counts)[0]
-                cache[h] = (d_states[keep], d_valid[keep], d_actions[keep], counts[keep])
-            else:
-                r = steps[sel]
-                cache[h] = (
-                    dataset.states[r],
-                    dataset.valid_mask[r],
-                    dataset.actions[r],
-                    np.ones(len(r)),
-                )
-        return cache[h]
+    mean, std = _input_scale(dataset, train_idx)
+    rows_of = SubsetRows(dataset, dedupe)
 
     def make(spec: CellSpec, idx: np.ndarray) -> Cell:
         s, v, a, w = rows_of(idx, spec.key)

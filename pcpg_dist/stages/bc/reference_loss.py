@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from pcpg_dist.stages.ranking import Cell, dedupe_rows
+from pcpg_dist.stages.cell_rows import dedupe_rows
+from pcpg_dist.stages.ranking import Cell
 
 
 def weighted_loss_and_grad(

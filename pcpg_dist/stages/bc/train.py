@@ -19,7 +19,8 @@ from pcpg_dist.stages.bc.network import layer_sizes, start_vector
 from pcpg_dist.stages.bc.numba_engine import train_numba
 from pcpg_dist.stages.bc.torch_engine import buckets, train_group
 from pcpg_dist.stages.bc.trained import TrainedCells
-from pcpg_dist.stages.ranking import Cell, dedupe_rows
+from pcpg_dist.stages.cell_rows import dedupe_rows
+from pcpg_dist.stages.ranking import Cell
 
 
 def train_cells(
