@@ -19,10 +19,12 @@ from pcpg_dist.domains.trajectories.minari_io import (
     env_name,
     export_ids,
     find_dataset_folder,
+    write_minari,
+)
+from pcpg_dist.domains.trajectories.minari_read import (
     flatten_observations,
     observation_names,
     read_minari,
-    write_minari,
 )
 
 N_ACTIONS = 5

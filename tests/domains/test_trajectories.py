@@ -690,7 +690,8 @@ def test_style_margin_on_continuous_states_with_bag_auto_is_refused_before_clust
     ],
 )
 def test_tampered_minari_metadata_is_one_line(tmp_path, monkeypatch, key, value, needle) -> None:
-    from pcpg_dist.domains.trajectories.minari_io import read_minari, write_minari
+    from pcpg_dist.domains.trajectories.minari_io import write_minari
+    from pcpg_dist.domains.trajectories.minari_read import read_minari
 
     monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "minari"))
     path = tmp_path / "lake.parquet"

@@ -85,7 +85,7 @@ class TrajectoriesDomain(Domain):
         s = cfg.trajectories
         n_actions = s.n_actions
         if s.path.startswith("minari:"):
-            from pcpg_dist.domains.trajectories.minari_io import read_minari
+            from pcpg_dist.domains.trajectories.minari_read import read_minari
 
             dataset_id = s.path.removeprefix("minari:")
             table, meta = read_minari(dataset_id)
