@@ -194,10 +194,38 @@ def rollout(
     (see :data:`SuccessRule`). A policy that returns an action outside the valid mask raises
     ValueError naming the episode and step.
     """
-    from gymnasium import spaces
-
     from pcpg_dist.dataset import Dataset
 
+    _check_rollout_arguments(n_episodes, max_steps, success_rule)
+    seeds = [int(s) for s in rng.integers(2**31, size=n_episodes)]
+    envs: list[gymnasium.Env] = []
+    try:
+        envs.extend(make_env(env_id, kwargs) for _ in range(n_episodes))
+        run = _Episodes(env_id, kwargs, envs, success_rule)
+        run.reset(seeds)
+        for t in range(max_steps):
+            live = np.nonzero(run.alive)[0]
+            if not len(live):
+                break
+            masks = run.live_masks(live, t)
+            acts = run.policy_actions(policy, live, masks, rng, t, action_names)
+            run.step(live, acts, t)
+    finally:
+        for env in envs:
+            env.close()
+    return Dataset.from_trajectories(
+        "trajectories",
+        env_name(env_id),
+        run.n,
+        run.trajectories(),
+        styles=[-1] * n_episodes,
+        success=run.success,
+        feature_names=tuple(feature_names),
+        action_names=tuple(action_names),
+    )
+
+
+def _check_rollout_arguments(n_episodes: int, max_steps: int, success_rule: str) -> None:
     if n_episodes < 1:
         raise ValueError(f"n_episodes must be >= 1, got {n_episodes}")
     if max_steps < 1:
@@ -206,90 +234,107 @@ def rollout(
         raise ValueError(
             f"success_rule must be 'terminated' or 'terminated_positive_reward', got {success_rule!r}"
         )
-    seeds = [int(s) for s in rng.integers(2**31, size=n_episodes)]
-    envs: list[gymnasium.Env] = []
-    try:
-        envs.extend(make_env(env_id, kwargs) for _ in range(n_episodes))
-        obs_space, act_space = envs[0].observation_space, envs[0].action_space
-        n, start = int(act_space.n), int(act_space.start)
-        states: list[list[np.ndarray]] = [[] for _ in envs]
-        valid: list[list[np.ndarray]] = [[] for _ in envs]
-        actions: list[list[int]] = [[] for _ in envs]
-        rewards: list[list[float]] = [[] for _ in envs]
-        success = np.zeros(n_episodes, bool)
-        for i, env in enumerate(envs):
+
+
+class _Episodes:
+    """Episodes stepped together, one environment each: what each has seen and done so far."""
+
+    def __init__(
+        self,
+        env_id: str,
+        kwargs: Mapping[str, Any],
+        envs: list[gymnasium.Env],
+        success_rule: SuccessRule,
+    ) -> None:
+        self.env_id, self.kwargs, self.envs, self.success_rule = env_id, kwargs, envs, success_rule
+        self.obs_space, act_space = envs[0].observation_space, envs[0].action_space
+        self.n, self.start = int(act_space.n), int(act_space.start)
+        self.states: list[list[np.ndarray]] = [[] for _ in envs]
+        self.valid: list[list[np.ndarray]] = [[] for _ in envs]
+        self.actions: list[list[int]] = [[] for _ in envs]
+        self.rewards: list[list[float]] = [[] for _ in envs]
+        self.success = np.zeros(len(envs), bool)
+        self.alive = np.ones(len(envs), bool)
+
+    def _observe(self, i: int, obs: Any, info: Mapping[str, Any]) -> None:
+        from gymnasium import spaces
+
+        self.states[i].append(np.asarray(spaces.flatten(self.obs_space, obs), np.float32))
+        self.valid[i].append(_mask(self.env_id, info, self.n))
+
+    def reset(self, seeds: list[int]) -> None:
+        for i, env in enumerate(self.envs):
             env.action_space.seed(seeds[i])
-            obs, info = _run_env(env_id, kwargs, i, 0, env.reset, seed=seeds[i])
-            states[i].append(np.asarray(spaces.flatten(obs_space, obs), np.float32))
-            valid[i].append(_mask(env_id, info, n))
-        alive = np.ones(n_episodes, bool)
-        for t in range(max_steps):
-            live = np.nonzero(alive)[0]
-            if not len(live):
-                break
-            masks = np.stack([valid[i][-1] for i in live])
-            if not masks.any(axis=1).all():
-                i = int(live[np.argmin(masks.any(axis=1))])
-                raise ConfigError(
-                    f"key '{ENV_KEY}': {env_id}'s action mask allows no action in episode "
-                    f"{i} at step {t}, yet the episode has not ended"
-                )
-            acts = np.asarray(policy(np.stack([states[i][-1] for i in live]), masks, rng))
-            if acts.shape != (len(live),) or not np.issubdtype(acts.dtype, np.integer):
-                raise ValueError(
-                    f"{env_id} rollout, step {t}: the policy returned {acts.dtype} actions of "
-                    f"shape {acts.shape} for {len(live)} states, expected integers of shape ({len(live)},)"
-                )
-            in_range = (acts >= 0) & (acts < n)
-            ok = (
-                in_range & masks[np.arange(len(live)), np.where(in_range, acts, 0).astype(np.int64)]
+            obs, info = _run_env(self.env_id, self.kwargs, i, 0, env.reset, seed=seeds[i])
+            self._observe(i, obs, info)
+
+    def live_masks(self, live: np.ndarray, t: int) -> np.ndarray:
+        """The live episodes' current masks; each must allow some action."""
+        masks = np.stack([self.valid[i][-1] for i in live])
+        if not masks.any(axis=1).all():
+            i = int(live[np.argmin(masks.any(axis=1))])
+            raise ConfigError(
+                f"key '{ENV_KEY}': {self.env_id}'s action mask allows no action in episode "
+                f"{i} at step {t}, yet the episode has not ended"
             )
-            if not ok.all():
-                j = int(np.argmin(ok))
-                a = acts[j]
-                what = (
-                    f"action {a} ({action_names[int(a)]})"
-                    if in_range[j] and action_names
-                    else f"action {a}"
+        return masks
+
+    def policy_actions(
+        self,
+        policy: Policy,
+        live: np.ndarray,
+        masks: np.ndarray,
+        rng: np.random.Generator,
+        t: int,
+        action_names: tuple[str, ...],
+    ) -> np.ndarray:
+        """The policy's actions for the live episodes: integers, one each, valid where taken."""
+        env_id, n = self.env_id, self.n
+        acts = np.asarray(policy(np.stack([self.states[i][-1] for i in live]), masks, rng))
+        if acts.shape != (len(live),) or not np.issubdtype(acts.dtype, np.integer):
+            raise ValueError(
+                f"{env_id} rollout, step {t}: the policy returned {acts.dtype} actions of "
+                f"shape {acts.shape} for {len(live)} states, expected integers of shape ({len(live)},)"
+            )
+        in_range = (acts >= 0) & (acts < n)
+        ok = in_range & masks[np.arange(len(live)), np.where(in_range, acts, 0).astype(np.int64)]
+        if not ok.all():
+            j = int(np.argmin(ok))
+            a = acts[j]
+            what = (
+                f"action {a} ({action_names[int(a)]})"
+                if in_range[j] and action_names
+                else f"action {a}"
+            )
+            raise ValueError(
+                f"{env_id} rollout, episode {int(live[j])}, step {t}: the policy chose "
+                f"{what}, which is not valid there (valid: "
+                f"{np.nonzero(masks[j])[0].tolist()} of 0..{n - 1})"
+            )
+        return acts
+
+    def step(self, live: np.ndarray, acts: np.ndarray, t: int) -> None:
+        for j, i in enumerate(live):
+            a = int(acts[j])
+            obs, reward, terminated, truncated, info = _run_env(
+                self.env_id, self.kwargs, i, t, self.envs[i].step, self.start + a
+            )
+            self._observe(i, obs, info)
+            self.actions[i].append(a)
+            self.rewards[i].append(float(reward))
+            if terminated or truncated:
+                self.alive[i] = False
+                self.success[i] = bool(terminated and not truncated) and (
+                    self.success_rule == "terminated" or float(reward) > 0
                 )
-                raise ValueError(
-                    f"{env_id} rollout, episode {int(live[j])}, step {t}: the policy chose "
-                    f"{what}, which is not valid there (valid: "
-                    f"{np.nonzero(masks[j])[0].tolist()} of 0..{n - 1})"
-                )
-            for j, i in enumerate(live):
-                a = int(acts[j])
-                obs, reward, terminated, truncated, info = _run_env(
-                    env_id, kwargs, i, t, envs[i].step, start + a
-                )
-                states[i].append(np.asarray(spaces.flatten(obs_space, obs), np.float32))
-                valid[i].append(_mask(env_id, info, n))
-                actions[i].append(a)
-                rewards[i].append(float(reward))
-                if terminated or truncated:
-                    alive[i] = False
-                    success[i] = bool(terminated and not truncated) and (
-                        success_rule == "terminated" or float(reward) > 0
-                    )
-    finally:
-        for env in envs:
-            env.close()
-    trajs = [
-        {
-            "states": np.stack(states[i]),
-            "actions": np.asarray(actions[i], np.int64),
-            "valid": np.stack(valid[i]),
-            "rewards": np.asarray(rewards[i], np.float64),
-        }
-        for i in range(n_episodes)
-    ]
-    return Dataset.from_trajectories(
-        "trajectories",
-        env_name(env_id),
-        n,
-        trajs,
-        styles=[-1] * n_episodes,
-        success=success,
-        feature_names=tuple(feature_names),
-        action_names=tuple(action_names),
-    )
+
+    def trajectories(self) -> list[dict[str, np.ndarray]]:
+        return [
+            {
+                "states": np.stack(self.states[i]),
+                "actions": np.asarray(self.actions[i], np.int64),
+                "valid": np.stack(self.valid[i]),
+                "rewards": np.asarray(self.rewards[i], np.float64),
+            }
+            for i in range(len(self.envs))
+        ]
