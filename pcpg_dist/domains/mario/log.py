@@ -32,31 +32,25 @@ import pandas as pd
 from pcpg_dist.common.errors import DataError
 from pcpg_dist.config.domains import MAX_PLAY_LOG_BYTES, EventEncoding, Goal, MarioLoadConfig
 from pcpg_dist.dataset import Dataset
+from pcpg_dist.domains.mario.log_lines import (
+    COUNTERS,
+    N_ACTIONS,
+    Tally,
+    episode_arrays,
+    episode_success,
+    parse_episode,
+)
 
 log = logging.getLogger(__name__)
 
 DOMAIN = "mario"
 ENV = "smb"  # the log carries no level ids, so every episode belongs to one environment
-N_ACTIONS = 39  # CorpusIndex runs 0..38 (README of the data; all 39 occur in the shipped log)
-COUNTERS = ("jumps", "kills", "run_starts", "coins", "deaths")
 FEATURES = (*COUNTERS, "event")
 INCREMENTS = tuple(f"d_{c}" for c in COUNTERS)
-FIELDS_PER_STEP = len(FEATURES)
-DEATHS = COUNTERS.index("deaths")
-
-#: Final event of the 138 episodes that (as far as the data shows) finished the level: it occurs
-#: only as a final step, and 91 of those episodes have no death. The other final event, 22,
-#: closes 86 episodes, 65 of them after a third death. Inferred from the data, not documented.
-WON_LEVEL_EVENT = 17
-
 SHIPPED_PACKAGE = "pcpg_dist"
 SHIPPED_PATH = ("data", "mario", "mario_stli_all_levels.log")
 SHIPPED_SHA256 = "ff427eb617213f81c138d67c707a6ec953fa79154d3566c940ffbe1ae08e876b"
 SHIPPED_EPISODES = 225
-
-MAX_COUNTER = (
-    2**24
-)  # float32 states hold counters exactly up to here; a human episode counts hundreds
 
 EVENT_ONEHOT = tuple(f"event_{i}" for i in range(N_ACTIONS))
 
@@ -88,40 +82,6 @@ class LoadResult:
         return ", ".join(f"{k}={v}" for k, v in self.counts.items())
 
 
-# ------------------------------------------------------------------ parsing
-def _is_terminator(text: str) -> bool:
-    return len(text) >= 2 and text.startswith("#") and text.endswith("#")
-
-
-def _parse_step(text: str) -> tuple[list[int] | None, str]:
-    """Six integers from ``'j,k,r,c,d,e'``, or None and why not."""
-    parts = text.split(",")
-    if len(parts) != FIELDS_PER_STEP:
-        return (
-            None,
-            f"expected {FIELDS_PER_STEP} comma-separated integers, got {len(parts)} fields ({text[:60]!r})",
-        )
-    try:
-        values = [int(p) for p in parts]
-    except ValueError:
-        return None, f"not an integer in {text[:60]!r}"
-    if max(values[:-1]) > MAX_COUNTER:
-        return None, f"counter above {MAX_COUNTER} in {text[:60]!r}"
-    if min(values[:-1]) < 0:
-        return None, f"negative counter in {text[:60]!r}"
-    if not 0 <= values[-1] < N_ACTIONS:
-        return None, f"event id {values[-1]} outside 0..{N_ACTIONS - 1} in {text[:60]!r}"
-    return values, ""
-
-
-def _success(steps: np.ndarray, goal: Goal) -> bool:
-    if goal == "no_death":
-        return bool(steps[-1, DEATHS] == 0)
-    if goal == "won_level":
-        return bool(steps[-1, -1] == WON_LEVEL_EVENT)
-    return True
-
-
 def feature_names(
     event: EventEncoding = "onehot", counters: bool = True, increments: bool = False
 ) -> tuple[str, ...]:
@@ -131,25 +91,6 @@ def feature_names(
         + (EVENT_ONEHOT if event == "onehot" else ("event",))
         + (INCREMENTS if increments else ())
     )
-
-
-def _episode_arrays(
-    steps: np.ndarray, event: EventEncoding, counters: bool, increments: bool
-) -> dict[str, np.ndarray]:
-    """States, next-event actions, all-valid mask and zero rewards of one episode."""
-    parts = [steps[:, : DEATHS + 1]] if counters else []
-    parts.append(np.eye(N_ACTIONS)[steps[:, -1]] if event == "onehot" else steps[:, -1:])
-    if increments:
-        # Counters start from an implicit zero before the first step (18 shipped episodes open
-        # on a kill, so their first step already counts 1): the first increment is steps[0].
-        parts.append(np.diff(steps[:, : DEATHS + 1], axis=0, prepend=0))
-    states = np.concatenate(parts, axis=1).astype(np.float32)
-    return {
-        "states": states,
-        "actions": steps[1:, -1],
-        "valid": np.ones((len(steps), N_ACTIONS), bool),
-        "rewards": np.zeros(len(steps) - 1),
-    }
 
 
 def load_play_log(
@@ -174,72 +115,22 @@ def load_play_log(
         raise DataError(f"goal must be 'no_death', 'any' or 'won_level', got {goal!r}")
     if event not in ("onehot", "id"):
         raise DataError(f"event must be 'onehot' or 'id', got {event!r}")
-    try:
-        if not path.is_file():  # a FIFO or /dev/zero would block or never end
-            raise DataError(
-                f"{path}: cannot read play log ("
-                + ("not a regular file)" if path.exists() else "not found)")
-            )
-        if path.stat().st_size > MAX_PLAY_LOG_BYTES:
-            raise DataError(
-                f"{path}: {path.stat().st_size} bytes; a play log may hold at most {MAX_PLAY_LOG_BYTES} "
-                f"(split it)"
-            )
-        text = path.read_text(encoding="utf-8-sig", errors="replace")  # a BOM is not data
-    except OSError as e:
-        raise DataError(f"{path}: cannot read play log ({e.strerror or e})") from None
-
-    problems: list[str] = []
-    skipped_steps = skipped_episodes = unterminated = blank = 0
+    text = _read_log_text(path)
+    tally = Tally(strict)
     trajectories: list[dict[str, np.ndarray]] = []
     success: list[bool] = []
-
-    def problem(message: str) -> None:
-        if strict:
-            raise DataError(message)
-        problems.append(message)
-
     episode = -1
     for line_no, raw in enumerate(text.splitlines(), start=1):
         line = raw.strip()
         if not line:
-            blank += 1
+            tally.blank += 1
             continue
         episode += 1
-        where = f"{path}:{line_no}: episode {episode}"
-        fields = [f.strip() for f in line.split("|")]
-        while fields and fields[-1] == "":  # tolerate a stray '|' after the terminator
-            fields.pop()
-        if fields and _is_terminator(fields[-1]):
-            fields.pop()
-        else:
-            unterminated += 1
-            problem(f"{where}: no '#0,0,0#' terminator at the end of the line (truncated?)")
-        steps: list[list[int]] = []
-        for step_no, field_text in enumerate(fields):
-            values, why = _parse_step(field_text)
-            if values is None:
-                skipped_steps += 1
-                problem(f"{where} step {step_no}: {why}")
-            else:
-                steps.append(values)
-        if not steps:
-            skipped_episodes += 1
-            problem(f"{where}: no readable step")
-            continue
-        arr = np.asarray(steps, dtype=np.int64)
-        down = np.diff(arr[:, : DEATHS + 1], axis=0) < 0
-        if down.any():
-            step, col = (int(x) for x in np.argwhere(down)[0])
-            skipped_episodes += 1
-            problem(
-                f"{where} step {step + 1}: cumulative counter '{COUNTERS[col]}' decreases "
-                f"from {arr[step, col]} to {arr[step + 1, col]}"
-            )
-            continue
-        trajectories.append(_episode_arrays(arr, event, counters, increments))
-        success.append(_success(arr, goal))
-
+        arr = parse_episode(line, f"{path}:{line_no}: episode {episode}", tally)
+        if arr is not None:
+            trajectories.append(episode_arrays(arr, event, counters, increments))
+            success.append(episode_success(arr, goal))
+    problems = tally.problems
     if not trajectories:
         raise DataError(
             f"{path}: no readable episode ({len(problems)} problems; first: "
@@ -255,11 +146,36 @@ def load_play_log(
         success=success,
         feature_names=names,
     )
-    result = LoadResult(dataset, problems, skipped_steps, skipped_episodes, unterminated, blank)
+    result = LoadResult(
+        dataset,
+        problems,
+        tally.skipped_steps,
+        tally.skipped_episodes,
+        tally.unterminated,
+        tally.blank,
+    )
     if problems:
         shown = "; ".join(problems[:5]) + (" ..." if len(problems) > 5 else "")
         log.warning("%s: loaded with problems (%s): %s", path, result.summary(), shown)
     return result
+
+
+def _read_log_text(path: Path) -> str:
+    """The log's text, from a regular file of at most MAX_PLAY_LOG_BYTES (a BOM is not data)."""
+    try:
+        if not path.is_file():  # a FIFO or /dev/zero would block or never end
+            raise DataError(
+                f"{path}: cannot read play log ("
+                + ("not a regular file)" if path.exists() else "not found)")
+            )
+        if path.stat().st_size > MAX_PLAY_LOG_BYTES:
+            raise DataError(
+                f"{path}: {path.stat().st_size} bytes; a play log may hold at most {MAX_PLAY_LOG_BYTES} "
+                f"(split it)"
+            )
+        return path.read_text(encoding="utf-8-sig", errors="replace")
+    except OSError as e:
+        raise DataError(f"{path}: cannot read play log ({e.strerror or e})") from None
 
 
 def load(cfg: MarioLoadConfig) -> LoadResult:
