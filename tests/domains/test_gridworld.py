@@ -9,8 +9,9 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 from pcpg_dist.common.errors import LayoutError
-from pcpg_dist.domains.gridworld import layout as gw
 from pcpg_dist.domains.base import random_policy
+from pcpg_dist.domains.gridworld import layout as gw
+from pcpg_dist.domains.gridworld import play
 from pcpg_dist.domains.gridworld.env import GridWorldEnv
 
 LAYOUTS = Path(__file__).resolve().parents[2] / "pcpg_dist" / "data" / "gridworld"
@@ -176,12 +177,12 @@ def test_missing_layout_file(tmp_path):
 
 def test_rollout_of_random_policy_and_returns(layouts, rng):
     layout = layouts["E2"]
-    ds = gw.rollout(layout, random_policy, 200, rng, max_steps=100, reward_index=3)
+    ds = play.rollout(layout, random_policy, 200, rng, max_steps=100, reward_index=3)
     assert ds.n_trajectories == 200 and ds.lengths.max() <= 101
     t = layout.tables
     idx = t.state_index(ds.states, layout.width)
     steps = ds.step_rows
     assert t.valid[idx[steps], ds.actions[steps]].all()
     per_traj = np.add.reduceat(ds.rewards, ds.offsets[:-1])
-    np.testing.assert_allclose(per_traj, gw.returns(ds, 3))
+    np.testing.assert_allclose(per_traj, play.returns(ds, 3))
     assert gw.optimal_return(layout, 3) == 200.0

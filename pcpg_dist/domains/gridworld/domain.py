@@ -92,12 +92,13 @@ class GridWorldDomain(Domain):
 
     def hooks(self, cfg, unit: str) -> DomainHooks:
         from pcpg_dist.domains.gridworld import layout as gw
+        from pcpg_dist.domains.gridworld import play
 
         steps = cfg.evaluation.max_steps
         layout = gridworld_layout(cfg, unit)
         return DomainHooks(
-            rollout=lambda policy, n, rng: gw.rollout(layout, policy, n, rng, max_steps=steps),
-            returns=gw.returns,
+            rollout=lambda policy, n, rng: play.rollout(layout, policy, n, rng, max_steps=steps),
+            returns=play.returns,
             optimal_return=lambda r: gw.optimal_return(layout, r, max_steps=steps),
-            draw=lambda ax, ds: gw.draw_trajectory(ax, layout, ds),
+            draw=lambda ax, ds: play.draw_trajectory(ax, layout, ds),
         )
