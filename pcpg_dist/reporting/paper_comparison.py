@@ -6,15 +6,22 @@ than a number (../shared/PAPER.md), the finding.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 
-from pcpg_dist.common.errors import DataError
 from pcpg_dist.config.domains import MarioLoadConfig
 from pcpg_dist.config.stages import BCConfig, RankConfig
-from pcpg_dist.reporting.report_data import PaperRow, fmt, inside, read_csv
+from pcpg_dist.reporting.formatting import fmt
+from pcpg_dist.reporting.report_data import PaperRow, inside
+from pcpg_dist.reporting.run_measures import (
+    cross_summary,
+    env_tables,
+    length_summary,
+    matrices,
+    row_max,
+)
 
 #: domains the paper has results for (others get no paper column and a banner saying so)
 PAPER_DOMAINS = ("gridworld", "minidungeons", "mario")
@@ -150,124 +157,6 @@ def headline(metrics: dict) -> dict:
     }
 
 
-# ----------------------------------------------------------------------------- the paper's items
-def _env_tables(summary: Path, envs: list[str], name: str) -> list[pd.DataFrame]:
-    out = []
-    for env in envs:
-        path = summary / env / f"{name}.csv"
-        if inside(path, summary):
-            df = read_csv(path)
-            if df is not None and len(df):
-                out.append(df)
-    return out
-
-
-def length_summary(tables: list[pd.DataFrame]) -> str:
-    """PCPG's mean length from the lowest to the highest p and its styles' spread at the highest p,
-    from length tables (method, k, p, mean): the rollouts' (rollout_length) or the kept data's
-    (subset_length)."""
-    every = pd.concat(tables) if tables else None
-    d = None if every is None else every[every.method == "pcpg"]
-    if d is None or not len(d):
-        return "—"
-
-    def mean_by_p(rows: pd.DataFrame) -> pd.Series:
-        if "n" not in rows:  # rollouts: one figure per agent, each from as many rollouts
-            return rows.groupby("p")["mean"].mean()
-        # kept data: over the kept trajectories, so that at p = 1, where the clusters together keep
-        # what No Clustering keeps, the two figures are equal
-        w = rows["n"].to_numpy(float) * rows["mean"].to_numpy(float)
-        return pd.Series(w, index=rows.index).groupby(rows.p).sum() / rows.groupby("p")["n"].sum()
-
-    pc = mean_by_p(d)
-    at_top = d[d.p == d.p.max()]["mean"]
-    text = (
-        f"PCPG mean length {pc.iloc[0]:.1f} at p={pc.index[0]:g} to {pc.iloc[-1]:.1f} at "
-        f"p={pc.index[-1]:g}; styles at p={d.p.max():g} from {at_top.min():.1f} to {at_top.max():.1f}"
-    )
-    nc = every[every.method == "nc"]
-    if len(nc):
-        nc_p = mean_by_p(nc)
-        text += f"; No Clustering {nc_p.iloc[0]:.1f} to {nc_p.iloc[-1]:.1f}"
-    return text
-
-
-def kept_lengths(summary: Path, envs: list[str]) -> str:
-    """Figs. 5 and 6 answered from the data: the length of the trajectories each agent imitates
-    (subset_length), whether or not the domain plays rollouts."""
-    return length_summary(_env_tables(summary, envs, "subset_length"))
-
-
-def _by_style(summary: Path, env: str, matrix: pd.DataFrame) -> pd.DataFrame | None:
-    """``matrix`` (rows and columns k<c>) reordered into style order (R1, R2, ...), where the
-    environment's clusters stand for its styles one to one (``cluster_style.csv``); else None."""
-    table = _env_tables(summary, [env], "cluster_style")  # checked: k and style are numbers
-    if not table:
-        return None
-    for col in ("k", "style"):
-        values = table[0][col].to_numpy(float)
-        if not (np.isfinite(values) & (values == np.round(values))).all():
-            raise DataError(
-                f"{summary / env / 'cluster_style.csv'}: column {col!r} must hold whole numbers"
-            )
-    style = {f"k{int(k)}": int(s) for k, s in zip(table[0]["k"], table[0]["style"], strict=True)}
-    names = list(matrix.index)
-    order = sorted(names, key=lambda n: style.get(n, -1))
-    if sorted(style.get(n, -1) for n in names) != list(range(len(names))):
-        return None  # a style with two clusters, or one with none: no one-to-one order
-    out = matrix.loc[order, order]
-    out.index = out.columns = [f"R{style[n] + 1}" for n in order]
-    return out
-
-
-def _matrices(summary: Path, envs: list[str], name: str) -> dict[str, pd.DataFrame]:
-    """Each environment's k x k table ``name`` (cross_accuracy, correlation), rows by cluster."""
-    return {
-        env: t[0].set_index(t[0].columns[0]).astype(float)
-        for env in envs
-        if (t := _env_tables(summary, [env], name))
-    }
-
-
-def _row_max(mats: dict[str, pd.DataFrame]) -> str:
-    """In how many rows, over the environments, the diagonal cell is the row's maximum (a NaN
-    cell, e.g. the correlation of a constant column, is the maximum of nothing)."""
-
-    def top(m: np.ndarray) -> int:
-        return sum(bool(np.isfinite(m[i, i]) and m[i, i] >= np.nanmax(m[i])) for i in range(len(m)))
-
-    rows = sum(top(m.to_numpy()) for m in mats.values())
-    return f"the row maximum in {rows} of {sum(len(m) for m in mats.values())} rows"
-
-
-def cross_summary(summary: Path, envs: list[str]) -> str:
-    """Table 4 in one line: the cross-accuracy diagonal and off-diagonal range, in style order
-    (R1, R2, ...) and averaged over environments where every environment's clusters match its
-    styles one to one; otherwise each environment's matrix is in its own cluster order, so only
-    per-environment figures are averaged."""
-    mats = _matrices(summary, envs, "cross_accuracy")
-    if not mats:
-        return "—"
-    aligned = [_by_style(summary, env, m) for env, m in mats.items()]
-    if all(a is not None for a in aligned) and len({tuple(a.index) for a in aligned}) == 1:
-        m = sum(a.to_numpy() for a in aligned) / len(aligned)
-        note = f" (styles R1 to R{len(m)}: clusters matched to styles)"
-    elif len(mats) == 1:
-        m, note = (
-            next(iter(mats.values())).to_numpy(),
-            " (by cluster: not matched to styles one to one)",
-        )
-    else:
-        diag = [float(np.mean(np.diagonal(m.to_numpy()))) for m in mats.values()]
-        return (
-            f"diagonal mean {np.mean(diag):.2f}, {_row_max(mats)} (clusters not matched to styles "
-            f"one to one, so not averaged cell by cell)"
-        )
-    off = [m[i, j] for i in range(m.shape[0]) for j in range(m.shape[1]) if i != j]
-    text = "diagonal " + " / ".join(f"{m[i, i]:.2f}" for i in range(min(m.shape)))
-    return text + (f"; off-diagonal {min(off):.2f} to {max(off):.2f}" if off else "") + note
-
-
 def paper_rows(domain: str, metrics: dict, summary: Path, envs: list[str]) -> list[PaperRow]:
     """Every table and figure of the paper: what the paper reports and what this run measured."""
     paper = paper_numbers(domain)
@@ -279,65 +168,16 @@ def paper_rows(domain: str, metrics: dict, summary: Path, envs: list[str]) -> li
             return "not in the paper (domain " + domain + ")"
         return paper.get(key, finding)
 
-    rows = []
-    h = headline(metrics)
-    rows.append(
-        PaperRow(
-            "Clustering accuracy",
-            "clustering",
-            said("clustering accuracy", "not reported for this domain"),
-            "—"
-            if h["accuracy"] is None
-            else h["accuracy"]
-            + ("" if h["ceiling"] is None else f" (supervised ceiling {h['ceiling']})"),
-        )
-    )
-    rows.append(
-        PaperRow(
-            "Fig. 4: accuracy vs p",
-            "fig4",
-            said("", "PCPG above No Clustering at every p"),
-            f"PCPG above No Clustering at {h['wins']} of {h['compared']} p values"
-            if h["compared"]
-            else "—",
-        )
-    )
-    dist = [metrics.get(f"reward_distance/style{s}") for s in range(16)]
-    rnd = [metrics.get(f"random/reward_distance/style{s}") for s in range(16)]
-
-    def by_style(values: list) -> str:  # R1, R2, ... in place: a style no cluster stands for is "—"
-        n = max((i + 1 for i, v in enumerate(values) if v is not None), default=0)
-        return " / ".join("—" if v is None else f"{v:.2f}" for v in values[:n])
-
-    lengths = _env_tables(summary, envs, "rollout_length")
-    # rollouts without distances: the domain has no per-style rewards or optimal returns to measure them
-    absent = "— (no reward-distance hooks for this domain)" if lengths else "— (no rollouts)"
-    rows.append(
-        PaperRow(
-            "Table 3: reward distance to the optimum, PCPG",
-            f"{first}-reward",
-            said("reward distance, PCPG (Table 3)", "not reported for this domain"),
-            by_style(dist) or absent,
-        )
-    )
-    rows.append(
-        PaperRow(
-            "Table 3: reward distance to the optimum, random",
-            f"{first}-reward",
-            said("reward distance, random (Table 3)", "not reported for this domain"),
-            by_style(rnd) or absent,
-        )
-    )
-    ours = cross_summary(summary, envs)
-    rows.append(
+    lengths = env_tables(summary, envs, "rollout_length")
+    return [
+        *_headline_rows(metrics, said),
+        *_reward_distance_rows(metrics, first, said, bool(lengths)),
         PaperRow(
             "Table 4: accuracy of π_k on H_k' (mean over p)",
             f"{first}-cross",
             said("cross-accuracy diagonal (Table 4)", "strongest on the diagonal"),
-            ours,
-        )
-    )
-    rows.append(
+            cross_summary(summary, envs),
+        ),
         PaperRow(
             "Figs. 5 and 6: rollout length vs p",
             f"{first}-rollout_length",
@@ -346,34 +186,109 @@ def paper_rows(domain: str, metrics: dict, summary: Path, envs: list[str]) -> li
                 "longer with higher p; styles converge to different lengths, No Clustering to one",
             ),
             length_summary(lengths) if lengths else "— (no rollouts)",
-        )
-    )
-    corr = metrics.get("correlation/diagonal_mean")
-    rows.append(
-        PaperRow(
-            "Fig. 7: model vs subset correlation",
-            f"{first}-correlation",
-            said("", "each model correlates most with its own subset"),
-            "—"
-            if corr is None
-            else f"mean diagonal correlation {corr:.2f}"
-            + (
-                f"; the diagonal is {_row_max(c)}"
-                if (c := _matrices(summary, envs, "correlation"))
-                else ""
-            ),
-        )
-    )
-    drawn = any(inside(summary / e / "rollouts.png", summary) for e in envs)
-    rows.append(
+        ),
+        _correlation_row(metrics, summary, envs, first, said),
         PaperRow(
             "Fig. 8: one rollout per style",
             f"{first}-rollouts",
             said("", "one rollout per style drawn on the grid"),
-            "drawn below" if drawn else "— (the domain draws no rollouts)",
-        )
+            "drawn below"
+            if any(inside(summary / e / "rollouts.png", summary) for e in envs)
+            else "— (the domain draws no rollouts)",
+        ),
+        PaperRow(
+            "Fig. 9: accuracy vs label corruption",
+            f"{first}-corruption",
+            said("", "falls toward No Clustering as c rises; the spread grows"),
+            _corruption_accuracy(metrics, summary, envs),
+        ),
+        PaperRow(
+            "Table 5: subset rewards under label corruption",
+            f"{first}-corruption_reward",
+            said("", "subsets' rewards become alike as c rises"),
+            _corruption_rewards(summary, envs),
+        ),
+    ]
+
+
+#: what the paper says of an item: (the key of its number, the finding where it states no number)
+Said = Callable[[str, str], str]
+
+
+def _headline_rows(metrics: dict, said: Said) -> list[PaperRow]:
+    """Clustering accuracy (with the supervised ceiling) and Fig. 4 (PCPG ahead at how many p)."""
+    h = headline(metrics)
+    return [
+        PaperRow(
+            "Clustering accuracy",
+            "clustering",
+            said("clustering accuracy", "not reported for this domain"),
+            "—"
+            if h["accuracy"] is None
+            else h["accuracy"]
+            + ("" if h["ceiling"] is None else f" (supervised ceiling {h['ceiling']})"),
+        ),
+        PaperRow(
+            "Fig. 4: accuracy vs p",
+            "fig4",
+            said("", "PCPG above No Clustering at every p"),
+            f"PCPG above No Clustering at {h['wins']} of {h['compared']} p values"
+            if h["compared"]
+            else "—",
+        ),
+    ]
+
+
+def _reward_distance_rows(metrics: dict, first: str, said: Said, rollouts: bool) -> list[PaperRow]:
+    """Table 3's two rows: the reward distance to the optimum by style, PCPG's and random's."""
+    dist = [metrics.get(f"reward_distance/style{s}") for s in range(16)]
+    rnd = [metrics.get(f"random/reward_distance/style{s}") for s in range(16)]
+
+    def by_style(values: list) -> str:  # R1, R2, ... in place: a style no cluster stands for is "—"
+        n = max((i + 1 for i, v in enumerate(values) if v is not None), default=0)
+        return " / ".join("—" if v is None else f"{v:.2f}" for v in values[:n])
+
+    # rollouts without distances: the domain has no per-style rewards or optimal returns to measure them
+    absent = "— (no reward-distance hooks for this domain)" if rollouts else "— (no rollouts)"
+    return [
+        PaperRow(
+            "Table 3: reward distance to the optimum, PCPG",
+            f"{first}-reward",
+            said("reward distance, PCPG (Table 3)", "not reported for this domain"),
+            by_style(dist) or absent,
+        ),
+        PaperRow(
+            "Table 3: reward distance to the optimum, random",
+            f"{first}-reward",
+            said("reward distance, random (Table 3)", "not reported for this domain"),
+            by_style(rnd) or absent,
+        ),
+    ]
+
+
+def _correlation_row(
+    metrics: dict, summary: Path, envs: list[str], first: str, said: Said
+) -> PaperRow:
+    """Fig. 7: the mean diagonal correlation and where each row's maximum lies."""
+    corr = metrics.get("correlation/diagonal_mean")
+    return PaperRow(
+        "Fig. 7: model vs subset correlation",
+        f"{first}-correlation",
+        said("", "each model correlates most with its own subset"),
+        "—"
+        if corr is None
+        else f"mean diagonal correlation {corr:.2f}"
+        + (
+            f"; the diagonal is {row_max(c)}"
+            if (c := matrices(summary, envs, "correlation"))
+            else ""
+        ),
     )
-    corruption = _env_tables(summary, envs, "corruption_accuracy")
+
+
+def _corruption_accuracy(metrics: dict, summary: Path, envs: list[str]) -> str:
+    """Fig. 9: the accuracy at each corruption level c (mean ± std over environments)."""
+    corruption = env_tables(summary, envs, "corruption_accuracy")
     ours = "—"
     if corruption:
         d = pd.concat(corruption).groupby("c")[["mean", "std"]].mean()
@@ -381,34 +296,19 @@ def paper_rows(domain: str, metrics: dict, summary: Path, envs: list[str]) -> li
         nc = metrics.get("corruption/baseline/accuracy")
         if nc is not None:
             ours += f" (No Clustering {nc:.3f})"
-    rows.append(
-        PaperRow(
-            "Fig. 9: accuracy vs label corruption",
-            f"{first}-corruption",
-            said("", "falls toward No Clustering as c rises; the spread grows"),
-            ours,
-        )
+    return ours
+
+
+def _corruption_rewards(summary: Path, envs: list[str]) -> str:
+    """Table 5: the spread across one environment's clusters, then the mean over environments."""
+    rewards = env_tables(summary, envs, "corruption_reward")
+    if not rewards:
+        return "—"
+    rcols = [c for c in rewards[0].columns if c.startswith("R") and not c.endswith("_std")]
+    spread = pd.concat(
+        [d.groupby("c")[[c for c in rcols if c in d]].std(ddof=0).mean(axis=1) for d in rewards],
+        axis=1,
+    ).mean(axis=1)
+    return "spread of subset rewards across an environment's clusters: " + " ; ".join(
+        f"c={c:g}: {v:.1f}" for c, v in spread.items()
     )
-    rewards = _env_tables(summary, envs, "corruption_reward")
-    ours = "—"
-    if rewards:  # the spread across one environment's clusters, then the mean over environments
-        rcols = [c for c in rewards[0].columns if c.startswith("R") and not c.endswith("_std")]
-        spread = pd.concat(
-            [
-                d.groupby("c")[[c for c in rcols if c in d]].std(ddof=0).mean(axis=1)
-                for d in rewards
-            ],
-            axis=1,
-        ).mean(axis=1)
-        ours = "spread of subset rewards across an environment's clusters: " + " ; ".join(
-            f"c={c:g}: {v:.1f}" for c, v in spread.items()
-        )
-    rows.append(
-        PaperRow(
-            "Table 5: subset rewards under label corruption",
-            f"{first}-corruption_reward",
-            said("", "subsets' rewards become alike as c rises"),
-            ours,
-        )
-    )
-    return rows

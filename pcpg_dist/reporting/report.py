@@ -31,7 +31,6 @@ from pcpg_dist.reporting.paper_comparison import (  # noqa: F401 - paper_numbers
     PAPER_DOMAINS,
     PROTOCOL,
     headline,
-    kept_lengths,
     paper_numbers,
     paper_rows,
     plain,
@@ -47,6 +46,7 @@ from pcpg_dist.reporting.report_data import (
     read_metrics,
     read_run,
 )
+from pcpg_dist.reporting.run_measures import kept_lengths
 
 # The domain of a config that names none (the config model's own default), read from the config
 # model so that no domain is named here.

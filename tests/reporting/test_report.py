@@ -862,7 +862,7 @@ def test_each_environment_section_shows_its_own_figures_and_table4_is_in_style_o
 ):
     """An environment's "this run" lines quoted the run-wide figures; Table 4's line averaged the
     environments' matrices by cluster number, which is arbitrary in each environment."""
-    from pcpg_dist.reporting.paper_comparison import cross_summary
+    from pcpg_dist.reporting.run_measures import cross_summary
 
     folder = copy_summary(tmp_path)
     pd.DataFrame({"k": range(4), "style": range(4)}).to_csv(
