@@ -16,7 +16,7 @@ See docs/writing-a-domain.md for a worked example.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
@@ -50,6 +50,20 @@ class FanOut(Protocol):
         description: str,
         show_progress: bool = True,
     ) -> list[Any]: ...
+
+
+@dataclass(frozen=True)
+class PaperResults:
+    """What the PCPG paper reports for a domain, kept with the domain so the report names none.
+
+    ``numbers``: the paper's figures by item (e.g. ``"clustering accuracy"``), shown beside a run's.
+    ``protocol``: ``(config key, the paper's value)`` for the settings of this domain a run must
+    use to be a reproduction (the settings every domain shares are the report's own).
+    ``absent_means``: the value a protocol setting had in runs logged before it existed."""
+
+    numbers: dict[str, str] = field(default_factory=dict)
+    protocol: tuple[tuple[str, object], ...] = ()
+    absent_means: dict[str, object] = field(default_factory=dict)
 
 
 def random_policy(states: np.ndarray, valid: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -115,8 +129,9 @@ class Domain:
     settings_key: ClassVar[str | None] = None
     #: a plugin's settings model; its YAML section is the domain's name
     settings_model: ClassVar[type[BaseModel] | None] = None
-    #: what the PCPG paper reports for this domain (shown beside our numbers in reports)
-    paper_numbers: ClassVar[dict[str, str]] = {}
+    #: what the PCPG paper reports for this domain (its numbers and protocol, shown beside ours in
+    #: reports); None where the paper has no results for it (every plugin)
+    paper: ClassVar[PaperResults | None] = None
 
     # ------------------------------------------------------------------ config
     def config_sections(self) -> tuple[str, ...]:

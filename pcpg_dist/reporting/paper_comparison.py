@@ -1,6 +1,7 @@
 """The paper beside the run: its protocol (what a run must use to be a reproduction), the
 headline numbers, and for every table and figure the paper has what it reports and what this run
-measured. Numbers come from the domain's ``paper_numbers``; where the paper states a finding rather
+measured. Numbers and domain settings come from the domain's ``paper`` (PaperResults: None where
+the paper has no results for it); where the paper states a finding rather
 than a number (../shared/PAPER.md), the finding.
 """
 
@@ -11,8 +12,9 @@ from pathlib import Path
 
 import pandas as pd
 
-from pcpg_dist.config.domains import MarioLoadConfig
+from pcpg_dist.config import ExperimentConfig
 from pcpg_dist.config.stages import BCConfig, RankConfig
+from pcpg_dist.domains.base import PaperResults
 from pcpg_dist.reporting.formatting import fmt
 from pcpg_dist.reporting.report_data import PaperRow, inside
 from pcpg_dist.reporting.run_measures import (
@@ -23,30 +25,19 @@ from pcpg_dist.reporting.run_measures import (
     row_max,
 )
 
-#: domains the paper has results for (others get no paper column and a banner saying so)
-PAPER_DOMAINS = ("gridworld", "minidungeons", "mario")
-
-#: the paper's protocol, checked against a run's config: (key, paper value, domains or None = all)
-PROTOCOL: tuple[tuple[str, object, tuple[str, ...] | None], ...] = (
-    ("seeds", 4, None),  # compared by count: the paper reports 4 seeds
-    ("ranking.ps", [1.0, 0.75, 0.5, 0.25, 0.1], None),
-    ("ranking.beta", 0.1, None),
-    ("ranking.style_margin", 0.0, None),
-    ("clustering.method", "lstm_dec", None),
-    ("bc.hidden_layers", 3, None),
-    ("bc.hidden_size", 5, None),
-    ("bc.epochs", 2000, None),
-    ("bc.batch_size", None, None),  # full batch
-    ("bc.init", "scratch", None),  # every agent from its own initialisation
-    ("clustering.k", 4, ("gridworld",)),
-    ("gridworld.environments", ["E1", "E2", "E3", "E4", "E5"], ("gridworld",)),
-    ("gridworld.random_layouts", None, ("gridworld",)),
-    ("pbtg.episodes", 20000, ("gridworld",)),
-    ("pbtg.trajectories_per_style", 8000, ("gridworld",)),
-    ("pbtg.dataset_per_style", 1000, ("gridworld",)),
-    ("mario.event", "id", ("mario",)),  # the state (j, k, r, c, d, e): the event id as one number
-    ("mario.counters", True, ("mario",)),
-    ("mario.increments", False, ("mario",)),
+#: the paper's protocol for every domain, checked against a run's config: (key, paper value); a
+#: domain's own settings are its ``paper.protocol`` (:class:`~pcpg_dist.domains.base.PaperResults`)
+PROTOCOL: tuple[tuple[str, object], ...] = (
+    ("seeds", 4),  # compared by count: the paper reports 4 seeds
+    ("ranking.ps", [1.0, 0.75, 0.5, 0.25, 0.1]),
+    ("ranking.beta", 0.1),
+    ("ranking.style_margin", 0.0),
+    ("clustering.method", "lstm_dec"),
+    ("bc.hidden_layers", 3),
+    ("bc.hidden_size", 5),
+    ("bc.epochs", 2000),
+    ("bc.batch_size", None),  # full batch
+    ("bc.init", "scratch"),  # every agent from its own initialisation
 )
 #: how the report names a paper setting whose value alone would not say it
 PAPER_MEANS = {"bc.batch_size": "none (full batch)"}
@@ -55,24 +46,45 @@ PAPER_MEANS = {"bc.batch_size": "none (full batch)"}
 ABSENT_MEANS = {
     "ranking.style_margin": RankConfig.model_fields["style_margin"].default,
     "bc.init": BCConfig.model_fields["init"].default,
-    "mario.event": "id",  # runs before the setting (2026-11-21) read the event id as a number
-    **{
-        f"mario.{name}": MarioLoadConfig.model_fields[name].default
-        for name in ("counters", "increments")
-    },
 }
+
+#: the domain of a recorded config that names none
+DEFAULT_DOMAIN = ExperimentConfig.model_fields["domain"].default
+
+
+def paper_results(domain: str | None) -> PaperResults | None:
+    """What the paper reports for a domain; None where it has no results for it, or the domain is
+    not installed here."""
+    from pcpg_dist.common.errors import PcpgError
+    from pcpg_dist.domains import registry
+
+    try:
+        return registry.get(str(domain)).paper
+    except PcpgError:
+        return None
+
+
+def in_paper(domain: str | None) -> bool:
+    """Whether the paper has results for ``domain``."""
+    return paper_results(domain) is not None
+
+
+class PaperDomains:
+    """The domains the paper has results for, asked one at a time: ``domain in PAPER_DOMAINS``."""
+
+    def __contains__(self, domain: object) -> bool:
+        return in_paper(str(domain))
+
+
+#: domains the paper has results for (others get no paper column and a banner saying so)
+PAPER_DOMAINS = PaperDomains()
 
 
 # ----------------------------------------------------------------------------- content
 def paper_numbers(domain: str | None) -> dict[str, str]:
     """The paper's figures for a domain (none for a domain that is not installed here)."""
-    from pcpg_dist.common.errors import PcpgError
-    from pcpg_dist.domains import registry
-
-    try:
-        return dict(registry.get(str(domain)).paper_numbers)
-    except PcpgError:
-        return {}
+    paper = paper_results(domain)
+    return {} if paper is None else dict(paper.numbers)
 
 
 def _get(cfg: dict, key: str):
@@ -86,14 +98,14 @@ def _get(cfg: dict, key: str):
 
 def protocol_differences(cfg: dict) -> list[tuple[str, str, str]]:
     """(setting, this run, the paper) for every protocol setting the config changes."""
-    domain = cfg.get("domain", "gridworld")
+    results = paper_results(cfg.get("domain", DEFAULT_DOMAIN))
+    protocol = (*PROTOCOL, *(results.protocol if results is not None else ()))
+    absent = {**ABSENT_MEANS, **(results.absent_means if results is not None else {})}
     out = []
-    for key, paper, domains in PROTOCOL:
-        if domains is not None and domain not in domains:
-            continue
+    for key, paper in protocol:
         ours = _get(cfg, key)
         if ours is None:
-            ours = ABSENT_MEANS.get(key)
+            ours = absent.get(key)
         if key == "seeds":
             if len(ours or []) != paper:
                 out.append((key, f"{len(ours or [])} seeds", f"{paper} seeds"))
@@ -160,11 +172,11 @@ def headline(metrics: dict) -> dict:
 def paper_rows(domain: str, metrics: dict, summary: Path, envs: list[str]) -> list[PaperRow]:
     """Every table and figure of the paper: what the paper reports and what this run measured."""
     paper = paper_numbers(domain)
-    in_paper = domain in PAPER_DOMAINS
+    reported = in_paper(domain)
     first = envs[0] if envs else ""
 
     def said(key: str, finding: str) -> str:
-        if not in_paper:
+        if not reported:
             return "not in the paper (domain " + domain + ")"
         return paper.get(key, finding)
 

@@ -12,6 +12,7 @@ from typing import Any
 
 from pcpg_dist.domains.base import Domain, DomainHooks, FanOut
 from pcpg_dist.domains.defaults import in_process
+from pcpg_dist.domains.gridworld.paper import PAPER
 
 
 @lru_cache(maxsize=8)
@@ -53,12 +54,7 @@ def gridworld_layout(cfg, unit: str):
 class GridWorldDomain(Domain):
     name = "gridworld"
     settings_key = "gridworld"
-    paper_numbers = {  # ../shared/PAPER.md
-        "clustering accuracy": "0.66",
-        "cross-accuracy diagonal (Table 4)": "0.57 / 0.64 / 0.63 / 0.69",
-        "reward distance, PCPG (Table 3)": "8.66 / 44.85 / 46.28 / 50.79",
-        "reward distance, random (Table 3)": "33.05 / 180.84 / 180.12 / 192.42",
-    }
+    paper = PAPER
 
     def config_sections(self) -> tuple[str, ...]:
         return ("gridworld", "pbtg")  # the layouts, and PBTG's Q-learning and sampling

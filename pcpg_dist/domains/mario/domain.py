@@ -12,11 +12,13 @@ from typing import Any
 
 from pcpg_dist.domains.base import Domain, FanOut, Unit
 from pcpg_dist.domains.defaults import in_process
+from pcpg_dist.domains.mario.paper import PAPER
 
 
 class MarioDomain(Domain):
     name = "mario"
     settings_key = "mario"
+    paper = PAPER
 
     def data_key(self, cfg) -> list[Any]:
         from pcpg_dist.common.files import sha256_file

@@ -17,6 +17,7 @@ import numpy as np
 
 from pcpg_dist.domains.base import Domain, DomainHooks, FanOut, Unit, standardised
 from pcpg_dist.domains.defaults import in_process
+from pcpg_dist.domains.minidungeons.paper import PAPER
 
 
 def _part(level: str, proxy: int, runs: int, seed: int, noise: tuple[float, float], max_steps: int):
@@ -45,6 +46,7 @@ def held_out_rollout(cfg, policy, n: int, rng: np.random.Generator):
 class MiniDungeonsDomain(Domain):
     name = "minidungeons"
     settings_key = "minidungeons"
+    paper = PAPER
 
     def generate(self, cfg, show_progress: bool = True, fan_out: FanOut = in_process):
         from pcpg_dist.dataset import Dataset
