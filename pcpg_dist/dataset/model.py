@@ -240,7 +240,7 @@ class Dataset:
         domain: str,
         env: str,
         n_actions: int,
-        trajectories: Sequence[dict[str, np.ndarray]],
+        trajectory_arrays: Sequence[dict[str, np.ndarray]],
         styles: Sequence[int],
         success: Sequence[bool],
         epsilon: Sequence[float] | None = None,
@@ -251,7 +251,7 @@ class Dataset:
         ``valid`` (T+1, n_actions) bool (or, for up to 63 actions, (T+1,) integer bitmasks) and
         ``rewards`` (T,)."""
         states, actions, valid, rewards, lengths = [], [], [], [], []
-        for i, tr in enumerate(trajectories):
+        for i, tr in enumerate(trajectory_arrays):
             s = np.asarray(tr["states"], np.float32)
             a, r = np.asarray(tr["actions"], np.int64), np.asarray(tr["rewards"], np.float64)
             where = f"dataset {domain}-{env}, trajectory {i}"
@@ -273,7 +273,7 @@ class Dataset:
             actions.append(np.r_[a, -1])
             rewards.append(np.r_[r, 0.0])
             lengths.append(len(s))
-        n = len(trajectories)
+        n = len(trajectory_arrays)
         d = states[0].shape[1] if states else 0
         return Dataset(
             domain=domain,
