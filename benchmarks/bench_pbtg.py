@@ -12,7 +12,7 @@ from pathlib import Path
 from pcpg_dist.config import load_config
 from pcpg_dist.domains.gridworld.domain import gridworld_layouts
 from pcpg_dist.domains.gridworld.pbtg import generate_pair
-from pcpg_dist.orchestration.ray_pool import init_ray
+from pcpg_dist.orchestration.ray_pool import fan_out, init_ray
 from pcpg_dist.stages.data import generate
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -38,10 +38,10 @@ def main() -> None:
     init_ray()
     ray_start = time.perf_counter() - t0
     t0 = time.perf_counter()
-    generate(cfg, show_progress=False)
+    generate(cfg, False, fan_out)
     first = time.perf_counter() - t0
     t0 = time.perf_counter()
-    generate(cfg, show_progress=False)
+    generate(cfg, False, fan_out)
     warm = time.perf_counter() - t0
     n = cfg.pbtg.trajectories_per_style * len(layouts) * 4
     print(f"PBTG paper data: 20 Q-learners x {cfg.pbtg.episodes} episodes + {n} trajectories")

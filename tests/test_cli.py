@@ -51,8 +51,10 @@ def test_generate_writes_a_checked_dataset(ray_session, tmp_path):
 
 
 def test_data_is_bit_identical_with_one_or_two_workers(ray_session, tmp_path):
+    from pcpg_dist.orchestration import ray_pool
+
     cfg = load_config(tiny_config(tmp_path))
-    two = generate(cfg, show_progress=False)  # 1-CPU tasks: two run at once
+    two = generate(cfg, False, ray_pool.fan_out)  # 1-CPU tasks: two run at once
     layouts = [(e, r) for e in ("E1", "E3") for r in range(4)]
     from pcpg_dist.domains.gridworld.domain import gridworld_layouts
 

@@ -34,7 +34,7 @@ def cluster(
     if data:
         datasets = load_datasets(Path(data))
     else:
-        datasets = generate_to(cfg, out / "data", show_progress=show_progress)
+        datasets = generate_to(cfg, out / "data", show_progress, executor.fan_out)
     # the same units (split, per-level scaling, valid sets) as `pcpg run` clusters
     units = {u.name: u for u in contract.units(cfg, datasets)}
     envs = list(units)

@@ -23,6 +23,15 @@ class Executor(Protocol):
     def most_gpus(self) -> float:
         """The most GPUs one worker has (what a GPU setting is checked against)."""
 
+    def fan_out(
+        self,
+        fn: Callable[..., Any],
+        calls: Sequence[tuple],
+        description: str,
+        show_progress: bool = True,
+    ) -> list[Any]:
+        """What a domain's data generation is given (:class:`pcpg_dist.domains.base.FanOut`)."""
+
     def map(
         self,
         fn: Callable[..., Any],
@@ -47,6 +56,11 @@ class LocalExecutor:
 
     def most_gpus(self) -> float:
         return float("inf")  # nothing to reserve: a job uses the device its config names
+
+    def fan_out(self, fn, calls, description, show_progress=True) -> list[Any]:
+        from pcpg_dist.domains.defaults import in_process
+
+        return in_process(fn, calls, description, show_progress)
 
     def map(self, fn, calls, description, *, num_cpus, on_result, show_progress, num_gpus) -> None:
         from pcpg_dist.common.progress import progress_bar
@@ -77,6 +91,11 @@ class RayExecutor:
         from pcpg_dist.orchestration.ray_pool import node_gpus
 
         return node_gpus()
+
+    def fan_out(self, fn, calls, description, show_progress=True) -> list[Any]:
+        from pcpg_dist.orchestration.ray_pool import fan_out
+
+        return fan_out(fn, calls, description, show_progress)
 
     def map(self, fn, calls, description, *, num_cpus, on_result, show_progress, num_gpus) -> None:
         from pcpg_dist.orchestration.ray_pool import run_tasks

@@ -13,7 +13,7 @@ import numpy as np
 from pcpg_dist.config import ExperimentConfig
 from pcpg_dist.dataset import Dataset, load_datasets
 from pcpg_dist.domains import contract
-from pcpg_dist.domains.base import Unit
+from pcpg_dist.domains.base import FanOut, Unit
 from pcpg_dist.orchestration import ray_pool
 from pcpg_dist.orchestration.cache import Cache
 from pcpg_dist.pipeline.declared import data_key
@@ -99,16 +99,21 @@ def clusters_of(result: dict) -> tuple[np.ndarray, np.ndarray | None]:
 
 # --------------------------------------------------------------------------- the data stage
 def load_or_generate(
-    cfg: ExperimentConfig, cache: Cache, show_progress: bool, key: str | None = None
+    cfg: ExperimentConfig,
+    cache: Cache,
+    show_progress: bool,
+    key: str | None = None,
+    fan_out: FanOut | None = None,
 ) -> tuple[dict[str, Dataset], str]:
-    """The config's datasets, generated once and cached under ``key`` (its :func:`data_key`)."""
+    """The config's datasets, generated once and cached under ``key`` (its :func:`data_key`);
+    the domain's batches of work go through ``fan_out`` (default: as Ray tasks)."""
     from pcpg_dist.stages.data import write_to
 
     key = key or data_key(cfg)
     path = cache.path("data", key)
     if cache.done("data", key) is None:
         # generated and validated in memory first: bad input leaves nothing behind
-        datasets = contract.generate(cfg, show_progress, fan_out=ray_pool.fan_out)
+        datasets = contract.generate(cfg, show_progress, fan_out=fan_out or ray_pool.fan_out)
         cache.start("data", key)
         write_to(cfg, datasets, path)
         cache.finish("data", key, {"stage": "data"})

@@ -164,9 +164,9 @@ def _load_data(batch: Batch) -> None:
         p.dkey, p.ikey = declared.data_keys(p.cfg)
         if p.dkey not in datas:
             batch.computed["data"] += batch.cache.done("data", p.dkey) is None
-            datas[p.dkey] = data.load_or_generate(p.cfg, batch.cache, batch.show_progress, p.dkey)[
-                0
-            ]
+            datas[p.dkey] = data.load_or_generate(
+                p.cfg, batch.cache, batch.show_progress, p.dkey, batch.executor.fan_out
+            )[0]
         ukey = content_key(p.dkey, p.cfg.model_dump(mode="json", exclude=NOT_IN_UNITS))
         if ukey not in unit_sets:
             unit_sets[ukey] = _unit_set(p, datas[p.dkey], batch.executor)
