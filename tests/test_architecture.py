@@ -114,7 +114,6 @@ def test_every_module_has_a_layer():
     assert [m for m in MODULES if layer_of(m) < 0] == []
 
 
-@IN_PROGRESS
 def test_no_import_points_up_a_layer():
     upward = [
         f"{MODULES[m].relative_to(ROOT)}:{line} imports {dep} "
@@ -126,7 +125,6 @@ def test_no_import_points_up_a_layer():
     assert upward == [], "\n".join(upward)
 
 
-@IN_PROGRESS
 def test_tracking_and_reporting_do_not_import_each_other():
     crossing = [
         f"{m} imports {dep}"
@@ -173,14 +171,12 @@ def _cycles() -> list[list[str]]:
     return found
 
 
-@IN_PROGRESS
 def test_no_import_loops():
     # a package's __init__ importing its own submodules is not a loop of design
     loops = [c for c in _cycles() if not all(c[0] == x or x.startswith(c[0] + ".") for x in c)]
     assert loops == [], "\n".join(map(str, loops))
 
 
-@IN_PROGRESS
 def test_modules_are_at_most_400_lines():
     long = {
         str(p.relative_to(ROOT)): n
@@ -190,7 +186,6 @@ def test_modules_are_at_most_400_lines():
     assert long == {}, "\n".join(f"{k} {v}" for k, v in sorted(long.items()))
 
 
-@IN_PROGRESS
 def test_functions_are_at_most_80_lines():
     long = []
     for p in MODULES.values():
@@ -207,8 +202,9 @@ DOMAIN_NAMES = ("gridworld", "minidungeons", "mario", "trajectories")
 
 def domain_mentions(name: str) -> list[str]:
     """Where code outside ``pcpg_dist/domains/`` names a built-in domain: a name or attribute
-    holding it, or a string that is it (docstrings and comments may name domains; so may a
-    message using "trajectories" as the plain word it is)."""
+    holding it, or a string holding it (docstrings and comments may name domains). The
+    string "trajectories" is also a plain word (a table column, a manifest key): it counts only
+    where it is compared with something, as a domain's name would be."""
     named = []
     for m, p in MODULES.items():
         if m.startswith("pcpg_dist.domains"):
@@ -222,12 +218,18 @@ def domain_mentions(name: str) -> list[str]:
             and isinstance(n.body[0], ast.Expr)
             and isinstance(n.body[0].value, ast.Constant)
         }
+        compared = {
+            id(c) for n in ast.walk(tree) if isinstance(n, ast.Compare) for c in ast.walk(n)
+        }
         for node in ast.walk(tree):
             if isinstance(node, ast.Constant) and isinstance(node.value, str):
                 if id(node) in docstrings:
                     continue
                 text = node.value.lower()
-                hit = text == name or (name != "trajectories" and name in text)
+                if name == "trajectories":  # also a plain word: a column, a manifest key
+                    hit = text == name and id(node) in compared
+                else:
+                    hit = name in text
             elif isinstance(node, ast.Name | ast.Attribute | ast.alias | ast.arg):
                 ident = {ast.Name: "id", ast.Attribute: "attr", ast.alias: "name", ast.arg: "arg"}
                 text = str(getattr(node, ident[type(node)])).lower()
