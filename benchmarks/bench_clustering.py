@@ -38,10 +38,10 @@ from pathlib import Path
 import numpy as np
 
 from pcpg_dist.common.devices import set_threads
-from pcpg_dist.config.stages import PBTGConfig
 from pcpg_dist.dataset import read_parquet, write_parquet
 from pcpg_dist.domains.gridworld import layout as gw
 from pcpg_dist.domains.gridworld.pbtg import assemble_dataset, generate_pair
+from pcpg_dist.domains.gridworld.settings import PBTGConfig
 from pcpg_dist.stages.clustering import ClusterConfig, cluster, clustering_metrics
 from pcpg_dist.stages.clustering.ceiling import gap_to_ceiling, supervised_ceiling
 

@@ -138,10 +138,10 @@ def test_classify_writes_the_models_labels_and_warns_on_another_layout(
 ):
     import pandas as pd
 
-    from pcpg_dist.config import PBTGConfig
     from pcpg_dist.dataset import write_parquet
     from pcpg_dist.domains.gridworld.layout import random_layouts
     from pcpg_dist.domains.gridworld.pbtg import assemble_dataset
+    from pcpg_dist.domains.gridworld.settings import PBTGConfig
     from pcpg_dist.stages.clustering import ClusterConfig, cluster
 
     pbtg = PBTGConfig(episodes=3000, trajectories_per_style=60, dataset_per_style=40)
@@ -344,10 +344,10 @@ def test_classify_never_overwrites_its_inputs_or_a_special_file(tmp_path, capsys
     import os
 
     from pcpg_dist.common.files import atomic_write_bytes
-    from pcpg_dist.config import PBTGConfig
     from pcpg_dist.dataset import write_parquet
     from pcpg_dist.domains.gridworld.layout import random_layouts
     from pcpg_dist.domains.gridworld.pbtg import assemble_dataset
+    from pcpg_dist.domains.gridworld.settings import PBTGConfig
     from pcpg_dist.stages.clustering import ClusterConfig, cluster
 
     pbtg = PBTGConfig(episodes=1000, trajectories_per_style=20, dataset_per_style=10)

@@ -192,10 +192,14 @@ def set_path(data: dict, path: tuple[str, ...], value) -> dict:
 
 def config_paths() -> list[tuple[str, ...]]:
     """Every setting of every section (top-level keys and section.field)."""
-    from pcpg_dist.config import ExperimentConfig
+    from pcpg_dist.config.experiment import config_class
+    from pcpg_dist.domains import registry
 
+    fields = {}  # the core keys and every built-in domain's sections
+    for domain in registry.BUILTIN:
+        fields.update(config_class(domain).model_fields)
     paths = []
-    for name, field in ExperimentConfig.model_fields.items():
+    for name, field in fields.items():
         paths.append((name,))
         model = field.annotation
         if isinstance(model, type) and hasattr(model, "model_fields"):

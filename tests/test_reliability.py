@@ -363,9 +363,10 @@ def test_tampered_cluster_model_is_one_line(tmp_path, edit):
     import json as json_lib
 
     from pcpg_dist.common.errors import DataError
-    from pcpg_dist.config import ClusterConfig, PBTGConfig
+    from pcpg_dist.config import ClusterConfig
     from pcpg_dist.domains.gridworld.layout import random_layouts
     from pcpg_dist.domains.gridworld.pbtg import assemble_dataset, generate_pair
+    from pcpg_dist.domains.gridworld.settings import PBTGConfig
     from pcpg_dist.stages.clustering import cluster, load_model
 
     layout = random_layouts(1, 5)[0]

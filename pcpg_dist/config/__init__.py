@@ -1,22 +1,18 @@
 """Experiment configs: pydantic models only, so loading a YAML imports no stage module and no torch.
 
 - :mod:`.experiment`: :class:`ExperimentConfig`, :func:`load_config`, :func:`parse_config`
-- :mod:`.stages`: one model per stage (clustering, ranking, BC, evaluation, PBTG, tuning, runner)
-- :mod:`.domains`: the built-in domains' settings
+- :mod:`.stages`: one model per stage (clustering, ranking, BC, evaluation, tuning, runner)
+- :mod:`.checks`: the checks every domain's settings share (names, files, relative paths)
+
+Each domain's own settings live with the domain (``pcpg_dist/domains/<name>/settings.py`` for the
+built-ins) and reach a config through the domain registry.
 """
 
-from pcpg_dist.config.domains import (
-    GridWorldConfig,
-    MarioLoadConfig,
-    MiniDungeonsConfig,
-    TrajectoriesConfig,
-)
 from pcpg_dist.config.experiment import ExperimentConfig, load_config, parse_config
 from pcpg_dist.config.stages import (
     BCConfig,
     ClusterConfig,
     EvalConfig,
-    PBTGConfig,
     RankConfig,
     RunnerConfig,
     TuneConfig,
@@ -27,13 +23,8 @@ __all__ = [
     "ClusterConfig",
     "EvalConfig",
     "ExperimentConfig",
-    "GridWorldConfig",
-    "MarioLoadConfig",
-    "MiniDungeonsConfig",
-    "PBTGConfig",
     "RankConfig",
     "RunnerConfig",
-    "TrajectoriesConfig",
     "TuneConfig",
     "load_config",
     "parse_config",

@@ -1,10 +1,13 @@
 """The experiment config: one YAML file, validated at load into a frozen pydantic model.
 
-Each stage's and each built-in domain's settings are their own models (:mod:`.stages`,
-:mod:`.domains`); this module composes them. ``domain:`` takes any registered domain name
-(:mod:`pcpg_dist.domains.registry`); a third-party domain's settings sit under a section of its own
-name, validated by the domain's ``settings_model``. A bad file fails at load with one line naming
-the key, the value and what is allowed (:class:`~pcpg_dist.common.errors.ConfigError`).
+:class:`ExperimentConfig` holds the core keys (name, domain, seeds and each stage's model, from
+:mod:`.stages`); ``domain:`` takes any registered domain name (:mod:`pcpg_dist.domains.registry`),
+and the config is validated as that domain's class (:func:`config_class`), which adds the sections
+the domain declares (``Domain.sections``), defaults filled in. So this layer names no domain, every
+domain registers its settings the same way, and a config's hash depends on its own domain's
+sections only. Sections of the other built-in domains (an old run.json recorded them all) are
+validated, then dropped. A bad file fails at load with one line naming the key, the value and what
+is allowed (:class:`~pcpg_dist.common.errors.ConfigError`).
 """
 
 from __future__ import annotations
@@ -15,45 +18,52 @@ import reprlib
 from pathlib import Path
 from typing import Annotated, Any
 
-from pydantic import BaseModel, Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    Field,
+    ValidationError,
+    create_model,
+    field_validator,
+    model_validator,
+)
 
 from pcpg_dist.common.errors import ConfigError, PcpgError
 from pcpg_dist.common.messages import MAX_SHOWN, one_line, settable_keys, unknown_key_message
-from pcpg_dist.config.domains import (
-    GridWorldConfig,
-    MarioLoadConfig,
-    MiniDungeonsConfig,
-    TrajectoriesConfig,
-    safe_name,
-)
+from pcpg_dist.config.checks import safe_name
 from pcpg_dist.config.schema import StrictModel
 from pcpg_dist.config.stages import (
     LIKELIHOOD_METHODS,
     BCConfig,
     ClusterConfig,
     EvalConfig,
-    PBTGConfig,
     RankConfig,
     RunnerConfig,
     TuneConfig,
 )
 from pcpg_dist.config.yaml_io import read_yaml
+from pcpg_dist.domains import registry
+from pcpg_dist.domains.registry import DEFAULT_DOMAIN
 
-#: the sections that hold one domain's settings (a run logs only its own domain's)
-DOMAIN_SECTIONS = ("gridworld", "minidungeons", "mario", "trajectories", "pbtg", "plugin")
+#: a key of configs written before domains declared their sections (an empty mapping, or a plugin
+#: domain's settings): read as the domain's own section
+LEGACY_PLUGIN_KEY = "plugin"
 
 
 class ExperimentConfig(StrictModel):
-    """A whole experiment: data, clustering, ranking, BC, evaluation and fan-out."""
+    """A whole experiment: data, clustering, ranking, BC, evaluation and fan-out.
+
+    Validating one (:meth:`model_validate`, :func:`parse_config`) gives an instance of its domain's
+    class (:func:`config_class`), whose extra fields are that domain's sections (``cfg.<section>``).
+    """
 
     name: Annotated[str, Field(description="experiment name (MLflow experiment, output folder)")]
     domain: Annotated[
         str,
         Field(
-            description="a registered domain: gridworld, minidungeons, mario, "
-            "trajectories, or a plugin's name (`pcpg domains` lists them)"
+            description="a registered domain: a built-in or a plugin's name "
+            "(`pcpg domains` lists them)"
         ),
-    ] = "gridworld"
+    ] = DEFAULT_DOMAIN
     seed: Annotated[int, Field(ge=0, le=2**32 - 1, description="base seed of data generation")] = 0
     seeds: Annotated[
         list[int],
@@ -64,18 +74,6 @@ class ExperimentConfig(StrictModel):
             "results report mean and std over them",
         ),
     ] = [0, 1, 2, 3]
-    gridworld: GridWorldConfig = GridWorldConfig()
-    minidungeons: MiniDungeonsConfig = MiniDungeonsConfig()
-    mario: MarioLoadConfig = MarioLoadConfig()
-    trajectories: TrajectoriesConfig = TrajectoriesConfig()
-    pbtg: PBTGConfig = PBTGConfig()
-    plugin: Annotated[
-        dict[str, Any],
-        Field(
-            description="settings of a third-party domain; written in "
-            "YAML under the domain's own name"
-        ),
-    ] = {}
     clustering: ClusterConfig = ClusterConfig()
     ranking: RankConfig = RankConfig()
     bc: BCConfig = BCConfig()
@@ -86,16 +84,22 @@ class ExperimentConfig(StrictModel):
         Field(description="`pcpg tune`: search space, objective and study (ignored by `pcpg run`)"),
     ] = TuneConfig()
 
-    @model_validator(mode="before")
     @classmethod
-    def _plugin_section(cls, data: Any) -> Any:
-        """A plugin domain's section (named after the domain) becomes ``plugin``."""
-        if isinstance(data, dict):
-            dom = data.get("domain")
-            if isinstance(dom, str) and dom in data and dom not in cls.model_fields:
-                data = {**data, "plugin": data[dom]}
-                del data[dom]
-        return data
+    def model_validate(cls, obj: Any, **kwargs: Any) -> ExperimentConfig:  # type: ignore[override]
+        """Validate ``obj`` as the class of the domain it names (core keys plus that domain's
+        sections); an unknown domain fails here, on the core keys, with the registered names."""
+        if (
+            cls is ExperimentConfig
+            and isinstance(obj, dict)
+            and registry.is_registered(obj.get("domain", DEFAULT_DOMAIN))
+        ):
+            return _validate_for_domain(obj, **kwargs)
+        return super().model_validate(obj, **kwargs)
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        """Pickled (Ray tasks, worker processes) by domain name and state: the class is rebuilt
+        from the registry on the other side, the sections' private state (layout texts) kept."""
+        return (_restore, (self.domain, self.__getstate__()))
 
     @model_validator(mode="after")
     def _corruption_needs_two_clusters(self) -> ExperimentConfig:
@@ -126,8 +130,6 @@ class ExperimentConfig(StrictModel):
     @field_validator("domain")
     @classmethod
     def _domain(cls, v: str) -> str:
-        from pcpg_dist.domains import registry
-
         try:
             registry.target(v)
         except ConfigError as e:
@@ -144,8 +146,6 @@ class ExperimentConfig(StrictModel):
     @property
     def domain_object(self):
         """The registered :class:`~pcpg_dist.domains.base.Domain` this config names."""
-        from pcpg_dist.domains import registry
-
         return registry.get(self.domain)
 
     @property
@@ -154,8 +154,9 @@ class ExperimentConfig(StrictModel):
         return self.domain_object.settings(self)
 
     def hash(self) -> str:
-        """Content hash of what determines a sweep's results (paths included): `tuning` (used only
-        by `pcpg tune`) and `runner` (how work is spread) are left out, so editing them reuses
+        """Content hash of what determines a sweep's results (paths included): the core keys and
+        this domain's own sections (another domain's defaults do not change it); `tuning` (used
+        only by `pcpg tune`) and `runner` (how work is spread) are left out, so editing them reuses
         the sweep's MLflow parent run."""
         return hashlib.sha256(
             self.model_dump_json(exclude={"tuning", "runner"}).encode()
@@ -163,10 +164,10 @@ class ExperimentConfig(StrictModel):
 
     def flat(self) -> dict[str, str]:
         """Flattened ``section.key -> value`` strings, for MLflow params: the sections that act on
-        a run (`tuning`, which `pcpg run` ignores, and the other domains' sections are left out:
-        a GridWorld run's page listed ~40 params of Mario, MiniDungeons, logs and tuning)."""
+        a run (`tuning`, which `pcpg run` ignores, is left out; a config holds no other domain's
+        sections)."""
         out: dict[str, str] = {}
-        unused = {"tuning", *DOMAIN_SECTIONS} - set(self.domain_object.config_sections())
+        unused = {"tuning"}
 
         def walk(prefix: str, value: Any) -> None:
             if isinstance(value, dict) and value:
@@ -194,23 +195,96 @@ def _shown(value: Any) -> str:
     return text if len(text) <= MAX_SHOWN else text[:MAX_SHOWN] + "..."
 
 
-def valid_keys(domain: str | None = None) -> list[str]:
-    """Every dotted key a config can set (a plugin domain's own keys are checked by its model)."""
+def valid_keys(domain: str | None = None, other_domains: bool = True) -> list[str]:
+    """Every dotted key a config for ``domain`` (unknown: the default) can set: the core keys, the
+    domain's sections' and, with ``other_domains``, the other built-in domains' sections' (a
+    config may hold them; they are checked, then dropped)."""
+    if not registry.is_registered(domain):
+        domain = DEFAULT_DOMAIN
+    try:
+        own = registry.sections(domain)
+    except Exception:  # noqa: BLE001 - a plugin that fails to load is reported by the config itself
+        own = {}
+    others = _other_sections(domain, None) if other_domains else {}
     keys = settable_keys(ExperimentConfig)
-    if domain:
-        from pcpg_dist.domains import registry
-
-        try:
-            model = registry.get(domain).settings_model
-        except Exception:  # noqa: BLE001 - an unknown domain is reported by the config itself
-            model = None
-        if (
-            isinstance(model, type)
-            and issubclass(model, BaseModel)
-            and domain not in ExperimentConfig.model_fields
-        ):
-            keys += settable_keys(model, domain + ".")
+    for key, model in {**own, **{k: m for k, m in others.items() if k not in own}}.items():
+        keys += settable_keys(model, key + ".")
     return keys
+
+
+def _other_sections(domain: str, wanted: frozenset[str] | None) -> dict[str, type[BaseModel]]:
+    """The other built-in domains' sections named in ``wanted`` (None: all of them)."""
+    found: dict[str, type[BaseModel]] = {}
+    for other in registry.BUILTIN_SECTIONS:
+        if other != domain:
+            for key, model in registry.sections(other).items():
+                if wanted is None or key in wanted:
+                    found.setdefault(key, model)
+    return found
+
+
+_CLASSES: dict[tuple[Any, ...], type[ExperimentConfig]] = {}
+
+
+def config_class(domain: str, others: frozenset[str] = frozenset()) -> type[ExperimentConfig]:
+    """:class:`ExperimentConfig` with ``domain``'s sections as fields (defaults filled in, so
+    ``cfg.<section>`` always holds the domain's settings) and, when ``others`` names sections of
+    other built-in domains, those as optional fields (to check a config that holds them).
+
+    Built once per set of section models: a plugin re-registered with other models gets its own."""
+    own = {
+        k: m for k, m in registry.sections(domain).items() if k not in ExperimentConfig.model_fields
+    }
+    extra = (
+        {k: m for k, m in _other_sections(domain, others).items() if k not in own} if others else {}
+    )
+    key = (domain, tuple(own.items()), tuple(extra.items()))
+    if key not in _CLASSES:
+        fields: dict[str, Any] = {
+            name: (
+                model,
+                Field(
+                    default_factory=dict,
+                    validate_default=True,
+                    description=(model.__doc__ or "").strip().split("\n")[0] or None,
+                ),
+            )
+            for name, model in own.items()
+        }
+        fields.update({name: (model | None, None) for name, model in extra.items()})
+        _CLASSES[key] = create_model(
+            f"ExperimentConfig[{domain}]", __base__=ExperimentConfig, __module__=__name__, **fields
+        )
+    return _CLASSES[key]
+
+
+def _validate_for_domain(data: dict, **kwargs: Any) -> ExperimentConfig:
+    """``data`` validated as its domain's class: other built-in domains' sections are checked by
+    their models, then dropped (the result holds the core keys and the domain's sections)."""
+    domain = data.get("domain", DEFAULT_DOMAIN)
+    legacy = data.get(LEGACY_PLUGIN_KEY)
+    if LEGACY_PLUGIN_KEY in data and (isinstance(legacy, dict) or legacy is None):
+        data = {k: v for k, v in data.items() if k != LEGACY_PLUGIN_KEY}
+        if legacy and domain not in data:  # a plugin domain's settings, recorded before sections
+            data[domain] = legacy
+    plain = config_class(domain)
+    others = frozenset(k for k in data if k not in plain.model_fields)
+    full = config_class(domain, others) if others else plain
+    cfg = full.model_validate(data, **kwargs)
+    if full is plain:
+        return cfg
+    return plain.model_construct(
+        _fields_set=cfg.model_fields_set & set(plain.model_fields),
+        **{name: getattr(cfg, name) for name in plain.model_fields},
+    )
+
+
+def _restore(domain: str, state: dict[str, Any]) -> ExperimentConfig:
+    """A pickled config back as its domain's class (see :meth:`ExperimentConfig.__reduce__`)."""
+    cls = config_class(domain)
+    cfg = cls.__new__(cls)
+    cfg.__setstate__(state)
+    return cfg
 
 
 def _describe(error: dict, domain: str | None = None) -> str:

@@ -44,6 +44,8 @@ def closest_key(key: str, domain: str | None) -> str | None:
 
 def check_key(key: str, domain: str | None) -> None:
     """Raise a one-line :class:`ConfigError` naming the closest valid key when ``key`` is unknown."""
+    if key in valid_keys(domain, other_domains=False):  # the common case, without importing
+        return  # the other built-in domains' settings
     keys = valid_keys(domain)
     if key in keys or any(
         key.startswith(f"{k}.") for k in keys if k.split(".")[-1] in _OPEN_SECTIONS

@@ -22,7 +22,6 @@ from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
 import numpy as np
 
-from pcpg_dist.common.messages import settable_keys, unknown_key_message
 from pcpg_dist.domains.defaults import in_process
 
 if TYPE_CHECKING:
@@ -118,67 +117,39 @@ def standardised(ds: Dataset) -> Dataset:
 class Domain:
     """Base class of every domain; override what your game has, keep the defaults for the rest.
 
-    Required: :attr:`name` and :meth:`generate`. A domain with settings names them with
-    :attr:`settings_model` (a pydantic model, written in YAML under a section named after the
-    domain); the built-ins keep theirs in typed sections of the experiment config
-    (:attr:`settings_key`).
+    Required: :attr:`name` and :meth:`generate`. A domain with settings declares its config
+    sections in :attr:`sections` ({YAML key: pydantic model}; its own settings sit under its name),
+    or, shorter, one model as :attr:`settings_model` (the section named after the domain).
     """
 
     name: ClassVar[str] = ""
-    #: the ExperimentConfig section holding this domain's settings (built-ins only)
-    settings_key: ClassVar[str | None] = None
-    #: a plugin's settings model; its YAML section is the domain's name
+    #: this domain's config sections, {YAML key: pydantic model}; the one named after the domain
+    #: holds its settings (:meth:`settings`)
+    sections: ClassVar[dict[str, type[BaseModel]]] = {}
+    #: a domain's one settings model, for its section named after the domain (used when
+    #: ``sections`` is left empty)
     settings_model: ClassVar[type[BaseModel] | None] = None
     #: what the PCPG paper reports for this domain (its numbers and protocol, shown beside ours in
     #: reports); None where the paper has no results for it (every plugin)
     paper: ClassVar[PaperResults | None] = None
 
     # ------------------------------------------------------------------ config
+    @classmethod
+    def section_models(cls) -> dict[str, type[BaseModel]]:
+        """This domain's config sections: :attr:`sections`, else ``{name: settings_model}``, so a
+        domain with one model needs no dict (and plugins written before ``sections`` still work)."""
+        if cls.sections:
+            return dict(cls.sections)
+        return {cls.name: cls.settings_model} if cls.settings_model is not None else {}
+
     def config_sections(self) -> tuple[str, ...]:
-        """The ExperimentConfig domain sections this domain reads (the others' defaults are not
-        logged as its run's MLflow params)."""
-        if self.settings_key is not None:
-            return (self.settings_key,)
-        return ("plugin",) if self.settings_model is not None else ()
+        """The config sections this domain reads (a config holds only these besides the core)."""
+        return tuple(self.section_models())
 
     def settings(self, cfg: ExperimentConfig) -> Any:
-        """This domain's settings in ``cfg`` (None when it has none)."""
-        if self.settings_key is not None:
-            return getattr(cfg, self.settings_key)
-        if self.settings_model is not None:
-            from pydantic import ValidationError
-
-            from pcpg_dist.common.errors import ConfigError
-
-            try:
-                return self.settings_model.model_validate(cfg.plugin)
-            except ValidationError as e:
-                err = e.errors(include_url=False)[0]
-                key = ".".join(str(p) for p in (self.name, *err["loc"]))
-                shown = "missing" if err["type"] == "missing" else repr(err.get("input"))[:200]
-                if err["type"] == "extra_forbidden":
-                    raise ConfigError(unknown_key_message(key, self._config_keys(cfg))) from None
-                raise ConfigError(
-                    f"key '{key}': value {shown} is not allowed — "
-                    f"{err['msg'].removeprefix('Value error, ')}"
-                ) from None
-        return None
-
-    def _config_keys(self, cfg: ExperimentConfig) -> list[str]:
-        """Every key a config for this domain can set (its own settings' too), for a did-you-mean;
-        read from ``cfg``'s model so the domain API needs nothing of the config layer at runtime."""
-        from pydantic import BaseModel
-
-        config_model = type(cfg)
-        keys = settable_keys(config_model)
-        model = self.settings_model
-        if (
-            isinstance(model, type)
-            and issubclass(model, BaseModel)
-            and self.name not in config_model.model_fields
-        ):
-            keys += settable_keys(model, self.name + ".")
-        return keys
+        """This domain's settings in ``cfg``: its section named after it, validated when ``cfg``
+        was loaded (None when it has none)."""
+        return getattr(cfg, self.name) if self.name in self.section_models() else None
 
     def check_config(self, cfg: ExperimentConfig) -> None:
         """Cheap checks when a config is loaded (files exist, ...); raise PcpgError or ValueError.

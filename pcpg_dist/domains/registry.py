@@ -8,6 +8,10 @@ domains``) imports nothing heavy. A third-party package registers a domain in it
     my_game = "my_game.pcpg:MyGameDomain"
 
 The attribute is a :class:`~pcpg_dist.domains.base.Domain` subclass or instance.
+
+A domain's config sections (:func:`sections`) are read when a config is loaded: a built-in's from a
+light, pydantic-only ``settings`` module (:data:`BUILTIN_SECTIONS`), so a config names no domain
+code it does not run; a plugin's from its Domain class, through its entry point.
 """
 
 from __future__ import annotations
@@ -15,8 +19,12 @@ from __future__ import annotations
 import difflib
 from importlib import import_module
 from importlib.metadata import entry_points
+from typing import TYPE_CHECKING
 
 from pcpg_dist.common.errors import ConfigError
+
+if TYPE_CHECKING:
+    from pydantic import BaseModel
 
 ENTRY_POINT_GROUP = "pcpg_dist.domains"
 
@@ -27,6 +35,18 @@ BUILTIN: dict[str, str] = {
     "mario": "pcpg_dist.domains.mario.domain:MarioDomain",
     "trajectories": "pcpg_dist.domains.trajectories.domain:TrajectoriesDomain",
 }
+
+#: name -> "module:attribute" of each built-in domain's config sections ({YAML key: model}), in
+#: modules that import pydantic only
+BUILTIN_SECTIONS: dict[str, str] = {
+    "gridworld": "pcpg_dist.domains.gridworld.settings:SECTIONS",
+    "minidungeons": "pcpg_dist.domains.minidungeons.settings:SECTIONS",
+    "mario": "pcpg_dist.domains.mario.settings:SECTIONS",
+    "trajectories": "pcpg_dist.domains.trajectories.settings:SECTIONS",
+}
+
+#: the domain a config without ``domain:`` runs
+DEFAULT_DOMAIN = "gridworld"
 
 _loaded: dict[str, object] = {}
 
@@ -77,3 +97,18 @@ def get(name: str):
             )
         _loaded[name] = obj
     return _loaded[name]
+
+
+def is_registered(name: object) -> bool:
+    """Whether ``name`` is a registered domain name (imports nothing)."""
+    return isinstance(name, str) and (name in BUILTIN or name in _entry_points())
+
+
+def sections(name: str) -> dict[str, type[BaseModel]]:
+    """The config sections of domain ``name`` ({YAML key: pydantic model}): a built-in's from its
+    settings module (its domain module is not imported), a plugin's from its Domain class."""
+    where = BUILTIN_SECTIONS.get(name)
+    if where is None:
+        return get(name).section_models()
+    module, _, attr = where.partition(":")
+    return dict(getattr(import_module(module), attr))

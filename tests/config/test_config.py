@@ -10,7 +10,7 @@ import yaml
 
 from pcpg_dist.common.errors import ConfigError
 from pcpg_dist.config import load_config, parse_config
-from pcpg_dist.config.domains import PAPER_LAYOUTS
+from pcpg_dist.domains.gridworld.settings import PAPER_LAYOUTS
 
 ROOT = Path(__file__).resolve().parents[2]
 EXPERIMENTS = ROOT / "experiments"

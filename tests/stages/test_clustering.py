@@ -202,9 +202,9 @@ def test_hungarian_accuracy_with_extra_clusters_and_errors():
 @pytest.fixture(scope="module")
 def grid_data():
     """One random style-distinct GridWorld layout, 60 PBTG trajectories per style (seconds)."""
-    from pcpg_dist.config.stages import PBTGConfig
     from pcpg_dist.domains.gridworld.layout import random_layouts
     from pcpg_dist.domains.gridworld.pbtg import assemble_dataset, generate_pair
+    from pcpg_dist.domains.gridworld.settings import PBTGConfig
 
     layout = random_layouts(1, seed=12)[0]
     cfg = PBTGConfig(trajectories_per_style=200, dataset_per_style=60)

@@ -72,9 +72,9 @@ def e4():
     """The paper's E4 at the paper's size (PBTG, 1000 trajectories per style, seed 0)."""
     from pathlib import Path
 
-    from pcpg_dist.config.stages import PBTGConfig
     from pcpg_dist.domains.gridworld.layout import load_layout
     from pcpg_dist.domains.gridworld.pbtg import assemble_dataset, generate_pair
+    from pcpg_dist.domains.gridworld.settings import PBTGConfig
 
     layout = load_layout(
         Path(__file__).resolve().parents[2] / "pcpg_dist" / "data" / "gridworld" / "E4.txt"
@@ -102,9 +102,9 @@ def test_split_merge_frees_a_group_no_start_freed():
     points below the supervised ceiling, with a group of one style held in another's cluster.
     Starting from the true styles reaches a *higher* likelihood, so the search, not the model, was
     the limit; split-and-merge moves find that labelling without labels."""
-    from pcpg_dist.config.stages import PBTGConfig
     from pcpg_dist.domains.gridworld.layout import random_layouts
     from pcpg_dist.domains.gridworld.pbtg import assemble_dataset, generate_pair
+    from pcpg_dist.domains.gridworld.settings import PBTGConfig
     from pcpg_dist.stages.clustering import checked_sequences
     from pcpg_dist.stages.clustering.ceiling import supervised_ceiling
     from pcpg_dist.stages.clustering.features import fit_vocabulary

@@ -13,6 +13,7 @@ from typing import Any
 from pcpg_dist.domains.base import Domain, DomainHooks, FanOut
 from pcpg_dist.domains.defaults import in_process
 from pcpg_dist.domains.gridworld.paper import PAPER
+from pcpg_dist.domains.gridworld.settings import SECTIONS
 
 
 @lru_cache(maxsize=8)
@@ -53,11 +54,8 @@ def gridworld_layout(cfg, unit: str):
 
 class GridWorldDomain(Domain):
     name = "gridworld"
-    settings_key = "gridworld"
+    sections = SECTIONS
     paper = PAPER
-
-    def config_sections(self) -> tuple[str, ...]:
-        return ("gridworld", "pbtg")  # the layouts, and PBTG's Q-learning and sampling
 
     def data_key(self, cfg) -> list[Any]:
         gw = cfg.gridworld

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from pcpg_dist.common.errors import LayoutError
-from pcpg_dist.config.domains import layout_size_problem
+from pcpg_dist.domains.gridworld.settings import layout_size_problem
 
 UP, RIGHT, DOWN, LEFT = 0, 1, 2, 3
 MOVES = np.array([(0, -1), (1, 0), (0, 1), (-1, 0)])  # (dx, dy) per action

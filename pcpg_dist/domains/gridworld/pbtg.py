@@ -18,9 +18,9 @@ import zlib
 import numba
 import numpy as np
 
-from pcpg_dist.config.stages import PBTGConfig
 from pcpg_dist.dataset import Dataset
 from pcpg_dist.domains.gridworld.layout import FEATURES, N_ACTIONS, GridTables, Layout
+from pcpg_dist.domains.gridworld.settings import PBTGConfig
 
 
 def pair_seed(base_seed: int, env: str, reward_index: int) -> np.random.SeedSequence:

@@ -13,11 +13,12 @@ from typing import Any
 from pcpg_dist.domains.base import Domain, FanOut, Unit
 from pcpg_dist.domains.defaults import in_process
 from pcpg_dist.domains.mario.paper import PAPER
+from pcpg_dist.domains.mario.settings import SECTIONS
 
 
 class MarioDomain(Domain):
     name = "mario"
-    settings_key = "mario"
+    sections = SECTIONS
     paper = PAPER
 
     def data_key(self, cfg) -> list[Any]:

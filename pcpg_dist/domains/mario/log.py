@@ -30,7 +30,6 @@ import numpy as np
 import pandas as pd
 
 from pcpg_dist.common.errors import DataError
-from pcpg_dist.config.domains import MAX_PLAY_LOG_BYTES, EventEncoding, Goal, MarioLoadConfig
 from pcpg_dist.dataset import Dataset
 from pcpg_dist.domains.mario.log_lines import (
     COUNTERS,
@@ -39,6 +38,12 @@ from pcpg_dist.domains.mario.log_lines import (
     episode_arrays,
     episode_success,
     parse_episode,
+)
+from pcpg_dist.domains.mario.settings import (
+    MAX_PLAY_LOG_BYTES,
+    EventEncoding,
+    Goal,
+    MarioLoadConfig,
 )
 
 log = logging.getLogger(__name__)

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pcpg_dist.common.errors import DataError
-from pcpg_dist.config.domains import EventEncoding, Goal
+from pcpg_dist.domains.mario.settings import EventEncoding, Goal
 
 N_ACTIONS = 39  # CorpusIndex runs 0..38 (README of the data; all 39 occur in the shipped log)
 COUNTERS = ("jumps", "kills", "run_starts", "coins", "deaths")

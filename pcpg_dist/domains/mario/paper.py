@@ -3,8 +3,8 @@ counters and the event id as one number) is part of the protocol a reproduction 
 
 from __future__ import annotations
 
-from pcpg_dist.config.domains import MarioLoadConfig
 from pcpg_dist.domains.base import PaperResults
+from pcpg_dist.domains.mario.settings import MarioLoadConfig
 
 PAPER = PaperResults(
     protocol=(

@@ -18,6 +18,7 @@ import numpy as np
 from pcpg_dist.domains.base import Domain, DomainHooks, FanOut, Unit, standardised
 from pcpg_dist.domains.defaults import in_process
 from pcpg_dist.domains.minidungeons.paper import PAPER
+from pcpg_dist.domains.minidungeons.settings import SECTIONS
 
 
 def _part(level: str, proxy: int, runs: int, seed: int, noise: tuple[float, float], max_steps: int):
@@ -45,7 +46,7 @@ def held_out_rollout(cfg, policy, n: int, rng: np.random.Generator):
 
 class MiniDungeonsDomain(Domain):
     name = "minidungeons"
-    settings_key = "minidungeons"
+    sections = SECTIONS
     paper = PAPER
 
     def generate(self, cfg, show_progress: bool = True, fan_out: FanOut = in_process):

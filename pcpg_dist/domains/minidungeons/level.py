@@ -20,7 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from pcpg_dist.common.errors import LayoutError
-from pcpg_dist.config.domains import LEVELS_TEST, LEVELS_TRAIN, MAX_LEVEL_BYTES
+from pcpg_dist.config.checks import MAX_LEVEL_BYTES
+from pcpg_dist.domains.minidungeons.settings import LEVELS_TEST, LEVELS_TRAIN
 
 # Tile codes of :attr:`Level.grid` (the start is stored as floor; its position is kept apart).
 FLOOR, WALL, TREASURE, POTION, MONSTER, EXIT = 0, 1, 2, 3, 4, 5

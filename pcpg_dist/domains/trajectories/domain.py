@@ -16,6 +16,7 @@ import numpy as np
 
 from pcpg_dist.domains.base import Domain, DomainHooks, FanOut, ScoreFn, Unit
 from pcpg_dist.domains.defaults import in_process
+from pcpg_dist.domains.trajectories.settings import SECTIONS
 
 BUILTIN_SCORES = ("return", "length", "-length")
 
@@ -37,7 +38,7 @@ def minari_fingerprint(dataset_id: str) -> list[list]:
 
 class TrajectoriesDomain(Domain):
     name = "trajectories"
-    settings_key = "trajectories"
+    sections = SECTIONS
 
     @staticmethod
     def _skill_column(settings) -> str | None:

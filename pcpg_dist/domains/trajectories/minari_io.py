@@ -25,8 +25,8 @@ from typing import Any
 import numpy as np
 
 from pcpg_dist.common.errors import DataError
-from pcpg_dist.config.domains import MINARI_ID, minari_id_problem
 from pcpg_dist.dataset import MANIFEST, Dataset, load_datasets
+from pcpg_dist.domains.trajectories.settings import MINARI_ID, minari_id_problem
 
 ENV_VAR = "MINARI_DATASETS_PATH"
 STYLE_KEY = "style"

@@ -275,7 +275,7 @@ def _conclude(
 def study_folder(name: str) -> str:
     """A study name as one folder name: itself where it is plain, else made safe plus a short hash."""
     from pcpg_dist.common.run_folders import slug
-    from pcpg_dist.config.domains import MAX_NAME, NAME_PATTERN
+    from pcpg_dist.config.checks import MAX_NAME, NAME_PATTERN
 
     plain = re.match(NAME_PATTERN, name) and ".." not in name and len(name) <= MAX_NAME
     return name if plain else slug(name[:60], name, fallback="study")

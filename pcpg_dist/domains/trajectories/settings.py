@@ -1,0 +1,104 @@
+"""The ``trajectories`` config section (a user's own play logs) and the Minari dataset ids it
+accepts. Pydantic only, so the registry can read it when a config is loaded without importing the
+table readers.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Literal
+
+from pydantic import BaseModel, Field, ValidationInfo, field_validator
+
+from pcpg_dist.config.checks import relative_to_config
+from pcpg_dist.config.schema import StrictModel
+
+#: a Minari dataset id, ``[namespace/]name[-vN]`` (Minari's own grammar; a namespace may hold '/'):
+#: never a path
+MINARI_ID = re.compile(
+    r"^(?:(?P<namespace>[-_\w][-_\w/]*[-_\w]+)/)?(?P<name>[-_\w]+?)(?:-v(?P<version>\d+))?$"
+)
+
+
+def minari_id_problem(dataset_id: object, need_version: bool = False) -> str | None:
+    """Why ``dataset_id`` is not a Minari dataset id (None if it is one)."""
+    match = MINARI_ID.fullmatch(dataset_id) if isinstance(dataset_id, str) else None
+    if match is None or ".." in dataset_id or (need_version and match["version"] is None):
+        return (
+            f"{str(dataset_id)[:120]!r} is not a Minari dataset id (expected namespace/name-vN, e.g. "
+            f"pcpg/mygame-v0: letters, digits, '_', '-', '/')"
+        )
+    return None
+
+
+class TrajectoriesConfig(StrictModel):
+    """A user's own play logs (domain ``trajectories``): see docs/bring-your-own-data.md."""
+
+    path: str | None = Field(
+        None,
+        description="a Parquet file, a folder of Parquet files (read in name "
+        "order), or minari:DATASET_ID (a local Minari dataset); relative paths are "
+        "relative to the config file",
+    )
+    score: str = Field(
+        "return",
+        description="Step B's skill per trajectory: 'return' (sum of reward), "
+        "'length' (longer is better), '-length' (shorter is better) or the name of a "
+        "per-trajectory numeric column of the table (higher is better)",
+    )
+    gymnasium_env: str | None = Field(
+        None,
+        description="optional Gymnasium id (e.g. FrozenLake-v1) to "
+        "roll every trained agent out in; its observation must flatten "
+        "to the table's state width and its action space be Discrete(n)",
+    )
+    gymnasium_kwargs: dict[str, str | int | float | bool | None] = Field(
+        {}, description="keyword arguments of gymnasium.make (e.g. {is_slippery: false})"
+    )
+    gymnasium_success: Literal["terminated", "terminated_positive_reward"] = Field(
+        "terminated",
+        description="when a rollout episode counts as a success: 'terminated' (ended by "
+        "the env, not by a time limit) or 'terminated_positive_reward' (and its last reward > 0: "
+        "FrozenLake, where falling in a hole also terminates)",
+    )
+    n_actions: int | None = Field(
+        None,
+        ge=1,
+        le=1_000_000,
+        description="number of actions; default: the "
+        "length of the valid lists, else the largest action + 1",
+    )
+
+    @field_validator("path")
+    @classmethod
+    def _resolve(cls, v: str | None, info: ValidationInfo) -> str | None:
+        if v is None or v.startswith("minari:"):
+            return v
+        return str(relative_to_config(Path(v), info))
+
+    @field_validator("score")
+    @classmethod
+    def _score(cls, v: str) -> str:
+        if not v.strip():
+            raise ValueError("score must be return, length, -length or a column name")
+        return v
+
+    def check(self) -> None:
+        if self.path is None:
+            raise ValueError(
+                "domain 'trajectories' needs trajectories.path (a Parquet file, a folder of "
+                "Parquet files or minari:DATASET_ID)"
+            )
+        if self.path.startswith("minari:"):
+            problem = minari_id_problem(self.path.removeprefix("minari:"))
+            if problem:  # checked here, before anything reads the folder the id would name
+                raise ValueError(f"trajectories.path: {problem}")
+            return
+        if not Path(self.path).exists():
+            raise ValueError(f"trajectories.path {self.path} not found")
+
+
+#: The trajectories domain's config sections, by YAML key (registered through the registry's
+#: BUILTIN_SECTIONS)
+SECTIONS: dict[str, type[BaseModel]] = {"trajectories": TrajectoriesConfig}
