@@ -1,0 +1,96 @@
+"""Check one zoo game while writing it: do its styles play competently, and can a classifier
+given the styles tell them apart (and how far is the label-free default)?
+
+    uv run python -m benchmarks.zoo.check minigrid_empty [--full] [--cluster]
+
+Prints each style's episodes, mean length and return, then the cross-validated accuracy of a
+gradient-boosted classifier on the trajectories' profiles (pcpg_dist/stages/clustering/profile.py)
+and of pcpg's supervised ceiling; with ``--cluster`` the default clusterer's accuracy too.
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks.zoo.common import episodes, load_game, step_table
+
+
+def dataset_of(name: str, ci: bool, tmp: Path):
+    """The game's episodes read back through pcpg's own step-table reader (one unit)."""
+    from pcpg_dist.config import parse_config
+    from pcpg_dist.domains import contract
+
+    game = load_game(name)
+    table = step_table(episodes(game, ci=ci))
+    (tmp / "steps").mkdir()
+    table.to_parquet(tmp / "steps" / "steps.parquet", index=False)
+    cfg = parse_config(
+        {
+            "name": f"check_{name}",
+            "domain": "trajectories",
+            "trajectories": {"path": str(tmp / "steps"), "n_actions": game.n_actions},
+            "clustering": {"k": len(game.styles)},
+        }
+    )
+    (ds,) = contract.generate(cfg, show_progress=False).values()
+    return game, cfg, ds
+
+
+def supervised_profile_accuracy(ds, seed: int = 0) -> float:
+    """5-fold cross-validated accuracy of gradient boosting on the trajectories' profiles."""
+    from sklearn.ensemble import HistGradientBoostingClassifier
+    from sklearn.model_selection import StratifiedKFold, cross_val_score
+
+    from pcpg_dist.stages.clustering.profile import trajectory_profiles
+
+    x = trajectory_profiles(ds)
+    folds = StratifiedKFold(5, shuffle=True, random_state=seed)
+    model = HistGradientBoostingClassifier(max_iter=200, random_state=seed)
+    return float(cross_val_score(model, x, ds.styles, cv=folds).mean())
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("game")
+    ap.add_argument("--full", action="store_true", help="the full counts (default: CI's)")
+    ap.add_argument("--cluster", action="store_true", help="also the default clusterer")
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.perf_counter()
+        game, cfg, ds = dataset_of(args.game, not args.full, Path(tmp))
+        built = time.perf_counter() - t0
+    print(
+        f"{game.name}: {ds.n_trajectories} trajectories, {ds.n_rows} rows, "
+        f"{ds.state_dim} features, {ds.n_actions} actions, built in {built:.1f} s"
+    )
+    for s, label in enumerate(game.styles):
+        mine = ds.styles == s
+        print(
+            f"  style {s} {label:<28} {mine.sum():5d} episodes, length "
+            f"{ds.lengths[mine].mean():7.1f}, return {ds.returns[mine].mean():8.2f}"
+        )
+    from pcpg_dist.stages.clustering.ceiling import supervised_ceiling
+
+    print(
+        f"  profile + gradient boosting (given the styles): {supervised_profile_accuracy(ds):.3f}"
+    )
+    print(f"  pcpg's supervised ceiling today: {supervised_ceiling(ds, seed=0):.3f}")
+    if args.cluster:
+        from pcpg_dist.stages.clustering import cluster, clustering_metrics
+
+        t0 = time.perf_counter()
+        result = cluster(ds, cfg.clustering, seed=0)
+        acc = clustering_metrics(ds.styles, np.asarray(result.labels))["accuracy"]
+        print(
+            f"  default clusterer ({cfg.clustering.method}): {acc:.3f} "
+            f"in {time.perf_counter() - t0:.1f} s"
+        )
+
+
+if __name__ == "__main__":
+    main()
