@@ -215,7 +215,7 @@ def test_pcpg_run_end_to_end(corridor_site, tmp_path):
     routes = sorted(Corridor(12).route_length(style) for style in range(3))
     assert sorted(m[f"rollout/length/k{c}/p1"] for c in range(3)) == pytest.approx(routes, abs=1.0)
     run = json.loads((summary / "run.json").read_text())
-    assert run["config"]["domain"] == "corridor" and run["config"]["plugin"]["length"] == 12
+    assert run["config"]["domain"] == "corridor" and run["config"]["corridor"]["length"] == 12
 
 
 # --------------------------------------------------------------------------- broken plugins
