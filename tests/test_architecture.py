@@ -40,8 +40,6 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
     ("face", ("pcpg_dist.cli", "pcpg_dist")),
 ]
 MAX_MODULE_LINES = 400
-#: checks not yet met while the redesign of issue 34 lands (strict: a check that passes must leave)
-IN_PROGRESS = pytest.mark.xfail(strict=True, reason="issue 34: the redesign is landing in steps")
 MAX_FUNCTION_LINES = 80
 
 
@@ -241,7 +239,6 @@ def domain_mentions(name: str) -> list[str]:
     return named
 
 
-@IN_PROGRESS
 @pytest.mark.parametrize("name", DOMAIN_NAMES)
 def test_no_domain_is_named_outside_domains(name):
     assert domain_mentions(name) == []

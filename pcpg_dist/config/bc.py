@@ -48,7 +48,7 @@ class BCConfig(StrictModel):
             "scratch (the paper): every agent starts from its seeded initialisation. no_clustering: "
             "the No Clustering agents train first, then every other agent (per cluster, corrupted "
             "labels) starts from the No Clustering agent of its p and seed and trains "
-            "finetune_epochs on its own rows, so it keeps what all players share (docs/mario.md)."
+            "finetune_epochs on its own rows, so it keeps what all players share (docs/bc_and_evaluation.md)."
         ),
     )
     finetune_epochs: int | None = Field(
