@@ -68,16 +68,17 @@ def cluster_unit(unit: Unit, cluster_cfg, seed: int, ceiling: bool = True) -> Un
         f"clustering/{k}": float(v) for k, v in result.metrics.items() if isinstance(v, int | float)
     }
     if has_styles(unit):
-        from pcpg_dist.stages.clustering.ceiling import gap_to_ceiling, supervised_ceiling
+        from pcpg_dist.stages.clustering.ceiling import ceiling_panel, gap_to_ceiling
 
         sup = clustering_metrics(unit.dataset.styles, result.labels)
         metrics.update(
             {f"clustering/{k}": float(v) for k, v in sup.items() if isinstance(v, int | float)}
         )
-        top = supervised_ceiling(unit.dataset, seed=seed) if ceiling else float("nan")
-        if np.isfinite(
-            top
-        ):  # what a classifier given the true styles reaches (pcpg_dist/stages/clustering/ceiling.py)
+        # what a classifier given the true styles reaches: the best of a panel (ceiling.py)
+        panel = ceiling_panel(unit.dataset, seed=seed) if ceiling else {}
+        if panel:
+            top = max(panel.values())
+            metrics.update({f"clustering/ceiling_{name}": v for name, v in panel.items()})
             metrics["clustering/ceiling"] = top
             metrics["clustering/gap_to_ceiling"] = gap_to_ceiling(
                 top, metrics["clustering/accuracy"]

@@ -106,12 +106,14 @@ def test_split_merge_frees_a_group_no_start_freed():
     from pcpg_dist.domains.gridworld.pbtg import assemble_dataset, generate_pair
     from pcpg_dist.domains.gridworld.settings import PBTGConfig
     from pcpg_dist.stages.clustering import checked_sequences
-    from pcpg_dist.stages.clustering.ceiling import supervised_ceiling
+    from pcpg_dist.stages.clustering.ceiling import ceiling_panel
     from pcpg_dist.stages.clustering.features import fit_vocabulary
 
     (layout,) = random_layouts(1, 917_2024, start=16)
     ds = assemble_dataset([generate_pair(layout, r, PBTGConfig(), 0) for r in range(4)])
-    top = supervised_ceiling(ds, seed=0)
+    # the linear model on visit bags, the ceiling this was measured against; the panel's best
+    # (boosting on profiles) is 0.959 here, 1.7 points above the fit (docs/clustering.md)
+    top = ceiling_panel(ds, seed=0)["linear_bags"]
     states, _ = checked_sequences(ds)
     steps = greedy_mix.Steps.of_dataset(ds, states, fit_vocabulary(states, ds.actions, 4).states)
     starts = [
