@@ -53,9 +53,8 @@ def run(args: argparse.Namespace) -> None:
         show_progress=not args.quiet,
         command=" ".join(["pcpg", *sys.argv[1:]]),
     )
-    print_summary(
-        result, out
-    )  # results on stdout; plain print below: commands stay one copyable line
+    # results on stdout; plain print below: commands stay one copyable line
+    print_summary(result, out, method=cfg.clustering.method)
     if result.parent_run_id:
         _print_links(args, "MLflow parent run", result.parent_run_id)
     print(f"outputs: {result.out_dir}/summary")

@@ -78,8 +78,9 @@ def write_summary(
     return metrics
 
 
-def print_summary(result, console) -> None:
-    """The terminal summary: accuracy per p (PCPG vs No Clustering), clustering quality, times."""
+def print_summary(result, console, method: str | None = None) -> None:
+    """The terminal summary: accuracy per p (PCPG vs No Clustering), clustering quality (with the
+    clustering ``method`` each environment was clustered with, where given), times."""
     from rich.table import Table
 
     m = result.metrics
@@ -121,12 +122,22 @@ def print_summary(result, console) -> None:
         if any(f"clustering/{k}" in v for v in result.clustering.values())
     ]
     c.add_column("env")
+    if method:
+        c.add_column("method")
     shown = {"gap_to_ceiling": "gap", "silhouette": "silh.", "fit_seconds": "fit s"}
     for k in cols:
         c.add_column(shown.get(k, k), justify="right")
     for env, cm in result.clustering.items():
-        c.add_row(env, *[f"{cm.get(f'clustering/{k}', float('nan')):.3f}" for k in cols])
+        used = [method_used(method, cm)] if method else []
+        c.add_row(env, *used, *[f"{cm.get(f'clustering/{k}', float('nan')):.3f}" for k in cols])
     console.print(c)
+    fell = [e for e, cm in result.clustering.items() if cm.get(FELL_BACK)]
+    if method and fell:
+        console.print(
+            f"{method} clustered {', '.join(fell)} with lstm_dec: most of their states occur once "
+            "(continuous states), so visitation bags hold no style; policy_mix often fits such "
+            "games better (docs/clustering.md)"
+        )
     extra = [f"{k}={m[k]:.3f}" for k in ("cross/diagonal_mean",) if k in m]
     extra += [
         f"{k}={m[k]:.2f}"
@@ -136,6 +147,15 @@ def print_summary(result, console) -> None:
     if extra:
         console.print("  ".join(extra))
     console.print(stage_times(result))
+
+
+FELL_BACK = "clustering/auto_fell_back_to_lstm"
+
+
+def method_used(method: str, clustering: dict[str, float]) -> str:
+    """The method that clustered an environment: the configured one, or where it handed the
+    data to its fallback, both (``bag_auto -> lstm_dec``)."""
+    return f"{method} -> lstm_dec" if clustering.get(FELL_BACK) else method
 
 
 def stage_times(result) -> str:

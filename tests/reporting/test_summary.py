@@ -1,0 +1,40 @@
+"""The terminal summary says which method clustered each environment, and why it fell back."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from rich.console import Console
+
+from pcpg_dist.orchestration.points import RunResult
+from pcpg_dist.reporting.summary import print_summary
+
+
+def _printed(clustering: dict[str, dict[str, float]], method: str | None) -> str:
+    result = RunResult(
+        out_dir=Path("."),
+        metrics={"pcpg/accuracy/p1": 0.8, "baseline/accuracy/p1": 0.7},
+        clustering=clustering,
+    )
+    console = Console(record=True, width=200)
+    print_summary(result, console, method=method)
+    return console.export_text()
+
+
+def test_a_fall_back_is_named_in_the_table_and_explained_below_it():
+    text = _printed(
+        {
+            "grid": {"clustering/accuracy": 0.9},
+            "control": {"clustering/accuracy": 0.5, "clustering/auto_fell_back_to_lstm": 1.0},
+        },
+        "bag_auto",
+    )
+    assert "bag_auto -> lstm_dec" in text
+    rows = {line.split()[1]: line for line in text.splitlines() if line.strip().startswith("│")}
+    assert "lstm_dec" not in rows.get("grid", "") and "lstm_dec" in rows["control"]
+    assert "bag_auto clustered control with lstm_dec: most of their states occur once" in text
+
+
+def test_without_a_fall_back_nothing_is_explained():
+    text = _printed({"grid": {"clustering/accuracy": 0.9}}, "greedy_mix")
+    assert "greedy_mix" in text and "lstm_dec" not in text
