@@ -373,3 +373,26 @@ def test_bc_agent_trained_on_lake_logs_reaches_the_goal(lake_policy, rng):
     trained = train_cells(cells, BCConfig(epochs=600))
     ds = rollout("FrozenLake-v1", LAKE, trained.policy("k0-p1-s0"), 20, rng, max_steps=100)
     assert (returns(ds) == 1.0).mean() >= 0.9
+
+
+# ------------------------------------------------------------------ survival: reached_time_limit
+def test_reached_time_limit_counts_truncation_and_max_steps_but_not_termination(rng):
+    def balance(states, valid, rng):  # CartPole's angle PD controller: the pole stays up
+        return (states[:, 2] + 0.3 * states[:, 3] > 0).astype(np.int64)
+
+    def push_left(states, valid, rng):  # the pole falls: the env terminates
+        return np.zeros(len(states), np.int64)
+
+    rule = "reached_time_limit"
+    cut = rollout("CartPole-v1", {}, balance, 2, rng, max_steps=50, success_rule=rule)
+    assert (cut.lengths - 1 == 50).all() and cut.success.all()  # ended by max_steps, alive
+    limited = rollout(
+        "CartPole-v1", {"max_episode_steps": 60}, balance, 2, rng, max_steps=100, success_rule=rule
+    )
+    assert (limited.lengths - 1 == 60).all() and limited.success.all()  # truncated by the env
+    fallen = rollout("CartPole-v1", {}, push_left, 2, rng, max_steps=100, success_rule=rule)
+    assert (fallen.lengths - 1 < 100).all() and not fallen.success.any()
+    default = rollout("CartPole-v1", {}, balance, 2, rng, max_steps=50)
+    assert not default.success.any()  # 'terminated' never counts a survivor
+    with pytest.raises(ValueError, match="'reached_time_limit', got 'survived'"):
+        rollout("CartPole-v1", {}, balance, 1, rng, max_steps=5, success_rule="survived")

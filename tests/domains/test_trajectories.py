@@ -735,3 +735,142 @@ def test_logs_that_never_took_the_envs_last_action_are_told_to_set_n_actions(tmp
     cfg = load_config(write_config(tmp_path, path, trajectories={**lake, "n_actions": 4}))
     (unit,) = cfg.domain_object.units(cfg, cfg.domain_object.generate(cfg, show_progress=False))
     assert unit.dataset.n_actions == 4
+
+
+# ------------------------------------------------------------------ rollouts that fit the logs
+def balance(states: np.ndarray, valid: np.ndarray, rng) -> np.ndarray:
+    """CartPole's angle PD controller (benchmarks/zoo/cartpole's first style): it keeps the pole
+    up for the env's whole 500-step limit."""
+    return (states[:, 2] + 0.3 * states[:, 3] > 0).astype(np.int64)
+
+
+def push_left(states: np.ndarray, valid: np.ndarray, rng) -> np.ndarray:
+    """Always push left: the pole falls (the env terminates) within a few dozen steps."""
+    return np.zeros(len(states), np.int64)
+
+
+def cartpole_logs(path: Path, n: int = 4) -> Path:
+    """``n`` CartPole-v1 episodes of :func:`balance` as a step table: each runs the env's 500 steps."""
+    import gymnasium
+
+    rows = []
+    env = gymnasium.make("CartPole-v1")
+    for i in range(n):
+        obs, _ = env.reset(seed=i)
+        done, t = False, 0
+        while True:
+            a = -1 if done else int(balance(obs[None], np.ones((1, 2), bool), None)[0])
+            rows.append({"trajectory": i, "t": t, **{f"s{j}": float(obs[j]) for j in range(4)}})
+            rows[-1]["action"] = a
+            if done:
+                break
+            obs, reward, terminated, truncated, _ = env.step(a)
+            rows[-1]["reward"] = float(reward)
+            done, t = terminated or truncated, t + 1
+    env.close()
+    pd.DataFrame(rows).fillna({"reward": 0.0}).to_parquet(path, index=False)
+    return path
+
+
+@pytest.fixture(scope="module")
+def cartpole_parquet(tmp_path_factory) -> Path:
+    return cartpole_logs(tmp_path_factory.mktemp("cartpole") / "cartpole.parquet")
+
+
+@pytest.fixture
+def pcpg_log(caplog, monkeypatch):
+    """pcpg's log records, also after the CLI made the package's logger stop propagating."""
+    import logging
+
+    monkeypatch.setattr(logging.getLogger("pcpg_dist"), "propagate", True)
+    caplog.set_level(logging.INFO, logger="pcpg_dist")
+    return caplog
+
+
+def cartpole_rollout(tmp_path, logs: Path, policy, n: int = 3, **over):
+    """The trajectories domain's units and rollout hook for CartPole logs, as a run makes them."""
+    from pcpg_dist.domains import contract
+
+    cfg = load_config(
+        write_config(
+            tmp_path,
+            logs,
+            trajectories={"path": str(logs), "gymnasium_env": "CartPole-v1", **over},
+        )
+    )
+    units = contract.units(cfg, contract.generate(cfg, show_progress=False))
+    hooks = contract.hooks(cfg, units[0].name)
+    return hooks.rollout(policy, n, np.random.default_rng(0)), cfg
+
+
+def test_rollouts_reach_the_logged_length_when_max_steps_is_unset(
+    tmp_path, cartpole_parquet, pcpg_log
+) -> None:
+    logged = pd.read_parquet(cartpole_parquet)
+    assert logged.groupby("trajectory").size().max() - 1 == 500
+    ds, cfg = cartpole_rollout(
+        tmp_path, cartpole_parquet, balance, gymnasium_success="reached_time_limit"
+    )
+    assert cfg.evaluation.max_steps == 100 and "max_steps" not in cfg.evaluation.model_fields_set
+    assert (ds.lengths - 1 == 500).all() and ds.success.all()  # survivors, not cut at 100
+    notes = [r.getMessage() for r in pcpg_log.records if "rollouts run up to" in r.getMessage()]
+    assert notes == [
+        "trajectories: rollouts run up to 500 steps, the longest logged trajectory "
+        "(evaluation.max_steps not set)"
+    ]
+    assert not [r for r in pcpg_log.records if r.levelname == "WARNING"]  # the env's limit is 500
+
+
+def test_a_user_set_max_steps_is_honoured(tmp_path, cartpole_parquet, pcpg_log) -> None:
+    from pcpg_dist.domains import contract
+
+    path = write_config(
+        tmp_path,
+        cartpole_parquet,
+        trajectories={"path": str(cartpole_parquet), "gymnasium_env": "CartPole-v1"},
+        evaluation={"max_steps": 100, "rollouts_per_policy": 20},
+    )
+    cfg = load_config(path)
+    units = contract.units(cfg, contract.generate(cfg, show_progress=False))
+    ds = contract.hooks(cfg, units[0].name).rollout(balance, 2, np.random.default_rng(0))
+    assert (ds.lengths - 1 == 100).all() and not ds.success.any()  # default rule: not terminated
+    assert not [r for r in pcpg_log.records if "rollouts run up to" in r.getMessage()]
+    # a config that never went through units() (a worker's copy) reads the logs for the length
+    fresh = load_config(
+        write_config(
+            tmp_path,
+            cartpole_parquet,
+            **{"trajectories": {"path": str(cartpole_parquet), "gymnasium_env": "CartPole-v1"}},
+        )
+    )
+    ds = contract.hooks(fresh, units[0].name).rollout(balance, 1, np.random.default_rng(0))
+    assert ds.lengths[0] - 1 == 500
+
+
+def test_reached_time_limit_marks_survivors_as_successes_and_fallen_poles_as_failures(
+    tmp_path, cartpole_parquet
+) -> None:
+    ds, _ = cartpole_rollout(
+        tmp_path, cartpole_parquet, push_left, gymnasium_success="reached_time_limit"
+    )
+    assert (ds.lengths - 1 < 100).all() and not ds.success.any()  # the pole fell: terminated
+
+
+def test_an_env_time_limit_shorter_than_the_logs_warns_naming_both_numbers(
+    tmp_path, cartpole_parquet, pcpg_log
+) -> None:
+    ds, _ = cartpole_rollout(
+        tmp_path,
+        cartpole_parquet,
+        balance,
+        n=2,
+        gymnasium_kwargs={"max_episode_steps": 200},
+        gymnasium_success="reached_time_limit",
+    )
+    warnings = [r.getMessage() for r in pcpg_log.records if r.levelname == "WARNING"]
+    assert warnings == [
+        "trajectories: CartPole-v1 ends episodes after 200 steps (its time limit) but the longest "
+        "logged trajectory has 500; rollouts stop at 200 unless trajectories.gymnasium_kwargs "
+        "raises it: gymnasium_kwargs: {max_episode_steps: 500}"
+    ]
+    assert (ds.lengths - 1 == 200).all() and ds.success.all()  # truncated by the limit: survived

@@ -4,7 +4,8 @@ Data: a Parquet step table, a folder of them, or ``minari:DATASET_ID`` (read by
 :mod:`.table` / :mod:`.minari_io`, validated before anything is written). Units: one per ``env``
 value, each with a seeded trajectory split. Step B ranks by ``trajectories.score``. With
 ``trajectories.gymnasium_env`` every trained agent is also rolled out in that Gymnasium env, and
-the evaluation reports its return and length.
+the evaluation reports its return and length; the rollouts run as long as the longest logged
+trajectory unless ``evaluation.max_steps`` is set (:mod:`.rollout_length`).
 """
 
 from __future__ import annotations
@@ -100,18 +101,39 @@ class TrajectoriesDomain(Domain):
         return {"seed_entropy": {"base": cfg.seed}, "source": cfg.trajectories.path}
 
     def units(self, cfg, datasets) -> list[Unit]:
+        """One unit per logged env, each checked against the Gymnasium env; the longest logged
+        trajectory is noted on the settings here, once per run, for the rollouts' length."""
         units = super().units(cfg, datasets)
         s = cfg.trajectories
         if s.gymnasium_env is not None:
             from pcpg_dist.domains.trajectories.gym_rollout import check_compatible, make_env
+            from pcpg_dist.domains.trajectories.rollout_length import (
+                longest_logged,
+                note_rollout_steps,
+                warn_short_time_limit,
+            )
 
+            longest = longest_logged(datasets)
+            s._longest_logged = longest  # travels with the config to the rollouts' workers
             env = make_env(s.gymnasium_env, dict(s.gymnasium_kwargs))
             try:
                 for u in units:
                     check_compatible(env, u.dataset.state_dim, u.dataset.n_actions)
+                warn_short_time_limit(env, s.gymnasium_env, longest)
             finally:
                 env.close()
+            note_rollout_steps(cfg.evaluation, longest)
         return units
+
+    def _longest_logged(self, cfg) -> int:
+        """The longest logged trajectory's number of actions: noted by :meth:`units`, else (a
+        config that never went through it) read from the logs again."""
+        from pcpg_dist.domains.trajectories.rollout_length import longest_logged
+
+        s = cfg.trajectories
+        if s._longest_logged is None:
+            s._longest_logged = longest_logged(self.generate(cfg, show_progress=False))
+        return s._longest_logged
 
     def score(self, cfg) -> ScoreFn:
         how = cfg.trajectories.score
@@ -138,6 +160,9 @@ class TrajectoriesDomain(Domain):
         if s.gymnasium_env is None:
             return None
         from pcpg_dist.domains.trajectories.gym_rollout import rollout
+        from pcpg_dist.domains.trajectories.rollout_length import rollout_steps
+
+        max_steps = rollout_steps(cfg.evaluation, self._longest_logged(cfg))
 
         def run(policy, n, rng):
             return rollout(
@@ -146,7 +171,7 @@ class TrajectoriesDomain(Domain):
                 policy,
                 n,
                 rng,
-                max_steps=cfg.evaluation.max_steps,
+                max_steps=max_steps,
                 success_rule=s.gymnasium_success,
             )
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 import re
 import reprlib
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any, Literal, get_args
 
 import numpy as np
 
@@ -40,7 +40,9 @@ KWARGS_KEY = "trajectories.gymnasium_kwargs"
 #: CliffWalking), wrong where it can mean failure (a FrozenLake hole, a fallen CartPole).
 #: ``"terminated_positive_reward"``: terminated as above with a final reward > 0 (FrozenLake's goal
 #: pays 1 and its holes 0; LunarLander lands at +100 and crashes at -100).
-SuccessRule = Literal["terminated", "terminated_positive_reward"]
+#: ``"reached_time_limit"``: survived: the env's time limit truncated it, or ``max_steps`` ended it,
+#: without it terminating (CartPole, where terminating means the pole fell).
+SuccessRule = Literal["terminated", "terminated_positive_reward", "reached_time_limit"]
 
 
 def env_name(env_id: str) -> str:
@@ -210,6 +212,7 @@ def rollout(
             masks = run.live_masks(live, t)
             acts = run.policy_actions(policy, live, masks, rng, t, action_names)
             run.step(live, acts, t)
+        run.end_at_max_steps()
     finally:
         for env in envs:
             env.close()
@@ -230,10 +233,9 @@ def _check_rollout_arguments(n_episodes: int, max_steps: int, success_rule: str)
         raise ValueError(f"n_episodes must be >= 1, got {n_episodes}")
     if max_steps < 1:
         raise ValueError(f"max_steps must be >= 1, got {max_steps}")
-    if success_rule not in ("terminated", "terminated_positive_reward"):
-        raise ValueError(
-            f"success_rule must be 'terminated' or 'terminated_positive_reward', got {success_rule!r}"
-        )
+    if success_rule not in get_args(SuccessRule):
+        rules = ", ".join(repr(r) for r in get_args(SuccessRule))
+        raise ValueError(f"success_rule must be one of {rules}, got {success_rule!r}")
 
 
 class _Episodes:
@@ -324,9 +326,20 @@ class _Episodes:
             self.rewards[i].append(float(reward))
             if terminated or truncated:
                 self.alive[i] = False
-                self.success[i] = bool(terminated and not truncated) and (
-                    self.success_rule == "terminated" or float(reward) > 0
-                )
+                self.success[i] = self._succeeded(bool(terminated), bool(truncated), float(reward))
+
+    def _succeeded(self, terminated: bool, truncated: bool, reward: float) -> bool:
+        """Whether an episode the env ended this way succeeded, by :data:`SuccessRule`."""
+        if self.success_rule == "reached_time_limit":
+            return truncated and not terminated
+        return (terminated and not truncated) and (self.success_rule == "terminated" or reward > 0)
+
+    def end_at_max_steps(self) -> None:
+        """Episodes still live after ``max_steps`` actions end there: survivors, a success only
+        under ``reached_time_limit``."""
+        if self.success_rule == "reached_time_limit":
+            self.success[self.alive] = True
+        self.alive[:] = False
 
     def trajectories(self) -> list[dict[str, np.ndarray]]:
         return [

@@ -9,7 +9,7 @@ import re
 from pathlib import Path
 from typing import Literal
 
-from pydantic import BaseModel, Field, ValidationInfo, field_validator
+from pydantic import BaseModel, Field, PrivateAttr, ValidationInfo, field_validator
 
 from pcpg_dist.config.checks import relative_to_config
 from pcpg_dist.config.schema import StrictModel
@@ -56,11 +56,15 @@ class TrajectoriesConfig(StrictModel):
     gymnasium_kwargs: dict[str, str | int | float | bool | None] = Field(
         {}, description="keyword arguments of gymnasium.make (e.g. {is_slippery: false})"
     )
-    gymnasium_success: Literal["terminated", "terminated_positive_reward"] = Field(
-        "terminated",
-        description="when a rollout episode counts as a success: 'terminated' (ended by "
-        "the env, not by a time limit) or 'terminated_positive_reward' (and its last reward > 0: "
-        "FrozenLake, where falling in a hole also terminates)",
+    gymnasium_success: Literal["terminated", "terminated_positive_reward", "reached_time_limit"] = (
+        Field(
+            "terminated",
+            description="when a rollout episode counts as a success: 'terminated' (ended by the "
+            "env itself, not by a time limit nor evaluation.max_steps: Taxi, MountainCar), "
+            "'terminated_positive_reward' (terminated and its last reward > 0: FrozenLake, where "
+            "falling in a hole also terminates) or 'reached_time_limit' (survived: cut by the "
+            "env's time limit or evaluation.max_steps without terminating: CartPole)",
+        )
     )
     n_actions: int | None = Field(
         None,
@@ -69,6 +73,10 @@ class TrajectoriesConfig(StrictModel):
         description="number of actions; default: the "
         "length of the valid lists, else the largest action + 1",
     )
+    #: the longest logged trajectory's number of actions, noted when the units are made (so the
+    #: rollouts, in other processes, need not read the logs again); private: not a setting, not in
+    #: the config hash nor any cache key
+    _longest_logged: int | None = PrivateAttr(None)
 
     @field_validator("path")
     @classmethod
