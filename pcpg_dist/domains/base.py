@@ -173,6 +173,11 @@ class Domain:
             self.package_version(),
         ]
 
+    def evaluation_key(self, cfg: ExperimentConfig) -> list[Any]:
+        """JSON-able parts beyond the evaluation settings that change the evaluation's numbers
+        (a rollout env's settings): part of the evaluation's cache key. Default: none."""
+        return []
+
     def package_version(self) -> str | None:
         """Version of the installed distribution that ships this domain (None for pcpg's own)."""
         from importlib.metadata import PackageNotFoundError, packages_distributions, version

@@ -89,6 +89,20 @@ def data_key(cfg: ExperimentConfig, domain: Domain | None = None) -> list[Any]:
     return list(key)
 
 
+def evaluation_key(cfg: ExperimentConfig, domain: Domain | None = None) -> list[Any]:
+    """The domain's evaluation key (what besides the evaluation settings moves its numbers)."""
+    domain = the_domain(cfg, domain)
+    with calling(domain, "evaluation_key"):
+        key = domain.evaluation_key(cfg)
+    if not isinstance(key, list | tuple):
+        raise _fail(
+            domain,
+            "evaluation_key",
+            f"returned {_kind(key)}; it must return a list of JSON-able parts",
+        )
+    return list(key)
+
+
 def generate(
     cfg: ExperimentConfig,
     show_progress: bool = True,

@@ -120,5 +120,15 @@ def train_key(ckey: str, cfg, cell_keys: list[str], base_keys: list[str]) -> str
 
 
 def evaluate_key(train_keys: list[str], cfg) -> str:
-    """One unit's evaluation: its trained groups and the evaluation and ranking settings."""
-    return content_key(CODE_VERSION, EVAL_VERSION, train_keys, cfg.evaluation, cfg.ranking)
+    """One unit's evaluation: its trained groups, the evaluation and ranking settings, and what
+    else the domain says moves its evaluation (a rollout env's settings; for most domains
+    nothing, and then the key is what it was before the domain could say)."""
+    extra = contract.evaluation_key(cfg)
+    return content_key(
+        CODE_VERSION,
+        EVAL_VERSION,
+        train_keys,
+        cfg.evaluation,
+        cfg.ranking,
+        *([extra] if extra else []),
+    )

@@ -874,3 +874,21 @@ def test_an_env_time_limit_shorter_than_the_logs_warns_naming_both_numbers(
         "raises it: gymnasium_kwargs: {max_episode_steps: 500}"
     ]
     assert (ds.lengths - 1 == 200).all() and ds.success.all()  # truncated by the limit: survived
+
+
+def test_the_evaluation_key_follows_the_rollout_settings(tmp_path, cartpole_parquet) -> None:
+    """A changed success rule, or logs longer than evaluation.max_steps's default, make another
+    evaluation key (a cached evaluation cut at 100 steps was reused); without a rollout env the
+    key is the one every other domain has (nothing added)."""
+    from pcpg_dist.pipeline.declared import evaluate_key
+
+    def key(**over) -> str:
+        trajectories = {"path": str(cartpole_parquet), **over}
+        cfg = load_config(write_config(tmp_path, cartpole_parquet, trajectories=trajectories))
+        return evaluate_key(["t"], cfg)
+
+    plain = key()
+    survive = key(gymnasium_env="CartPole-v1", gymnasium_success="reached_time_limit")
+    terminate = key(gymnasium_env="CartPole-v1")
+    assert len({plain, survive, terminate}) == 3
+    assert terminate == key(gymnasium_env="CartPole-v1")  # a fixed function of the settings

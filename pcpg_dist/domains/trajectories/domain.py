@@ -125,6 +125,17 @@ class TrajectoriesDomain(Domain):
             note_rollout_steps(cfg.evaluation, longest)
         return units
 
+    def evaluation_key(self, cfg) -> list[Any]:
+        """The rollout env and how long and how judged its episodes are: a changed success rule
+        or longer logs must not reuse an evaluation cached before."""
+        s = cfg.trajectories
+        if s.gymnasium_env is None:
+            return []
+        from pcpg_dist.domains.trajectories.rollout_length import rollout_steps
+
+        steps = rollout_steps(cfg.evaluation, self._longest_logged(cfg))
+        return [s.gymnasium_env, dict(s.gymnasium_kwargs), s.gymnasium_success, steps]
+
     def _longest_logged(self, cfg) -> int:
         """The longest logged trajectory's number of actions: noted by :meth:`units`, else (a
         config that never went through it) read from the logs again."""
