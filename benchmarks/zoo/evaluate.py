@@ -7,8 +7,7 @@ clustering accuracy and seconds, the default's gap; held-out games reported apar
 Every game is built from its generator (``--ci``: the small counts), read back through pcpg's
 own step-table reader, clustered with k = its number of styles by each method (seed 0), and the
 cheapest clustering is repeated on the unlabelled copy (styles -1) to check a user without labels
-gets the same clusters. The paper's domains join the table through ``--with-paper`` (GridWorld's
-quick config, MiniDungeons' reference config; Mario has no labels).
+gets the same clusters.
 """
 
 from __future__ import annotations
