@@ -54,7 +54,7 @@ def _intercept(bx: int, by: int, vx: int, vy: int) -> float:
 def _policy(style: int, rng: np.random.Generator) -> Callable[[np.ndarray, np.ndarray], int]:
     off = rng.normal(8.0, 1.5)  # where on the paddle (from its top) the ball should land
     if style == 0:
-        lead, dead = rng.normal(1.0, 0.2), rng.uniform(2.0, 4.0)
+        lead, dead = rng.normal(1.0, 0.3), rng.uniform(2.0, 9.0)
 
         def tight(ram, prev):
             by, vy = ram[BALL_Y], ram[BALL_Y] - prev[BALL_Y]
@@ -72,20 +72,20 @@ def _policy(style: int, rng: np.random.Generator) -> Callable[[np.ndarray, np.nd
 
         return predictive
     if style == 2:
-        far = rng.uniform(10.0, 18.0)
+        far = rng.uniform(7.0, 18.0)
 
         def lazy(ram, prev):
             return _toward(ram[BALL_Y] - ram[PLAYER_Y] - off, far)
 
         return lazy
-    near, flip = rng.uniform(8.0, 14.0), [1]
+    near, jitter, flip = rng.uniform(5.0, 14.0), rng.uniform(0.3, 0.9), [1]
 
     def jittery(ram, prev):
         d = ram[BALL_Y] - ram[PLAYER_Y] - off
-        if abs(d) < near:
+        if abs(d) < near and rng.random() < jitter:
             flip[0] = 3 - flip[0]
             return flip[0]
-        return _toward(d, 0.0)
+        return _toward(d, 3.0)
 
     return jittery
 
@@ -94,7 +94,7 @@ def play(style: int, seed: int) -> Episode:
     rng = np.random.default_rng(seed)
     env = gym.make(ENV, obs_type="ram", disable_env_checker=True)
     ram, _ = env.reset(seed=seed)
-    policy, eps = _policy(style, rng), rng.uniform(0.02, 0.06)
+    policy, eps = _policy(style, rng), rng.uniform(0.02, 0.1)
     ram = prev = ram.astype(np.int64)
     states, actions, rewards = [ram], [], []
     won = lost = 0
