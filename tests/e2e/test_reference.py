@@ -35,23 +35,29 @@ def trained(key: str) -> bool:
     return not any(part in key for part in UNTRAINED)
 
 
+def matches(key: str, got: float, want: float) -> bool:
+    return got == pytest.approx(
+        want,
+        rel=LOSS_RTOL if any(x in key for x in LOSSES) else 1e-6,
+        abs=AGENT_TOL if trained(key) else 1e-9,
+    )
+
+
 @pytest.mark.slow
 def test_metrics_equal_the_stored_reference(ray_session, tmp_path) -> None:
     expected = json.loads((HERE / "metrics.json").read_text())
+    # the few values measured to differ by machine, each with its other value (see its _why)
+    alternates = json.loads((HERE / "alternates.json").read_text())
     got = run_all(tmp_path)
     for domain, ref in expected.items():
         # a metric may be added by later work (e.g. a new table); none may vanish or change
         missing = sorted(set(ref) - set(got[domain]))
         assert not missing, f"{domain}: metrics gone: {missing[:5]}"
+        other = alternates.get(domain, {})
         changed = {
             k: (ref[k], got[domain][k])
             for k in ref
-            if got[domain][k]
-            != pytest.approx(
-                ref[k],
-                rel=LOSS_RTOL if any(x in k for x in LOSSES) else 1e-6,
-                abs=AGENT_TOL if trained(k) else 1e-9,
-            )
+            if not any(matches(k, got[domain][k], w) for w in [ref[k], *other.get(k, [])])
         }
         assert not changed, (
             f"{domain}: {len(changed)} metrics changed, e.g. {list(changed.items())[:3]}"

@@ -218,7 +218,9 @@ def test_two_processes_on_one_store_make_one_parent(cfg, tmp_path):
     script = tmp_path / "one_run.py"
     script.write_text(
         CONCURRENT.format(
-            tests=str(ROOT / "tests"), config=str(ROOT / "experiments" / "quick.yaml"), uri=uri
+            tests=str(ROOT / "tests" / "tracking"),
+            config=str(ROOT / "experiments" / "quick.yaml"),
+            uri=uri,
         )
     )
     for round_ in ("fresh", "existing"):
