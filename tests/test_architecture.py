@@ -267,3 +267,18 @@ if __name__ == "__main__":  # every finding, for whoever is mending them
         for name in DOMAIN_NAMES:
             for where in domain_mentions(name):
                 print(f"## domain {name}: {where}")
+
+
+@pytest.mark.parametrize(
+    "command", [["format", "--check"], ["check"]], ids=["ruff format", "ruff check"]
+)
+def test_ruff_is_clean(command):
+    """`ruff format --check` and `ruff check` (with McCabe complexity at most 20) pass on the
+    whole repository, so CI's one test command checks formatting and lint too."""
+    import subprocess
+    import sys
+
+    done = subprocess.run(
+        [sys.executable, "-m", "ruff", *command, "."], cwd=ROOT, capture_output=True, text=True
+    )
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-1000:]

@@ -358,9 +358,7 @@ def test_env_variables_match_the_docs(svc):
     readme = (ROOT / "ops" / "README.md").read_text()
     line = next(ln for ln in readme.splitlines() if 'eval "$(ops/services.sh env)"' in ln)
     for name in names:
-        assert name in line, (
-            f"ops/README.md does not say `services.sh env` sets {name}: {line}"
-        )
+        assert name in line, f"ops/README.md does not say `services.sh env` sets {name}: {line}"
     team = (ROOT / "docs" / "team-mode.md").read_text()
     block = team.split('eval "$(ops/services.sh env)"', 1)[1].split("```", 1)[0]
     for name in names:
