@@ -60,6 +60,9 @@ def main() -> None:
     ap.add_argument("--full", action="store_true", help="the full counts (default: CI's)")
     ap.add_argument("--cluster", action="store_true", help="also the default clusterer")
     args = ap.parse_args()
+    from pcpg_dist.common.devices import set_threads
+
+    set_threads(1)  # as a pcpg task runs (oversubscribed torch is ~100x slower)
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
         game, cfg, ds = dataset_of(args.game, not args.full, Path(tmp))

@@ -16,7 +16,7 @@ import argparse
 import json
 import tempfile
 import time
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import numpy as np
@@ -56,6 +56,9 @@ def score_dataset(ds, k: int, methods: tuple[str, ...], seed: int = 0) -> dict:
 
 def score_game(name: str, ci: bool, methods: tuple[str, ...]) -> dict:
     from benchmarks.zoo.check import dataset_of
+    from pcpg_dist.common.devices import set_threads
+
+    set_threads(1)  # one worker process per core: more torch threads than CPUs is ~100x slower
 
     game = load_game(name)
     with tempfile.TemporaryDirectory() as tmp:
@@ -130,7 +133,7 @@ def main() -> None:
     rows = []
     with ProcessPoolExecutor(args.workers) as pool:
         jobs = [pool.submit(score_game, n, args.ci, methods) for n in names]
-        for job in jobs:
+        for job in as_completed(jobs):
             row = job.result()
             d = row["methods"][DEFAULT]
             print(
