@@ -12,8 +12,9 @@ from pathlib import Path
 from typing import Any
 
 from pcpg_dist.api.hooks import OutputsAndTracking
+from pcpg_dist.common.point_labels import axis_text
 from pcpg_dist.orchestration.runner import run_points
-from pcpg_dist.orchestration.sweep import SweepPlan, best_points, describe, fmt_value, plan_sweep
+from pcpg_dist.orchestration.sweep import SweepPlan, best_points, describe, plan_sweep
 from pcpg_dist.pipeline.declared import STAGES
 
 STAGE_NOTE = (
@@ -93,7 +94,7 @@ def _rows(plan: SweepPlan, metrics: dict[int, dict]) -> list[dict[str, Any]]:
 
     return [
         {
-            **{k: fmt_value(v) if isinstance(v, list | dict) else v for k, v in combo.items()},
+            **{k: axis_text(v) if isinstance(v, list | dict) else v for k, v in combo.items()},
             "point": p.out.name,
             **headline(metrics[id(p)]),
         }

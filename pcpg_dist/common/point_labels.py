@@ -31,5 +31,5 @@ def point_label(params: dict[str, str]) -> str:
 
 def axis_text(v: Any) -> str:
     """A swept value as it is written in labels and tables: JSON for lists, dicts, booleans and
-    None, ``str`` for the rest (the same text as ``pcpg_dist.orchestration.sweep.fmt_value``)."""
+    None, ``str`` for the rest (sweep tables, MLflow params, point labels and figures)."""
     return json.dumps(v) if isinstance(v, list | dict | bool) or v is None else str(v)

@@ -4,7 +4,7 @@ A unit's key hashes its config slice and its inputs' keys. Its folder ``ROOT/<st
 complete when ``done.json`` exists; that file is written last (atomically) and records the size
 and SHA-256 of every file in the folder. A unit killed halfway is simply redone; a finished unit
 whose files were truncated, edited or removed since fails its check and is recomputed, never
-published. Only the driver writes here: tasks return their files as bytes (:func:`files_of`).
+published. Only the driver writes here: tasks return their files as bytes (:func:`pcpg_dist.common.file_bytes.files_of`).
 """
 
 from __future__ import annotations
@@ -15,9 +15,8 @@ from pathlib import Path
 from typing import Any
 
 from pcpg_dist.common.errors import DataError
-from pcpg_dist.common.file_bytes import files_of, write_files  # noqa: F401 (the cache's own API)
+from pcpg_dist.common.file_bytes import write_files
 from pcpg_dist.common.files import atomic_write_bytes, sha256_file
-from pcpg_dist.common.keys import content_key  # noqa: F401 (the cache's own API)
 
 DONE = "done.json"
 

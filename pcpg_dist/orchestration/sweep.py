@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from pcpg_dist.common.errors import ConfigError
+from pcpg_dist.common.point_labels import axis_text
 from pcpg_dist.config.overrides import apply_overrides, parse_overrides, read_raw, sweep_points
 
 
@@ -69,7 +70,7 @@ def best_points(
         top = max(r[key] for r in have)
         tied = [r for r in have if r[key] == top]
         best[f"best/{key}"] = float(top)
-        where[key] = point_label({a: fmt_value(tied[0][a]) for a in axes}) + (
+        where[key] = point_label({a: axis_text(tied[0][a]) for a in axes}) + (
             f" (+{len(tied) - 1} tied)" if len(tied) > 1 else ""
         )
     return best, where
@@ -86,12 +87,6 @@ def point_slug(
         f"{k}={json.dumps(v) if isinstance(v, list | dict) else v}" for k, v in axes.items()
     )
     return slug(text, [axes, fixed or {}, config_hash], fallback="point")
-
-
-def fmt_value(v: Any) -> str:
-    """A value as sweep tables, MLflow params and point labels show it (JSON for lists, dicts,
-    booleans and None)."""
-    return json.dumps(v) if isinstance(v, list | dict | bool) or v is None else str(v)
 
 
 @dataclass
@@ -145,7 +140,7 @@ def plan_sweep(
             Point(
                 cfg,
                 root / "sweep" / "points" / point_slug(combo, fixed, cfg.hash()),
-                params={k: fmt_value(v) for k, v in combo.items()},
+                params={k: axis_text(v) for k, v in combo.items()},
                 command=f"{command} [point {describe(combo)}]" if command else "",
             )
         )
@@ -158,4 +153,4 @@ def plan_sweep(
 
 
 def describe(combo: dict[str, Any]) -> str:
-    return ", ".join(f"{k}={fmt_value(v)}" for k, v in combo.items())
+    return ", ".join(f"{k}={axis_text(v)}" for k, v in combo.items())

@@ -7,7 +7,9 @@ import json
 import pytest
 
 from pcpg_dist.common.errors import DataError
-from pcpg_dist.orchestration.cache import Cache, content_key, write_files
+from pcpg_dist.common.file_bytes import write_files
+from pcpg_dist.common.keys import content_key
+from pcpg_dist.orchestration.cache import Cache
 
 
 def finished(tmp_path) -> Cache:

@@ -74,7 +74,7 @@ def apply_params(cfg: ExperimentConfig, params: dict[str, int]) -> ExperimentCon
 
 def objective_key(cfg: ExperimentConfig, tune: TuneConfig) -> str:
     """Everything that changes a trial's numbers; a study is only resumed with the same key."""
-    from pcpg_dist.orchestration.cache import content_key
+    from pcpg_dist.common.keys import content_key
     from pcpg_dist.pipeline.declared import CODE_VERSION, data_key
 
     space = tune.model_dump(
