@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 from pettingzoo.classic import tictactoe_v3
 
+from benchmarks.zoo.board_games import opponent, play_two_player
 from benchmarks.zoo.common import Episode, Game
 
 LINES = ((0, 1, 2), (3, 4, 5), (6, 7, 8), (0, 3, 6), (1, 4, 7), (2, 5, 8), (0, 4, 8), (2, 4, 6))
@@ -80,42 +81,16 @@ def _styled(style: int, rng: np.random.Generator):
     return policy
 
 
-def _opponent(rng: np.random.Generator):
-    one_ply = rng.random() < 0.5
-
-    def policy(board: np.ndarray, legal: list[int]) -> int:
-        if one_ply:
-            forced = _completing(board, legal, 1) or _completing(board, legal, 2)
-            if forced:
-                return forced[0]
-        return int(rng.choice(legal))
-
-    return policy
-
-
 def play(style: int, seed: int) -> Episode:
     rng = np.random.default_rng(seed)
-    env = tictactoe_v3.env()
-    env.reset(seed=seed)
-    me = env.agents[int(rng.integers(2))]
-    policies = {me: _styled(style, rng)}
-    policies.update({a: _opponent(rng) for a in env.agents if a != me})
-    states, actions = [], []
-    while not any(env.terminations.values()) and not any(env.truncations.values()):
-        agent = env.agent_selection
-        obs = env.observe(agent)
-        planes, legal = obs["observation"], np.flatnonzero(obs["action_mask"])
-        board = (planes[:, :, 0] + 2 * planes[:, :, 1]).reshape(-1)
-        action = int(policies[agent](board, [int(c) for c in legal]))
-        if agent == me:
-            states.append(np.moveaxis(planes, 2, 0).reshape(-1))
-            actions.append(action)
-        env.step(action)
-    states.append(np.moveaxis(env.observe(me)["observation"], 2, 0).reshape(-1))
-    rewards = np.zeros(len(actions))
-    rewards[-1] = env.rewards[me]
-    env.close()
-    return Episode(np.array(states), np.array(actions), rewards)
+    return play_two_player(
+        tictactoe_v3.env(),
+        seed,
+        rng,
+        lambda r: _styled(style, r),
+        lambda r: opponent(r, _completing),
+        lambda b: b.reshape(-1),
+    )
 
 
 GAME = Game(
