@@ -41,6 +41,29 @@ class Episode:
             )
 
 
+def record(
+    env,
+    obs,
+    act: Callable[[object, list], int],
+    env_action: Callable[[int], object] = lambda a: a,
+    observe: Callable[[object], np.ndarray] = lambda o: o,
+) -> Episode:
+    """Play a Gymnasium ``env`` just reset to ``obs`` until it terminates or truncates:
+    ``act(obs, states)`` picks each action id (``states``: the recorded states so far), sent as
+    ``env_action(id)``; ``observe(obs)`` is the state recorded. Closes the env."""
+    states, actions, rewards = [observe(obs)], [], []
+    done = False
+    while not done:
+        a = act(obs, states)
+        obs, r, terminated, truncated, _ = env.step(env_action(a))
+        states.append(observe(obs))
+        actions.append(a)
+        rewards.append(r)
+        done = terminated or truncated
+    env.close()
+    return Episode(np.array(states), np.array(actions), np.array(rewards))
+
+
 @dataclass(frozen=True)
 class Game:
     """A zoo game.

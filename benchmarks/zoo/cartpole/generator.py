@@ -10,7 +10,7 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
-from benchmarks.zoo.common import Episode, Game
+from benchmarks.zoo.common import Episode, Game, record
 
 STYLES = (
     "angle PD (balance only)",
@@ -43,17 +43,7 @@ def play(style: int, seed: int) -> Episode:
     env = gym.make("CartPole-v1")
     obs, _ = env.reset(seed=seed)
     policy, eps = _policy(style, rng), 0.05
-    states, actions, rewards = [obs], [], []
-    done = False
-    while not done:
-        a = int(rng.integers(2)) if rng.random() < eps else policy(obs)
-        obs, r, terminated, truncated, _ = env.step(a)
-        states.append(obs)
-        actions.append(a)
-        rewards.append(r)
-        done = terminated or truncated
-    env.close()
-    return Episode(np.array(states), np.array(actions), np.array(rewards))
+    return record(env, obs, lambda o, _: int(rng.integers(2)) if rng.random() < eps else policy(o))
 
 
 GAME = Game(

@@ -13,7 +13,7 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
-from benchmarks.zoo.common import Episode, Game
+from benchmarks.zoo.common import Episode, Game, record
 
 STYLES = (
     "push with the velocity's sign",
@@ -30,10 +30,9 @@ def play(style: int, seed: int) -> Episode:
     eps = rng.uniform(0.02, 0.08)
     env = gym.make("MountainCar-v0")
     obs, _ = env.reset(seed=seed)
-    states, actions, rewards = [obs], [], []
-    done = False
-    while not done:
-        t, vel = len(actions), float(obs[1])
+
+    def act(obs, states) -> int:
+        t, vel = len(states) - 1, float(obs[1])
         if style == 1 and t < rock:
             a = 0
         elif style == 2:
@@ -43,13 +42,9 @@ def play(style: int, seed: int) -> Episode:
             a = 2 if vel >= 0 else 0
         if rng.random() < eps:
             a = int(rng.integers(3))
-        obs, rew, terminated, truncated, _ = env.step(a)
-        states.append(obs)
-        actions.append(a)
-        rewards.append(rew)
-        done = terminated or truncated
-    env.close()
-    return Episode(np.array(states), np.array(actions), np.array(rewards))
+        return a
+
+    return record(env, obs, act)
 
 
 GAME = Game(

@@ -16,7 +16,7 @@ import gymnasium as gym
 import numpy as np
 import scipy.linalg
 
-from benchmarks.zoo.common import Episode, Game
+from benchmarks.zoo.common import Episode, Game, record
 
 LEVELS = np.array([-0.6, -0.25, -0.08, 0.0, 0.08, 0.25, 0.6])
 MAX_STEPS = 500
@@ -77,20 +77,15 @@ def play(style: int, seed: int) -> Episode:
     eps = 0.05
     env = gym.make("InvertedDoublePendulum-v5", max_episode_steps=MAX_STEPS)
     obs, _ = env.reset(seed=seed)
-    states, actions, rewards = [obs], [], []
-    done = False
-    while not done:
+
+    def act(obs, states) -> int:
         force = -float(gain @ _lqr_state(obs))
         a = 3 if abs(force) < deadband else int(np.argmin(np.abs(LEVELS - force)))
         if rng.random() < eps:
             a = int(np.clip(a + rng.choice((-1, 1)), 0, len(LEVELS) - 1))
-        obs, rew, terminated, truncated, _ = env.step(np.array([LEVELS[a]], np.float32))
-        states.append(obs)
-        actions.append(a)
-        rewards.append(rew)
-        done = terminated or truncated
-    env.close()
-    return Episode(np.array(states), np.array(actions), np.array(rewards))
+        return a
+
+    return record(env, obs, act, lambda a: np.array([LEVELS[a]], np.float32))
 
 
 GAME = Game(

@@ -15,7 +15,7 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
-from benchmarks.zoo.common import Episode, Game
+from benchmarks.zoo.common import Episode, Game, record
 
 LEVELS = np.array([-0.3, 0.0, 0.3])
 LINKS = (0.1, 0.11)
@@ -60,27 +60,22 @@ def play(style: int, seed: int) -> Episode:
     aim = goal
     if style == 3:  # first aim past the target, by a share of the way there
         aim = goal + rng.uniform(0.2, 0.4) * _wrap(goal - np.arctan2(obs[2:4], obs[0:2]))
-    states, actions, rewards = [obs], [], []
-    done = False
-    while not done:
+    state = {"aim": aim}
+
+    def act(obs, states) -> int:
+        aim = state["aim"]
         err, vel = _wrap(aim - np.arctan2(obs[2:4], obs[0:2])), obs[6:8]
         if style == 3 and np.abs(err).max() < 0.5 * first:
-            aim = goal  # passed the target: come back to it
+            state["aim"] = goal  # passed the target: come back to it
         u = kp * err - kd * vel
         if style == 1 and abs(err[0]) > first:
             u[1] = -kd * vel[1]
         if style == 2 and abs(err[1]) > first:
             u[0] = -kd * vel[0]
         lv = np.where(np.abs(u) < dead, 1, np.where(u > 0, 2, 0))
-        a = int(rng.integers(9)) if rng.random() < eps else int(3 * lv[0] + lv[1])
-        torque = np.array([LEVELS[a // 3], LEVELS[a % 3]], np.float32)
-        obs, rew, terminated, truncated, _ = env.step(torque)
-        states.append(obs)
-        actions.append(a)
-        rewards.append(rew)
-        done = terminated or truncated
-    env.close()
-    return Episode(np.array(states), np.array(actions), np.array(rewards))
+        return int(rng.integers(9)) if rng.random() < eps else int(3 * lv[0] + lv[1])
+
+    return record(env, obs, act, lambda a: np.array([LEVELS[a // 3], LEVELS[a % 3]], np.float32))
 
 
 GAME = Game(

@@ -20,7 +20,7 @@ import gymnasium as gym
 import highway_env  # noqa: F401  (registers the highway-env environments)
 import numpy as np
 
-from benchmarks.zoo.common import Episode, Game
+from benchmarks.zoo.common import Episode, Game, record
 
 STYLES = (
     "eager: enters at speed, brakes only for an imminent car",
@@ -161,17 +161,11 @@ def play(style: int, seed: int) -> Episode:
         env = gym.make("roundabout-v0", config=CONFIG)
     obs, _ = env.reset(seed=seed)
     policy, eps = _policy(style, rng), rng.uniform(0.02, 0.06)
-    states, actions, rewards = [obs.ravel()], [], []
-    done = False
-    while not done:
-        a = int(rng.choice((IDLE, FASTER, SLOWER))) if rng.random() < eps else policy(obs)
-        obs, r, terminated, truncated, _ = env.step(a)
-        states.append(obs.ravel())
-        actions.append(a)
-        rewards.append(r)
-        done = terminated or truncated
-    env.close()
-    return Episode(np.array(states), np.array(actions), np.array(rewards))
+
+    def act(obs, states) -> int:
+        return int(rng.choice((IDLE, FASTER, SLOWER))) if rng.random() < eps else policy(obs)
+
+    return record(env, obs, act, observe=np.ravel)
 
 
 GAME = Game(
