@@ -22,15 +22,9 @@ import torch
 from pcpg_dist.common.devices import set_threads
 from pcpg_dist.config.stages import BCConfig
 from pcpg_dist.dataset import load_datasets
+from pcpg_dist.domains.defaults import performance, split_trajectories
 from pcpg_dist.stages.bc import train_cells
-from pcpg_dist.stages.ranking import (
-    RankConfig,
-    performance,
-    plan_cells,
-    split_trajectories,
-    threshold,
-    threshold_all,
-)
+from pcpg_dist.stages.ranking import RankConfig, plan_cells, threshold, threshold_all
 
 
 def plain_loop(states, valid, actions, mean, std, sizes, epochs, batch, lr, seed, activation):

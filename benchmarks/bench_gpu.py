@@ -31,9 +31,10 @@ from bench_clustering import datasets, minidungeons_units  # noqa: E402
 
 from pcpg_dist.common.devices import set_threads  # noqa: E402
 from pcpg_dist.config.stages import BCConfig  # noqa: E402
+from pcpg_dist.domains.defaults import split_trajectories  # noqa: E402
 from pcpg_dist.stages.bc import train_cells  # noqa: E402
 from pcpg_dist.stages.clustering import ClusterConfig, cluster, clustering_metrics  # noqa: E402
-from pcpg_dist.stages.ranking import RankConfig, plan_cells, split_trajectories  # noqa: E402
+from pcpg_dist.stages.ranking import RankConfig, plan_cells  # noqa: E402
 
 
 def timed(fn, cuda: bool):

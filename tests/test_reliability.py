@@ -180,8 +180,9 @@ def test_diverged_training_stops_with_one_line_and_returns_no_weights(engine):
     import dataclasses
 
     from pcpg_dist.config.stages import BCConfig
+    from pcpg_dist.domains.defaults import split_trajectories
     from pcpg_dist.stages.bc import train_cells
-    from pcpg_dist.stages.ranking import RankConfig, plan_cells, split_trajectories
+    from pcpg_dist.stages.ranking import RankConfig, plan_cells
     from tests.bc_toy import make_dataset
 
     ds = make_dataset(n_per_style=10)

@@ -24,9 +24,7 @@ from pcpg_dist.domains.base import ScoreFn
 
 # the default split and skill score belong to the domain API (a domain's units() and score() fall
 # back on them); Step B and its many callers keep reaching them here
-from pcpg_dist.domains.defaults import performance as performance
-from pcpg_dist.domains.defaults import score_dataset as score_dataset
-from pcpg_dist.domains.defaults import split_trajectories as split_trajectories
+from pcpg_dist.domains.defaults import score_dataset
 from pcpg_dist.stages.cell_rows import SubsetRows
 
 

@@ -343,8 +343,9 @@ def test_an_env_error_during_rollouts_is_one_config_error_naming_the_env(rng):
 # ------------------------------------------------------------------ (f) learning end to end
 def test_bc_agent_trained_on_lake_logs_reaches_the_goal(lake_policy, rng):
     from pcpg_dist.config.stages import BCConfig
+    from pcpg_dist.domains.defaults import split_trajectories
     from pcpg_dist.stages.bc import train_cells
-    from pcpg_dist.stages.ranking import RankConfig, plan_cells, split_trajectories
+    from pcpg_dist.stages.ranking import RankConfig, plan_cells
 
     def noisy_expert(states, valid, rng):  # logs that also visit cells off the optimal path
         a = lake_policy(states, valid, rng)

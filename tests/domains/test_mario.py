@@ -282,7 +282,7 @@ def test_valid_mask_of_the_highest_event(tmp_path: Path) -> None:
 # ------------------------------------------------------------------ held-out split
 def _split(ds: Dataset, seed: int) -> tuple[Dataset, Dataset]:
     try:
-        from pcpg_dist.stages.ranking import split_trajectories  # type: ignore[attr-defined]
+        from pcpg_dist.domains.defaults import split_trajectories  # type: ignore[attr-defined]
     except ImportError:
         return mario.split_episodes(ds, 0.25, seed)
     train_idx, test_idx = split_trajectories(ds.n_trajectories, 0.25, seed)

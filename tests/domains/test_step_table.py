@@ -17,9 +17,10 @@ from test_trajectories import tiny_table, write_config
 from pcpg_dist.cli import main
 from pcpg_dist.common.errors import DataError
 from pcpg_dist.dataset import Dataset, bool_lists, load_dataset
+from pcpg_dist.domains.defaults import score_dataset
 from pcpg_dist.domains.trajectories.table import datasets_from_table
 from pcpg_dist.domains.trajectories.table_files import read_step_table
-from pcpg_dist.stages.ranking import RankConfig, score_dataset
+from pcpg_dist.stages.ranking import RankConfig
 
 
 def full_table() -> pd.DataFrame:

@@ -18,9 +18,10 @@ from pcpg_dist.cli import main
 from pcpg_dist.common.errors import DataError
 from pcpg_dist.config.stages import BCConfig
 from pcpg_dist.dataset import Dataset
+from pcpg_dist.domains.defaults import split_trajectories
 from pcpg_dist.reporting.onnx_export import build_model, export_onnx
 from pcpg_dist.stages.bc import TrainedCells, train_cells
-from pcpg_dist.stages.ranking import RankConfig, plan_cells, split_trajectories
+from pcpg_dist.stages.ranking import RankConfig, plan_cells
 
 
 def many_actions_dataset(

@@ -12,13 +12,14 @@ from bc_toy import expert, make_dataset, rollout
 
 from pcpg_dist.common.errors import ConfigError, DataError
 from pcpg_dist.config.stages import BCConfig
+from pcpg_dist.domains.defaults import split_trajectories
 from pcpg_dist.stages.bc import (
     TrainedCells,
     init_params,
     train_cells,
     weighted_loss_and_grad,
 )
-from pcpg_dist.stages.ranking import Cell, RankConfig, plan_cells, split_trajectories
+from pcpg_dist.stages.ranking import Cell, RankConfig, plan_cells
 
 
 @pytest.fixture(scope="module")

@@ -11,9 +11,12 @@ from bc_toy import make_dataset, optimal_return, returns, rollout
 
 from pcpg_dist.config.stages import BCConfig, EvalConfig
 from pcpg_dist.domains.base import DomainHooks
+from pcpg_dist.domains.defaults import split_trajectories
 from pcpg_dist.stages.bc import train_cells
 from pcpg_dist.stages.evaluation import Scorer, evaluate, summarize
-from pcpg_dist.stages.ranking import RankConfig, plan_cells, split_trajectories
+
+# With k = 2, "wrong" labels at c = 0.5 are a fully random labelling: the clearest check.
+from pcpg_dist.stages.ranking import RankConfig, plan_cells
 
 # With k = 2, "wrong" labels at c = 0.5 are a fully random labelling: the clearest check.
 RANK = RankConfig(ps=(1.0, 0.5, 0.25), corruption_mode="wrong")

@@ -9,13 +9,12 @@ from pydantic import ValidationError
 
 from pcpg_dist.common.errors import DataError
 from pcpg_dist.dataset import Dataset
+from pcpg_dist.domains.defaults import performance, split_trajectories
 from pcpg_dist.stages.ranking import (
     RankConfig,
     corrupt_labels,
     n_kept,
-    performance,
     plan_cells,
-    split_trajectories,
     threshold,
     top_p,
 )

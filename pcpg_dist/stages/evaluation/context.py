@@ -17,10 +17,11 @@ from pcpg_dist.common.errors import DataError
 from pcpg_dist.config.stages import EvalConfig
 from pcpg_dist.dataset import Dataset
 from pcpg_dist.domains.base import DomainHooks
+from pcpg_dist.domains.defaults import score_dataset
 from pcpg_dist.stages.bc import TrainedCells
 from pcpg_dist.stages.evaluation.results import mean_std
 from pcpg_dist.stages.evaluation.scoring import Scorer, cell_table
-from pcpg_dist.stages.ranking import RankConfig, ScoreFn, ranked_last, score_dataset, threshold
+from pcpg_dist.stages.ranking import RankConfig, ScoreFn, ranked_last, threshold
 
 
 @dataclass(eq=False)
