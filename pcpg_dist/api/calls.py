@@ -36,20 +36,15 @@ def run(
     Ray starts privately on first use (or joins ``RAY_ADDRESS``); ``in_process=True`` runs every
     job in this process instead, with no Ray at all."""
     from pcpg_dist.api.run import run_experiment
-    from pcpg_dist.orchestration.executors import LocalExecutor
 
     cfg = config_of(config, overrides)
-    if not in_process:
-        from pcpg_dist.orchestration.ray_pool import init_ray
-
-        init_ray()
     return run_experiment(
         cfg,
         workdir=Path(workdir),
         tracking_uri=tracking_uri,
         track=track,
         show_progress=show_progress,
-        executor=LocalExecutor() if in_process else None,
+        executor=_executor(in_process),
     )
 
 
@@ -64,12 +59,19 @@ def cluster(
 ) -> dict[str, dict]:
     """`pcpg cluster` from Python: each environment's labels, margins and metrics."""
     from pcpg_dist.api.cluster import cluster as cluster_units
-    from pcpg_dist.orchestration.executors import LocalExecutor
 
     cfg = config_of(config, overrides)
-    if not in_process:
-        from pcpg_dist.orchestration.ray_pool import init_ray
-
-        init_ray()
-    executor = LocalExecutor() if in_process else None
+    executor = _executor(in_process)
     return cluster_units(cfg, Path(out), Path(data) if data else None, show_progress, executor)
+
+
+def _executor(in_process: bool):
+    """This process for every job, or Ray (started privately on first use, or RAY_ADDRESS)."""
+    from pcpg_dist.orchestration.executors import LocalExecutor, RayExecutor
+
+    if in_process:
+        return LocalExecutor()
+    from pcpg_dist.orchestration.ray_pool import init_ray
+
+    init_ray()
+    return RayExecutor()

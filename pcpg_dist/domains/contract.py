@@ -79,26 +79,22 @@ def the_domain(cfg: ExperimentConfig, domain: Domain | None) -> Domain:
 # --------------------------------------------------------------------------- data
 def data_key(cfg: ExperimentConfig, domain: Domain | None = None) -> list[Any]:
     """The domain's data key (the cache key of its data)."""
-    domain = the_domain(cfg, domain)
-    with calling(domain, "data_key"):
-        key = domain.data_key(cfg)
-    if not isinstance(key, list | tuple):
-        raise _fail(
-            domain, "data_key", f"returned {_kind(key)}; it must return a list of JSON-able parts"
-        )
-    return list(key)
+    return _key_parts(cfg, domain, "data_key")
 
 
 def evaluation_key(cfg: ExperimentConfig, domain: Domain | None = None) -> list[Any]:
     """The domain's evaluation key (what besides the evaluation settings moves its numbers)."""
+    return _key_parts(cfg, domain, "evaluation_key")
+
+
+def _key_parts(cfg: ExperimentConfig, domain: Domain | None, method: str) -> list[Any]:
+    """A domain's key method's parts, checked to be a list."""
     domain = the_domain(cfg, domain)
-    with calling(domain, "evaluation_key"):
-        key = domain.evaluation_key(cfg)
+    with calling(domain, method):
+        key = getattr(domain, method)(cfg)
     if not isinstance(key, list | tuple):
         raise _fail(
-            domain,
-            "evaluation_key",
-            f"returned {_kind(key)}; it must return a list of JSON-able parts",
+            domain, method, f"returned {_kind(key)}; it must return a list of JSON-able parts"
         )
     return list(key)
 
