@@ -16,8 +16,11 @@ _GROUPS: dict[str, dict[str, str]] = {
     "commands": {
         "run": "pcpg_dist.api.calls:run",
         "cluster": "pcpg_dist.api.calls:cluster",
+        "sweep": "pcpg_dist.api.calls:sweep",
+        "classify": "pcpg_dist.api.calls:classify",
         "run_experiment": "pcpg_dist.api.run:run_experiment",
         "RunResult": "pcpg_dist.orchestration.points:RunResult",
+        "SweepResult": "pcpg_dist.api.sweep:SweepResult",
     },
     "configs": {
         "load_config": "pcpg_dist.config:load_config",

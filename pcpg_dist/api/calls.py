@@ -65,6 +65,109 @@ def cluster(
     return cluster_units(cfg, Path(out), Path(data) if data else None, show_progress, executor)
 
 
+def sweep(
+    config: str | Path | dict | ExperimentConfig,
+    axes: dict[str, list] | list[str] | None = None,
+    overrides: list[str] | None = None,
+    *,
+    workdir: str | Path = "runs",
+    tracking_uri: str | None = None,
+    track: bool = True,
+    show_progress: bool = True,
+) -> Any:
+    """`pcpg sweep` from Python: every point of the grid ``axes`` (``{key: [values]}``, or the
+    CLI's ``"key=v1,v2"`` strings) together with the config's own ``sweep:`` section, on Ray;
+    returns its :class:`~pcpg_dist.api.sweep.SweepResult` (``rows``: one per point, ``out_dir``:
+    its table, report and figures). A finished point is reused, never rerun."""
+    from pcpg_dist.api.sweep import run_sweep
+    from pcpg_dist.config.overrides import read_raw
+    from pcpg_dist.orchestration.ray_pool import init_ray
+
+    grid = axes if isinstance(axes, dict) else {}
+    args = [] if isinstance(axes, dict) else list(axes or [])
+    if isinstance(config, str | Path) and not grid:
+        plan_config: str | Path | dict = config
+    else:
+        if isinstance(config, str | Path):
+            raw, section = read_raw(config)
+            raw = {**raw, **({"sweep": section} if section else {})}
+        elif isinstance(config, ExperimentConfig):
+            raw = config.model_dump(mode="json")
+        else:
+            raw = dict(config)
+        plan_config = {**raw, "sweep": {**(raw.get("sweep") or {}), **grid}}
+    init_ray()
+    return run_sweep(
+        plan_config,
+        args,
+        overrides,
+        workdir=Path(workdir),
+        tracking_uri=tracking_uri,
+        track=track,
+        show_progress=show_progress,
+        command="pcpg_dist.sweep(...)",
+    )
+
+
+def classify(model: str | Path, dataset: str | Path | Any, *, out: str | Path | None = None) -> Any:
+    """`pcpg classify` from Python: each trajectory's style under a fitted clustering model
+    (``pcpg cluster``'s ``model.json``), as a pandas table (``trajectory``, ``predicted_style``);
+    ``dataset``: a dataset folder or a :class:`~pcpg_dist.dataset.Dataset`. With ``out`` the table
+    is also written there as CSV (never over the dataset or the model, never inside a run).
+
+    ``table.attrs`` holds ``unknown_rows`` (the share of rows in states the model was not fitted
+    on; None where the model has no such notion) and ``against_styles`` (accuracy and agreement
+    with the dataset's true styles where it has them, else None)."""
+    import pandas as pd
+
+    from pcpg_dist.common.files import atomic_write_bytes
+    from pcpg_dist.dataset import Dataset, load_dataset
+    from pcpg_dist.stages.clustering import clustering_metrics, load_model
+
+    if out is not None:
+        from pcpg_dist.common.run_folders import check_outside_run
+
+        check_classify_out(
+            Path(out), Path(model), None if isinstance(dataset, Dataset) else Path(dataset)
+        )
+        check_outside_run(Path(out))
+    fitted = load_model(Path(model))
+    ds = dataset if isinstance(dataset, Dataset) else load_dataset(Path(dataset))
+    pred = fitted.predict(ds)
+    # the logs' own ids where they were not integers (pcpg numbers those in sorted order)
+    ids = ds.trajectory_ids if ds.source_ids is None else ds.source_ids
+    table = pd.DataFrame({"trajectory": ids, "predicted_style": pred})
+    table.attrs["unknown_rows"] = fitted.unknown_rows(ds)
+    labelled = (ds.styles >= 0).all()
+    table.attrs["against_styles"] = clustering_metrics(ds.styles, pred) if labelled else None
+    if out is not None:
+        atomic_write_bytes(Path(out), table.to_csv(index=False).encode())
+    return table
+
+
+def check_classify_out(out: Path, model: Path, dataset: Path | None) -> None:
+    """The labels never overwrite the inputs: the dataset (or its manifest), a file of the model."""
+    from pcpg_dist.common.errors import ConfigError
+
+    out_at = out.resolve()
+    if dataset is not None and out_at in (
+        dataset.resolve(),
+        dataset.resolve().parent / "manifest.json",
+    ):
+        raise ConfigError(
+            f"--out {out}: that is the input dataset {dataset} (or its manifest); name another file"
+        )
+    if model.resolve() in out_at.parents:
+        raise ConfigError(
+            f"--out {out}: inside the model folder {model}, whose files it would replace; "
+            f"name a file outside it"
+        )
+    if out_at.exists() and not out_at.is_file() and not out_at.is_dir():
+        raise ConfigError(
+            f"--out {out}: not a regular file (a FIFO, socket or device); name a regular file"
+        )
+
+
 def _executor(in_process: bool):
     """This process for every job, or Ray (started privately on first use, or RAY_ADDRESS)."""
     from pcpg_dist.orchestration.executors import LocalExecutor, RayExecutor

@@ -39,7 +39,9 @@ class OutputsAndTracking:
                 if self.sweep_parent_id
                 else {}
             )
-            p.tracker = Tracker.start(p.cfg, self.tracking_uri, p.out, **extra)
+            p.tracker = Tracker.start(
+                p.cfg, self.tracking_uri, p.out, ikey=p.ikey, units=list(p.units.values()), **extra
+            )
 
     def finished(self, outcomes: list[Outcome]) -> list[RunResult]:
         results = [finish_point(o) for o in outcomes]

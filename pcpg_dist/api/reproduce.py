@@ -262,8 +262,14 @@ def cli_reproduce(args) -> int:
     with tempfile.TemporaryDirectory(prefix="pcpg-reproduce-") as downloads:
         summary, _ = resolve_summary(args.run, args.tracking_uri, Path(downloads))
         # everything a user can get wrong is checked before Ray and torch start
-        cfg = recorded_config(read_run(summary / "run.json"), summary / "run.json")
+        run = read_run(summary / "run.json")
+        cfg = recorded_config(run, summary / "run.json")
         read_metrics(summary / "metrics.json")
+        # the data's digest before any rerun: on other data the numbers cannot be the same
+        note, changed = input_note(run, cfg)
+        if changed and not args.allow_changed_data:
+            print(f"NOT REPRODUCED: {note}; nothing was rerun (--allow-changed-data reruns anyway)")
+            return 1
         workdir = _fresh(Path(args.workdir) if args.workdir else None, cfg.name)
         init_ray(args.ray_address)
         rep = reproduce(

@@ -37,7 +37,7 @@ class SweepResult:
 
 
 def run_sweep(
-    config: str | Path,
+    config: str | Path | dict,
     axes_args: list[str],
     overrides: list[str] | None = None,
     workdir: Path = Path("runs"),
@@ -134,7 +134,21 @@ def _finish_tracker(tracker, plan: SweepPlan, rows, files, results, t0: float) -
             if s in results[0].stage_seconds and s not in results[0].cached_stages
         }
         timings["time/sweep_seconds"] = time.perf_counter() - t0
-    tracker.finish(best, files, best_points=where, timings=timings, note=note)
+    tracker.finish(
+        best, files, best_points=where, timings=timings, note=note, inputs=_data_inputs(plan)
+    )
+
+
+def _data_inputs(plan: SweepPlan) -> list:
+    """Every point's data (points sharing data share it), for the sweep run's dataset inputs."""
+    from pcpg_dist.pipeline.declared import input_key
+    from pcpg_dist.tracking.datasets import data_inputs
+
+    found = {}
+    for p in plan.points:
+        for i in data_inputs(p.cfg, p.ikey or input_key(p.cfg)):
+            found.setdefault((i.name, i.digest), i)
+    return list(found.values())
 
 
 def _finished(out: Path, cfg, track: bool, uri: str | None) -> tuple[dict, str] | None:

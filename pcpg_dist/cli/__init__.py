@@ -12,13 +12,11 @@ import os
 import sys
 
 from pcpg_dist.cli.parser import build_parser
-from pcpg_dist.cli.reading import check_classify_out
 from pcpg_dist.cli.running import _print_points, trial_counts
 from pcpg_dist.common.errors import PcpgError, Terminated, catch_sigterm
 
 __all__ = [
     "build_parser",
-    "check_classify_out",
     "main",
     "parse_args",
     "trial_counts",

@@ -210,6 +210,12 @@ def _add_report_commands(sub) -> None:
     p.add_argument("--rtol", type=float, default=1e-6, help="relative tolerance (default: 1e-6)")
     p.add_argument("--atol", type=float, default=1e-9, help="absolute tolerance (default: 1e-9)")
     p.add_argument("--tracking-uri", default=None, help="MLflow tracking URI (default: as for run)")
+    p.add_argument(
+        "--allow-changed-data",
+        action="store_true",
+        help="rerun even where the data's digest differs from the logged run's (by default "
+        "that is said in one line and nothing reruns)",
+    )
     common(p)
     p.set_defaults(func=reading.reproduce)
 

@@ -40,34 +40,18 @@ def reproduce(args: argparse.Namespace) -> None:
 
 def classify(args: argparse.Namespace) -> None:
     """Label trajectories of a dataset with a fitted clustering model's styles."""
-    import pandas as pd
-
-    from pcpg_dist.common.files import atomic_write_bytes
+    from pcpg_dist.api.calls import classify as classify_dataset
     from pcpg_dist.common.progress import out as console  # results: stdout
-    from pcpg_dist.common.run_folders import check_outside_run
-    from pcpg_dist.dataset import load_dataset
-    from pcpg_dist.stages.clustering import clustering_metrics, load_model
 
     # by default into the current folder: the dataset's folder may be a signed `pcpg generate` output
     out = Path(args.out) if args.out else Path(Path(args.dataset).stem + ".styles.csv")
-    check_classify_out(out, Path(args.model), Path(args.dataset))
-    check_outside_run(out)
-    model = load_model(Path(args.model))
-    ds = load_dataset(Path(args.dataset))
-    pred = model.predict(ds)
-    # the logs' own ids where they were not integers (pcpg numbers those in sorted order)
-    table = pd.DataFrame(
-        {
-            "trajectory": ds.trajectory_ids if ds.source_ids is None else ds.source_ids,
-            "predicted_style": pred,
-        }
-    )
-    atomic_write_bytes(out, table.to_csv(index=False).encode())
+    table = classify_dataset(args.model, args.dataset, out=out)
+    pred = table["predicted_style"].to_numpy()
     console.print(
-        f"{ds.n_trajectories} trajectories -> {out}; cluster sizes "
+        f"{len(table)} trajectories -> {out}; cluster sizes "
         f"{[int((pred == c).sum()) for c in range(int(pred.max()) + 1)]}"
     )
-    unknown = model.unknown_rows(ds)
+    unknown = table.attrs["unknown_rows"]
     if unknown is not None:
         console.print(f"{unknown:.0%} of the rows are in states the model was not fitted on")
         if unknown > 0.1:  # a fresh sample of the same layout: ~1 % (docs/clustering.md)
@@ -78,31 +62,14 @@ def classify(args: argparse.Namespace) -> None:
                 100 * unknown,
                 args.model,
             )
-    if (ds.styles >= 0).all():
-        m = clustering_metrics(ds.styles, pred)
+    if table.attrs["against_styles"] is not None:
         console.print(
             "against the true styles: "
-            + ", ".join(f"{k} {v:.3f}" for k, v in m.items() if isinstance(v, float))
-        )
-
-
-def check_classify_out(out: Path, model: Path, dataset: Path) -> None:
-    """The labels never overwrite the inputs: the dataset (or its manifest), a file of the model."""
-    from pcpg_dist.common.errors import ConfigError
-
-    out_at = out.resolve()
-    if out_at in (dataset.resolve(), dataset.resolve().parent / "manifest.json"):
-        raise ConfigError(
-            f"--out {out}: that is the input dataset {dataset} (or its manifest); name another file"
-        )
-    if model.resolve() in out_at.parents:
-        raise ConfigError(
-            f"--out {out}: inside the model folder {model}, whose files it would replace; "
-            f"name a file outside it"
-        )
-    if out_at.exists() and not out_at.is_file() and not out_at.is_dir():
-        raise ConfigError(
-            f"--out {out}: not a regular file (a FIFO, socket or device); name a regular file"
+            + ", ".join(
+                f"{k} {v:.3f}"
+                for k, v in table.attrs["against_styles"].items()
+                if isinstance(v, float)
+            )
         )
 
 

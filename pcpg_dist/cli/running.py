@@ -7,6 +7,8 @@ import shlex
 import sys
 from pathlib import Path
 
+from pcpg_dist.common.commands import command
+
 
 def generate(args: argparse.Namespace) -> None:
     from pcpg_dist.common.progress import out as console  # results: stdout
@@ -71,7 +73,7 @@ def _print_links(args: argparse.Namespace, what: str, run_id: str) -> None:
     uri = args.tracking_uri or default_tracking_uri()
     print(f"{what}: {run_id}")
     if not uri.startswith(("http://", "https://")):
-        print(f"start the UI: uv run mlflow ui --backend-store-uri {uri}")
+        print(f"start the UI: {command('mlflow', 'ui', '--backend-store-uri', uri)}")
     print(f"runs table: {ui_link(uri, run_id)}")
 
 
@@ -195,10 +197,10 @@ def tune(args: argparse.Namespace) -> None:
     again = (
         "" if args.workdir == "runs" else f" --workdir {shlex.quote(args.workdir)}"
     )  # the study's data
-    console.print(
-        f"best config: {res.best_config}  (run it: pcpg run {shlex.quote(str(res.best_config))}{again})"
-    )
-    console.print(f"dashboard: uv run optuna-dashboard {res.storage} --host 127.0.0.1")
+    rerun = command("pcpg", "run", str(res.best_config))
+    console.print(f"best config: {res.best_config}  (run it: {rerun}{again})")
+    dashboard = command("optuna-dashboard", res.storage, "--host", "127.0.0.1")
+    console.print(f"dashboard: {dashboard}")
 
 
 def trial_counts(counts: dict[str, int]) -> str:

@@ -34,7 +34,7 @@ def check_domain(domain: Domain, cfg: ExperimentConfig) -> None:
 
     ``cfg`` should be small: the data is generated twice, in this process (no Ray). Checked in
     order: the object is a named :class:`Domain`; its settings and ``check_config``; ``data_key``
-    (a list of JSON-able parts); ``generate`` (a dict of environment -> Dataset, the same twice);
+    (a list of JSON-able parts); ``data_source``; ``generate`` (a dict of environment -> Dataset, the same twice);
     ``manifest``; ``units`` (with their skill score and hooks); one rollout per unit's hook."""
     if not isinstance(domain, Domain):
         raise DomainError(
@@ -48,6 +48,8 @@ def check_domain(domain: Domain, cfg: ExperimentConfig) -> None:
         domain.check_config(cfg)
     with _rule(domain, "data_key"):
         _check_data_key(domain, cfg)
+    with _rule(domain, "data_source"):
+        contract.data_source(cfg, domain)
     with _rule(domain, "generate"):
         datasets = _check_generate(domain, cfg)
     with _rule(domain, "manifest"):

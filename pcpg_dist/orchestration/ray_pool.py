@@ -17,6 +17,7 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
+from pcpg_dist.common.commands import command
 from pcpg_dist.common.devices import available_cpus
 from pcpg_dist.common.errors import ConfigError, PcpgError, ServiceError, catch_sigterm, first_line
 
@@ -165,21 +166,21 @@ def _check_port(address: str, timeout: float = 5.0) -> None:
     ):  # http://HEAD:8265 is the dashboard's (ray job submit)
         raise ServiceError(
             f"--ray-address {address[:200]!r}: expected HOST:PORT (the head's port, "
-            f"`ray start --head --port`), ray://HOST:PORT or auto, not a {url.scheme}:// URL"
+            f"`{command('ray', 'start', '--head', '--port')}`), ray://HOST:PORT or auto, not a {url.scheme}:// URL"
         )
     try:
         with socket.create_connection((host, port), timeout=timeout) as conn:
             speaks_grpc = _answers_http2(conn, timeout)
     except OSError as e:
         raise ServiceError(
-            f"no Ray cluster answers at {address[:200]} ({e}); start one with `ray start --head` "
+            f"no Ray cluster answers at {address[:200]} ({e}); start one with `{command('ray', 'start', '--head')}` "
             f"there or check --ray-address / RAY_ADDRESS"
         ) from None
     if not speaks_grpc and os.environ.get("RAY_USE_TLS", "0").lower() not in ("1", "true"):
         # an MLflow, database or web port: ray.init would wait there without end, printing its C++ log
         raise ServiceError(
             f"{address[:200]} answers, but not as a Ray head does (no gRPC): is it another "
-            f"service's port? the head's is `ray start --head --port` (default 6379)"
+            f"service's port? the head's is `{command('ray', 'start', '--head', '--port')}` (default 6379)"
         )
 
 

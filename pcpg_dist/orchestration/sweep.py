@@ -107,21 +107,28 @@ class SweepPlan:
 
 
 def plan_sweep(
-    config: str | Path,
+    config: str | Path | dict,
     axes_args: list[str],
     overrides: list[str] | None = None,
     workdir: Path = Path("runs"),
     command: str = "",
 ) -> SweepPlan:
-    """Validate the sweep (every point's config) and name its points' folders; nothing runs."""
+    """Validate the sweep (every point's config) and name its points' folders; nothing runs.
+
+    ``config``: a YAML file, or a config mapping (from Python; its ``sweep`` key, if any, is
+    the file's ``sweep:`` section, and relative paths in it are read from the current folder)."""
     from pcpg_dist.config.experiment import parse_config
     from pcpg_dist.orchestration.points import Point
 
-    config = Path(config)
-    raw, section = read_raw(config)
+    if isinstance(config, dict):
+        raw = dict(config)
+        section, source, base_dir = raw.pop("sweep", None), "<python>", Path.cwd()
+    else:
+        raw, section = read_raw(config)
+        source, base_dir = str(config), Path(config).parent
     fixed = parse_overrides(overrides or [])
     raw = apply_overrides(raw, fixed)
-    base = parse_config(raw, source=str(config), base_dir=config.parent)
+    base = parse_config(raw, source=source, base_dir=base_dir)
     axes, combos = sweep_points(section, axes_args, base.domain)
     if both := sorted(set(fixed) & set(axes)):  # the axis would silently win
         raise ConfigError(
@@ -133,8 +140,8 @@ def plan_sweep(
     for combo in combos:
         cfg = parse_config(
             apply_overrides(raw, combo),
-            source=f"{config} with {describe(combo)}",
-            base_dir=config.parent,
+            source=f"{source} with {describe(combo)}",
+            base_dir=base_dir,
         )
         points.append(
             Point(
@@ -145,7 +152,7 @@ def plan_sweep(
             )
         )
     description = (
-        f"Sweep of {base.name} ({config.name}) over {', '.join(axes)}: {len(points)} points "
+        f"Sweep of {base.name} ({Path(source).name}) over {', '.join(axes)}: {len(points)} points "
         f"({' x '.join(str(len(v)) for v in axes.values())})"
         + (f"; fixed: {describe(fixed)}" if fixed else "")
     )

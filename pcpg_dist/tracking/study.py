@@ -28,6 +28,7 @@ class StudyTracker:
     experiment_id: str = ""
     parent_id: str | None = None
     logged: set[int] = field(default_factory=set)
+    inputs: list = field(default_factory=list)  # the study's data, logged on it and every trial
 
     @property
     def run_id(self) -> str | None:
@@ -36,7 +37,9 @@ class StudyTracker:
 
     def started(self, cfg: ExperimentConfig, study_name: str, storage: str, study: Any) -> None:
         """Find the study's parent run (a resumed study) or create it, and the trials it logged."""
+        from pcpg_dist.pipeline.declared import input_key
         from pcpg_dist.tracking.connection import _retry
+        from pcpg_dist.tracking.datasets import data_inputs, log_data_inputs
         from pcpg_dist.tracking.runs import open_experiment
         from pcpg_dist.tracking.tags import ROLE
 
@@ -64,12 +67,15 @@ class StudyTracker:
         )
         logged = {int(r.data.tags["pcpg.trial"]) for r in children if "pcpg.trial" in r.data.tags}
         self.uri, self.experiment_id, self.parent_id, self.logged = uri, exp_id, parent, logged
+        self.inputs = data_inputs(cfg, input_key(cfg))
+        log_data_inputs(client, parent, self.inputs)
 
     def trials_finished(self, study: Any) -> None:
         """A child run for every finished trial not logged yet (so a crash never loses one)."""
         from optuna.trial import TrialState
 
         from pcpg_dist.tracking.connection import _client, _retry
+        from pcpg_dist.tracking.datasets import log_data_inputs
         from pcpg_dist.tracking.logged import _log_metrics, _log_params
         from pcpg_dist.tracking.tags import ROLE
 
@@ -94,6 +100,7 @@ class StudyTracker:
                 client.create_run, self.experiment_id, start_time=start, tags=tags
             ).info.run_id
             _log_params(client, run_id, {**t.user_attrs.get("params_full", {}), **t.params})
+            log_data_inputs(client, run_id, self.inputs)
             metrics = {k: v for k, v in t.user_attrs.items() if isinstance(v, float)}
             if t.value is not None:
                 metrics["score"] = t.value

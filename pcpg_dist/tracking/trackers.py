@@ -14,6 +14,7 @@ from pathlib import Path
 
 from pcpg_dist.common.point_labels import point_label, short_keys
 from pcpg_dist.tracking.connection import _client, _retry, check_tracking_uri
+from pcpg_dist.tracking.datasets import DataInput, data_inputs, log_data_inputs
 from pcpg_dist.tracking.logged import (
     _digest,
     _finite,
@@ -62,6 +63,7 @@ class Tracker:
     cfg: object = None
     label: str = ""  # a sweep point's axis values, short ("noise_max=0.3 k=4"): its runs' names
     sweep_point: bool = False  # a point of a sweep: stage timings go on the sweep's run, not here
+    inputs: tuple[DataInput, ...] = ()  # the data it used, logged on it and its children
 
     @staticmethod
     def start(
@@ -71,11 +73,15 @@ class Tracker:
         *,
         parent_run_id: str | None = None,
         params: dict[str, str] | None = None,
+        ikey: str | None = None,
+        units: list | None = None,
     ) -> Tracker:
         """Find or create the config's parent run (keyed by its content hash).
 
         With ``parent_run_id`` (a sweep) the run is a nested child of that run, in its experiment,
-        and ``params`` (the point's overrides, dotted keys) are logged as its params.
+        and ``params`` (the point's overrides, dotted keys) are logged as its params. With
+        ``ikey`` (the data's input key) the data is logged as the run's dataset inputs (profiled
+        from its evaluation ``units`` where given).
         """
         if parent_run_id:
             uri = uri or default_tracking_uri()
@@ -108,7 +114,9 @@ class Tracker:
             all_params,
             legacy=legacy,
         )
-        return Tracker(uri, exp_id, parent, chash, cfg, label, bool(parent_run_id))
+        inputs = tuple(data_inputs(cfg, ikey, units)) if ikey else ()
+        log_data_inputs(client, parent, list(inputs))
+        return Tracker(uri, exp_id, parent, chash, cfg, label, bool(parent_run_id), inputs)
 
     def _children(self, env: str) -> list:
         return _runs_with(_client(self.uri), self.experiment_id, {"pcpg.env": env}, self.parent_id)
@@ -128,6 +136,7 @@ class Tracker:
             "config_hash": self.config_hash,
             "cluster_metrics": cluster_metrics,
             "label": self.label,
+            "inputs": [i.as_dict() for i in self.inputs],
         }
 
     def finish(
@@ -260,6 +269,7 @@ def log_environment(
         }
         run_id = _retry(client.create_run, info["experiment_id"], tags=tags).info.run_id
         _log_params(client, run_id, {"env": env})
+        log_data_inputs(client, run_id, info.get("inputs", []))
         _log_once(client, run_id, points, {LOGGED: _digest(points)})
         _log_folder(client, run_id, Path(out_dir), "evaluation")
         _retry(client.log_text, run_id, _std_table(merged), "evaluation/metrics.csv")
@@ -309,15 +319,18 @@ class SweepTracker:
         best_points: dict[str, str] | None = None,
         timings: dict[str, float] | None = None,
         note: str | None = None,
+        inputs: list[DataInput] | None = None,
     ) -> None:
         """Log the sweep's metrics and artifacts once; a rerun with the same results logs nothing.
 
         ``best_points`` (metric -> the point that has it) become tags ``pcpg.best_point/<metric>``;
         ``note`` replaces the description; ``timings`` (``time/*`` metrics: the stage times of the
         points this call computed, all batched together) are logged with the results but left out
-        of the digest, so a rerun that computes nothing logs nothing.
+        of the digest, so a rerun that computes nothing logs nothing. ``inputs``: every point's
+        data, as the sweep run's dataset inputs.
         """
         client = _client(self.uri)
+        log_data_inputs(client, self.parent_id, inputs or [])
         run = _retry(client.get_run, self.parent_id)
         points = [(k, float(v), 0) for k, v in sorted((metrics or {}).items()) if _finite(v)]
         files = sorted(

@@ -221,3 +221,46 @@ def test_an_edited_log_is_not_reproduced_even_where_the_metrics_match(tmp_path, 
     out = capsys.readouterr().out.splitlines()
     assert out[0] == f"note: {note}" and out[1].split()[:2] == ["exact", "x"]
     assert out[-1].startswith("NOT REPRODUCED (input data changed): 1 metrics, 1 exact")
+
+
+def test_changed_data_is_said_in_one_line_before_anything_reruns(tmp_path, capsys):
+    """`pcpg reproduce` compares the data's digest (the input key, also the MLflow dataset
+    input's digest) before rerunning: a replaced log is one line, exit 1, no rerun folder."""
+    import pandas as pd
+
+    from pcpg_dist.cli import main
+    from pcpg_dist.pipeline.declared import input_key
+
+    log = tmp_path / "logs.parquet"
+    table = pd.DataFrame(
+        {
+            "trajectory": [0, 0, 1, 1],
+            "t": [0, 1, 0, 1],
+            "s0": [0.0, 1.0, 0.0, 2.0],
+            "action": [1, 0, 2, 0],
+            "reward": [0.0, 1.0, 0.0, 1.0],
+        }
+    )
+    table.to_parquet(log, index=False)
+    cfg = parse_config(
+        {"name": "own", "domain": "trajectories", "trajectories": {"path": str(log)}},
+        source="own",
+    )
+    summary = tmp_path / "run" / "summary"
+    summary.mkdir(parents=True)
+    logged = input_key(cfg)
+    run = {"config": cfg.model_dump(mode="json"), "input_key": logged, "config_hash": cfg.hash()}
+    (summary / "run.json").write_text(json.dumps(run))
+    (summary / "metrics.json").write_text("{}")
+    table.loc[1, "reward"] = 5.0
+    table.to_parquet(log, index=False)
+    workdir = tmp_path / "rerun"
+    with pytest.raises(SystemExit) as stop:
+        main(["reproduce", str(tmp_path / "run"), "--workdir", str(workdir)])
+    assert stop.value.code == 1
+    out = capsys.readouterr().out.strip().splitlines()
+    assert len(out) == 1 and out[0].startswith(
+        f"NOT REPRODUCED: input data changed: the logged run read data of key {logged}"
+    )
+    assert out[0].endswith("nothing was rerun (--allow-changed-data reruns anyway)")
+    assert not workdir.exists()

@@ -507,6 +507,16 @@ def test_sweep_shares_stages_logs_once_and_resumes(tiny_yaml, uninterrupted):
     best = max(points, key=lambda r: r.data.metrics["pcpg/accuracy/p1"])
     assert sweep_run.data.tags["pcpg.best_point/pcpg/accuracy/p1"].startswith(best.info.run_name)
     assert "Best points: " in sweep_run.data.tags["mlflow.note.content"]
+
+    # the points share one dataset: the sweep run, every point and its environments name it once
+    def digests(run) -> list[tuple[str, str]]:
+        got = client.get_run(run.info.run_id).inputs.dataset_inputs
+        return sorted((d.dataset.digest, d.tags[0].value) for d in got)
+
+    a_point = next((first.out_dir / "points").iterdir())
+    data_digest = json.loads((a_point / "summary" / "run.json").read_text())["input_key"]
+    assert all(digests(r) == digests(sweep_run) for r in runs)
+    assert len(digests(sweep_run)) == 2 and (data_digest, "training") in digests(sweep_run)
     n_runs = len(runs)
 
     # the same command again: nothing runs, nothing is logged twice, the table is identical

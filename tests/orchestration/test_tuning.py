@@ -357,6 +357,12 @@ def test_small_study_writes_best_config_and_mlflow_children(ray_session, tmp_pat
     # the score is the label-free objective: accuracy minus the per-cluster penalty
     assert m["score"] == pytest.approx(m["pcpg_accuracy"] - cfg.tuning.penalty * (k - 1))
     assert 0.3 < m["pcpg_accuracy"] <= 1.0 and "E1/ari" in m
+    # the study and every trial name the data they used (training and its held-out split)
+    for run in [parents[0], *children]:
+        inputs = client.get_run(run.info.run_id).inputs.dataset_inputs
+        contexts = sorted(d.tags[0].value for d in inputs)
+        assert contexts == ["evaluation", "training"], run.info.run_name
+        assert {d.dataset.name for d in inputs} >= {"gridworld data"}
 
     # `pcpg run` of the best config in the study's folder reuses the data the study cached
     from pcpg_dist.api.run import run_experiment

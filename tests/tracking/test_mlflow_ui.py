@@ -22,10 +22,14 @@ import time
 import urllib.request
 from pathlib import Path
 
+import numpy as np
 import pytest
+from bc_toy import make_dataset
 
 from pcpg_dist.config import load_config
+from pcpg_dist.domains.base import Unit
 from pcpg_dist.orchestration.points import RunResult
+from pcpg_dist.pipeline.declared import input_key
 from pcpg_dist.stages import figures
 from pcpg_dist.tracking.logged import ui_link
 from pcpg_dist.tracking.trackers import Tracker, log_environment
@@ -71,7 +75,9 @@ def store(tmp_path_factory) -> dict:
     }
     cfg = load_config(ROOT / "experiments" / "quick.yaml")
     uri = f"sqlite:///{base / 'mlflow.db'}"
-    tracker = Tracker.start(cfg, uri, out)
+    toy = make_dataset(n_per_style=5)  # profiled: 10 trajectories, 2 of them held out
+    units = [Unit("E1", toy, np.array([0, 5]))]
+    tracker = Tracker.start(cfg, uri, out, ikey=input_key(cfg), units=units)
     for env in envs:
         per_env = {k.split("/", 1)[1]: v for k, v in metrics.items() if k.startswith(f"{env}/")}
         log_environment(
@@ -93,6 +99,7 @@ def store(tmp_path_factory) -> dict:
         "tracker": tracker,
         "envs": envs,
         "run_name": f"{cfg.name}-{cfg.hash()[:8]}",
+        "ikey": input_key(cfg),
     }
 
 
@@ -214,3 +221,22 @@ def test_parent_charts_draw_the_curve_over_p(page, server, store):
     text = page.locator("body").inner_text()
     assert "/std" not in text  # no std chart sections
     assert "E1/" not in text  # no per-environment copies on the parent
+
+
+def test_runs_table_shows_the_data_each_run_used(page, server, store):
+    """The Dataset column lists the run's data (name and digest: the data's input key), as
+    MLflow shows any dataset input, and its drawer says where the data came from."""
+    tracker = store["tracker"]
+    page.goto(ui_link(store["uri"], tracker.parent_id, ui=server))
+    page.get_by_text(store["run_name"], exact=True).first.wait_for()
+    cell = page.get_by_text("gridworld data", exact=False).first
+    cell.wait_for()
+    page.screenshot(path=str(ARTIFACTS / "runs_table_datasets.png"))
+    cell.click()  # the drawer: both datasets, the digest (the data's input key) and the profile
+    page.get_by_text("2 datasets used").wait_for()
+    page.get_by_text(store["ikey"], exact=True).first.wait_for()
+    page.get_by_text("held-out 0.2", exact=False).first.wait_for()
+    page.get_by_text("trajectories:", exact=False).first.wait_for()  # the profile: 10 - 2 held out
+    drawer = page.locator("body").inner_text()
+    assert "trajectories: 8" in " ".join(drawer.split()), drawer[-500:]
+    page.screenshot(path=str(ARTIFACTS / "dataset_drawer.png"))

@@ -31,6 +31,22 @@ class MarioDomain(Domain):
             sha256_file(log) if log is not None and log.is_file() else "shipped",
         ]
 
+    def data_source(self, cfg) -> dict[str, Any]:
+        from pcpg_dist.domains.mario.log import SHIPPED_PATH
+
+        log = cfg.mario.path
+        if log is None:
+            return {
+                "name": "mario play logs (shipped)",
+                "type": "package",
+                "source": {"uri": "pcpg_dist/" + "/".join(SHIPPED_PATH)},
+            }
+        return {
+            "name": Path(log).name,
+            "type": "local",
+            "source": {"uri": Path(log).resolve().as_uri()},
+        }
+
     def generate(self, cfg, show_progress: bool = True, fan_out: FanOut = in_process):
         from pcpg_dist.domains.mario.log import load
 

@@ -76,6 +76,17 @@ class TrajectoriesDomain(Domain):
             content,
         ]
 
+    def data_source(self, cfg) -> dict[str, Any]:
+        """The log's path (a file or a folder of Parquet files) or Minari dataset id."""
+        path = cfg.trajectories.path
+        if path.startswith("minari:"):
+            return {"name": path, "type": "minari", "source": {"uri": path}}
+        return {
+            "name": Path(path).name,
+            "type": "local",
+            "source": {"uri": Path(path).resolve().as_uri()},
+        }
+
     def generate(self, cfg, show_progress: bool = True, fan_out: FanOut = in_process):
         from pcpg_dist.domains.trajectories.table import datasets_from_table
         from pcpg_dist.domains.trajectories.table_files import (

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
+from pcpg_dist.common.commands import command
 from pcpg_dist.common.errors import ConfigError, DataError
 from pcpg_dist.config.stages import TuneConfig
 from pcpg_dist.orchestration.tuning.objective import trial_task
@@ -248,7 +249,7 @@ def _conclude(
             hooks.failed("FAILED")  # its MLflow run stayed RUNNING
         raise DataError(
             f"study {name!r}: no trial completed ({state_counts(study)}); see the trials' "
-            f"'error' / 'pruned_reason' attributes (uv run optuna-dashboard {storage.shown})"
+            f"'error' / 'pruned_reason' attributes ({command('optuna-dashboard', storage.shown)})"
         )
     best = study.best_trial
     # what the study chose (fixed dimensions are the config's own values, not a finding)
