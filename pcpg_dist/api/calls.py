@@ -75,8 +75,8 @@ def sweep(
     track: bool = True,
     show_progress: bool = True,
 ) -> Any:
-    """`pcpg sweep` from Python: every point of the grid ``axes`` (``{key: [values]}``, or the
-    CLI's ``"key=v1,v2"`` strings) together with the config's own ``sweep:`` section, on Ray;
+    """`pcpg sweep` from Python: every point of the grid ``axes`` (``{key: [values]}``, added to
+    the ``grid:`` of the config's own ``sweep:`` section; or the CLI's ``"key=v1,v2"`` strings), on Ray;
     returns its :class:`~pcpg_dist.api.sweep.SweepResult` (``rows``: one per point, ``out_dir``:
     its table, report and figures). A finished point is reused, never rerun."""
     from pcpg_dist.api.sweep import run_sweep
@@ -95,7 +95,9 @@ def sweep(
             raw = config.model_dump(mode="json")
         else:
             raw = dict(config)
-        plan_config = {**raw, "sweep": {**(raw.get("sweep") or {}), **grid}}
+        section = dict(raw.get("sweep") or {})
+        section["grid"] = {**(section.get("grid") or {}), **grid}
+        plan_config = {**raw, "sweep": section}
     init_ray()
     return run_sweep(
         plan_config,

@@ -31,6 +31,7 @@ def cluster(
     executor = executor or RayExecutor()
     gpus = cluster_gpus(cfg, executor.most_gpus())  # a GPU setting no node can serve fails here
     out = Path(out)
+    contract.check_apart_from_inputs(cfg, out, "--out")
     if data:
         datasets = load_datasets(Path(data))
     else:

@@ -93,6 +93,17 @@ def compare_metrics(
     return out
 
 
+def _apart(workdir: Path, run_folder: Path) -> None:
+    """The rerun's folder lies outside the run it reproduces (links resolved), checked before
+    anything runs: a rerun inside it would leave its cache and outputs in the original run."""
+    where, run = workdir.resolve(), run_folder.resolve()
+    if where == run or where.is_relative_to(run):
+        raise ConfigError(
+            f"--workdir {workdir}: inside the run being reproduced ({run_folder}); a "
+            "reproduction runs apart from it: choose a folder outside"
+        )
+
+
 def _fresh(workdir: Path | None, name: str) -> Path:
     if workdir is None:
         return Path(tempfile.mkdtemp(prefix=f"pcpg-reproduce-{name}-"))
@@ -270,6 +281,8 @@ def cli_reproduce(args) -> int:
         if changed and not args.allow_changed_data:
             print(f"NOT REPRODUCED: {note}; nothing was rerun (--allow-changed-data reruns anyway)")
             return 1
+        if args.workdir:
+            _apart(Path(args.workdir), summary.parent)
         workdir = _fresh(Path(args.workdir) if args.workdir else None, cfg.name)
         init_ray(args.ray_address)
         rep = reproduce(

@@ -264,3 +264,66 @@ def test_changed_data_is_said_in_one_line_before_anything_reruns(tmp_path, capsy
     )
     assert out[0].endswith("nothing was rerun (--allow-changed-data reruns anyway)")
     assert not workdir.exists()
+
+
+def test_a_workdir_inside_the_run_is_refused_before_anything_runs(tmp_path, capsys):
+    """`--workdir` resolving into the run's own folder (directly or through a link) is one line,
+    exit 2, before any rerun: it used to be refused only after a full reproduction that left
+    cache/, summary/ and agents/ inside the original run."""
+    from pcpg_dist.cli import main
+
+    run = tmp_path / "runs" / "repro"
+    summary = run / "summary"
+    summary.mkdir(parents=True)
+    (summary / "run.json").write_text(json.dumps({"config": TINY}))
+    (summary / "metrics.json").write_text("{}")
+    (tmp_path / "link").symlink_to(run)
+    before = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
+    for workdir in (run / "again", tmp_path / "link" / "again", run):
+        assert main(["reproduce", str(run), "--workdir", str(workdir)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "inside the run being reproduced" in err[0], err
+    assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == before
+
+
+def test_outputs_inside_the_input_folder_are_refused_before_any_work(tmp_path, capsys):
+    """`pcpg generate --out`, `pcpg run --workdir` or `pcpg cluster --out` inside the folder of
+    step tables a config reads: one line, exit 2, nothing written (the outputs would be read back
+    as input by the next run)."""
+    import pandas as pd
+    import yaml
+
+    from pcpg_dist.cli import main
+
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    pd.DataFrame(
+        {
+            "trajectory": [0, 0, 1, 1],
+            "t": [0, 1, 0, 1],
+            "s0": [0.0, 1.0, 0.0, 2.0],
+            "action": [1, 0, 2, 0],
+            "reward": [0.0, 1.0, 0.0, 1.0],
+        }
+    ).to_parquet(logs / "a.parquet", index=False)
+    config = tmp_path / "own.yaml"
+    config.write_text(
+        yaml.safe_dump(
+            {
+                "name": "own",
+                "domain": "trajectories",
+                "trajectories": {"path": str(logs)},
+                "clustering": {"k": 2},
+            }
+        )
+    )
+    before = sorted(logs.rglob("*"))
+    for argv in (
+        ["generate", str(config), "--out", str(logs / "data")],
+        ["run", str(config), "--workdir", str(logs), "--no-tracking"],
+        ["cluster", str(config), "--out", str(logs / "styles")],
+    ):
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"inside the input folder {logs}" in err[0], err
+    assert sorted(logs.rglob("*")) == before

@@ -15,6 +15,8 @@ from pcpg_dist.domains.defaults import in_process
 from pcpg_dist.domains.gridworld.paper import PAPER
 from pcpg_dist.domains.gridworld.settings import SECTIONS
 
+N_STYLES = 4  # PBTG's reward functions: one style each
+
 
 @lru_cache(maxsize=8)
 def _random_family(count: int, seed: int):
@@ -57,6 +59,20 @@ class GridWorldDomain(Domain):
     sections = SECTIONS
     paper = PAPER
 
+    def check_config(self, cfg) -> None:
+        """The settings' checks, and k against the trajectories each layout will have (the
+        config fixes the count: one PBTG dataset per reward function), before any data is made."""
+        from pcpg_dist.common.errors import ConfigError
+
+        super().check_config(cfg)
+        n = N_STYLES * cfg.pbtg.dataset_per_style
+        if cfg.clustering.k > n:
+            raise ConfigError(
+                f"key 'clustering.k': {cfg.clustering.k} clusters, but each layout will have {n} "
+                f"trajectories ({N_STYLES} styles x pbtg.dataset_per_style "
+                f"{cfg.pbtg.dataset_per_style}); set clustering.k to at most {n}"
+            )
+
     def data_key(self, cfg) -> list[Any]:
         gw = cfg.gridworld
         if gw.random_layouts is not None:  # the layouts' text, so a generator change regenerates
@@ -69,9 +85,10 @@ class GridWorldDomain(Domain):
         from pcpg_dist.domains.gridworld.pbtg import assemble_dataset, generate_pair
 
         layouts = gridworld_layouts(cfg)
-        calls = [(layout, r, cfg.pbtg, cfg.seed) for layout in layouts for r in range(4)]
+        calls = [(layout, r, cfg.pbtg, cfg.seed) for layout in layouts for r in range(N_STYLES)]
         pairs = fan_out(generate_pair, calls, "PBTG (E, R)", show_progress=show_progress)
-        return {lt.name: assemble_dataset(pairs[4 * i : 4 * i + 4]) for i, lt in enumerate(layouts)}
+        n = N_STYLES
+        return {lt.name: assemble_dataset(pairs[n * i : n * i + n]) for i, lt in enumerate(layouts)}
 
     def manifest(self, cfg, datasets) -> dict[str, Any]:
         from pcpg_dist.domains.gridworld.pbtg import pair_seed
