@@ -26,12 +26,13 @@ def cluster(
     each environment's Step A result (labels, margins, metrics)."""
     from pcpg_dist.dataset import load_datasets
     from pcpg_dist.domains import contract
+    from pcpg_dist.pipeline.checks import check_apart_from_inputs
     from pcpg_dist.stages.data import generate_to
 
     executor = executor or RayExecutor()
     gpus = cluster_gpus(cfg, executor.most_gpus())  # a GPU setting no node can serve fails here
     out = Path(out)
-    contract.check_apart_from_inputs(cfg, out, "--out")
+    check_apart_from_inputs(cfg, out, "--out")
     if data:
         datasets = load_datasets(Path(data))
     else:

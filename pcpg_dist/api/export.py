@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from pcpg_dist.common.errors import DataError, ServiceError, first_line
+from pcpg_dist.common.inputs import entries, input_file
 from pcpg_dist.reporting.onnx_export import export_onnx
 from pcpg_dist.stages.agents_folder import read_run_layout, require_agents
 
@@ -28,7 +29,7 @@ def load_agents_folder(folder: Path) -> dict:
     """
     folder = Path(folder)
     out = read_run_layout(folder)
-    npz = sorted(folder.glob("*.npz"))
+    npz = entries(folder, "agents model file", suffixes=[".npz"])
     if npz:
         _read_model_layout(folder, npz, out)
     return require_agents(folder, out)
@@ -42,7 +43,7 @@ def _read_model_layout(folder: Path, npz: list[Path], out: dict) -> None:
     from pcpg_dist.tracking import agent_model
 
     for path in npz:
-        source = path.with_suffix(".json")
+        source = input_file(path.with_suffix(".json"), "agents model file", folder=folder)
         try:
             env = agent_model.read_env_agents(path)
         except agent_model.AgentFileError as e:

@@ -6,10 +6,10 @@ from pathlib import Path
 
 from pcpg_dist.api.hooks import OutputsAndTracking
 from pcpg_dist.config import ExperimentConfig
-from pcpg_dist.domains import contract
 from pcpg_dist.orchestration.executors import Executor
 from pcpg_dist.orchestration.points import Point, RunResult
 from pcpg_dist.orchestration.runner import run_points
+from pcpg_dist.pipeline.checks import check_apart_from_inputs
 
 
 def run_experiment(
@@ -24,7 +24,7 @@ def run_experiment(
     """Run (or resume) a whole experiment into ``workdir/<name>``. With the default executor Ray
     must be initialised by the caller; ``LocalExecutor()`` runs every job in this process."""
     out = Path(workdir).resolve() / cfg.name
-    contract.check_apart_from_inputs(cfg, out, "--workdir")
+    check_apart_from_inputs(cfg, out, "--workdir")
     hooks = OutputsAndTracking(tracking_uri, track, show_progress)
     return run_points(
         [Point(cfg, out, command=command)],

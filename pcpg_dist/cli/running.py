@@ -13,13 +13,13 @@ from pcpg_dist.common.commands import command
 def generate(args: argparse.Namespace) -> None:
     from pcpg_dist.common.progress import out as console  # results: stdout
     from pcpg_dist.config.overrides import load_config_with
-    from pcpg_dist.domains import contract
     from pcpg_dist.orchestration import ray_pool
     from pcpg_dist.orchestration.ray_pool import init_ray
+    from pcpg_dist.pipeline.checks import check_apart_from_inputs
     from pcpg_dist.stages.data import generate_to
 
     cfg = load_config_with(args.config, args.overrides)
-    contract.check_apart_from_inputs(cfg, Path(args.out), "--out")
+    check_apart_from_inputs(cfg, Path(args.out), "--out")
     init_ray(args.ray_address)
     datasets = generate_to(cfg, Path(args.out), not args.quiet, ray_pool.fan_out)
     for env, ds in datasets.items():

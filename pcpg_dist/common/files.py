@@ -16,6 +16,7 @@ import re
 import tempfile
 from pathlib import Path
 
+from pcpg_dist.common.disk import disk_full, is_disk_full
 from pcpg_dist.common.errors import DataError
 
 # mkstemp creates 0600 files; written files get what open() would give them under the user's umask.
@@ -73,8 +74,10 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as e:
         Path(tmp).unlink(missing_ok=True)
+        if isinstance(e, OSError) and is_disk_full(e):  # named by its path, not the temporary's
+            raise disk_full(path, len(data)) from None
         raise
 
 

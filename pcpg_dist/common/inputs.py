@@ -125,12 +125,13 @@ def entries(
     return found
 
 
-def writable_folder(path: Path, what: str = "output folder") -> Path:
-    """An output folder pcpg may create or fill: not a link that leads out of its parent, not a
+def writable_folder(path: Path, what: str = "output folder", *, folder: Path | None = None) -> Path:
+    """An output folder pcpg may create or fill: not a link that leads out of ``folder`` (the
+    output folder the user named, for a sub-folder pcpg makes in it; default: its parent), not a
     special file. Its files are then written by name inside it."""
     path = Path(path)
     if path.is_symlink():
-        inside(path, path.parent, what)
+        inside(path, path.parent if folder is None else folder, what)
     kind = kind_of(path)
     if kind not in ("missing", "a folder"):
         raise DataError(f"{what} {path}: {kind}, not a folder")

@@ -29,10 +29,19 @@ def safe_name(value: str, what: str) -> str:
 
 
 def check_text_file(
-    path: Path, what: str, max_bytes: int = MAX_LEVEL_BYTES, utf8: bool = True
+    path: Path,
+    what: str,
+    max_bytes: int = MAX_LEVEL_BYTES,
+    utf8: bool = True,
+    folder: Path | None = None,
 ) -> None:
     """A file the config points at must be a regular file of at most ``max_bytes`` bytes of UTF-8
-    text (a FIFO or /dev/zero would block or never end; a binary file is the wrong file)."""
+    text (a FIFO or /dev/zero would block or never end; a binary file is the wrong file); one
+    named in a ``folder`` must not be a link out of it (:mod:`pcpg_dist.common.inputs`)."""
+    if folder is not None:
+        from pcpg_dist.common.inputs import inside
+
+        inside(path, folder, what)
     if not path.is_file():
         raise ValueError(
             f"{what} {path} " + ("is not a regular file" if path.exists() else "not found")

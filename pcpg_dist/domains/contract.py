@@ -115,28 +115,6 @@ def data_source(cfg: ExperimentConfig, domain: Domain | None = None) -> dict[str
     return {"name": name, "type": kind, "source": json.loads(text)}
 
 
-def check_apart_from_inputs(cfg: ExperimentConfig, out: Path, option: str) -> None:
-    """Refuse an output folder that is, or lies inside, a folder the data is read from (a
-    folder of step tables: the outputs would be read back as input next time). One line, before
-    any work."""
-    from urllib.parse import unquote, urlparse
-
-    from pcpg_dist.common.errors import ConfigError
-
-    uri = str(data_source(cfg)["source"].get("uri", ""))
-    if not uri.startswith("file://"):
-        return
-    source = Path(unquote(urlparse(uri).path))
-    if not source.is_dir():
-        return
-    where = Path(out).resolve()
-    if where == source.resolve() or where.is_relative_to(source.resolve()):
-        raise ConfigError(
-            f"{option} {out}: inside the input folder {source} (the data is read from it, and "
-            f"what pcpg writes there would be read back as input); choose a folder outside it"
-        )
-
-
 def _key_parts(cfg: ExperimentConfig, domain: Domain | None, method: str) -> list[Any]:
     """A domain's key method's parts, checked to be a list."""
     domain = the_domain(cfg, domain)

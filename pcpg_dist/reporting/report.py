@@ -23,6 +23,7 @@ from pathlib import Path
 
 from pcpg_dist.common.errors import ConfigError
 from pcpg_dist.common.files import atomic_write_bytes
+from pcpg_dist.common.inputs import entries
 from pcpg_dist.common.run_folders import check_outside_run
 from pcpg_dist.config.experiment import ExperimentConfig
 from pcpg_dist.reporting.formatting import accuracy_pivot, fmt, table_of
@@ -278,7 +279,7 @@ def build(summary: Path, reproduce_target: str | None = None) -> Report:
         str(cfg.get("name", summary.parent.name)),
         str(cfg.get("domain", _DEFAULT_DOMAIN)),
     )
-    envs = [d.name for d in sorted(summary.iterdir()) if d.is_dir() and not d.is_symlink()]
+    envs = [d.name for d in entries(summary, "summary folder", dirs=True)]
     paper = paper_rows(domain, metrics, summary, envs)
     by_ref = _by_ref(paper)
     top = _summary_sections(summary, by_ref)

@@ -8,6 +8,7 @@ folder, reached without symlinks); nothing takes a path from a file's content.
 from __future__ import annotations
 
 import base64
+import os
 import reprlib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,6 +17,7 @@ import pandas as pd
 
 from pcpg_dist.common.errors import DataError
 from pcpg_dist.common.files import read_json
+from pcpg_dist.common.inputs import entries, input_file, input_folder
 
 MAX_ROWS = 30  # rows of a table shown on the page; the file has them all
 MAX_IMAGE_BYTES = 8_000_000  # a figure larger than this is not inlined (the file is named instead)
@@ -87,21 +89,33 @@ class PaperRow:
 
 # ----------------------------------------------------------------------------- safe reading
 def inside(path: Path, root: Path) -> bool:
-    """A regular file below ``root`` reached without symlinks (the only files a report reads)."""
+    """Whether the report reads ``path``: a regular file below ``root``; False where there is no
+    such file or the name (from a run's files) leads out of ``root``. The input policy applies
+    (:mod:`pcpg_dist.common.inputs`): a link out of the run or a special file (a FIFO as a
+    summary CSV) is one line, never read and never skipped in silence."""
     try:
-        if path.is_symlink() or not path.is_file():
-            return False
-        resolved = path.resolve(strict=True)
-        rel = resolved.relative_to(root.resolve(strict=True))
-    except (OSError, ValueError):
+        rel = Path(os.path.abspath(path)).relative_to(os.path.abspath(root))
+    except ValueError:
+        return False  # a name that leaves the run: never read
+    if ".." in rel.parts or not (path.exists() or path.is_symlink()):
         return False
-    return not any(part.startswith("..") for part in rel.parts)
+    input_file(path, "summary file", folder=root)
+    return True
 
 
 def files_in(folder: Path, root: Path, suffix: str) -> list[Path]:
-    if folder.is_symlink() or not folder.is_dir():
+    """The ``suffix`` files of one of the run's folders (an environment's), checked."""
+    if not inside_folder(folder, root):
         return []
-    return sorted(p for p in folder.iterdir() if p.suffix == suffix and inside(p, root))
+    return [p for p in entries(folder, "summary file", suffixes=[suffix]) if inside(p, root)]
+
+
+def inside_folder(folder: Path, root: Path) -> bool:
+    """Whether ``folder`` is one of the run's folders (a link out of the run is one line)."""
+    if not (folder.exists() or folder.is_symlink()):
+        return False
+    input_folder(folder, "summary folder", folder=root)
+    return True
 
 
 def _as_float(v) -> float | None:

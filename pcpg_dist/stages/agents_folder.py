@@ -21,18 +21,21 @@ def read_run_layout(folder: Path) -> dict:
     becomes a file name: a DataError naming the file otherwise.
     """
     from pcpg_dist.common.files import confined
+    from pcpg_dist.common.inputs import entries, input_file
     from pcpg_dist.common.run_folders import check_run_agents
     from pcpg_dist.stages.bc import TrainedCells
 
     folder = Path(folder)
     check_run_agents(folder)  # a run's agents: the files it wrote, for the environments it reports
     out = {}
-    for env_dir in sorted(p for p in folder.iterdir() if p.is_dir()):
-        groups = sorted(env_dir.glob("*.pt"))
+    # the input policy (common.inputs): links only within the folder, no special files
+    for env_dir in entries(folder, "agents folder", dirs=True):
+        groups = entries(env_dir, "agent file", suffixes=[".pt"])
         if groups:
             confined(folder, env_dir.name, f"{env_dir}: env folder")
             parts = []
             for g in groups:
+                input_file(g.with_suffix(".json"), "agent file", folder=env_dir)
                 parts.append(TrainedCells.load(g))  # checked against its JSON (check_cells)
             out[env_dir.name] = TrainedCells.concat(parts)
     return out

@@ -13,6 +13,7 @@ import urllib.error
 import urllib.request
 from pathlib import Path
 
+from pcpg_dist.common.disk import disk_full, is_disk_full
 from pcpg_dist.common.errors import ServiceError, first_line
 from pcpg_dist.tracking.store import _sqlite_path
 
@@ -199,6 +200,9 @@ def _retry(fn, *args, attempts: int = 5, **kwargs):
                 "RESOURCE_ALREADY_EXISTS",
             ):
                 raise
+            if is_disk_full(e):  # retrying cannot help: one line, the local results are kept
+                uri = getattr(getattr(fn, "__self__", None), "tracking_uri", "(unknown URI)")
+                raise disk_full(_store_path(uri), what="the MLflow store") from None
             uri = getattr(getattr(fn, "__self__", None), "tracking_uri", "(unknown URI)")
             hung = _hangs(uri)
             if i == attempts - 1 or hung:
@@ -245,3 +249,8 @@ def _hangs(uri: str) -> bool:
         return isinstance(e.reason, TimeoutError)
     except (OSError, ValueError):  # refused, reset, an HTTP error status: not hung
         return False
+
+
+def _store_path(uri: str) -> str:
+    """Where a store writes: a SQLite store's file, or the URI itself."""
+    return str(_sqlite_path(uri) or _shown(uri))

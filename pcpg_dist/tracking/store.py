@@ -15,6 +15,7 @@ import warnings
 from collections.abc import Iterator
 from pathlib import Path
 
+from pcpg_dist.common.disk import disk_full, is_disk_full
 from pcpg_dist.common.errors import DataError, ServiceError, first_line
 
 log = logging.getLogger("pcpg_dist.tracking")  # one logger for the whole package, as before
@@ -114,6 +115,9 @@ def _count_runs(db: Path) -> int:
         return 0
 
 
+STORE_BYTES = 2 << 20  # a fresh MLflow 3.17 SQLite store: about 1.2 MB after its migrations
+
+
 def prepare_store(uri: str) -> None:
     """Create or migrate a SQLite store once, under a lock, before anything logs to it.
 
@@ -130,6 +134,9 @@ def prepare_store(uri: str) -> None:
         try:
             _open_sqlite_store(uri)
         except Exception as first:  # noqa: BLE001 - MLflow, SQLAlchemy and alembic errors alike
+            if is_disk_full(first):  # not a half-created store: nothing is moved aside
+                _forget_engine(uri)
+                raise disk_full(db, STORE_BYTES, "the MLflow store") from None
             _repair_sqlite_store(uri, db, first)
     _prepared.add(uri)
 

@@ -8,6 +8,7 @@ Clustering; the trained agents are rolled out in the Gymnasium env the logs came
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -420,11 +421,19 @@ def test_a_folder_refuses_a_link_leaving_it_and_reads_upper_case_parquet_names(t
     (folder / "b.parquet").symlink_to(outside / "secret.parquet")
     with pytest.raises(DataError) as e:  # it was read as part of the folder
         read_step_table(folder)
-    assert str(e.value) == (
-        f"{folder / 'b.parquet'}: a link to {outside / 'secret.parquet'}, outside {folder}; "
-        f"refusing to read it (copy the file into the folder)"
+    assert str(e.value).startswith(
+        f"step table {folder / 'b.parquet'}: a link to {outside / 'secret.parquet'}, outside "
+        f"{folder}; refusing to read it"
     )
     (folder / "b.parquet").unlink()
+    (folder / "inside.parquet").symlink_to(folder / "a.parquet")  # a link within: read
+    assert read_step_table(folder) is not None
+    (folder / "inside.parquet").unlink()
+    os.mkfifo(folder / "c.parquet")  # was skipped without a word
+    with pytest.raises(DataError) as e:
+        read_step_table(folder)
+    assert str(e.value).startswith(f"step table {folder / 'c.parquet'}: a FIFO, not a regular file")
+    (folder / "c.parquet").unlink()
     second.to_parquet(folder / "B.PARQUET", index=False)  # was skipped without a word
     (ds,) = datasets_from_table(read_step_table(folder)).values()
     assert ds.n_trajectories == 12

@@ -12,6 +12,7 @@ from __future__ import annotations
 import base64
 import json
 import math
+import os
 import re
 import shutil
 from pathlib import Path
@@ -21,6 +22,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from pcpg_dist.common.errors import DataError
 from pcpg_dist.reporting.formatting import table_of
 from pcpg_dist.reporting.report import build, render
 from pcpg_dist.reporting.sweep_page import render_sweep
@@ -206,9 +208,6 @@ def test_no_file_outside_the_run_folder_is_embedded(summary, tmp_path):
         figures=["/etc/passwd", str(secret)],
         config__name="../../etc/passwd",
     )
-    (folder / "E1" / "evil.png").symlink_to(secret)
-    (folder / "E1" / "passwd.csv").symlink_to("/etc/passwd")
-    (folder / "E2").symlink_to(secret.parent)  # a folder link: not an environment of the run
     out = tmp_path / "out"
     html_path, md_path = render(folder, out)
     html, md = html_path.read_text(), md_path.read_text()
@@ -216,10 +215,27 @@ def test_no_file_outside_the_run_folder_is_embedded(summary, tmp_path):
         assert "root:" not in text and "TOP-SECRET" not in text
         assert base64.b64encode(secret.read_bytes()).decode()[:40] not in text
     assert len(re.findall("data:image/png;base64,", html)) == len(list(summary.rglob("*.png")))
-    assert "E2" not in {p.name for p in (out / "figures").iterdir()}
     assert all(p.read_bytes() != secret.read_bytes() for p in (out / "figures").iterdir())
     assert "/etc/passwd" in html  # the crafted command is shown as text, escaped
     parse(html)
+    # a link out of the run, or a special file, is refused in one line (the input policy): never
+    # read, never skipped in silence
+    planted = [
+        (folder / "E1" / "evil.png", secret),
+        (folder / "E1" / "passwd.csv", Path("/etc/passwd")),
+        (folder / "E2", secret.parent),
+    ]
+    for link, target in planted:
+        link.symlink_to(target)
+        with pytest.raises(DataError) as e:
+            render(folder, tmp_path / "refused")
+        said = str(e.value)
+        assert said.startswith("summary ") and f"{link}: a link to {target}, outside" in said
+        assert "\n" not in said
+        link.unlink()
+    os.mkfifo(folder / "E1" / "table.csv")  # was skipped without a word
+    with pytest.raises(DataError, match=r"table.csv: a FIFO, not a regular file"):
+        render(folder, tmp_path / "refused")
 
 
 def test_banner_names_every_setting_that_differs_from_the_paper(page, summary, tmp_path):

@@ -132,7 +132,9 @@ class GridWorldConfig(StrictModel):
                     f"layout file {self.layout_path(env)} for environment {env!r} not found "
                     f"(keys gridworld.layout_dir, gridworld.environments)"
                 )
-            check_text_file(self.layout_path(env), "layout file")
+            check_text_file(
+                self.layout_path(env), "layout file", folder=self.layout_dir or PAPER_LAYOUTS
+            )
             if problem := layout_size_problem(self.layout_text(env)):
                 raise ValueError(f"layout file {self.layout_path(env)}: {problem}")
 

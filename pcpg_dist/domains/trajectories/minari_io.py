@@ -3,6 +3,10 @@
 Reading (``minari:DATASET_ID`` in a config) is :mod:`.minari_read`'s; both sides agree here on the
 dataset ids, the folder Minari reads (``$MINARI_DATASETS_PATH``) and the per-step info keys.
 
+Both check the folders they touch as every input is (:mod:`pcpg_dist.common.inputs`): a dataset
+folder before Minari reads a byte of it (:func:`check_local_dataset`), the ``--out`` folder before
+the export writes into it.
+
 Writing (``pcpg export minari``): one Minari dataset per environment, observation space
 ``Box(-inf, inf, (d,), float32)``, action space ``Discrete(n_actions)``, per-step infos ``style``
 and ``valid``, so that reading it back gives the same step table.
@@ -14,6 +18,7 @@ import argparse
 import contextlib
 import os
 import re
+import reprlib
 import shutil
 import socket
 import tempfile
@@ -24,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from pcpg_dist.common import inputs, memory
 from pcpg_dist.common.errors import DataError
 from pcpg_dist.dataset import MANIFEST, Dataset, load_datasets
 from pcpg_dist.domains.trajectories.settings import MINARI_ID, minari_id_problem
@@ -32,6 +38,9 @@ ENV_VAR = "MINARI_DATASETS_PATH"
 STYLE_KEY = "style"
 VALID_KEYS = ("valid", "action_mask")
 DATA_FORMAT = "arrow"  # installed with minari[arrow]; hdf5 would need h5py
+# what pcpg reads: the data files' kinds and first bytes (Minari's hdf5 needs h5py, not installed)
+FORMATS = {"arrow": ("an Arrow IPC file", b"ARROW1"), "parquet": ("a Parquet file", b"PAR1")}
+META_BYTES = 16 << 20  # a metadata.json: spaces and names; an image space's bounds take ~1 MB
 
 
 def env_name(dataset_id: str) -> str:
@@ -62,6 +71,115 @@ def datasets_root(path: Path) -> Iterator[Path]:
             os.environ.pop(ENV_VAR, None)
         else:
             os.environ[ENV_VAR] = old
+
+
+# --------------------------------------------------------------------------- checking a dataset
+def check_local_dataset(path: Path, dataset_id: str) -> dict:
+    """The local Minari dataset folder ``path``, checked before Minari reads a byte of it: its
+    ``metadata.json`` (size, nesting, the keys Minari reads, ``total_episodes`` against the
+    episode folders present) and every episode's data file (a regular file inside its folder,
+    readable, of the dataset's format; all of them within half this machine's memory). Returns
+    the metadata; one :class:`DataError` line naming the file or key otherwise. (Minari's own
+    failures were tracebacks, and an episode file that read as nothing dropped the episode.)"""
+    source = f"minari:{dataset_id}:"
+    data = inputs.input_folder(path / "data", f"{source} data folder", folder=path)
+    meta_file = data / "metadata.json"
+    meta = inputs.input_json(meta_file, source, folder=data, max_bytes=META_BYTES)
+    where = f"{source} {meta_file}:"
+    for key in ("total_episodes", "total_steps"):
+        value = meta.get(key)
+        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+            raise DataError(f"{where} {_shown(meta, key)}; expected a whole number >= 0")
+    if meta.get("data_format") not in FORMATS:
+        raise DataError(
+            f"{where} {_shown(meta, 'data_format')}; pcpg reads Minari datasets stored as "
+            f"'arrow' or 'parquet'"
+        )
+    for key in ("observation_space", "action_space", "env_spec", "eval_env_spec"):
+        value = meta.get(key)
+        if value is None and key.endswith("_space"):
+            raise DataError(
+                f"{where} {_shown(meta, key)}; pcpg reads the spaces a dataset stores, and never "
+                f"builds the environment its env_spec names"
+            )
+        if value is not None and not isinstance(value, str):
+            raise DataError(f"{where} {_shown(meta, key)}; expected JSON text (a string)")
+        if value is not None:
+            inputs.json_text(value, f"{where} '{key}'")
+    for key in ("dataset_id", "minari_version"):
+        if not isinstance(meta.get(key), str):
+            raise DataError(f"{where} {_shown(meta, key)}; expected a string")
+    _check_episode_folders(data, meta["total_episodes"], source, where)
+    limit, total = memory.machine_memory() // 2, 0
+    for i in range(meta["total_episodes"]):
+        total += _check_episode(data / str(i), data, meta["data_format"], source, limit)
+    if total > limit:
+        raise DataError(
+            f"{source} the episode files under {data} hold {memory.gib(total)}, more than half of "
+            f"this machine's {memory.gib(memory.machine_memory())} (pcpg holds a dataset in memory)"
+        )
+    return meta
+
+
+def _shown(meta: dict, key: str) -> str:
+    value = meta.get(key)
+    if key not in meta or value is None:
+        return f"'{key}' is missing"
+    return f"'{key}' is {value:,}" if type(value) is int else f"'{key}' is {reprlib.repr(value)}"
+
+
+def _check_episode_folders(data: Path, n: int, source: str, where: str) -> None:
+    """Exactly the folders ``0..n-1``: Minari reads those, and nothing counts whether each gave an
+    episode (``n = 10**12`` was a 7.28 TiB ``np.arange``)."""
+    names = [p.name for p in inputs.entries(data, f"{source} episode folder", dirs=True)]
+    ids = sorted(int(x) for x in names if x.isascii() and x.isdigit() and str(int(x)) == x)
+    missing = next((i for i, got in enumerate(ids) if i != got), len(ids))
+    if missing < n:
+        raise DataError(
+            f"{source} unreadable episode data (no such file {data / str(missing)}; "
+            f"{data / 'metadata.json'} says 'total_episodes' is {n:,}, and {len(ids):,} episode "
+            f"folders are present)"
+        )
+    if len(ids) > n:
+        raise DataError(
+            f"{where} 'total_episodes' is {n:,}, but {data} holds {len(ids):,} episode folders "
+            f"({data / str(ids[n])} is one more); no episode is left out: correct total_episodes, "
+            f"or remove the extra folders"
+        )
+
+
+def _check_episode(folder: Path, data: Path, fmt: str, source: str, limit: int) -> int:
+    """One episode folder: one data file of format ``fmt`` (a regular file inside it, readable,
+    at most ``limit`` bytes), besides its metadata.json. Returns the data file's size."""
+    what = f"{source} episode"
+    inputs.input_folder(folder, what, folder=data)
+    ignored = ("_", ".", "metadata.json")  # what Minari's Arrow scan skips
+    sub = [d for d in inputs.entries(folder, what, dirs=True) if not d.name.startswith(ignored)]
+    if sub:
+        raise DataError(
+            f"{what} {sub[0]}: a folder inside an episode folder (Minari would read its files "
+            f"into the episode); an episode folder holds one data file and metadata.json"
+        )
+    files = [f for f in inputs.entries(folder, what) if not f.name.startswith(ignored)]
+    if len(files) != 1:
+        found = f"{len(files)} data files ({', '.join(f.name for f in files[:3])})"
+        raise DataError(
+            f"{what} {folder}: {found if files else 'no data file'}; Minari stores one per "
+            f"episode, and reads a folder without one as no episode at all"
+        )
+    kind, magic = FORMATS[fmt]
+    path = inputs.input_file(files[0], what, folder=folder, max_bytes=limit)
+    try:
+        with open(path, "rb") as f:
+            head = f.read(len(magic))
+    except OSError as e:
+        raise DataError(f"{what} {path}: unreadable ({e.strerror or e})") from None
+    if head != magic:
+        raise DataError(
+            f"{what} {path}: not {kind} (it starts {head!r}, not {magic!r}); the dataset's "
+            f"data_format is '{fmt}'"
+        )
+    return path.stat().st_size
 
 
 # --------------------------------------------------------------------------- writing
@@ -149,6 +267,18 @@ def _remove_stale_builds(out_dir: Path) -> None:
             continue
 
 
+def _target(out_dir: Path, mid: str) -> Path:
+    """Where the dataset ``mid`` goes: nothing there yet, and no link on the way leading out of
+    ``out_dir`` (``DIR/pcpg -> elsewhere`` put the dataset elsewhere, exit 0)."""
+    target = inputs.write_target(out_dir, mid, "--out")
+    if os.path.lexists(target):
+        raise DataError(
+            f"{target}: a Minari dataset {mid} already exists there (Minari never overwrites); "
+            f"pick another --dataset-id or version, or delete it"
+        )
+    return target
+
+
 def write_minari(
     datasets: dict[str, Dataset], out_dir: Path, dataset_id: str, description: str | None = None
 ) -> dict[str, Path]:
@@ -164,14 +294,10 @@ def write_minari(
 
     if not datasets:
         raise DataError("no datasets to export")
-    out_dir = Path(out_dir)
+    out_dir = inputs.writable_folder(Path(out_dir), "--out")
     ids = export_ids(dataset_id, list(datasets))
     for mid in ids.values():
-        if (out_dir / mid).exists():
-            raise DataError(
-                f"{out_dir / mid}: a Minari dataset {mid} already exists there (Minari never "
-                f"overwrites); pick another --dataset-id or version, or delete it"
-            )
+        _target(out_dir, mid)
     out_dir.mkdir(parents=True, exist_ok=True)
     # Built under a temporary root inside out_dir and renamed into place when every one is complete:
     # an interrupted export leaves no half dataset (Minari loaded one as valid, with 0 episodes, and
@@ -213,13 +339,8 @@ def write_minari(
                 )
         written = {}
         for mid in ids.values():
-            (out_dir / mid).parent.mkdir(parents=True, exist_ok=True)
-            if (out_dir / mid).exists():  # made by another process meanwhile
-                raise DataError(
-                    f"{out_dir / mid}: a Minari dataset {mid} already exists there (Minari never "
-                    f"overwrites); pick another --dataset-id or version, or delete it"
-                )
-            (build / mid).rename(out_dir / mid)
+            _target(out_dir, mid).parent.mkdir(parents=True, exist_ok=True)
+            (build / mid).rename(_target(out_dir, mid))  # checked again: another process meanwhile
             written[mid] = out_dir / mid
     finally:
         shutil.rmtree(build, ignore_errors=True)

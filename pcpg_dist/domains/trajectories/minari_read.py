@@ -29,6 +29,7 @@ from pcpg_dist.domains.trajectories.minari_io import (
     STYLE_KEY,
     VALID_KEYS,
     check_id,
+    check_local_dataset,
     env_name,
 )
 
@@ -105,8 +106,9 @@ def observation_names(space: Any, prefix: str = "obs") -> list[str]:
 
 
 # --------------------------------------------------------------------------- reading
-def _load(dataset_id: str) -> Any:
-    """The local Minari dataset ``dataset_id`` (never downloaded), or one-line DataError."""
+def _load(dataset_id: str) -> tuple[Any, dict]:
+    """The local Minari dataset ``dataset_id`` (never downloaded) and its checked metadata
+    (:func:`check_local_dataset`, before Minari reads it), or one-line DataError."""
     check_id(dataset_id)
     import minari
     from minari.storage import get_dataset_path
@@ -128,9 +130,10 @@ def _load(dataset_id: str) -> Any:
             f"${ENV_VAR}, else ~/.minari/datasets; now {root}){hint}. Download it with "
             f"`minari download {dataset_id}` on a machine with network access, or set {ENV_VAR} to the folder that holds it"
         )
-    try:
-        return minari.load_dataset(dataset_id, download=False)
-    except (ValueError, KeyError, TypeError, OSError, ImportError, pa.ArrowException) as e:
+    meta = check_local_dataset(path, dataset_id)
+    try:  # AssertionError: Minari asserts on what it reads
+        return minari.load_dataset(dataset_id, download=False), meta
+    except (ValueError, KeyError, TypeError, OSError, AssertionError, pa.ArrowException) as e:
         raise DataError(
             f"minari:{dataset_id}: not a readable Minari dataset at {path} ({first_line(e)})"
         ) from None
@@ -229,7 +232,7 @@ def read_minari(dataset_id: str) -> tuple[pa.Table, dict]:
     from gymnasium import spaces
 
     source = f"minari:{dataset_id}"
-    dataset = _load(dataset_id)
+    dataset, checked = _load(dataset_id)
     action_space, obs_space = dataset.action_space, dataset.observation_space
     if not isinstance(action_space, spaces.Discrete):
         raise DataError(
@@ -241,6 +244,13 @@ def read_minari(dataset_id: str) -> tuple[pa.Table, dict]:
     eps = _Episodes()
     for ep in _episodes(dataset, dataset_id):
         eps.add(ep, obs_space, action_space, n_actions, start, f"{source}, episode {ep.id}")
+    steps = int(np.asarray(eps.lengths).sum()) - len(eps.ids)
+    if (len(eps.ids), steps) != (checked["total_episodes"], checked["total_steps"]):
+        raise DataError(  # never a silent drop: Minari pairs episode ids with what it decoded
+            f"{source}: metadata.json 'total_episodes' is {checked['total_episodes']:,} and "
+            f"'total_steps' is {checked['total_steps']:,}; the episode files hold "
+            f"{len(eps.ids):,} episodes of {steps:,} steps"
+        )
     if not eps.ids:
         raise DataError(f"{source}: the dataset has no episodes")
     cols, d = eps.columns(env_name(dataset_id))
@@ -252,7 +262,6 @@ def read_minari(dataset_id: str) -> tuple[pa.Table, dict]:
     if len(names) != d:
         names = observation_names(obs_space)
     env_spec = dataset.env_spec
-    rows = int(np.asarray(eps.lengths).sum())
     meta = {
         "source": source,
         "dataset_id": dataset_id,
@@ -264,7 +273,7 @@ def read_minari(dataset_id: str) -> tuple[pa.Table, dict]:
         "observation_space": str(obs_space),
         "action_space": str(action_space),
         "total_episodes": len(eps.ids),
-        "total_steps": rows - len(eps.ids),
+        "total_steps": steps,
         "minari_version": str(raw_meta.get("minari_version", "")),
         "pcpg": pcpg_meta,
     }

@@ -59,18 +59,13 @@ def safe_env_name(text: str) -> str:
 
 def parquet_files(path: Path) -> list[Path]:
     """A Parquet file, or the ``*.parquet`` files of a folder in name order (``.PARQUET`` too: the
-    case of an extension says nothing about the content). A link in the folder to a file outside
-    it is refused, as a dataset manifest's is: the folder is what the config names."""
+    case of an extension says nothing about the content). The input policy applies
+    (:mod:`pcpg_dist.common.inputs`): a link in the folder to a file outside it, or a FIFO, socket
+    or device named ``*.parquet``, is one line, never read and never skipped in silence."""
+    from pcpg_dist.common.inputs import entries
+
     if path.is_dir():
-        named = sorted(p for p in path.iterdir() if p.suffix.lower() == ".parquet")
-        root = path.resolve()
-        for p in named:
-            if p.is_symlink() and not p.resolve().is_relative_to(root):
-                raise DataError(
-                    f"{p}: a link to {p.resolve()}, outside {path}; refusing to read it "
-                    f"(copy the file into the folder)"
-                )
-        files = [p for p in named if p.is_file()]
+        files = entries(path, "step table", suffixes=[".parquet"])
         if not files:
             raise DataError(f"{path}: no .parquet files in this folder")
         if len(files) > MAX_FILES:

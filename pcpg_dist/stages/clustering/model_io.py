@@ -16,6 +16,7 @@ from pydantic import ValidationError
 from torch import nn
 
 from pcpg_dist.common.errors import DataError, first_line
+from pcpg_dist.common.inputs import input_file
 from pcpg_dist.config.clusterers import CLUSTERERS, ModelKind
 from pcpg_dist.config.clustering import ClusterConfig
 from pcpg_dist.stages.clustering.autoencoder import SequenceAutoencoder
@@ -311,11 +312,13 @@ def load_model(directory: str | Path) -> ClusterModel:
     """
     directory = Path(directory)
     cfg_path, w_path = directory / CONFIG_FILE, directory / WEIGHTS_FILE
-    for p in (cfg_path, w_path):
-        if not p.is_file():
-            raise DataError(
-                f"{p}: cluster model file not found (is {directory} a saved cluster model?)"
-            )
+    for p in (cfg_path, w_path):  # the input policy: regular files, links only within the folder
+        input_file(
+            p,
+            "cluster model file",
+            folder=directory,
+            missing=f"not found (is {directory} a saved cluster model?)",
+        )
     meta, settings = _read_meta(cfg_path)
     kind = _model_kind(cfg_path, meta)
     w = _Weights(w_path, meta["method"], read_tensors(w_path))
