@@ -113,6 +113,7 @@ class Case:
     kind: str
     what: str
     argv: list[str]
+    must_fail: bool = False  # the input must be refused (a link out of its folder, a FIFO, ...)
 
 
 @dataclass
@@ -491,7 +492,120 @@ def build_corpus(tmp: Path) -> list[Case]:
                 "--quiet",
             ],
         )
+    i = file_kind_cases(cases, tmp, base_dir, folder, add, i)
+    minari_cases(cases, tmp, rng)
     return cases
+
+
+#: what an input file is replaced by, and whether pcpg must refuse it wherever it sits
+FILE_KINDS = {
+    "a link within its folder": False,
+    "a link out of its folder": None,  # refused inside a folder pcpg lists; a named file may link
+    "a FIFO": True,
+    "a device (a copy of /dev/null)": True,
+    "a dangling link": True,
+}
+
+
+def plant(path: Path, kind: str, outside: Path) -> None:
+    """Replace ``path`` by ``kind`` (its content kept beside it or outside, for the links)."""
+    import os
+
+    content = path.read_bytes()
+    path.unlink()
+    if kind == "a link within its folder":
+        (path.parent / f"real-{path.name}.bak").write_bytes(content)
+        path.symlink_to(path.parent / f"real-{path.name}.bak")
+    elif kind == "a link out of its folder":
+        outside.mkdir(parents=True, exist_ok=True)
+        (outside / path.name).write_bytes(content)
+        path.symlink_to(outside / path.name)
+    elif kind == "a FIFO":
+        os.mkfifo(path)
+    elif kind == "a device (a copy of /dev/null)":
+        os.mknod(path, 0o20666, os.makedev(1, 3))
+    else:
+        path.symlink_to(path.parent / "gone")
+
+
+def file_kind_cases(cases, tmp: Path, base_dir: Path, folder, add, i: int) -> int:
+    """Every input that is a file, replaced by a link within or out of its folder, a FIFO, a
+    device or a dangling link: a named file may be a link anywhere; a file pcpg finds in a folder
+    (a layout, a step table of a folder, a dataset's file) must stay inside it; a special file or
+    a link to nothing is always one line (the input policy, pcpg_dist/common/inputs.py)."""
+    steps_folder = {**BASE, "trajectories": {"path": "steps"}}
+    inputs = [  # (input, file in the case folder, config, listed in a folder by pcpg, argv)
+        ("layout", "layouts/E1.txt", {**BASE, "domain": "gridworld"}, True, None),
+        ("step table file", "steps.parquet", BASE, False, None),
+        ("step table folder", "steps/b.parquet", steps_folder, True, None),
+        ("mario log", "play.log", {**BASE, "domain": "mario"}, False, None),
+        ("dataset file", "data/trajectories-A.parquet", BASE, True, "cluster"),
+    ]
+    for name, rel, config, listed, command in inputs:
+        for kind, refused in FILE_KINDS.items():
+            i += 1
+            d = folder(i)
+            (d / "steps").mkdir()
+            (d / "steps" / "b.parquet").write_bytes((base_dir / "steps.parquet").read_bytes())
+            write_datasets(d / "data", [small_dataset("A")], {"config": {}})
+            plant(d / rel, kind, tmp / f"outside{i}")
+            argv = None
+            if command == "cluster":
+                argv = [
+                    "cluster",
+                    str(d / "exp.yaml"),
+                    "--data",
+                    str(d / "data"),
+                    "--out",
+                    str(d / "out"),
+                    "--quiet",
+                ]
+            add(f"file kind: {name}", kind, d, dump(config), argv)
+            cases[-1].must_fail = refused if refused is not None else listed
+    return i
+
+
+def minari_cases(cases, tmp: Path, rng: random.Random) -> None:
+    """A real Minari dataset (6 episodes, pcpg's export), its metadata or one episode file
+    damaged, read by `pcpg generate` as `minari:ID`; the datasets live under one
+    MINARI_DATASETS_PATH (set by the test)."""
+    from pcpg_dist.domains.trajectories.minari_io import write_minari
+
+    root = tmp / "minari"
+    values = [-1, 0, 10**12, "6", None, [], {}, 1e308, "x" * 10_000, [[[[[]]]]]]
+    for j in range(24):
+        dataset_id = f"fuzz/m{j}-v0"
+        write_minari({"lvl": small_dataset("lvl")}, root, dataset_id)
+        data = root / dataset_id / "data"
+        if j < 12:
+            meta = json.loads((data / "metadata.json").read_text())
+            key = rng.choice(sorted(meta))
+            meta[key] = rng.choice(values)
+            what = f"metadata {key} = {str(meta[key])[:20]!r}"
+            (data / "metadata.json").write_text(json.dumps(meta))
+        elif j < 18:
+            episode = data / str(rng.randrange(6))
+            (f,) = (p for p in episode.iterdir() if p.name != "metadata.json")
+            kind = rng.choice([k for k in FILE_KINDS if k != "a link within its folder"])
+            plant(f, kind, tmp / f"minari-outside{j}")
+            what = f"episode file: {kind}"
+        else:
+            episode = data / str(rng.randrange(6))
+            (f,) = (p for p in episode.iterdir() if p.name != "metadata.json")
+            raw, what = mutate_bytes(f.read_bytes(), rng)
+            f.write_bytes(raw)
+            what = f"episode bytes: {what}"
+        config = tmp / f"minari{j}.yaml"
+        config.write_bytes(dump({**BASE, "trajectories": {"path": f"minari:{dataset_id}"}}))
+        out = tmp / f"minari-out{j}"
+        cases.append(
+            Case(
+                "minari folder",
+                what,
+                ["generate", str(config), "--out", str(out), "--quiet"],
+                must_fail=j >= 12 and j < 18,
+            )
+        )
 
 
 # ------------------------------------------------------------------ running a case
@@ -532,6 +646,8 @@ def run_case(case: Case) -> Outcome:
 
 
 def problem(case: Case, out: Outcome) -> str | None:
+    if out.code == 0 and case.must_fail:
+        return "exit 0: the input was read or skipped in silence"
     if out.code == 0:
         return None if "Traceback" not in out.err else "exit 0 with a traceback"
     if out.code != 2:
@@ -545,6 +661,7 @@ def problem(case: Case, out: Outcome) -> str | None:
 @pytest.mark.slow
 def test_fuzzed_inputs_exit_0_or_one_line_exit_2(tmp_path, ray_session, monkeypatch):
     monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path}/never.db")
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "minari"))
     cases = build_corpus(tmp_path)
     assert len(cases) >= 500
     findings, outcomes = [], Counter()
@@ -562,6 +679,6 @@ def test_fuzzed_inputs_exit_0_or_one_line_exit_2(tmp_path, ray_session, monkeypa
     )
     assert rss < MAX_RSS_BYTES, f"peak memory {rss / 2**30:.2f} GB"
     # the corpus reaches past config loading: some cases of every kind pass, most fail
-    for kind in ("config value", "layout", "step table", "mario log"):
+    for kind in ("config value", "layout", "step table", "mario log", "minari folder"):
         assert outcomes[(kind, 0)] > 0 and outcomes[(kind, 2)] > 0, summary
     print(f"\n{len(cases)} cases: {summary}; peak RSS {rss / 2**20:.0f} MB")

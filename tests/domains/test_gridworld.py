@@ -186,3 +186,17 @@ def test_rollout_of_random_policy_and_returns(layouts, rng):
     per_traj = np.add.reduceat(ds.rewards, ds.offsets[:-1])
     np.testing.assert_allclose(per_traj, play.returns(ds, 3))
     assert gw.optimal_return(layout, 3) == 200.0
+
+
+def test_k_above_the_trajectories_the_config_will_make_is_refused_at_load():
+    """`clustering.k` above 4 styles x pbtg.dataset_per_style: one line when the config loads
+    (it was refused only after the data was generated, 40 s in)."""
+    from pcpg_dist.common.errors import PcpgError
+    from pcpg_dist.config import parse_config
+
+    raw = {"name": "x", "pbtg": {"dataset_per_style": 30}, "clustering": {"k": 121}}
+    with pytest.raises(
+        PcpgError, match=r"clustering.k.*121 clusters, but each layout will have 120"
+    ):
+        parse_config(raw, source="x")
+    assert parse_config({**raw, "clustering": {"k": 120}}, source="x").clustering.k == 120
