@@ -8,12 +8,15 @@ so `pcpg --help` imports no torch, Ray or MLflow.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
 import os
 import sys
 
 from pcpg_dist.cli.parser import build_parser
 from pcpg_dist.cli.running import _print_points, trial_counts
-from pcpg_dist.common.errors import PcpgError, Terminated, catch_sigterm
+from pcpg_dist.common.disk import disk_full, is_disk_full
+from pcpg_dist.common.errors import PcpgError, Terminated, catch_sigterm, shorten
 
 __all__ = [
     "build_parser",
@@ -42,8 +45,24 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return args
 
 
+def _parse_shortened(argv: list[str] | None) -> argparse.Namespace:
+    """:func:`parse_args`, with argparse's error lines shortened: it echoes a bad argument whole
+    (``invalid choice: '<5,000 characters>'``)."""
+    said = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(said):
+            return parse_args(argv)
+    finally:
+        sys.stderr.write(shorten(said.getvalue()))
+
+
+def _error(line: str) -> None:
+    """An error line, any value it echoes cut short (:func:`~pcpg_dist.common.errors.shorten`)."""
+    print(shorten(line), file=sys.stderr)
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = parse_args(argv)
+    args = _parse_shortened(argv)
     from pcpg_dist.common.progress import setup_output
 
     setup_output(
@@ -55,12 +74,15 @@ def main(argv: list[str] | None = None) -> int:
         catch_sigterm()
         args.func(args)
     except PcpgError as e:
-        print(f"pcpg: error: {e}", file=sys.stderr)
+        _error(f"pcpg: error: {e}")
         return 2
     except OSError as e:
         # Disk full, permission denied, missing folder: say which file and why, no traceback.
+        if is_disk_full(e):
+            _error(f"pcpg: error: {disk_full(e.filename or os.getcwd())}")
+            return 2
         where = f" {e.filename}" if getattr(e, "filename", None) else ""
-        print(f"pcpg: error: cannot access{where}: {e.strerror or e}", file=sys.stderr)
+        _error(f"pcpg: error: cannot access{where}: {e.strerror or e}")
         return 2
     except KeyboardInterrupt as e:
         from pcpg_dist.common import errors

@@ -17,6 +17,20 @@ def first_line(error: BaseException, limit: int = 200) -> str:
     return text or type(error).__name__
 
 
+def shorten(text: str, limit: int = 200) -> str:
+    """``text`` with every word (run of non-spaces) longer than ``limit`` cut to its head, ``…``
+    and its tail, then each line cut in the middle beyond ``5 * limit``: a message that echoes a
+    5,000-character value keeps its key, its file name and its hint, in a line one can read."""
+    head, tail, most = limit * 2 // 3, limit // 3, 5 * limit
+
+    def line_of(line: str) -> str:
+        words = (w if len(w) <= limit else f"{w[:head]}…{w[-tail:]}" for w in line.split(" "))
+        line = " ".join(words)
+        return line if len(line) <= most else f"{line[: most - 3 * tail]} … {line[-2 * tail :]}"
+
+    return "\n".join(line_of(line) for line in text.split("\n"))
+
+
 class PcpgError(Exception):
     """Base of every error caused by user input (config, data, level files, services)."""
 

@@ -107,6 +107,19 @@ class ClusterConfig(StrictModel):
         description="policy_mix: stop once fewer than this fraction of "
         "labels change in an EM round (0 = run all em_iterations).",
     )
+    confidence_runs: int = Field(
+        2,
+        ge=0,
+        le=20,
+        description="Label-free confidence: refits of the method on random subsamples, compared "
+        "with the clustering (stability; 0 = not measured). Each refit costs about one clustering.",
+    )
+    confidence_fraction: float = Field(
+        0.8,
+        gt=0.0,
+        lt=1.0,
+        description="Label-free confidence: the fraction of trajectories in each refit's subsample.",
+    )
     silhouette_sample: int = Field(
         4000,
         ge=2,

@@ -34,9 +34,8 @@ def _disable_uv_hook() -> None:
     """The flag is read from ray_constants at init time; set it there too if ray was imported."""
     from ray._private import ray_constants
 
-    ray_constants.RAY_ENABLE_UV_RUN_RUNTIME_ENV = os.environ[
-        "RAY_ENABLE_UV_RUN_RUNTIME_ENV"
-    ] not in ("0", "false", "False")
+    flag = os.environ["RAY_ENABLE_UV_RUN_RUNTIME_ENV"]
+    ray_constants.RAY_ENABLE_UV_RUN_RUNTIME_ENV = flag not in ("0", "false", "False")
 
 
 @contextlib.contextmanager
@@ -45,8 +44,7 @@ def _private_node() -> Iterator[None]:
 
     - keep ``_node_ip_address="127.0.0.1"`` as given: Ray 2.60's ``ray.init`` swaps a loopback
       address for the machine's network address, and its servers then listen on every interface.
-      On loopback, GCS, raylet and workers listen on 127.0.0.1 only (tests/ops/test_ray_cluster.py checks
-      the sockets);
+      On loopback, GCS, raylet and workers listen on 127.0.0.1 only (tests/ops/test_ray_cluster.py);
     - let the node's dashboard agent take a free port instead of Ray's fixed default (52365): a
       `ray start` cluster begun on the same machine while a run holds that port gets a head
       whose agent cannot bind it, and that head refuses every `ray job submit`.
@@ -90,8 +88,9 @@ def init_ray(address: str | None = None, num_cpus: int | None = None) -> None:
         return
     address = address or os.environ.get("RAY_ADDRESS") or None
     _disable_uv_hook()
+    address, found = _resolve_auto() if address == "auto" else (address, "")
     if address:
-        _check_port(address)
+        _check_port(address, found=found)
     try:
         if address:
             ray.init(
@@ -144,14 +143,33 @@ def init_ray(address: str | None = None, num_cpus: int | None = None) -> None:
     catch_sigterm()  # after ray.init: its core worker's handler would abort with a stack dump
 
 
-def _check_port(address: str, timeout: float = 5.0) -> None:
-    """A cluster's head answers at ``address`` (``host:port`` or ``ray://host:port``; ``auto`` finds
-    the local one). Ray itself waits ~14 min on a dead one, printing its C++ log all the while."""
+def _resolve_auto() -> tuple[str, str]:
+    """What ``auto`` stands for, as Ray 2.60's ``ray.init`` resolves it (``services.
+    get_ray_address_from_environment``, without its log line), and where it was found. ``ray.init``
+    waited ~14 min on a dead port that a stale ray_current_cluster named, printing its C++ log."""
+    from ray._common.utils import get_ray_address_file
+    from ray._private import services
+
+    env, where = os.environ.get("RAY_ADDRESS", ""), get_ray_address_file(None)
+    if env not in ("", "auto"):  # `--ray-address auto`: Ray takes RAY_ADDRESS first
+        return env, " (auto: RAY_ADDRESS)"
+    if latest := services.find_bootstrap_address(None):  # the latest `ray start` on this machine
+        return latest, f" (auto: the latest Ray started on this machine, in {where})"
+    if running := services.find_gcs_addresses():
+        return next(iter(running)), " (auto: a Ray running on this machine)"
+    raise ServiceError(
+        f"--ray-address / RAY_ADDRESS auto: no Ray cluster is registered on this machine (no "
+        f"{where}, no running Ray); start one with `{command('ray', 'start', '--head')}`, give "
+        f"a cluster's HOST:PORT, or leave both unset for a private Ray"
+    )
+
+
+def _check_port(address: str, timeout: float = 5.0, found: str = "") -> None:
+    """A cluster's head answers at ``address`` (``host:port`` or ``ray://host:port``; ``found``:
+    where ``auto`` found it). Ray waits ~14 min on a dead one, printing its C++ log all the while."""
     import socket
     import urllib.parse
 
-    if address == "auto":
-        return
     try:
         url = urllib.parse.urlsplit(address if "://" in address else f"gcs://{address}")
         host, port = url.hostname, url.port
@@ -159,11 +177,9 @@ def _check_port(address: str, timeout: float = 5.0) -> None:
         host = port = None
     if not host or not port:
         raise ServiceError(
-            f"--ray-address {address[:200]!r}: expected HOST:PORT, ray://HOST:PORT or auto"
+            f"--ray-address {address[:200]!r}{found}: expected HOST:PORT, ray://HOST:PORT or auto"
         )
-    if (
-        "://" in address and url.scheme != "ray"
-    ):  # http://HEAD:8265 is the dashboard's (ray job submit)
+    if "://" in address and url.scheme != "ray":  # http://HEAD:8265: the dashboard's (job submit)
         raise ServiceError(
             f"--ray-address {address[:200]!r}: expected HOST:PORT (the head's port, "
             f"`{command('ray', 'start', '--head', '--port')}`), ray://HOST:PORT or auto, not a {url.scheme}:// URL"
@@ -173,13 +189,13 @@ def _check_port(address: str, timeout: float = 5.0) -> None:
             speaks_grpc = _answers_http2(conn, timeout)
     except OSError as e:
         raise ServiceError(
-            f"no Ray cluster answers at {address[:200]} ({e}); start one with `{command('ray', 'start', '--head')}` "
+            f"no Ray cluster answers at {address[:200]}{found} ({e}); start one with `{command('ray', 'start', '--head')}` "
             f"there or check --ray-address / RAY_ADDRESS"
         ) from None
     if not speaks_grpc and os.environ.get("RAY_USE_TLS", "0").lower() not in ("1", "true"):
         # an MLflow, database or web port: ray.init would wait there without end, printing its C++ log
         raise ServiceError(
-            f"{address[:200]} answers, but not as a Ray head does (no gRPC): is it another "
+            f"{address[:200]}{found} answers, but not as a Ray head does (no gRPC): is it another "
             f"service's port? the head's is `{command('ray', 'start', '--head', '--port')}` (default 6379)"
         )
 
@@ -206,14 +222,9 @@ def node_capacities() -> list[dict[str, float]]:
     """CPUs, GPUs and task memory (bytes) of every live node."""
     import ray
 
+    keys = ("CPU", "GPU", "memory")
     return [
-        {
-            "CPU": float(n["Resources"].get("CPU", 0)),
-            "GPU": float(n["Resources"].get("GPU", 0)),
-            "memory": float(n["Resources"].get("memory", 0)),
-        }
-        for n in ray.nodes()
-        if n.get("Alive")
+        {k: float(n["Resources"].get(k, 0)) for k in keys} for n in ray.nodes() if n.get("Alive")
     ]
 
 
@@ -291,11 +302,8 @@ def run_tasks(
         return []
     check_resources(num_cpus)
     remote = ray.remote(num_cpus=num_cpus, max_retries=max_retries)(fn)
-    gpus = (
-        [float(num_gpus)] * len(calls)
-        if isinstance(num_gpus, int | float)
-        else [float(g) for g in num_gpus]
-    )
+    one = isinstance(num_gpus, int | float)
+    gpus = [float(num_gpus)] * len(calls) if one else [float(g) for g in num_gpus]
     limit = max(1, max_in_flight or len(calls))
     results: list[Any] = [None] * len(calls)
 
@@ -326,10 +334,7 @@ def run_tasks(
 
 
 def fan_out(
-    fn: Callable[..., Any],
-    calls: Sequence[tuple],
-    description: str,
-    show_progress: bool = True,
+    fn: Callable[..., Any], calls: Sequence[tuple], description: str, show_progress: bool = True
 ) -> list[Any]:
     """A domain's fan-out (:class:`pcpg_dist.domains.base.FanOut`) on Ray: every call a 1-CPU
     task, results in call order; what ``contract.generate`` is given where Ray is initialised."""

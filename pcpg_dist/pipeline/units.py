@@ -58,15 +58,30 @@ def partial_styles_note(unit: Unit) -> str | None:
     )
 
 
-def cluster_unit(unit: Unit, cluster_cfg, seed: int, ceiling: bool = True) -> UnitClustering:
-    """Step A on what the domain says to cluster; scored against true styles when they exist
-    (and, with ``ceiling``, against what a classifier given those styles reaches)."""
+def cluster_unit(
+    unit: Unit, cluster_cfg, seed: int, ceiling: bool = True, confidence: bool = True
+) -> UnitClustering:
+    """Step A on what the domain says to cluster, with its label-free confidence (refits on
+    subsamples, ``clustering.confidence_runs``; skipped without ``confidence``); scored against
+    true styles when they exist (and, with ``ceiling``, against what a classifier given those
+    styles reaches)."""
     from pcpg_dist.stages.clustering import cluster, clustering_metrics
+    from pcpg_dist.stages.clustering.confidence import stability
 
     result = cluster(unit.clustered, cluster_cfg, seed)
     metrics = {
         f"clustering/{k}": float(v) for k, v in result.metrics.items() if isinstance(v, int | float)
     }
+    if confidence and cluster_cfg.confidence_runs > 0 and cluster_cfg.k > 1:
+        found = stability(
+            unit.clustered,
+            cluster_cfg,
+            seed,
+            result.labels,
+            cluster_cfg.confidence_runs,
+            cluster_cfg.confidence_fraction,
+        )
+        metrics.update({f"clustering/{k}": v for k, v in found.items()})
     if has_styles(unit):
         from pcpg_dist.stages.clustering.ceiling import ceiling_panel, gap_to_ceiling
 
@@ -161,6 +176,7 @@ def run_unit(
     out_dir: str | Path | None = None,
     *,
     ceiling: bool = True,
+    confidence: bool = True,
     rank_cfg=None,
     eval_cfg=None,
     seeds=None,
@@ -176,7 +192,9 @@ def run_unit(
     sees Step A's result and may return a reason to stop there (the result's ``stopped``)."""
     from pcpg_dist.stages.bc import train_plan
 
-    clustering = cluster_unit(unit, cfg.clustering, cfg.seed, ceiling=ceiling)
+    clustering = cluster_unit(
+        unit, cfg.clustering, cfg.seed, ceiling=ceiling, confidence=confidence
+    )
     if after_cluster is not None:
         reason = after_cluster(clustering)
         if reason is not None:

@@ -24,6 +24,7 @@ from pcpg_dist.reporting.run_measures import (
     matrices,
     row_max,
 )
+from pcpg_dist.stages.clustering.confidence import verdict_of
 
 #: the paper's protocol for every domain, checked against a run's config: (key, paper value); a
 #: domain's own settings are its ``paper.protocol`` (:class:`~pcpg_dist.domains.base.PaperResults`)
@@ -166,6 +167,7 @@ def headline(metrics: dict) -> dict:
         "ceiling": None if ceil is None else f"{ceil:.3f}",
         "gap": None if gap is None else f"{gap:+.3f}",
         "random": fmt(metrics.get("random/accuracy")),
+        "confidence": verdict_of(metrics).line() if "clustering/stability" in metrics else None,
     }
 
 
@@ -239,6 +241,18 @@ def _headline_rows(metrics: dict, said: Said) -> list[PaperRow]:
             if h["accuracy"] is None
             else h["accuracy"]
             + ("" if h["ceiling"] is None else f" (supervised ceiling {h['ceiling']})"),
+        ),
+        *(
+            [
+                PaperRow(
+                    "Label-free confidence",
+                    "clustering",
+                    said("", "not part of the paper: refits on subsamples, no labels used"),
+                    h["confidence"],
+                )
+            ]
+            if h["confidence"]
+            else []
         ),
         PaperRow(
             "Fig. 4: accuracy vs p",

@@ -10,6 +10,7 @@ import numpy as np
 import pandas as pd
 
 from pcpg_dist.common.files import atomic_write_bytes
+from pcpg_dist.stages.clustering.confidence import verdict_of
 from pcpg_dist.stages.figures import accuracy_figure
 
 
@@ -107,6 +108,23 @@ def print_summary(result, console, method: str | None = None) -> None:
             f"{m.get(f'random/accuracy/p{p:g}', float('nan')):.3f}",
         )
     console.print(t)
+    print_clustering(result, console, method)
+    extra = [f"{k}={m[k]:.3f}" for k in ("cross/diagonal_mean",) if k in m]
+    extra += [
+        f"{k}={m[k]:.2f}"
+        for k in sorted(m)
+        if k.startswith("reward_distance/style") and k.count("/") == 1
+    ]
+    if extra:
+        console.print("  ".join(extra))
+    console.print(stage_times(result))
+
+
+def print_clustering(result, console, method: str | None = None) -> None:
+    """The clustering table: quality against the true styles where known, the method used, and
+    the label-free confidence (stability under resampling, its verdict and warnings)."""
+    from rich.table import Table
+
     c = Table(title="Clustering")
     cols = [
         k
@@ -117,20 +135,38 @@ def print_summary(result, console, method: str | None = None) -> None:
             "ceiling",
             "gap_to_ceiling",
             "silhouette",
+            "stability",
             "fit_seconds",
         )
         if any(f"clustering/{k}" in v for v in result.clustering.values())
     ]
+    judged = "stability" in cols and any(
+        "clustering/stability" in v for v in result.clustering.values()
+    )
     c.add_column("env")
     if method:
         c.add_column("method")
-    shown = {"gap_to_ceiling": "gap", "silhouette": "silh.", "fit_seconds": "fit s"}
+    shown = {
+        "gap_to_ceiling": "gap",
+        "silhouette": "silh.",
+        "stability": "stab.",
+        "fit_seconds": "fit s",
+    }
     for k in cols:
         c.add_column(shown.get(k, k), justify="right")
+    if judged:
+        c.add_column("confidence (no labels)")
     for env, cm in result.clustering.items():
         used = [method_used(method, cm)] if method else []
-        c.add_row(env, *used, *[f"{cm.get(f'clustering/{k}', float('nan')):.3f}" for k in cols])
+        said = [verdict_of(cm).verdict] if judged else []
+        c.add_row(
+            env, *used, *[f"{cm.get(f'clustering/{k}', float('nan')):.3f}" for k in cols], *said
+        )
     console.print(c)
+    for env, cm in result.clustering.items():
+        merged = [r for r in verdict_of(cm).reasons if r.endswith("look like one style")]
+        if merged:
+            console.print(f"{env}: {merged[0]} (the refits on subsamples mostly join them)")
     fell = [e for e, cm in result.clustering.items() if cm.get(FELL_BACK)]
     if method and fell:
         console.print(
@@ -138,15 +174,6 @@ def print_summary(result, console, method: str | None = None) -> None:
             "(continuous states), so visitation bags hold no style; policy_mix often fits such "
             "games better (docs/clustering.md)"
         )
-    extra = [f"{k}={m[k]:.3f}" for k in ("cross/diagonal_mean",) if k in m]
-    extra += [
-        f"{k}={m[k]:.2f}"
-        for k in sorted(m)
-        if k.startswith("reward_distance/style") and k.count("/") == 1
-    ]
-    if extra:
-        console.print("  ".join(extra))
-    console.print(stage_times(result))
 
 
 FELL_BACK = "clustering/auto_fell_back_to_lstm"

@@ -1,18 +1,13 @@
 """The trained agents of a run as one MLflow pyfunc model (models-from-code: nothing pickled).
 
 ``mlflow.pyfunc.load_model(f"runs:/{run_id}/agents").predict(df)`` (or ``mlflow models serve``)
-returns one action per row of ``df``; the columns (docs/agents.md):
-
-- ``env``: the environment; may be left out only when the model has exactly one;
-- ``style``: the cluster index k, or -1 for the No-Clustering baseline; ``p``: the skill level
-  (a trained p, e.g. 1, 0.5, 0.1); ``seed``: optional, default the lowest trained seed;
-- ``valid``: optional list of n_actions booleans per row (absent or null = every action valid);
-- ``s0..s{d-1}``: the state features of that environment.
-
-This file runs in the serving process on its own: it imports numpy, pandas and mlflow only (no
-torch, no pcpg_dist), which is why the weights travel as ``<env>.npz`` + ``<env>.json`` rather
-than the run's torch files. Every bad request raises :class:`AgentRequestError`: HTTP 400 with a
-one-line message that names the row, the column and what is allowed.
+returns one action per row of ``df``, whose columns docs/agents.md describes: ``env``, ``style``
+(k, or -1 for No Clustering), ``p``, ``seed`` (optional), ``valid`` (optional list of n_actions
+booleans), ``s0..s{d-1}`` (the state). This file runs in the serving process on its own: it
+imports numpy, pandas and mlflow only (no torch, no pcpg_dist), which is why the weights travel
+as ``<env>.npz`` + ``<env>.json`` rather than the run's torch files. Every bad request raises
+:class:`AgentRequestError`: HTTP 400 with a one-line message that names the row, the column and
+what is allowed, any value cut short.
 """
 
 from __future__ import annotations
@@ -20,9 +15,11 @@ from __future__ import annotations
 import json
 import logging
 import os
-import zipfile
+import reprlib
+import sys
 from dataclasses import dataclass
 from pathlib import Path
+from zipfile import BadZipFile
 
 import mlflow.models
 import mlflow.pyfunc
@@ -39,15 +36,19 @@ NC_STYLE = -1  # the `style` of the No-Clustering baseline (top p of every traje
 _NO_SEED = -(2**62)  # "no seed given": the lowest trained one
 _log = logging.getLogger(__name__)
 REQUIREMENTS = ("mlflow", "numpy", "pandas")  # all that this file imports
+_SHORT = reprlib.Repr()  # what a message shows of a request value: ~80 characters, 6 levels deep
+_SHORT.maxstring = _SHORT.maxother = _SHORT.maxlong = 80
+
+
+def _clip(text: str, limit: int = 500) -> str:  # one line, its middle cut out beyond limit
+    line = " ".join(str(text).split())
+    return line if len(line) <= limit else f"{line[: limit - 120]} … {line[-100:]}"
 
 
 class OneLineError(MlflowException):
-    """An error whose ``message`` stays one line when the scoring server answers it.
-
-    MLflow 3.17's scoring server rewrites the ``message`` of an exception raised in predict to
-    ``"Failed to predict data '<the whole request as a DataFrame>'. \\nError: ..."``: several
-    lines, as long as the request. This message keeps its first value.
-    """
+    """An error whose ``message`` stays one line, its first value cut to 500 characters: MLflow
+    3.17's scoring server rewrites the message of an exception raised in predict to ``"Failed to
+    predict data '<the request as a table>'. \\nError: ..."`` (lines, as long as the request)."""
 
     @property
     def message(self) -> str:
@@ -56,7 +57,7 @@ class OneLineError(MlflowException):
     @message.setter
     def message(self, value: str) -> None:
         if not hasattr(self, "_line"):
-            self._line = " ".join(str(value).split())
+            self._line = _clip(value)
 
 
 class AgentRequestError(OneLineError):
@@ -78,9 +79,8 @@ class CellInfo:
     c: float = 0.0
 
 
-def _show(v) -> str:
-    """A request value as the user wrote it (NumPy scalars shown as plain numbers)."""
-    return repr(v.item() if isinstance(v, np.generic) else v)
+def _show(v) -> str:  # a request value as the user wrote it, cut short; NumPy scalars as numbers
+    return _SHORT.repr(v.item() if isinstance(v, np.generic) else v)
 
 
 def _names(values) -> str:
@@ -153,26 +153,16 @@ class AgentFileError(ValueError):
 
 
 # what a missing or garbage file, or JSON that is not the mapping write_env_agents makes, raises
-_UNREADABLE = (
-    OSError,
-    ValueError,
-    TypeError,
-    KeyError,
-    EOFError,
-    RecursionError,
-    zipfile.BadZipFile,
-)
+_UNREADABLE = (OSError, ValueError, TypeError, KeyError, EOFError, RecursionError, BadZipFile)
 
 
 def _unreadable(path: Path, e: Exception) -> AgentFileError:
-    cause = " ".join(str(e).split())[:200]
-    return AgentFileError(f"{path}: unreadable agents file ({type(e).__name__}: {cause})")
+    return AgentFileError(f"{path}: unreadable agents file ({type(e).__name__}: {_clip(e, 200)})")
 
 
 def read_env_agents(path: str | Path) -> EnvAgents:
-    """The agents :func:`write_env_agents` wrote; :class:`AgentFileError` naming the file that
-    cannot be read. Whether sizes, specs and weights agree is checked by the code that builds on
-    them (``pcpg_dist.reporting.onnx_export.check_cells``)."""
+    """The agents ``write_env_agents`` wrote, or :class:`AgentFileError` naming the file; whether
+    sizes, specs and weights agree ``pcpg_dist.reporting.onnx_export.check_cells`` checks."""
     path = Path(path).with_suffix("")
     json_path, npz_path = path.with_suffix(".json"), path.with_suffix(".npz")
     try:
@@ -198,8 +188,7 @@ def read_all(folder: str | Path) -> dict[str, EnvAgents]:
 
 def load(model_uri: str, tracking_uri: str | None = None):
     """``mlflow.pyfunc.load_model`` without download bars or MLflow chatter, e.g.
-    ``load(f"runs:/{run_id}/agents", "sqlite:///mlflow.db")`` (never while serving: hence the
-    import of pcpg_dist in here, not at the top)."""
+    ``load(f"runs:/{run_id}/agents", "sqlite:///mlflow.db")``; never while serving (imports pcpg)."""
     from pcpg_dist.tracking.mlflow_quiet import quiet_logging
 
     with quiet_logging():
@@ -222,14 +211,11 @@ def _number(v) -> float:
 
 def _floats(df: pd.DataFrame, cols: list[str], rows: np.ndarray) -> np.ndarray:
     """(rows, cols) float64; NaN where a value is missing or not a number."""
-    block = df[cols].iloc[rows]
-    if all(
-        pd.api.types.is_numeric_dtype(t) and not pd.api.types.is_bool_dtype(t) for t in block.dtypes
-    ):
+    block, types = df[cols].iloc[rows], pd.api.types
+    if all(types.is_numeric_dtype(t) and not types.is_bool_dtype(t) for t in block.dtypes):
         return block.to_numpy(np.float64)
-    return np.array([[_number(v) for v in block[c]] for c in cols], np.float64).T.reshape(
-        len(rows), len(cols)
-    )
+    out = np.array([[_number(v) for v in block[c]] for c in cols], np.float64)
+    return out.T.reshape(len(rows), len(cols))
 
 
 def _integers(df: pd.DataFrame, col: str, rows: np.ndarray, optional: bool) -> np.ndarray:
@@ -260,61 +246,48 @@ def _valid_rows(df: pd.DataFrame, rows: np.ndarray, env: str, n_actions: int) ->
             block = np.array(list(values))  # the common case, checked in one go
         except ValueError:  # lists of different lengths: found row by row below
             block = np.zeros(0)
-        if (
-            block.dtype == bool
-            and block.shape == (len(rows), n_actions)
-            and block.any(axis=1).all()
-        ):
+        if block.dtype == bool and block.shape == (len(rows), n_actions) and block.any(1).all():
             return block
     out = np.ones((len(rows), n_actions), bool)
     what = f"a list of {n_actions} booleans (true/false) for env {env!r}, or null for all valid"
     for j, v in enumerate(values):
+        must = f"row {rows[j]}: column 'valid' must be {what};"
         if _missing(v):
             continue
-        if not isinstance(v, list | tuple | np.ndarray):
-            raise AgentRequestError(
-                f"row {rows[j]}: column 'valid' must be {what}; got {type(v).__name__} {_show(v)}"
-            )
-        if np.ndim(v) != 1 or len(v) != n_actions:
-            got = f"a list of {len(v)}" if np.ndim(v) == 1 else f"an array of shape {np.shape(v)}"
-            raise AgentRequestError(f"row {rows[j]}: column 'valid' must be {what}; got {got}")
-        arr = np.asarray(v)
-        if arr.dtype != bool:
-            bad = next(i for i, x in enumerate(v) if not isinstance(x, bool | np.bool_))
-            raise AgentRequestError(
-                f"row {rows[j]}: column 'valid' must be {what}; item {bad} is {_show(v[bad])}"
-            )
-        if not arr.any():
+        if not isinstance(v, list | tuple | np.ndarray) or getattr(v, "ndim", 1) == 0:
+            raise AgentRequestError(f"{must} got {type(v).__name__} {_show(v)}")
+        if len(v) != n_actions:
+            raise AgentRequestError(f"{must} got a list of {len(v)}")
+        # item by item: nested lists (ragged, deeper than NumPy's 64 dimensions) are bad requests
+        bad = next((i for i, x in enumerate(v) if not isinstance(x, bool | np.bool_)), None)
+        if bad is not None:
+            raise AgentRequestError(f"{must} item {bad} is {_show(v[bad])}")
+        out[j] = np.asarray(v, bool)
+        if not out[j].any():
             raise AgentRequestError(
                 f"row {rows[j]}: column 'valid' has no true item; at least one action must be valid"
             )
-        out[j] = arr
     return out
 
 
 def _states(df: pd.DataFrame, rows: np.ndarray, env: str, d: int) -> np.ndarray:
+    has = f"env {env!r} has {d} state features s0..s{d - 1}"
     for j in range(d):
         if f"s{j}" not in df:
-            raise AgentRequestError(
-                f"row {rows[0]}: column 's{j}' is missing; env {env!r} has {d} "
-                f"state features s0..s{d - 1}"
-            )
+            raise AgentRequestError(f"row {rows[0]}: column 's{j}' is missing; {has}")
     states = _floats(df, [f"s{j}" for j in range(d)], rows)
     bad = ~np.isfinite(states)
     if bad.any():
         r, j = np.argwhere(bad)[0]
         raise AgentRequestError(
             f"row {rows[r]}: column 's{j}' must be a finite number, got "
-            f"{_show(df[f's{j}'].iloc[rows[r]])} (env {env!r} has {d} state features s0..s{d - 1})"
+            f"{_show(df[f's{j}'].iloc[rows[r]])} ({has})"
         )
-    extra = [c for c in df.columns if c.startswith("s") and c[1:].isdigit() and int(c[1:]) >= d]
-    for c in extra:
+    digits = [c[1:] for c in df.columns if c.startswith("s") and c[1:].isdigit()]
+    for c in (f"s{n}" for n in digits if len(n.lstrip("0")) > 6 or int(n) >= d):
         set_ = ~df[c].iloc[rows].isna().to_numpy()
         if set_.any():
-            raise AgentRequestError(
-                f"row {rows[np.argmax(set_)]}: column {c!r} is set, but env {env!r} "
-                f"has {d} state features s0..s{d - 1}"
-            )
+            raise AgentRequestError(f"row {rows[set_.argmax()]}: column {_show(c)} is set; {has}")
     return states
 
 
@@ -350,9 +323,9 @@ class PcpgAgents(mlflow.pyfunc.PythonModel):
             return self._predict(df)
         except AgentRequestError:
             raise
-        except (
-            Exception
-        ) as e:  # a bug, not a bad request: HTTP 500, one line; the log has the traceback
+        except RecursionError:  # a value nested deeper than Python recurses
+            raise AgentRequestError(_TOO_DEEP) from None
+        except Exception as e:  # a bug, not a bad request: HTTP 500, one line; the log has it
             _log.exception("pcpg agents model failed")
             raise OneLineError(
                 f"internal error of the pcpg agents model ({type(e).__name__}: {e}); "
@@ -397,4 +370,31 @@ class PcpgAgents(mlflow.pyfunc.PythonModel):
         return out
 
 
+_TOO_DEEP = "the request is nested too deeply to read; 'valid' is one flat list of booleans per row"
+
+
+def _bound_request_parsing() -> None:
+    """MLflow 3.17's scoring server parses the body in ``scoring_server._parse_json_data`` before
+    predict: JSON nested past Python's recursion limit raised RecursionError in its ``json.loads``
+    (HTTP 500), its 400s (not JSON, a value its schema cannot convert) echo the body whole. Wrapped:
+    a short one-line 400. The server imports that module first; elsewhere nothing is wrapped."""
+    server = sys.modules.get("mlflow.pyfunc.scoring_server")
+    parse = getattr(server, "_parse_json_data", None)
+    if parse is None or getattr(parse, "pcpg_bounded", False):
+        return
+
+    def bounded(*args, **kwargs):
+        try:
+            return parse(*args, **kwargs)
+        except RecursionError:
+            raise AgentRequestError(_TOO_DEEP) from None
+        except MlflowException as e:
+            e.message = _clip(e.message)  # its type and error code (400) stay
+            raise
+
+    bounded.pcpg_bounded = True
+    server._parse_json_data = bounded
+
+
+_bound_request_parsing()
 mlflow.models.set_model(PcpgAgents())

@@ -299,3 +299,11 @@ def ui_link(uri: str, run_id: str, ui: str = "http://127.0.0.1:5000") -> str:
     exp_id = _retry(_client(uri).get_run, run_id).info.experiment_id
     base = uri.rstrip("/") if uri.startswith(("http://", "https://")) else ui
     return f"{base}/#/experiments/{exp_id}/runs?workflowType=machine_learning"
+
+
+def _confidence_tag(metrics: dict) -> dict[str, str]:
+    """The label-free confidence in words (``pcpg.confidence``), where it was measured."""
+    from pcpg_dist.stages.clustering.confidence import verdict_of
+
+    said = verdict_of(metrics)
+    return {} if said.verdict == "not measured" else {"pcpg.confidence": said.line()}

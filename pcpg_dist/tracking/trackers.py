@@ -16,6 +16,7 @@ from pcpg_dist.common.point_labels import point_label, short_keys
 from pcpg_dist.tracking.connection import _client, _retry, check_tracking_uri
 from pcpg_dist.tracking.datasets import DataInput, data_inputs, log_data_inputs
 from pcpg_dist.tracking.logged import (
+    _confidence_tag,
     _digest,
     _finite,
     _log_folder,
@@ -263,6 +264,7 @@ def log_environment(
             UNIT: info["unit_key"],
             ROLE: "environment",
             CONFIG_HASH: info["config_hash"],
+            **_confidence_tag(merged),
             NOTE: f"Environment `{env}`: its evaluation tables and figures (`evaluation/`), trained "
             f"cells (`models/`), curves over p and c (steps: {json.dumps(scales)}), std over seeds "
             f"in `evaluation/metrics.csv`.",

@@ -6,6 +6,7 @@ drift from what the model accepts.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
@@ -201,7 +202,7 @@ def test_predict_matches_trained_cells_vectorised(logged, model, rng):
         (
             {"valid": [[True]] * 4},
             "row 0: column 'valid' must be a list of 4 booleans (true/false) for env "
-            "'E1', or null for all valid; got an array of shape (4, 1)",
+            "'E1', or null for all valid; item 0 is [True]",
         ),
         (
             {"valid": [False] * 4},
@@ -406,6 +407,19 @@ def test_rest_server_answers_the_documented_request_and_one_line_errors(logged, 
         # a request MLflow itself rejects (no dataframe key): still one line, no traceback
         status, body = _post(port, json.dumps({"rows": [row]}))
         assert status == 400 and "\n" not in body.strip() and "Traceback" not in body, body
+        # JSON nested 100,000 deep was HTTP 500 `Internal Server Error` (RecursionError in MLflow's
+        # json.loads); a 1 MB env came back whole (a 1,000,171-byte 400)
+        deep = "[" * 100_000 + "true" + "]" * 100_000
+        for body, part in [
+            (
+                json.dumps({"dataframe_records": [{**row, "valid": None}]}).replace("null", deep),
+                "deep",
+            ),
+            (json.dumps({"dataframe_records": [{**row, "env": "x" * 1_000_000}]}), "env 'xxxx"),
+        ]:
+            status, answer = _post(port, body)
+            assert status == 400 and len(answer) < 1000 and "\n" not in answer.strip(), answer[:300]
+            assert part in json.loads(answer)["message"], answer
     finally:
         os.killpg(server.pid, signal.SIGTERM)
         try:
@@ -414,3 +428,109 @@ def test_rest_server_answers_the_documented_request_and_one_line_errors(logged, 
             os.killpg(server.pid, signal.SIGKILL)
             server.wait()
         log.close()
+
+
+# ---------------------------------------------------------------------- hostile requests
+def _nested(depth: int):
+    v = True
+    for _ in range(depth):
+        v = [v]
+    return v
+
+
+@pytest.mark.parametrize(
+    ("change", "part"),
+    [
+        # deeper than NumPy's 64 dimensions, or ragged: these were HTTP 500 (an internal error)
+        ({"valid": [_nested(70), True, True, True]}, "item 0 is [[[[[[[...]]]]]]]"),
+        ({"valid": _nested(100_000)}, "got a list of 1"),
+        ({"valid": [True, [True], True, True]}, "item 1 is [True]"),
+        ({"valid": [True, "z" * 1_000_000, True, True]}, "item 1 is 'zzzz"),
+        ({"env": "x" * 1_000_000}, "row 0: env 'xxxxxxxx"),
+        ({"style": "7" * 1_000_000}, "must be a whole number, got '777777"),
+    ],
+)
+def test_hostile_values_get_short_one_line_errors(model, change, part):
+    """Every value a message shows is cut short (reprlib), and nesting deeper than NumPy's
+    64 dimensions or Python's recursion limit is a bad request, not an internal error."""
+    from mlflow.exceptions import MlflowException
+
+    row = {**doc_request()["dataframe_records"][0], **change}
+    with pytest.raises(MlflowException) as err:
+        model.predict(pd.DataFrame([row]))
+    assert type(err.value).__name__ == "AgentRequestError", err.value.message[:300]
+    assert err.value.get_http_status_code() == 400
+    message = err.value.message
+    assert part in message and "\n" not in message and len(message) < 400, message[:1000]
+
+
+async def _asgi_post(app, body: bytes) -> tuple[int, bytes]:
+    """POST /invocations to an ASGI app in this process, as uvicorn would (no httpx here)."""
+    incoming = [{"type": "http.request", "body": body, "more_body": False}]
+    sent: list[dict] = []
+
+    async def receive():
+        return incoming.pop(0) if incoming else {"type": "http.disconnect"}
+
+    async def send(message):
+        sent.append(message)
+
+    scope = {
+        "type": "http",
+        "asgi": {"version": "3.0"},
+        "http_version": "1.1",
+        "method": "POST",
+        "scheme": "http",
+        "path": "/invocations",
+        "raw_path": b"/invocations",
+        "query_string": b"",
+        "root_path": "",
+        "headers": [(b"content-type", b"application/json")],
+        "client": ("127.0.0.1", 1),
+        "server": ("127.0.0.1", 80),
+    }
+    with contextlib.suppress(Exception):  # Starlette re-raises after its 500, as under uvicorn
+        await app(scope, receive, send)
+    status = next(m["status"] for m in sent if m["type"] == "http.response.start")
+    return status, b"".join(m.get("body", b"") for m in sent if m["type"] == "http.response.body")
+
+
+def test_scoring_server_answers_hostile_requests_with_short_400s(logged, monkeypatch):
+    """MLflow's own scoring app (what `mlflow models serve` runs), in process: JSON nested 100,000
+    levels deep raised RecursionError in MLflow's json.loads (HTTP 500 `Internal Server Error`), and
+    a 1 MB value came back whole in the 400 body."""
+    import asyncio
+
+    import mlflow
+    from mlflow.pyfunc import scoring_server
+
+    monkeypatch.delenv("MLFLOW_IS_IN_SERVING_ENVIRONMENT", raising=False)  # init() sets it
+    mlflow.set_tracking_uri(logged["uri"])
+    served = mlflow.pyfunc.load_model(f"runs:/{logged['run_id']}/agents")  # as the server loads it
+    app = scoring_server.init(served)
+    row = json.dumps(doc_request()["dataframe_records"][0])
+    deep = "[" * 100_000 + "true" + "]" * 100_000
+    cases = {
+        "deep valid": (
+            '{"dataframe_records": [' + row[:-1] + ', "valid": ' + deep + "}]}",
+            "nested",
+        ),
+        "deep body": (deep, "nested"),
+        "1 MB env": (
+            json.dumps({"dataframe_records": [{**json.loads(row), "env": "x" * 1_000_000}]}),
+            "row 0: env 'xxxx",
+        ),
+        "1 MB of bad JSON": ('{"dataframe_records": ' + "x" * 1_000_000, "valid JSON"),
+        "1 MB state": (  # MLflow's own schema check converts s0..: its message echoed it whole
+            json.dumps({"dataframe_records": [{**json.loads(row), "s3": "y" * 1_000_000}]}),
+            "s3",
+        ),
+    }
+    for what, (body, part) in cases.items():
+        status, answer = asyncio.run(_asgi_post(app, body.encode()))
+        assert status == 400, (what, status, answer[:300])
+        assert len(answer) < 1000 and b"\n" not in answer.strip(), (what, answer[:1000])
+        message = json.loads(answer)["message"]
+        assert part in message, (what, message)
+    status, answer = asyncio.run(_asgi_post(app, json.dumps(doc_request()).encode()))
+    assert status == 200, answer

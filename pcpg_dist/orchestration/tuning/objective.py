@@ -72,6 +72,7 @@ def score_trial(
             unit,
             trial_cfg,
             ceiling=False,  # it depends on the data alone, not on a trial's parameters
+            confidence=False,  # a trial is scored by its objective; refits would double its cost
             rank_cfg=rank,
             eval_cfg=eval_cfg,
             seeds=seeds,

@@ -1,0 +1,107 @@
+"""Does the label-free confidence track the true gap? For every zoo game: the default clusterer,
+its stability under resampling (pcpg_dist/stages/clustering/confidence.py), its verdict, and the
+gap to the supervised ceiling that only labels can tell; then the rank correlation between
+stability and the gap, and how often the verdict "styles found" agrees with "gap <= 5 points"
+(design games and held-out games apart).
+
+    uv run python -m benchmarks.zoo.confidence --ci --out zoo_confidence.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks.zoo.common import game_names, load_game
+
+CLOSE = 0.05  # "at the ceiling": the issue's bar for the verdict
+
+
+def confidence_row(name: str, ci: bool, runs: int) -> dict:
+    from benchmarks.zoo.check import dataset_of
+    from pcpg_dist.common.devices import set_threads
+    from pcpg_dist.config.clustering import ClusterConfig
+    from pcpg_dist.stages.clustering import cluster, clustering_metrics
+    from pcpg_dist.stages.clustering.ceiling import ceiling_panel
+    from pcpg_dist.stages.clustering.confidence import stability, verdict_of
+
+    set_threads(1)
+    game = load_game(name)
+    with tempfile.TemporaryDirectory() as tmp:
+        _, _, ds = dataset_of(name, ci, Path(tmp))
+    k = len(game.styles)
+    cfg = ClusterConfig(k=k)
+    t0 = time.perf_counter()
+    result = cluster(ds, cfg, 0)
+    fit = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    found = stability(ds, cfg, 0, result.labels, runs, 0.8)
+    refit = time.perf_counter() - t0
+    accuracy = clustering_metrics(ds.styles, result.labels)["accuracy"]
+    ceiling = max(ceiling_panel(ds, seed=0).values())
+    metrics = {**result.metrics, **found}
+    return {
+        "game": name,
+        "held_out": game.held_out,
+        "n": ds.n_trajectories,
+        "ceiling": ceiling,
+        "accuracy": float(accuracy),
+        "gap": float(ceiling - accuracy),
+        **found,
+        "verdict": verdict_of(metrics, k).verdict,
+        "fell_back": bool(result.metrics.get("auto_fell_back_to_lstm", 0)),
+        "fit_seconds": fit,
+        "confidence_seconds": refit,
+    }
+
+
+def summary(rows: list[dict]) -> dict:
+    """Spearman rank correlation of stability with -gap, and the verdict's agreement with
+    "gap <= CLOSE" ("styles found" is the verdict that claims it)."""
+    from scipy.stats import spearmanr
+
+    out = {}
+    for part, held in (("design", False), ("held_out", True), ("all", None)):
+        mine = [r for r in rows if held is None or r["held_out"] == held]
+        if len(mine) < 2:
+            continue
+        rho = spearmanr([r["stability"] for r in mine], [-r["gap"] for r in mine]).statistic
+        agree = [(r["verdict"] == "styles found") == (r["gap"] <= CLOSE) for r in mine]
+        out[part] = {"games": len(mine), "spearman": float(rho), "agreement": float(np.mean(agree))}
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("games", nargs="*")
+    ap.add_argument("--ci", action="store_true")
+    ap.add_argument("--runs", type=int, default=2)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--out", type=Path, default=None)
+    args = ap.parse_args()
+    rows = []
+    with ProcessPoolExecutor(args.workers) as pool:
+        jobs = [
+            pool.submit(confidence_row, n, args.ci, args.runs) for n in args.games or game_names()
+        ]
+        for job in as_completed(jobs):
+            r = job.result()
+            rows.append(r)
+            print(
+                f"{r['game']:<20} gap {r['gap']:+.3f} stability {r['stability']:.2f} "
+                f"-> {r['verdict']:<24} ({r['fit_seconds']:.0f} s + {r['confidence_seconds']:.0f} s)",
+                flush=True,
+            )
+            if args.out:
+                args.out.write_text(json.dumps({"rows": rows, "summary": summary(rows)}, indent=1))
+    print(json.dumps(summary(rows), indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,120 @@
+"""A label-free confidence in a clustering: how much a user without labels may trust that the k
+clusters are k play-styles, and a verdict in plain words.
+
+The evidence is **stability under resampling**: the same method is fitted again, with other
+seeds, on random subsamples of the trajectories (``runs`` x ``fraction`` of them), and each refit
+is compared with the clustering on the trajectories they share:
+
+- ``stability``: the mean adjusted Rand index between the clustering and the refits (1: the same
+  partition every time; about 0: no more alike than chance). Clusters that follow real styles
+  come back when the data is resampled; clusters cut through noise, or a search that lands in a
+  different optimum every time, do not.
+- ``merged_pairs``: pairs of clusters whose trajectories the refits mostly put together (their
+  distributions over the refit's clusters overlap by more than half): two clusters that look like
+  one style.
+- the clusterer's own fall-back (``bag_auto`` handing continuous states to ``lstm_dec``) is said.
+
+A clustering that leaves clusters empty (a collapse is stable, and says there are fewer styles)
+is "no evidence of k styles" whatever its stability. Otherwise the verdict reads ``stability``
+against two thresholds (:data:`FOUND`, :data:`WEAK`), chosen on
+the zoo's design games and checked on its held-out games and GridWorld (docs/zoo.md): "styles
+found", "weak evidence" or "no evidence of k styles".
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from sklearn.metrics import adjusted_rand_score
+
+#: stability at or above which the verdict is "styles found"; at or above WEAK, "weak evidence"
+FOUND = 0.80
+WEAK = 0.50
+MERGED = 0.5  # overlap of two clusters' refit distributions above which they look like one style
+
+
+def stability(dataset, cfg, seed: int, labels: np.ndarray, runs: int, fraction: float) -> dict:
+    """Refit ``cfg``'s method ``runs`` times on seeded subsamples; the metrics of the module doc."""
+    from pcpg_dist.stages.clustering.step import cluster
+
+    labels = np.asarray(labels)
+    n, k = len(labels), cfg.k
+    rng = np.random.default_rng([seed, 7919])
+    size = max(k, int(round(fraction * n)))
+    aris, overlaps = [], np.zeros((k, k))
+    for r in range(runs):
+        idx = np.sort(rng.choice(n, size=size, replace=False))
+        refit = np.asarray(cluster(dataset.subset(idx), cfg, seed + 1 + r).labels)
+        ref = labels[idx]
+        aris.append(adjusted_rand_score(ref, refit))
+        overlaps += _overlap(ref, refit, k)
+    overlaps /= max(runs, 1)
+    merged = [(a, b) for a in range(k) for b in range(a + 1, k) if overlaps[a, b] > MERGED]
+    return {
+        "stability": float(np.mean(aris)),
+        "stability_min": float(np.min(aris)),
+        "stability_runs": float(runs),
+        "stability_k": float(k),
+        "merged_pairs": float(len(merged)),
+        **{f"merged_pair_{a}_{b}": float(overlaps[a, b]) for a, b in merged},
+    }
+
+
+def _overlap(ref: np.ndarray, refit: np.ndarray, k: int) -> np.ndarray:
+    """(k, k): for clusters a, b of ``ref``, sum over refit clusters c of min(P(c|a), P(c|b))."""
+    kk = max(k, int(refit.max(initial=0)) + 1)
+    table = np.zeros((k, kk))
+    np.add.at(table, (ref, refit), 1.0)
+    sizes = table.sum(axis=1, keepdims=True)
+    dist = np.divide(table, sizes, out=np.zeros_like(table), where=sizes > 0)
+    out = np.minimum(dist[:, None, :], dist[None, :, :]).sum(axis=2)
+    out[sizes[:, 0] == 0, :] = 0.0
+    out[:, sizes[:, 0] == 0] = 0.0
+    return out
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """The confidence in words: a verdict and the warnings that go with it."""
+
+    verdict: str  # "styles found", "weak evidence", "no evidence of k styles", "not measured"
+    reasons: tuple[str, ...]
+
+    def line(self) -> str:
+        return self.verdict + (f" ({'; '.join(self.reasons)})" if self.reasons else "")
+
+
+def verdict_of(metrics: dict, k: int | None = None) -> Verdict:
+    """The verdict from a unit's clustering metrics (``clustering/…`` keys or bare ones)."""
+
+    def get(name: str) -> float | None:
+        v = metrics.get(f"clustering/{name}", metrics.get(name))
+        return None if v is None else float(v)
+
+    reasons = []
+    if get("auto_fell_back_to_lstm"):
+        reasons.append("bag_auto fell back to lstm_dec (continuous states)")
+    merged = [
+        key.rsplit("merged_pair_", 1)[1].replace("_", " and ")
+        for key in metrics
+        if "merged_pair_" in key
+    ]
+    if merged:
+        reasons.append("clusters " + ", ".join(merged) + " look like one style")
+    s = get("stability")
+    if s is None:
+        return Verdict("not measured", tuple(reasons))
+    reasons.insert(0, f"stability {s:.2f}")
+    k = k or (int(get("stability_k")) if get("stability_k") else None)
+    used = get("n_clusters_used")
+    if k and used is not None and used < k:  # a collapse is stable, and says fewer styles
+        reasons.insert(1, f"only {used:.0f} of {k} clusters hold trajectories")
+        return Verdict(f"no evidence of {k} styles", tuple(reasons))
+    if s >= FOUND:
+        word = "styles found"
+    elif s >= WEAK:
+        word = "weak evidence"
+    else:
+        word = f"no evidence of {k if k else 'k'} styles"
+    return Verdict(word, tuple(reasons))

@@ -1,0 +1,54 @@
+"""The label-free confidence (pcpg_dist/stages/clustering/confidence.py) on small real problems:
+clear styles are stable and found; one style cut into clusters is unstable and said to be no
+evidence; a style split in two is flagged as two clusters that look like one style."""
+
+from __future__ import annotations
+
+import numpy as np
+from bc_toy import make_dataset
+
+from pcpg_dist.config.clustering import ClusterConfig
+from pcpg_dist.stages.clustering import cluster
+from pcpg_dist.stages.clustering.confidence import FOUND, stability, verdict_of
+
+
+def test_clear_styles_are_stable_and_found():
+    ds = make_dataset(n_per_style=60, styles=2)
+    cfg = ClusterConfig(k=2)
+    labels = cluster(ds, cfg, 0).labels
+    found = stability(ds, cfg, 0, labels, runs=2, fraction=0.8)
+    assert found["stability"] > 0.8 and found["merged_pairs"] == 0
+    said = verdict_of(found, 2)
+    assert said.verdict == "styles found" and said.reasons[0].startswith("stability ")
+    again = stability(ds, cfg, 0, labels, runs=2, fraction=0.8)
+    assert again == found  # the same seed gives the same numbers
+
+
+def test_one_style_cut_into_clusters_is_no_evidence():
+    ds = make_dataset(n_per_style=120, styles=1)
+    cfg = ClusterConfig(k=3)
+    result = cluster(ds, cfg, 0)
+    found = stability(ds, cfg, 0, result.labels, runs=2, fraction=0.8)
+    # greedy_mix puts one style in one cluster, every time: stable, and no evidence of 3 styles
+    said = verdict_of({**result.metrics, **found})
+    assert said.verdict == "no evidence of 3 styles", said
+    assert "clusters hold trajectories" in said.reasons[1]
+    # k-means must cut it into 3: where the cuts fall moves with the sample
+    cut = ClusterConfig(k=3, method="summary_kmeans")
+    result = cluster(ds, cut, 0)
+    found = stability(ds, cut, 0, result.labels, runs=3, fraction=0.8)
+    assert found["stability"] < FOUND, found
+
+
+def test_a_style_split_in_two_is_flagged_as_two_clusters_that_look_like_one():
+    ds = make_dataset(n_per_style=60, styles=2)
+    rng = np.random.default_rng(0)
+    labels = np.asarray(ds.styles).copy()
+    halves = np.flatnonzero(labels == 0)
+    labels[rng.choice(halves, size=len(halves) // 2, replace=False)] = 2  # style 0 cut at random
+    found = stability(ds, ClusterConfig(k=3), 0, labels, runs=2, fraction=0.8)
+    assert found["merged_pairs"] >= 1 and "merged_pair_0_2" in found, found
+    said = verdict_of({**found, "auto_fell_back_to_lstm": 1.0}, 3)
+    assert "clusters 0 and 2 look like one style" in said.reasons
+    assert "bag_auto fell back to lstm_dec (continuous states)" in said.reasons
+    assert verdict_of({}).verdict == "not measured"
