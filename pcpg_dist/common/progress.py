@@ -83,6 +83,9 @@ def progress_bar(
     if not enabled:
         yield lambda n=1, description=None: None
         return
+    if not console.is_terminal:  # a log file: plain lines as the work goes, not one at the end
+        yield from _lines(description, total)
+        return
     with Progress(
         TextColumn("[bold]{task.description}"),
         BarColumn(),
@@ -99,3 +102,40 @@ def progress_bar(
             )
 
         yield advance
+
+
+#: seconds between two progress lines when stderr is not a terminal (a log file, a pipe)
+LINE_SECONDS = float(os.environ.get("PCPG_PROGRESS_SECONDS", "30"))
+
+
+def _lines(description: str, total: int) -> Iterator[Callable[..., None]]:
+    """Progress for a log file: a line when the work starts, one every :data:`LINE_SECONDS`
+    while it goes on, and one when it ends, each with the count and the time so far."""
+    import time
+
+    start = last = time.monotonic()
+    state = {"done": 0.0, "description": description, "said": -1.0}
+
+    def say() -> None:
+        state["said"] = state["done"]
+        took = time.monotonic() - start
+        console.print(
+            f"{state['description']}: {state['done']:.0f}/{total} ({took:.0f} s)",
+            markup=False,
+            highlight=False,
+        )
+
+    say()
+
+    def advance(n: float = 1, description: str | None = None) -> None:
+        nonlocal last
+        state["done"] += n
+        if description:
+            state["description"] = description
+        if time.monotonic() - last >= LINE_SECONDS:
+            last = time.monotonic()
+            say()
+
+    yield advance
+    if state["done"] != state["said"]:
+        say()

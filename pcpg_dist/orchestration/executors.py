@@ -23,6 +23,9 @@ class Executor(Protocol):
     def most_gpus(self) -> float:
         """The most GPUs one worker has (what a GPU setting is checked against)."""
 
+    def slots(self, num_cpus: int) -> int:
+        """How many jobs of ``num_cpus`` CPUs run at once (how finely to cut a stage's work)."""
+
     def fan_out(
         self,
         fn: Callable[..., Any],
@@ -56,6 +59,9 @@ class LocalExecutor:
 
     def most_gpus(self) -> float:
         return float("inf")  # nothing to reserve: a job uses the device its config names
+
+    def slots(self, num_cpus: int) -> int:
+        return 1  # one job at a time
 
     def fan_out(self, fn, calls, description, show_progress=True) -> list[Any]:
         from pcpg_dist.domains.defaults import in_process
@@ -91,6 +97,11 @@ class RayExecutor:
         from pcpg_dist.orchestration.ray_pool import node_gpus
 
         return node_gpus()
+
+    def slots(self, num_cpus: int) -> int:
+        import ray
+
+        return max(1, int(ray.cluster_resources().get("CPU", 1)) // max(1, num_cpus))
 
     def fan_out(self, fn, calls, description, show_progress=True) -> list[Any]:
         from pcpg_dist.orchestration.ray_pool import fan_out

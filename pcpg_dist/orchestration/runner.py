@@ -235,6 +235,10 @@ def _train(batch: Batch, stage: Stage) -> None:
 
     later: list[tuple[Point, str, list, list[str]]] = []
     jobs: dict[str, tuple] = {}
+
+    def slots(p: Point) -> int:  # one unit's cells spread over every CPU the cluster offers
+        return batch.executor.slots(p.cfg.runner.cpus_per_task)
+
     # ranking and cutting a unit into cells runs here, in the driver: on 40,000 trajectories
     # that is ~15 s, which showed as a frozen Step A bar
     total = sum(len(p.units) for p in batch.points)
@@ -244,7 +248,7 @@ def _train(batch: Batch, stage: Stage) -> None:
                 labels, margins = clusters_of(batch.clusters[p.ckeys[e]])
                 cells = plan_unit(u, labels, p.cfg, margins=margins)
                 first, rest = split_for_init(cells, p.cfg.bc)
-                _add_groups(p, e, first, batch.cache, jobs, p.cfg.bc, [])
+                _add_groups(p, e, first, batch.cache, jobs, p.cfg.bc, [], slots=slots(p))
                 if rest:
                     later.append((p, e, rest, p.train_keys(e)))
                 advance()
@@ -267,7 +271,9 @@ def _train(batch: Batch, stage: Stage) -> None:
                     [TrainedCells.load(batch.cache.path("train", k) / "cells") for k in keys]
                 )
             )
-            _add_groups(p, e, rest, batch.cache, jobs, finetune_config(p.cfg.bc), base_keys, base)
+            _add_groups(
+                p, e, rest, batch.cache, jobs, finetune_config(p.cfg.bc), base_keys, base, slots(p)
+            )
         batch.computed[stage.counter] += batch.run_jobs(
             stage, jobs, save, gpus(), f"{stage.description} from No Clustering"
         )
@@ -282,14 +288,19 @@ def _add_groups(
     bc_cfg,
     base_keys: list[str],
     base: Callable[[], Any] | None = None,
+    slots: int = 1,
 ) -> None:
-    """Cut ``cells`` into groups of ``runner.group_size``: each a content-keyed training job
-    (unless cached); with ``base`` (returns the No Clustering agents) each cell starts from its own."""
+    """Cut ``cells`` into groups of at most ``runner.group_size``, and into at least ``slots``
+    groups (the jobs the cluster runs at once) where there are cells enough, so one unit's
+    training uses every CPU; each group is a content-keyed training job (unless cached). A cell
+    trains the same in any group (tests/stages/test_bc.py::test_batched_equals_alone). With
+    ``base`` (returns the No Clustering agents) each cell starts from its own."""
     from pcpg_dist.stages.bc import init_from
 
     cfg = p.cfg
-    for g in range(0, len(cells), cfg.runner.group_size):
-        chunk = cells[g : g + cfg.runner.group_size]
+    size = max(1, min(cfg.runner.group_size, -(-len(cells) // max(1, slots))))
+    for g in range(0, len(cells), size):
+        chunk = cells[g : g + size]
         key = declared.train_key(p.ckeys[unit], cfg, [c.key for c in chunk], base_keys)
         p.groups.append((unit, key, chunk))
         if key not in jobs and cache.done("train", key) is None:

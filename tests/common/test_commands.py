@@ -41,3 +41,26 @@ def test_a_venv_called_by_its_path_gets_the_full_path_and_a_missing_tool_its_ins
     ui, missing = shown(env)
     assert ui == f"{BIN / 'mlflow'} ui --backend-store-uri 'sqlite:///a b.db'"
     assert missing == "no-such-tool-xyz  (not installed: pip install no-such-dist)"
+
+
+def test_progress_goes_to_a_log_file_as_lines_while_the_work_runs(tmp_path):
+    """Progress with stderr a file: a line at the start, every PCPG_PROGRESS_SECONDS, and at
+    the end (it printed nothing for minutes, then one line)."""
+    code = (
+        "from pcpg_dist.common.progress import progress_bar\n"
+        "import time\n"
+        "with progress_bar('Step C: BC groups', total=3) as advance:\n"
+        "    for _ in range(3):\n"
+        "        time.sleep(0.05); advance()\n"
+    )
+    log = tmp_path / "err.log"
+    env = {**os.environ, "PCPG_PROGRESS_SECONDS": "0"}
+    with open(log, "w") as err:
+        subprocess.run([sys.executable, "-c", code], stderr=err, env=env, check=True)
+    lines = log.read_text().splitlines()
+    assert lines[0].startswith("Step C: BC groups: 0/3 (")
+    assert [line.split(" (")[0] for line in lines[1:]] == [
+        "Step C: BC groups: 1/3",
+        "Step C: BC groups: 2/3",
+        "Step C: BC groups: 3/3",
+    ]
