@@ -55,7 +55,7 @@ def confidence_row(name: str, ci: bool, runs: int) -> dict:
         "gap": float(ceiling - accuracy),
         **found,
         "verdict": verdict_of(metrics, k).verdict,
-        "fell_back": bool(result.metrics.get("auto_fell_back_to_lstm", 0)),
+        "fell_back": bool(result.metrics.get("auto_fell_back", 0)),
         "fit_seconds": fit,
         "confidence_seconds": refit,
     }

@@ -48,7 +48,7 @@ def score_dataset(ds, k: int, methods: tuple[str, ...], seed: int = 0) -> dict:
         row["methods"][method] = {
             "accuracy": float(clustering_metrics(ds.styles, labels)["accuracy"]),
             "seconds": time.perf_counter() - t0,
-            "fell_back": bool(result.metrics.get("auto_fell_back_to_lstm", 0)),
+            "fell_back": bool(result.metrics.get("auto_fell_back", 0)),
             "labels": labels.tolist(),
         }
     return row

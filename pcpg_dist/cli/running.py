@@ -148,6 +148,7 @@ def cluster(args: argparse.Namespace) -> None:
     from pcpg_dist.common.progress import out as console  # results: stdout
     from pcpg_dist.config.overrides import load_config_with
     from pcpg_dist.orchestration.ray_pool import init_ray
+    from pcpg_dist.stages.clustering.confidence import verdict_of
 
     cfg = load_config_with(args.config, args.overrides)
     init_ray(args.ray_address)
@@ -157,9 +158,13 @@ def cluster(args: argparse.Namespace) -> None:
         shown = ", ".join(
             f"{k.split('/')[1]} {v:.3f}"
             for k, v in res["metrics"].items()
-            if k.split("/")[1] in ("ari", "nmi", "accuracy", "silhouette", "fit_seconds")
+            if k.split("/")[1]
+            in ("ari", "nmi", "accuracy", "silhouette", "stability", "fit_seconds")
         )
         console.print(f"{env}: {shown}  model: {confined(out, env, 'unit name') / 'model'}")
+        said = verdict_of(res["metrics"], cfg.clustering.k)
+        if said.verdict != "not measured":
+            console.print(f"{env}: confidence without labels: {said.line()}")
 
 
 def tune(args: argparse.Namespace) -> None:

@@ -48,7 +48,7 @@ CLUSTERERS: dict[str, Clusterer] = {
     "bag_kmeans": Clusterer(_BAGS, "bag"),
     "bag_mop": Clusterer(_BAGS, "bag"),
     "greedy_mix": Clusterer(_BAGS, "greedy", likelihood=True, discrete_states_only=True),
-    "bag_auto": Clusterer(_BAGS, "greedy", likelihood=True, continuous_fallback="lstm_dec"),
+    "bag_auto": Clusterer(_BAGS, "greedy", likelihood=True, continuous_fallback="policy_mix"),
     "policy_mix": Clusterer(
         "pcpg_dist.stages.clustering.policy_mix:fit_policy_mix",
         "policy",
@@ -75,7 +75,7 @@ def may_train_network(method: str) -> bool:
 
 
 NEURAL_CLUSTERERS = frozenset(n for n in CLUSTERERS if may_train_network(n))
-"""Clustering methods that may train a network (``bag_auto`` falls back to ``lstm_dec`` on
+"""Clustering methods that may train a network (``bag_auto`` falls back to ``policy_mix`` on
 continuous states): only these use ``clustering.device`` and ask Ray for a GPU."""
 
 #: methods whose saved model reads trajectories as visitation bags (nearest mean in bag space)

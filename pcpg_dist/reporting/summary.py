@@ -170,19 +170,26 @@ def print_clustering(result, console, method: str | None = None) -> None:
     fell = [e for e, cm in result.clustering.items() if cm.get(FELL_BACK)]
     if method and fell:
         console.print(
-            f"{method} clustered {', '.join(fell)} with lstm_dec: most of their states occur once "
-            "(continuous states), so visitation bags hold no style; policy_mix often fits such "
-            "games better (docs/clustering.md)"
+            f"{method} clustered {', '.join(fell)} with "
+            f"{method_used(method, {FELL_BACK: 1}).split(' -> ')[-1]}: "
+            "most of their states occur once (continuous states), so visitation bags hold no "
+            "style; a mixture of neural policies still sees which action each style takes "
+            "where (docs/zoo.md)"
         )
 
 
-FELL_BACK = "clustering/auto_fell_back_to_lstm"
+FELL_BACK = "clustering/auto_fell_back"
 
 
 def method_used(method: str, clustering: dict[str, float]) -> str:
     """The method that clustered an environment: the configured one, or where it handed the
-    data to its fallback, both (``bag_auto -> lstm_dec``)."""
-    return f"{method} -> lstm_dec" if clustering.get(FELL_BACK) else method
+    data to its fallback, both (``bag_auto -> policy_mix``)."""
+    from pcpg_dist.config.clusterers import CLUSTERERS
+
+    fallback = CLUSTERERS[method].continuous_fallback if method in CLUSTERERS else None
+    if clustering.get("clustering/auto_fell_back_to_lstm"):
+        fallback = "lstm_dec"  # the log's actions said nothing (auto.fallback_for)
+    return f"{method} -> {fallback}" if clustering.get(FELL_BACK) and fallback else method
 
 
 def stage_times(result) -> str:

@@ -62,19 +62,22 @@ def top_p(
 def _no_margins(dataset: Dataset) -> str:
     return (
         f"ranking.style_margin: the clustering of {dataset.domain}-{dataset.env} gives no likelihood "
-        "margins (bag_auto falls back to lstm_dec on its continuous states): use clustering.method "
-        "policy_mix, or set ranking.style_margin to 0"
+        "margins (its method falls back to one without a likelihood on continuous states): use "
+        "clustering.method policy_mix, or set ranking.style_margin to 0"
     )
 
 
 def check_margins_come(cfg, datasets: Sequence[Dataset]) -> None:
     """Before Step A: a DataError if ``ranking.style_margin`` will find a clustering without
     margins (``bag_auto`` on continuous states), rather than after every unit was clustered."""
-    from pcpg_dist.stages.clustering import falls_back_to_lstm
+    from pcpg_dist.config.clusterers import CLUSTERERS
+    from pcpg_dist.stages.clustering import falls_back
+    from pcpg_dist.stages.clustering.auto import fallback_for
 
-    if cfg.ranking.style_margin > 0 and cfg.clustering.method == "bag_auto":
+    method = cfg.clustering.method
+    if cfg.ranking.style_margin > 0 and CLUSTERERS[method].continuous_fallback:
         for d in datasets:
-            if falls_back_to_lstm(d):
+            if falls_back(d) and not CLUSTERERS[fallback_for(method, d)].likelihood:
                 raise DataError(_no_margins(d))
 
 

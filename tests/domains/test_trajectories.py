@@ -671,22 +671,28 @@ def test_an_env_named_like_a_summary_file_is_refused_before_clustering(tmp_path,
     assert not (run / "cache" / "cluster").exists() and not (run / "summary").exists()
 
 
-def test_style_margin_on_continuous_states_with_bag_auto_is_refused_before_clustering(
-    tmp_path, capsys
-) -> None:
-    """bag_auto falls back to lstm_dec on continuous states, which has no margins: the error came
-    after every unit was clustered."""
+def test_style_margin_on_continuous_states_with_bag_auto_has_its_margins(tmp_path) -> None:
+    """bag_auto falls back to policy_mix on continuous states, which has a likelihood: Step B's
+    style margin works there (with lstm_dec, the fallback before, it was refused)."""
+    from pcpg_dist.config import parse_config
+    from pcpg_dist.domains import contract
+    from pcpg_dist.stages.clustering import cluster
+    from pcpg_dist.stages.ranking import check_margins_come
+
     path = tmp_path / "logs.parquet"
     tiny_table(n_traj=12, steps=5).to_parquet(path, index=False)
-    cfg = write_config(
-        tmp_path, path, clustering={"k": 2, "method": "bag_auto"}, ranking__style_margin=1.0
-    )
-    code = main(["run", str(cfg), "--no-tracking", "--quiet", "--workdir", str(tmp_path / "runs")])
-    err = capsys.readouterr().err.strip()
-    assert code == 2 and len(err.splitlines()) == 1 and "Traceback" not in err, err
-    assert "ranking.style_margin: the clustering of trajectories-" in err and "policy_mix" in err
-    run = tmp_path / "runs" / "own_logs"
-    assert not (run / "cache" / "cluster").exists() and not (run / "summary").exists()
+    raw = {
+        "name": "own",
+        "domain": "trajectories",
+        "trajectories": {"path": str(path)},
+        "clustering": {"k": 2, "method": "bag_auto", "policy_steps": 5, "em_iterations": 2},
+        "ranking": {"style_margin": 1.0},
+    }
+    cfg = parse_config(raw, source="own")
+    (ds,) = contract.generate(cfg, show_progress=False).values()
+    check_margins_come(cfg, [ds])  # no error: the fallback has margins
+    found = cluster(ds, cfg.clustering, 0)
+    assert found.metrics["auto_fell_back"] == 1.0 and found.margins is not None
 
 
 @pytest.mark.parametrize(

@@ -73,7 +73,7 @@ def test_policy_mix_auto_is_the_cpu_fit_where_no_gpu_is_seen():
 
 
 def test_only_a_clustering_that_trains_a_network_asks_for_a_gpu():
-    """``bag_auto`` trains a network only where it falls back to lstm_dec (continuous states)."""
+    """``bag_auto`` trains a network only where it falls back to policy_mix (continuous states)."""
     from stages.test_policy_mix import goal_seekers
 
     from pcpg_dist.dataset import Dataset

@@ -161,7 +161,7 @@ def test_suggest_fixes_single_value_dimensions_and_apply_sets_the_config(tmp_pat
 def test_sizes_the_clusterer_ignores_are_not_searched(tmp_path):
     """greedy_mix (bag_auto on discrete states) has no LSTM: tuning its sizes would spend trials
     on a dimension that changes nothing. policy_mix uses clustering.hidden_size, not latent_size;
-    bag_auto on continuous states is lstm_dec and uses both."""
+    bag_auto on continuous states is policy_mix."""
     from bc_toy import make_dataset
 
     from pcpg_dist.domains.base import Unit
@@ -176,7 +176,7 @@ def test_sizes_the_clusterer_ignores_are_not_searched(tmp_path):
     cfg = config(tmp_path, lstm_hidden_sizes=[8, 16], latent_sizes=[4, 8])
     for method, unit, unused in [
         ("bag_auto", grid, ["lstm_hidden", "latent"]),
-        ("bag_auto", cont, []),
+        ("bag_auto", cont, ["latent"]),
         ("greedy_mix", grid, ["lstm_hidden", "latent"]),
         ("policy_mix", grid, ["latent"]),
         ("lstm_dec", grid, []),

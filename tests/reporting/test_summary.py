@@ -25,16 +25,16 @@ def test_a_fall_back_is_named_in_the_table_and_explained_below_it():
     text = _printed(
         {
             "grid": {"clustering/accuracy": 0.9},
-            "control": {"clustering/accuracy": 0.5, "clustering/auto_fell_back_to_lstm": 1.0},
+            "control": {"clustering/accuracy": 0.5, "clustering/auto_fell_back": 1.0},
         },
         "bag_auto",
     )
-    assert "bag_auto -> lstm_dec" in text
+    assert "bag_auto -> policy_mix" in text
     rows = {line.split()[1]: line for line in text.splitlines() if line.strip().startswith("│")}
-    assert "lstm_dec" not in rows.get("grid", "") and "lstm_dec" in rows["control"]
-    assert "bag_auto clustered control with lstm_dec: most of their states occur once" in text
+    assert "policy_mix" not in rows.get("grid", "") and "policy_mix" in rows["control"]
+    assert "bag_auto clustered control with policy_mix: most of their states occur once" in text
 
 
 def test_without_a_fall_back_nothing_is_explained():
     text = _printed({"grid": {"clustering/accuracy": 0.9}}, "greedy_mix")
-    assert "greedy_mix" in text and "lstm_dec" not in text
+    assert "greedy_mix" in text and "policy_mix" not in text

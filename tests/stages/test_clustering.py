@@ -74,7 +74,7 @@ def walks() -> Dataset:
 
 @pytest.fixture(scope="module")
 def fitted(walks):
-    return cluster(walks, ClusterConfig(**FAST), seed=0)
+    return cluster(walks, ClusterConfig(method="lstm_dec", **FAST), seed=0)
 
 
 # ------------------------------------------------------------------------- separation
@@ -242,10 +242,16 @@ def test_bag_model_saves_and_predicts_unseen_trajectories(tmp_path, grid_data):
     np.testing.assert_array_equal(loaded.predict(half), res.labels[::2])
 
 
-def test_bag_auto_falls_back_to_the_lstm_on_continuous_states(walks):
-    res = cluster(walks, ClusterConfig(method="bag_auto", **FAST), seed=0)
-    assert res.metrics["auto_fell_back_to_lstm"] == 1.0 and res.model.autoencoder is not None
-    assert clustering_metrics(walks.styles, res.labels)["accuracy"] >= 0.95
+def test_bag_auto_falls_back_to_policy_mix_on_continuous_states():
+    from stages.test_policy_mix import FAST as POLICY_FAST
+    from stages.test_policy_mix import goal_seekers
+
+    seekers = goal_seekers(40, seed=7)  # continuous states; only the actions show the style
+    fast = {k: v for k, v in POLICY_FAST.items() if k != "method"}
+    res = cluster(seekers, ClusterConfig(method="bag_auto", **fast), seed=0)
+    assert res.metrics["auto_fell_back"] == 1.0 and res.model.method == "policy_mix"
+    assert res.margins is not None  # policy_mix has a likelihood: style margins for Step B
+    assert clustering_metrics(seekers.styles, res.labels)["accuracy"] >= 0.95
 
 
 # ------------------------------------------------------------------------- tampered model files
@@ -522,3 +528,11 @@ def test_untampered_models_still_load_and_classify(saved_models):
         model = load_model(saved_models / method)
         ds = read_parquet(saved_models / "data.parquet")
         assert model.k == 2 and model.predict(ds).shape == (ds.n_trajectories,)
+
+
+def test_bag_auto_hands_a_log_whose_actions_say_nothing_to_lstm_dec(walks):
+    """The walks log one action throughout: only the states show the style, which a mixture of
+    policies cannot see and the sequence model can."""
+    res = cluster(walks, ClusterConfig(method="bag_auto", **FAST), seed=0)
+    assert res.metrics["auto_fell_back"] == 1.0 and res.metrics["auto_fell_back_to_lstm"] == 1.0
+    assert clustering_metrics(walks.styles, res.labels)["accuracy"] >= 0.95

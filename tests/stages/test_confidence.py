@@ -48,7 +48,7 @@ def test_a_style_split_in_two_is_flagged_as_two_clusters_that_look_like_one():
     labels[rng.choice(halves, size=len(halves) // 2, replace=False)] = 2  # style 0 cut at random
     found = stability(ds, ClusterConfig(k=3), 0, labels, runs=2, fraction=0.8)
     assert found["merged_pairs"] >= 1 and "merged_pair_0_2" in found, found
-    said = verdict_of({**found, "auto_fell_back_to_lstm": 1.0}, 3)
+    said = verdict_of({**found, "auto_fell_back": 1.0}, 3)
     assert "clusters 0 and 2 look like one style" in said.reasons
-    assert "bag_auto fell back to lstm_dec (continuous states)" in said.reasons
+    assert "bag_auto fell back to policy_mix (continuous states)" in said.reasons
     assert verdict_of({}).verdict == "not measured"

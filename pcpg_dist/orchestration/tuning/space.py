@@ -46,12 +46,15 @@ def searched_space(
 ) -> tuple[TuneConfig, list[str]]:
     """``tune`` with the sizes the clusterer ignores fixed at the config's own values (a trial
     would otherwise spend the study's budget on a dimension that changes nothing), and their names.
-    ``bag_auto`` is resolved on the data: greedy_mix on discrete states, lstm_dec on continuous."""
-    from pcpg_dist.stages.clustering import falls_back_to_lstm
+    ``bag_auto`` is resolved on the data: greedy_mix on discrete states, its fallback on continuous."""
+    from pcpg_dist.config.clusterers import CLUSTERERS
+    from pcpg_dist.stages.clustering import falls_back
+    from pcpg_dist.stages.clustering.auto import fallback_for
 
     method = cfg.clustering.method
-    if method == "bag_auto":
-        method = "lstm_dec" if any(falls_back_to_lstm(u.clustered) for u in units) else "greedy_mix"
+    if CLUSTERERS[method].continuous_fallback is not None:
+        back = [u.clustered for u in units if falls_back(u.clustered)]
+        method = fallback_for(method, back[0]) if back else "greedy_mix"
     unused = [
         p
         for p, methods in USED_BY.items()

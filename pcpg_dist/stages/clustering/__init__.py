@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 from pcpg_dist.config.clustering import ClusterConfig
 
 if TYPE_CHECKING:
-    from pcpg_dist.stages.clustering.auto import falls_back_to_lstm, needs_network
+    from pcpg_dist.stages.clustering.auto import falls_back, needs_network
     from pcpg_dist.stages.clustering.metrics import (
         cluster_sizes,
         clustering_metrics,
@@ -42,7 +42,7 @@ _EXPORTS = {
     "clustering_metrics": "metrics",
     "cluster_sizes": "metrics",
     "hungarian_mapping": "metrics",
-    "falls_back_to_lstm": "auto",
+    "falls_back": "auto",
     "needs_network": "auto",
     "checked_sequences": "states",
     "counter_summary": "policy_mix",
@@ -58,7 +58,7 @@ __all__ = [
     "cluster_sizes",
     "clustering_metrics",
     "counter_summary",
-    "falls_back_to_lstm",
+    "falls_back",
     "hungarian_mapping",
     "load_model",
     "monotone_features",

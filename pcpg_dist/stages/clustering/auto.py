@@ -2,7 +2,8 @@
 
 A method of :data:`pcpg_dist.config.clusterers.CLUSTERERS` may refuse continuous states
 (``greedy_mix``: a per-state policy cannot be estimated where every state is new) or hand them to
-another method (``bag_auto`` falls back to ``lstm_dec``). States count as continuous where most
+another method (``bag_auto`` falls back to ``policy_mix``, or to ``lstm_dec`` where every step
+logs the same action, so only the states can show a style). States count as continuous where most
 state rows are distinct. Numpy only, so the runner can ask before it asks Ray for a GPU.
 """
 
@@ -14,10 +15,21 @@ from pcpg_dist.config.clustering import ClusterConfig
 from pcpg_dist.stages.clustering.states import checked_sequences, mostly_distinct_states
 
 
-def falls_back_to_lstm(dataset) -> bool:
-    """Whether ``bag_auto`` clusters ``dataset`` with lstm_dec (continuous states) rather than
-    greedy_mix."""
+def falls_back(dataset) -> bool:
+    """Whether ``bag_auto`` clusters ``dataset`` with its continuous-state fallback (policy_mix)
+    rather than greedy_mix: most of its states occur once."""
     return mostly_distinct_states(checked_sequences(dataset)[0])
+
+
+def fallback_for(method: str, dataset) -> str | None:
+    """The method ``method`` hands ``dataset`` to where its states are continuous: its table
+    entry's fallback, or ``lstm_dec`` where the log's actions say nothing (one action throughout:
+    a mixture of policies would see no style, a sequence model of the states still can)."""
+    fallback = CLUSTERERS[method].continuous_fallback
+    if fallback is None or not CLUSTERERS[fallback].likelihood:
+        return fallback
+    acts = dataset.actions[dataset.actions >= 0]
+    return "lstm_dec" if acts.size and (acts == acts[0]).all() else fallback
 
 
 def needs_network(cluster_cfg: ClusterConfig, dataset) -> bool:
@@ -26,8 +38,8 @@ def needs_network(cluster_cfg: ClusterConfig, dataset) -> bool:
     does, so on discrete states its task needs no GPU."""
     spec = CLUSTERERS[cluster_cfg.method]
     if spec.continuous_fallback is not None:
-        if falls_back_to_lstm(dataset):
-            return CLUSTERERS[spec.continuous_fallback].trains_network
+        if falls_back(dataset):
+            return CLUSTERERS[fallback_for(cluster_cfg.method, dataset)].trains_network
         return spec.trains_network
     return spec.trains_network
 
@@ -44,8 +56,11 @@ def resolve_method(cfg: ClusterConfig, dataset, states, metrics: dict[str, float
             "use bag_auto, policy_mix or lstm_dec"
         )
     if spec.continuous_fallback is not None and mostly_distinct_states(states):
-        # Continuous states (Mario): every state is new, a visitation bag says nothing; the
-        # sequence model is the one that can still see a style there.
-        cfg = cfg.model_copy(update={"method": spec.continuous_fallback})
-        metrics["auto_fell_back_to_lstm"] = 1.0
+        # Continuous states: every state is new, a visitation bag says nothing; a mixture of
+        # neural policies still sees which action each style takes where (docs/zoo.md: better
+        # than lstm_dec on 5 of the 7 design games that fall back, never worse on the held-out)
+        fallback = fallback_for(cfg.method, dataset)
+        cfg = cfg.model_copy(update={"method": fallback})
+        metrics["auto_fell_back"] = 1.0
+        metrics["auto_fell_back_to_lstm"] = float(fallback == "lstm_dec")
     return cfg

@@ -12,7 +12,7 @@ is compared with the clustering on the trajectories they share:
 - ``merged_pairs``: pairs of clusters whose trajectories the refits mostly put together (their
   distributions over the refit's clusters overlap by more than half): two clusters that look like
   one style.
-- the clusterer's own fall-back (``bag_auto`` handing continuous states to ``lstm_dec``) is said.
+- the clusterer's own fall-back (``bag_auto`` handing continuous states to ``policy_mix``) is said.
 
 A clustering that leaves clusters empty (a collapse is stable, and says there are fewer styles)
 is "no evidence of k styles" whatever its stability. Otherwise the verdict reads ``stability``
@@ -93,8 +93,9 @@ def verdict_of(metrics: dict, k: int | None = None) -> Verdict:
         return None if v is None else float(v)
 
     reasons = []
-    if get("auto_fell_back_to_lstm"):
-        reasons.append("bag_auto fell back to lstm_dec (continuous states)")
+    if get("auto_fell_back"):
+        to = "lstm_dec" if get("auto_fell_back_to_lstm") else "policy_mix"
+        reasons.append(f"bag_auto fell back to {to} (continuous states)")
     merged = [
         key.rsplit("merged_pair_", 1)[1].replace("_", " and ")
         for key in metrics
