@@ -13,8 +13,9 @@ from pcpg_dist.config.schema import StrictModel
 
 class ClusterConfig(StrictModel):
     """Step A settings. The default method, bag_auto (greedy_mix on discrete states), is the best
-    label-free clusterer on 20 held-out random GridWorld layouts and falls back to the paper's
-    lstm_dec on continuous states (see docs/clustering.md); lstm_dec stays available by name."""
+    label-free clusterer on 20 held-out random GridWorld layouts and falls back to policy_mix on
+    continuous states (chosen on the zoo's design games, docs/zoo.md; lstm_dec where a log's
+    actions say nothing); the paper's lstm_dec stays available by name."""
 
     method: ClusterMethod = Field(
         "bag_auto",
@@ -25,7 +26,7 @@ class ClusterConfig(StrictModel):
         "distinct rows of visited states + state-actions + final state; bag_mop: a mixture of k "
         "policies (EM) started from bag_kmeans; greedy_mix: a mixture of k greedy policies with one "
         "uniform noise level, refined from bag_kmeans (discrete states); bag_auto: greedy_mix, "
-        "or lstm_dec where states are continuous; "
+        "or policy_mix where states are continuous (lstm_dec where one action is logged throughout); "
         "policy_mix: a mixture of k neural policies (hard EM) started from k-means on the "
         "monotone features' gain and mean, for continuous states (docs/clustering.md).",
     )

@@ -17,8 +17,9 @@ Methods (one interface, one row each in :data:`pcpg_dist.config.clusterers.CLUST
 - ``bag_mop`` — a mixture of k policies pi_c(a | s) fitted by EM from bag_kmeans' labels.
 - ``greedy_mix`` — a mixture of k greedy policies with one uniform noise level, fitted by
   coordinate ascent from bag_kmeans' labels (pcpg_dist/stages/clustering/greedy_mix.py): style = which action.
-- ``bag_auto`` (the default) — greedy_mix on discrete states, the paper's lstm_dec on continuous
-  ones (where a state is almost never seen twice, a per-state policy says nothing).
+- ``bag_auto`` (the default) — greedy_mix on discrete states, policy_mix on continuous ones
+  (where a state is almost never seen twice, a per-state policy says nothing; lstm_dec where the
+  log holds one action throughout, so only the states can show a style).
 - ``policy_mix`` — a mixture of k neural policies pi_c(a | s) (shared trunk, k heads) fitted by
   hard EM over whole trajectories, started from k-means on the gain and mean of the features that
   never decrease within a trajectory (counters); for continuous states (MiniDungeons).
