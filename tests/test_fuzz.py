@@ -482,15 +482,7 @@ def build_corpus(tmp: Path) -> list[Case]:
             what,
             d,
             dump(BASE),
-            [
-                "cluster",
-                str(d / "exp.yaml"),
-                "--data",
-                str(d / "data"),
-                "--out",
-                str(d / "out"),
-                "--quiet",
-            ],
+            cluster_argv(d),
         )
     i = file_kind_cases(cases, tmp, base_dir, folder, add, i)
     minari_cases(cases, tmp, rng)
@@ -528,6 +520,19 @@ def plant(path: Path, kind: str, outside: Path) -> None:
         path.symlink_to(path.parent / "gone")
 
 
+def cluster_argv(d: Path) -> list[str]:
+    """`pcpg cluster` of a case folder's config on its dataset folder ``data``."""
+    return [
+        "cluster",
+        str(d / "exp.yaml"),
+        "--data",
+        str(d / "data"),
+        "--out",
+        str(d / "out"),
+        "--quiet",
+    ]
+
+
 def file_kind_cases(cases, tmp: Path, base_dir: Path, folder, add, i: int) -> int:
     """Every input that is a file, replaced by a link within or out of its folder, a FIFO, a
     device or a dangling link: a named file may be a link anywhere; a file pcpg finds in a folder
@@ -551,15 +556,7 @@ def file_kind_cases(cases, tmp: Path, base_dir: Path, folder, add, i: int) -> in
             plant(d / rel, kind, tmp / f"outside{i}")
             argv = None
             if command == "cluster":
-                argv = [
-                    "cluster",
-                    str(d / "exp.yaml"),
-                    "--data",
-                    str(d / "data"),
-                    "--out",
-                    str(d / "out"),
-                    "--quiet",
-                ]
+                argv = cluster_argv(d)
             add(f"file kind: {name}", kind, d, dump(config), argv)
             cases[-1].must_fail = refused if refused is not None else listed
     return i

@@ -30,6 +30,21 @@ TINY = {
 }
 
 
+def tiny_log():
+    """A two-trajectory step table: the smallest log a `trajectories` config reads."""
+    import pandas as pd
+
+    return pd.DataFrame(
+        {
+            "trajectory": [0, 0, 1, 1],
+            "t": [0, 1, 0, 1],
+            "s0": [0.0, 1.0, 0.0, 2.0],
+            "action": [1, 0, 2, 0],
+            "reward": [0.0, 1.0, 0.0, 1.0],
+        }
+    )
+
+
 @pytest.fixture(scope="module")
 def logged_run(ray_session, tmp_path_factory) -> Path:
     from pcpg_dist.api.run import run_experiment
@@ -171,21 +186,12 @@ def test_reproduce_of_a_mistyped_run_creates_no_mlflow_store(tmp_path, monkeypat
 def test_an_edited_log_is_not_reproduced_even_where_the_metrics_match(tmp_path, capsys):
     """The probe edited one reward of a run's log and `pcpg reproduce` said REPRODUCED (252 of 252
     exact): the change did not move a metric, but the rerun read other data than the run."""
-    import pandas as pd
 
     from pcpg_dist.api.reproduce import input_note
     from pcpg_dist.pipeline.declared import input_key
 
     log = tmp_path / "logs.parquet"
-    table = pd.DataFrame(
-        {
-            "trajectory": [0, 0, 1, 1],
-            "t": [0, 1, 0, 1],
-            "s0": [0.0, 1.0, 0.0, 2.0],
-            "action": [1, 0, 2, 0],
-            "reward": [0.0, 1.0, 0.0, 1.0],
-        }
-    )
+    table = tiny_log()
     table.to_parquet(log, index=False)
     cfg = parse_config(
         {
@@ -226,21 +232,12 @@ def test_an_edited_log_is_not_reproduced_even_where_the_metrics_match(tmp_path, 
 def test_changed_data_is_said_in_one_line_before_anything_reruns(tmp_path, capsys):
     """`pcpg reproduce` compares the data's digest (the input key, also the MLflow dataset
     input's digest) before rerunning: a replaced log is one line, exit 1, no rerun folder."""
-    import pandas as pd
 
     from pcpg_dist.cli import main
     from pcpg_dist.pipeline.declared import input_key
 
     log = tmp_path / "logs.parquet"
-    table = pd.DataFrame(
-        {
-            "trajectory": [0, 0, 1, 1],
-            "t": [0, 1, 0, 1],
-            "s0": [0.0, 1.0, 0.0, 2.0],
-            "action": [1, 0, 2, 0],
-            "reward": [0.0, 1.0, 0.0, 1.0],
-        }
-    )
+    table = tiny_log()
     table.to_parquet(log, index=False)
     cfg = parse_config(
         {"name": "own", "domain": "trajectories", "trajectories": {"path": str(log)}},
@@ -290,22 +287,13 @@ def test_outputs_inside_the_input_folder_are_refused_before_any_work(tmp_path, c
     """`pcpg generate --out`, `pcpg run --workdir` or `pcpg cluster --out` inside the folder of
     step tables a config reads: one line, exit 2, nothing written (the outputs would be read back
     as input by the next run)."""
-    import pandas as pd
     import yaml
 
     from pcpg_dist.cli import main
 
     logs = tmp_path / "logs"
     logs.mkdir()
-    pd.DataFrame(
-        {
-            "trajectory": [0, 0, 1, 1],
-            "t": [0, 1, 0, 1],
-            "s0": [0.0, 1.0, 0.0, 2.0],
-            "action": [1, 0, 2, 0],
-            "reward": [0.0, 1.0, 0.0, 1.0],
-        }
-    ).to_parquet(logs / "a.parquet", index=False)
+    tiny_log().to_parquet(logs / "a.parquet", index=False)
     config = tmp_path / "own.yaml"
     config.write_text(
         yaml.safe_dump(

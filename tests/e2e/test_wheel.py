@@ -13,30 +13,10 @@ import sys
 from pathlib import Path
 
 import pytest
+from mini_config import mini_yaml
 
 ROOT = Path(__file__).resolve().parents[2]
-MINI = """\
-name: mini
-seeds: [0]
-gridworld:
-  environments: [E1]
-pbtg:
-  episodes: 20000
-  trajectories_per_style: 60
-  dataset_per_style: 30
-clustering:
-  k: 4
-  pretrain_epochs: 2
-  dec_epochs: 1
-ranking:
-  ps: [1.0]
-bc:
-  epochs: 50
-  hidden_size: 8
-evaluation:
-  rollouts_per_policy: 4
-  corruption_levels: [0.0]
-"""
+MINI = mini_yaml()
 
 pytestmark = pytest.mark.slow
 

@@ -8,30 +8,9 @@ import subprocess
 from pathlib import Path
 
 import pytest
+from mini_config import mini_yaml
 
-MINI = """\
-name: mini
-seeds: [0]
-gridworld:
-  environments: [E1]
-pbtg:
-  episodes: 3000
-  trajectories_per_style: 60
-  dataset_per_style: 30
-clustering:
-  k: 4
-  pretrain_epochs: 2
-  dec_epochs: 1
-ranking:
-  ps: [1.0]
-bc:
-  epochs: 30
-  hidden_size: 8
-evaluation:
-  rollouts_per_policy: 4
-  corruption_levels: [0.0]
-  figures: false
-"""
+MINI = mini_yaml(episodes=3000, epochs=30, figures=False)
 
 pytestmark = pytest.mark.slow
 
