@@ -27,6 +27,7 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
             "pcpg_dist.domains.base",
             "pcpg_dist.domains.registry",
             "pcpg_dist.domains.contract",
+            "pcpg_dist.domains.sources",
             "pcpg_dist.domains.defaults",
         ),
     ),

@@ -6,6 +6,7 @@ from pathlib import Path
 
 from pcpg_dist.api.hooks import OutputsAndTracking
 from pcpg_dist.config import ExperimentConfig
+from pcpg_dist.domains.sources import stream_source
 from pcpg_dist.orchestration.executors import Executor
 from pcpg_dist.orchestration.points import Point, RunResult
 from pcpg_dist.orchestration.runner import run_points
@@ -25,6 +26,11 @@ def run_experiment(
     must be initialised by the caller; ``LocalExecutor()`` runs every job in this process."""
     out = Path(workdir).resolve() / cfg.name
     check_apart_from_inputs(cfg, out, "--workdir")
+    source = stream_source(cfg)
+    if source is not None:  # one log too large for one process: ray.data, block by block
+        from pcpg_dist.api.streamed import run_streamed
+
+        return run_streamed(cfg, source, out, tracking_uri, track, show_progress, command)
     hooks = OutputsAndTracking(tracking_uri, track, show_progress)
     return run_points(
         [Point(cfg, out, command=command)],

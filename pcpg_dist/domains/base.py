@@ -34,6 +34,24 @@ if TYPE_CHECKING:
 #: It must only return valid actions. Rollouts of B episodes call it once per step for the live ones.
 Policy = Callable[[np.ndarray, np.ndarray, np.random.Generator], np.ndarray]
 
+
+@dataclass(frozen=True)
+class StreamSource:
+    """A log too large for one process, as the streamed pipeline reads it (``ray.data``): its
+    Parquet files, the state columns, the number of actions, the steps (from the files' metadata)
+    and which optional columns (``reward``, ``style``) it has. ``score`` is Step B's score
+    (``return``, ``length`` or ``-length``); ``max_epochs`` caps BC's passes over the rows."""
+
+    name: str
+    files: tuple[str, ...]
+    states: tuple[str, ...]
+    n_actions: int
+    steps: int
+    optional: tuple[str, ...] = ()
+    score: str = "return"
+    max_epochs: int = 20
+
+
 #: A domain's own skill score: one float per trajectory, higher = more skilled.
 ScoreFn = Callable[["Dataset"], np.ndarray]
 
@@ -195,6 +213,11 @@ class Domain:
                 "package": self.package_version(),
             },
         }
+
+    def stream_source(self, cfg: ExperimentConfig) -> StreamSource | None:
+        """The log to stream through ``ray.data`` instead of loading it into one process (a run
+        of one unit over blocks: docs/scale.md), or None. Default: None, the in-memory pipeline."""
+        return None
 
     def package_version(self) -> str | None:
         """Version of the installed distribution that ships this domain (None for pcpg's own)."""

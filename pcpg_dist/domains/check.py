@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from pcpg_dist.common.errors import DomainError, PcpgError, first_line
-from pcpg_dist.domains import contract
+from pcpg_dist.domains import contract, sources
 from pcpg_dist.domains.base import Domain, Unit, random_policy
 from pcpg_dist.domains.defaults import in_process
 
@@ -49,7 +49,7 @@ def check_domain(domain: Domain, cfg: ExperimentConfig) -> None:
     with _rule(domain, "data_key"):
         _check_data_key(domain, cfg)
     with _rule(domain, "data_source"):
-        contract.data_source(cfg, domain)
+        sources.data_source(cfg, domain)
     with _rule(domain, "generate"):
         datasets = _check_generate(domain, cfg)
     with _rule(domain, "manifest"):

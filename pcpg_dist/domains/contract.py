@@ -87,34 +87,6 @@ def evaluation_key(cfg: ExperimentConfig, domain: Domain | None = None) -> list[
     return _key_parts(cfg, domain, "evaluation_key")
 
 
-def data_source(cfg: ExperimentConfig, domain: Domain | None = None) -> dict[str, Any]:
-    """Where the domain's data comes from (:meth:`Domain.data_source`), checked: a mapping with a
-    short ``name`` and ``type`` and a JSON-able ``source`` mapping."""
-    import json
-
-    domain = the_domain(cfg, domain)
-    with calling(domain, "data_source"):
-        found = domain.data_source(cfg)
-    if not isinstance(found, dict):
-        raise _fail(domain, "data_source", f"returned {_kind(found)}; it must return a dict")
-    name, kind, source = found.get("name"), found.get("type"), found.get("source")
-    if not (isinstance(name, str) and 0 < len(name) <= 200):
-        raise _fail(domain, "data_source", "returned no 'name' string of 1 to 200 characters")
-    if not (isinstance(kind, str) and 0 < len(kind) <= 36):
-        raise _fail(domain, "data_source", "returned no 'type' string of 1 to 36 characters")
-    try:
-        text = json.dumps(source, sort_keys=True, allow_nan=False)
-    except (TypeError, ValueError) as e:
-        raise _fail(
-            domain, "data_source", f"returned a 'source' that is not JSON-able ({e})"
-        ) from None
-    if not isinstance(source, dict):
-        raise _fail(
-            domain, "data_source", f"returned a 'source' that is {_kind(source)}; it must be a dict"
-        )
-    return {"name": name, "type": kind, "source": json.loads(text)}
-
-
 def _key_parts(cfg: ExperimentConfig, domain: Domain | None, method: str) -> list[Any]:
     """A domain's key method's parts, checked to be a list."""
     domain = the_domain(cfg, domain)

@@ -31,6 +31,7 @@ class RunResult:
     computed: dict[str, int] = field(default_factory=dict)
     report: Path | None = None
     cached_stages: list[str] = field(default_factory=list)
+    method: str | None = None  # the clusterer, where it is not clustering.method (a streamed run)
 
 
 @dataclass

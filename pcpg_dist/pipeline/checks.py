@@ -6,14 +6,14 @@ from pathlib import Path
 from urllib.parse import unquote, urlparse
 
 from pcpg_dist.common.errors import ConfigError
-from pcpg_dist.domains import contract
+from pcpg_dist.domains import sources
 
 
 def check_apart_from_inputs(cfg, out: Path, option: str) -> None:
     """Refuse an output folder that is, or lies inside, a folder the data is read from (a
     folder of step tables: the outputs would be read back as input next time). One line, before
     any work."""
-    uri = str(contract.data_source(cfg)["source"].get("uri", ""))
+    uri = str(sources.data_source(cfg)["source"].get("uri", ""))
     if not uri.startswith("file://"):
         return
     source = Path(unquote(urlparse(uri).path))

@@ -41,7 +41,7 @@ def data_inputs(cfg, ikey: str, units: list | None = None) -> list[DataInput]:
     """The training data and its held-out split of the config whose data has input key ``ikey``;
     with its evaluation ``units`` (:class:`~pcpg_dist.domains.base.Unit`), each profiled
     (environments, trajectories, steps)."""
-    from pcpg_dist.domains.contract import data_source
+    from pcpg_dist.domains.sources import data_source
 
     found = data_source(cfg)
     held_out = {"test_fraction": cfg.ranking.test_fraction, "split_seed": cfg.ranking.split_seed}

@@ -14,7 +14,7 @@ from bc_toy import make_dataset
 
 from pcpg_dist.common.errors import DomainError
 from pcpg_dist.config import load_config, parse_config
-from pcpg_dist.domains import contract
+from pcpg_dist.domains import sources
 from pcpg_dist.domains.base import Domain, Unit
 from pcpg_dist.pipeline.declared import input_key
 from pcpg_dist.tracking.datasets import data_inputs
@@ -112,11 +112,11 @@ def test_a_plugins_data_source_is_checked_where_pcpg_receives_it():
     with pytest.raises(
         DomainError, match=r"domain 'bad': data_source returned a 'source' that is not JSON-able"
     ):
-        contract.data_source(cfg, Bad())
+        sources.data_source(cfg, Bad())
 
     class NoName(Bad):
         def data_source(self, cfg):
             return {"type": "local", "source": {}}
 
     with pytest.raises(DomainError, match="no 'name' string"):
-        contract.data_source(cfg, NoName())
+        sources.data_source(cfg, NoName())

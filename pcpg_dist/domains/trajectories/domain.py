@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from pcpg_dist.domains.base import Domain, DomainHooks, FanOut, ScoreFn, Unit
+from pcpg_dist.domains.base import Domain, DomainHooks, FanOut, ScoreFn, StreamSource, Unit
 from pcpg_dist.domains.defaults import in_process
 from pcpg_dist.domains.trajectories.settings import SECTIONS
 
@@ -86,6 +86,16 @@ class TrajectoriesDomain(Domain):
             "type": "local",
             "source": {"uri": Path(path).resolve().as_uri()},
         }
+
+    def stream_source(self, cfg) -> StreamSource | None:
+        """A Parquet log to stream (trajectories.stream, or 'auto' above stream_above_steps
+        rows), read from the files' metadata only; Minari datasets and small logs load whole."""
+        s = cfg.trajectories
+        if s.stream == "off" or s.path.startswith("minari:"):
+            return None
+        from pcpg_dist.domains.trajectories.stream_meta import stream_source
+
+        return stream_source(s, cfg.name)
 
     def generate(self, cfg, show_progress: bool = True, fan_out: FanOut = in_process):
         from pcpg_dist.domains.trajectories.table import datasets_from_table

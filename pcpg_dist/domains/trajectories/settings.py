@@ -73,6 +73,27 @@ class TrajectoriesConfig(StrictModel):
         description="number of actions; default: the "
         "length of the valid lists, else the largest action + 1",
     )
+    stream: Literal["auto", "on", "off"] = Field(
+        "auto",
+        description="run the log through ray.data in blocks instead of loading it into one "
+        "process (docs/scale.md): 'auto' streams a Parquet log of more than stream_above_steps "
+        "rows; 'on' always, 'off' never. The streamed run clusters with k-means on per-trajectory "
+        "summary features and trains every BC cell over the streamed rows with early stopping",
+    )
+    stream_above_steps: int = Field(
+        2_000_000,
+        ge=0,
+        le=10**12,
+        description="rows (steps) above which stream 'auto' streams the log; below it one "
+        "process holds the whole log (about 2.5 GB of RSS per million 32-column steps)",
+    )
+    stream_epochs: int = Field(
+        20,
+        ge=1,
+        le=10_000,
+        description="most passes over the rows of a streamed BC cell; each cell stops earlier "
+        "when its validation loss stops improving",
+    )
     #: the longest logged trajectory's number of actions, noted when the units are made (so the
     #: rollouts, in other processes, need not read the logs again); private: not a setting, not in
     #: the config hash nor any cache key

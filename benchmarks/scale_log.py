@@ -1,0 +1,109 @@
+"""One huge log through `pcpg run` (streamed), measured: wall, per-stage seconds, the peak RSS
+and PSS summed over the whole process tree (the driver, Ray's raylet, GCS and every worker),
+object-store spill, clustering accuracy. Called by ``bench_scale.py log``; each size runs in a
+fresh process (``python benchmarks/scale_log.py LOG OUT``)."""
+
+from __future__ import annotations
+
+import json
+import sys
+import threading
+import time
+from pathlib import Path
+
+LAST: list = []
+
+
+def tree_memory(pid: int) -> tuple[float, float]:
+    """(sum of RSS, sum of PSS) in GB over a process and all its descendants."""
+    import psutil
+
+    rss = pss = 0
+    global LAST
+    LAST = []
+    try:
+        root = psutil.Process(pid)
+        procs = [root, *root.children(recursive=True)]
+    except psutil.NoSuchProcess:
+        return 0.0, 0.0
+    for p in procs:
+        try:
+            info = p.memory_full_info()
+            rss, pss = rss + info.rss, pss + info.pss
+            LAST.append((info.rss / 2**20, info.pss / 2**20, " ".join(p.cmdline()[:3])[:80]))
+        except (psutil.NoSuchProcess, psutil.AccessDenied):
+            pass
+    return rss / 2**30, pss / 2**30
+
+
+def spilled_gb() -> float:
+    """Object-store bytes spilled to disk so far (Ray's memory summary)."""
+    import re
+
+    from ray._private.internal_api import memory_summary
+
+    text = memory_summary(stats_only=True)
+    m = re.search(r"Spilled (\d+) MiB", text)
+    return int(m.group(1)) / 1024 if m else 0.0
+
+
+def main(log: str, out: str, seeds: str = "0") -> None:
+    import os
+
+    from pcpg_dist.api.run import run_experiment
+    from pcpg_dist.config import ExperimentConfig
+    from pcpg_dist.orchestration.ray_pool import init_ray
+
+    peak = {"rss": 0.0, "pss": 0.0}
+    stop = threading.Event()
+
+    def watch() -> None:
+        while not stop.is_set():
+            rss, pss = tree_memory(os.getpid())
+            if rss > peak["rss"]:
+                peak["procs"] = sorted(LAST, reverse=True)[:4]
+                peak["at"] = round(time.perf_counter() - t0)
+            peak["rss"], peak["pss"] = max(peak["rss"], rss), max(peak["pss"], pss)
+            time.sleep(1.0)
+
+    t0 = time.perf_counter()
+    init_ray()
+    threading.Thread(target=watch, daemon=True).start()
+    cfg = ExperimentConfig.model_validate(
+        {
+            "name": "scale-log",
+            "domain": "trajectories",
+            "seeds": [int(s) for s in seeds.split(",")],
+            "trajectories": {"path": log, "stream": "on"},
+            "clustering": {"k": 4},
+            "ranking": {"ps": [1.0]},
+        }
+    )
+    res = run_experiment(cfg, workdir=Path(out), track=False, show_progress=False)
+    wall = time.perf_counter() - t0
+    spill = spilled_gb()
+    stop.set()
+    record = json.loads((res.out_dir / "summary" / "streamed.json").read_text())
+    print(
+        json.dumps(
+            {
+                "trajectories": record["n_trajectories"],
+                "steps": record["steps"],
+                "wall_s": round(wall, 1),
+                "stage_s": {k: round(v, 1) for k, v in record["stage_seconds"].items()},
+                "peak_tree_rss_gb": round(peak["rss"], 2),
+                "peak_tree_pss_gb": round(peak["pss"], 2),
+                "spilled_gb": round(spill, 2),
+                "clustering_accuracy": record["clustering"].get("clustering/accuracy"),
+                "pcpg_p1": record["metrics"].get("pcpg/accuracy/p1"),
+                "nc_p1": record["metrics"].get("baseline/accuracy/p1"),
+                "bc_epochs": record["bc_epochs"],
+                "peak_at_s": peak.get("at"),
+                "peak_processes_mb": [[round(a), round(b), c] for a, b, c in peak.get("procs", [])],
+            }
+        )
+    )
+
+
+if __name__ == "__main__":
+    main(*sys.argv[1:])

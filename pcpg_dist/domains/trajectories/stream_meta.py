@@ -1,0 +1,94 @@
+"""What the streamed pipeline needs to know of a Parquet log, from the files' footers alone:
+the columns (checked as the in-memory reader checks them), the number of actions and the rows.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from pcpg_dist.common.errors import DataError
+from pcpg_dist.domains.base import StreamSource
+from pcpg_dist.domains.trajectories.table_columns import state_columns
+from pcpg_dist.domains.trajectories.table_files import parquet_files
+
+SCORES = ("return", "length", "-length")
+
+
+def stream_source(settings, name: str) -> StreamSource | None:
+    """The log as a :class:`StreamSource`, or None when ``stream: auto`` and it is small."""
+    files = parquet_files(Path(settings.path))
+    schemas, rows = [], 0
+    for f in files:
+        try:
+            meta = pq.read_metadata(f)
+        except (OSError, pa.ArrowException) as e:
+            raise DataError(f"{f}: not a readable Parquet file ({str(e)[:200]})") from None
+        schemas.append((f, meta.schema.to_arrow_schema()))
+        rows += meta.num_rows
+    if settings.stream == "auto" and rows <= settings.stream_above_steps:
+        return None
+    first, schema = schemas[0]
+    for f, other in schemas[1:]:
+        if other.names != schema.names:
+            raise DataError(
+                f"{f}: its columns differ from {first.name}'s; every file of a log has the same columns"
+            )
+    names = schema.names
+    for need in ("trajectory", "t", "action"):
+        if need not in names:
+            raise DataError(
+                f"{first}: no column {need!r}; a step table has trajectory, t, action and s0..s{{d-1}}"
+            )
+    for col in ("trajectory", "action"):
+        if not pa.types.is_integer(schema.field(col).type):
+            raise DataError(
+                f"{first}: column {col!r} is {schema.field(col).type}; a streamed log "
+                f"(trajectories.stream) needs integer {col} values"
+            )
+    if "env" in names:
+        raise DataError(
+            f"{first}: column 'env': a streamed log is one unit; split it into one log (and one "
+            f"config) per env, drop the column, or set trajectories.stream: off"
+        )
+    states = state_columns(names, str(first))
+    for c in states:
+        kind = schema.field(c).type
+        if not (pa.types.is_floating(kind) or pa.types.is_integer(kind)):
+            raise DataError(f"{first}: state column {c!r} is {kind}; states are numbers")
+    if settings.score not in SCORES:
+        raise DataError(
+            f"trajectories.score {settings.score!r}: a streamed log ranks by return, length or "
+            f"-length (a per-trajectory score column needs trajectories.stream: off)"
+        )
+    n_actions = settings.n_actions or _largest_action(files) + 1
+    return StreamSource(
+        name=name,
+        files=tuple(str(f.resolve()) for f in files),
+        states=tuple(states),
+        n_actions=n_actions,
+        steps=rows,
+        optional=tuple(c for c in ("reward", "style") if c in names),
+        score=settings.score,
+        max_epochs=settings.stream_epochs,
+    )
+
+
+def _largest_action(files: list[Path]) -> int:
+    """The largest action from the row groups' statistics (every file's footer; no data read)."""
+    top = -1
+    for f in files:
+        meta = pq.ParquetFile(f).metadata
+        col = meta.schema.to_arrow_schema().get_field_index("action")
+        for g in range(meta.num_row_groups):
+            stats = meta.row_group(g).column(col).statistics
+            if stats is None or not stats.has_min_max:
+                raise DataError(
+                    f"{f}: no statistics for column 'action'; set trajectories.n_actions"
+                )
+            top = max(top, int(stats.max))
+    if top < 0:
+        raise DataError(f"{files[0]}: no actions logged")
+    return top

@@ -1,0 +1,125 @@
+"""Step C and the evaluation over blocks: the BC cells in one task per CPU slot, each streaming
+the materialised training rows once an epoch, and the held-out rows' accuracy counts."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pcpg_dist.domains.base import StreamSource
+from pcpg_dist.orchestration.streaming.engine import quiet_engine, reduce_blocks
+from pcpg_dist.stages.streamed import cells as P
+
+
+@dataclass(frozen=True)
+class TrainSpec:
+    """How every BC cell trains on the stream: the bc section's network and Adam settings, and
+    the epoch budget with early stopping."""
+
+    d: int
+    n_actions: int
+    layers: int
+    width: int
+    activation: str
+    lr: float
+    betas: tuple[float, float]
+    eps: float
+    batch: int
+    max_epochs: int
+    patience: int = 1
+    tol: float = 1e-3
+
+
+def train_group(rows, cells: list[tuple[int, int]], spec: TrainSpec, seed: int) -> dict:
+    """Train ``cells`` (cluster or NC, p index) together over the streamed rows, epoch by epoch,
+    until every cell's validation loss stops improving. Runs in a Ray task: one CPU thread."""
+    import torch
+
+    from pcpg_dist.common.devices import set_threads
+    from pcpg_dist.stages.streamed import policy
+
+    set_threads(1)
+    quiet_engine()
+    model = policy.StackedPolicy(
+        len(cells), spec.d, spec.n_actions, spec.layers, spec.width, spec.activation, seed
+    )
+    opt = torch.optim.Adam(model.parameters(), lr=spec.lr, betas=spec.betas, eps=spec.eps)
+    stop = policy.EarlyStop(len(cells), tol=spec.tol, patience=spec.patience)
+    epochs = 0
+    for epoch in range(spec.max_epochs):
+        val_sum, val_n = np.zeros(len(cells)), np.zeros(len(cells))
+        for batch in rows.iter_batches(batch_size=spec.batch, batch_format="numpy"):
+            member = P.membership(batch["code"], cells)
+            held = (batch["code"] & P.VALIDATION) != 0
+            x = torch.as_tensor(batch["x"])
+            y = torch.as_tensor(batch["y"].astype(np.int64))
+            logits = model(x)
+            if held.any():
+                with torch.no_grad():
+                    mh = torch.as_tensor(member & held[None, :], dtype=torch.float32)
+                    val_sum += policy.cell_losses(logits.detach(), y, mh).numpy()
+                    val_n += mh.sum(1).numpy()
+            mt = member & ~held[None, :]
+            counts = mt.sum(1)
+            if not counts.any():
+                continue
+            weight = torch.as_tensor(mt / np.maximum(counts, 1)[:, None], dtype=torch.float32)
+            loss = policy.cell_losses(logits, y, weight).sum()
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+        epochs = epoch + 1
+        stop.update(np.where(val_n > 0, val_sum / np.maximum(val_n, 1), 0.0), model)
+        if stop.all_done:
+            break
+    states = [s if s is not None else model.cell_state(i) for i, s in enumerate(stop.best_states)]
+    return {"cells": cells, "states": states, "epochs": epochs, "val_loss": stop.best.tolist()}
+
+
+def train_cells(rows, cells, spec: TrainSpec, seed: int, slots: int) -> list[dict]:
+    """The cells split round-robin into one group per CPU slot, each a Ray task."""
+    import ray
+
+    # max_calls=1: the worker exits with its task, so the memory it held goes back at once
+    task = ray.remote(num_cpus=1, max_retries=2, max_calls=1)(train_group)
+    groups = [cells[g::slots] for g in range(min(slots, len(cells)))]
+    return ray.get(
+        [task.remote(rows, group, spec, seed * 7919 + g) for g, group in enumerate(groups)]
+    )
+
+
+def evaluate_cells(rows, model_states, cells, spec: TrainSpec, k: int) -> np.ndarray:
+    """(cells, k) correct test predictions and (k,) test rows, summed over blocks."""
+
+    def counts(batch):
+        from pcpg_dist.common.devices import set_threads
+        from pcpg_dist.stages.streamed import policy
+
+        set_threads(1)
+        model = policy.StackedPolicy(
+            len(cells), spec.d, spec.n_actions, spec.layers, spec.width, spec.activation, 0
+        )
+        model.load_cells(model_states)
+        cluster = (batch["code"] & 0xFF).astype(np.int64)
+        return policy.accuracy_counts(model, batch["x"], batch["y"].astype(np.int64), cluster, k)
+
+    total = reduce_blocks(rows, counts)
+    return total[: len(cells) * k].reshape(len(cells), k), total[len(cells) * k :]
+
+
+def train_spec(cfg, source: StreamSource) -> TrainSpec:
+    b = cfg.bc
+    return TrainSpec(
+        d=len(source.states),
+        n_actions=source.n_actions,
+        layers=b.hidden_layers,
+        width=b.hidden_size,
+        activation=b.activation,
+        lr=b.lr,
+        betas=tuple(b.betas),
+        eps=b.eps,
+        # about 256 steps an epoch on a small log, at most 16,384 rows a step on a large one
+        batch=b.batch_size or int(np.clip(source.steps // 256, 1024, 16384)),
+        max_epochs=min(b.epochs, source.max_epochs),
+    )

@@ -1,0 +1,162 @@
+"""A log through the streamed pipeline on the tests' Ray: it finds the styles, its agents beat No
+Clustering, the same seed gives the same numbers however the log is cut into blocks and files,
+small logs stay in memory under 'auto', and bad rows inside a block reach the user as one line."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from pcpg_dist.common.errors import DataError
+from pcpg_dist.config import ExperimentConfig
+from pcpg_dist.domains.sources import stream_source
+from pcpg_dist.domains.trajectories.synthetic_log import write_styled_log
+
+
+def config(path: Path, **over) -> ExperimentConfig:
+    raw = {
+        "name": "streamed",
+        "domain": "trajectories",
+        "seeds": [0],
+        "trajectories": {"path": str(path), "stream": "on", **over.pop("trajectories", {})},
+        "clustering": {"k": 4},
+        "ranking": {"ps": [1.0, 0.5]},
+        **over,
+    }
+    return ExperimentConfig.model_validate(raw)
+
+
+@pytest.fixture(scope="module")
+def log(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("streamed") / "log.parquet"
+    write_styled_log(path, 3000, d=8, seed=1)
+    return path
+
+
+def run(cfg, out: Path):
+    from pcpg_dist.api.run import run_experiment
+
+    return run_experiment(cfg, workdir=out, track=False, show_progress=False)
+
+
+def test_a_streamed_run_finds_the_styles_and_its_agents_beat_no_clustering(
+    ray_session, log, tmp_path
+):
+    res = run(config(log), tmp_path)
+    (env,) = res.clustering
+    assert res.clustering[env]["clustering/accuracy"] >= 0.95
+    m = res.metrics
+    assert m["pcpg/accuracy/p1"] >= 0.7  # the styles' policies: ~0.81 of actions predictable
+    assert m["pcpg/accuracy/p1"] >= m["baseline/accuracy/p1"] + 0.15
+    assert m["pcpg/accuracy/p0.5"] >= m["baseline/accuracy/p0.5"] + 0.15
+    summary = res.out_dir / "summary"
+    record = json.loads((summary / "streamed.json").read_text())
+    assert record["n_trajectories"] == 3000 and record["steps"] == pq.read_metadata(log).num_rows
+    assert set(record["stage_seconds"]) == {
+        "features",
+        "cluster",
+        "rank",
+        "tag",
+        "train",
+        "evaluate",
+    }
+    labels = pq.read_table(summary / "labels_seed0.parquet").to_pandas()
+    assert sorted(labels.trajectory) == list(range(3000))
+    assert labels.test.mean() == pytest.approx(0.2, abs=0.03)
+    with np.load(summary / "agents_seed0.npz", allow_pickle=False) as agents:
+        assert {k.split("_")[0] for k in agents.files} == {
+            "cell0",
+            "cell1",
+            "cell2",
+            "cell3",
+            "cellnc",
+        }
+    # p = 0.5 keeps about half of each cluster's training trajectories (bit 10 + 2 of the code)
+    train = labels[~labels.test]
+    kept = ((train.code.to_numpy() >> 12) & 1).astype(bool)
+    assert kept.mean() == pytest.approx(0.5, abs=0.03)
+
+
+def test_the_same_seed_gives_the_same_numbers_however_the_log_is_cut(
+    ray_session, log, tmp_path, monkeypatch
+):
+    from pcpg_dist.orchestration.streaming import engine as streaming
+
+    first = run(config(log), tmp_path / "a")
+    again = run(config(log), tmp_path / "b")
+    assert first.metrics == again.metrics
+    assert first.clustering == again.clustering
+    # the same trajectories as a folder of 3 files, read in 7 blocks: the same clusters
+    folder = tmp_path / "parts"
+    folder.mkdir()
+    table = pq.read_table(log)
+    for i, lo in enumerate(range(0, table.num_rows, -(-table.num_rows // 3))):
+        pq.write_table(table.slice(lo, -(-table.num_rows // 3)), folder / f"part-{i}.parquet")
+    monkeypatch.setattr(streaming, "ROWS_PER_BLOCK", table.num_rows // 7)
+    cut = run(config(folder), tmp_path / "c")
+    a = pq.read_table(first.out_dir / "summary" / "labels_seed0.parquet").to_pandas()
+    c = pq.read_table(cut.out_dir / "summary" / "labels_seed0.parquet").to_pandas()
+    a, c = a.sort_values("trajectory"), c.sort_values("trajectory")
+    assert (a.cluster.to_numpy() == c.cluster.to_numpy()).all()
+    assert (a.code.to_numpy() == c.code.to_numpy()).all()
+    assert cut.clustering == first.clustering
+    assert cut.metrics["pcpg/accuracy/p1"] == pytest.approx(
+        first.metrics["pcpg/accuracy/p1"], abs=0.02
+    )
+
+
+def test_auto_streams_only_logs_above_the_size(log):
+    rows = pq.read_metadata(log).num_rows
+    assert stream_source(config(log, trajectories={"stream": "auto"})) is None
+    found = stream_source(
+        config(log, trajectories={"stream": "auto", "stream_above_steps": rows - 1})
+    )
+    assert found.steps == rows and found.n_actions == 4 and len(found.states) == 8
+    assert found.optional == ("reward", "style")
+    assert (
+        stream_source(config(log, trajectories={"stream": "off", "stream_above_steps": 0})) is None
+    )
+
+
+def test_a_bad_row_inside_a_block_is_one_line_naming_its_column(ray_session, log, tmp_path):
+    table = pq.read_table(log)
+    action = table.column("action").to_numpy().copy()
+    action[len(action) // 2] = 7
+    bad = tmp_path / "bad.parquet"
+    pq.write_table(table.set_column(2, "action", pa.array(action)), bad)
+    with pytest.raises(
+        DataError, match=r"column 'action': trajectory \d+ has action 7; actions are 0..3"
+    ):
+        run(config(bad, trajectories={"n_actions": 4}), tmp_path / "out")
+    assert not (tmp_path / "out" / "streamed" / "summary").exists()
+
+
+@pytest.mark.parametrize(
+    ("change", "says"),
+    [
+        ({"trajectory": pa.array(["x"] * 5)}, "needs integer trajectory values"),
+        ({"s0": pa.array(["a"] * 5)}, "state column 's0' is string"),
+    ],
+)
+def test_a_log_that_cannot_stream_is_refused_from_its_footer(tmp_path, change, says):
+    cols = {
+        "trajectory": pa.array([0] * 5),
+        "t": pa.array(range(5)),
+        "action": pa.array([0, 1, 0, 1, -1]),
+        "s0": pa.array([0.0] * 5),
+    }
+    cols.update(change)
+    path = tmp_path / "log.parquet"
+    pq.write_table(pa.table(cols), path)
+    with pytest.raises(DataError, match=says):
+        stream_source(config(path))
+
+
+def test_a_named_score_column_needs_the_in_memory_pipeline(log):
+    with pytest.raises(DataError, match="ranks by return, length or -length"):
+        stream_source(config(log, trajectories={"score": "skill"}))
