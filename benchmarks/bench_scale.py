@@ -8,6 +8,14 @@ cluster issue targets: driver peak RSS at N = 80 <= 1.5x its value at N = 5, tim
 at N = 80 within 1.2x of N = 20.
 
 Run: ``uv run python benchmarks/bench_scale.py [--sizes 5 20 80]``
+
+``--log 10000 100000 1000000`` measures the other axis, one huge log (docs/scale.md): a synthetic
+log of N trajectories (about 25 steps each, 32 state columns, 4 styles;
+``pcpg_dist.domains.trajectories.synthetic_log``) through `pcpg run` streamed (one seed, p = 1,
+no tracking), each N in a fresh process (``benchmarks/scale_log.py``), and the in-memory pipeline
+on the smallest N side by side. Prints wall, per-stage seconds, the peak RSS and PSS summed over
+the whole process tree (driver, raylet, GCS, every worker), spill, clustering accuracy, and the
+ratios the scale-out issue targets: time per trajectory and peak memory from 10^5 to 10^6.
 """
 
 from __future__ import annotations
@@ -87,7 +95,12 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--sizes", type=int, nargs="+", default=[5, 20, 80])
     ap.add_argument("--one", type=int, default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--log", type=int, nargs="+", default=None, help="trajectories per log")
+    ap.add_argument("--log-dir", default=None, help="keep the generated logs here")
     args = ap.parse_args()
+    if args.log:
+        logs(args.log, args.log_dir)
+        return
     if args.one is not None:
         print(json.dumps(one(args.one)))
         return
@@ -119,6 +132,57 @@ def main() -> None:
     if 20 in by and 80 in by:
         ratio = (by[80]["wall"] / 80) / (by[20]["wall"] / 20)
         print(f"time per environment N=80 / N=20 = {ratio:.2f}  (target <= 1.2)")
+
+
+def _log_child(log: Path, out: str, stream: str) -> dict:
+    child = Path(__file__).with_name("scale_log.py")
+    done = subprocess.run(
+        [sys.executable, str(child), str(log), out, "0", stream], capture_output=True, text=True
+    )
+    if done.returncode != 0:
+        sys.exit(f"{log} ({stream}) failed:\n{done.stderr[-3000:]}")
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def logs(sizes: list[int], keep: str | None) -> None:
+    from pcpg_dist.domains.trajectories.synthetic_log import write_styled_log
+
+    folder = Path(keep or tempfile.mkdtemp(prefix="pcpg-scale-log-"))
+    folder.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for n in sorted(sizes):
+        log = folder / f"log-{n}.parquet"
+        if not log.exists():
+            write_styled_log(log, n, d=32, seed=0)
+        if n == min(sizes):
+            rows.append({"n": n, **_log_child(log, str(folder / "runs-mem"), "off")})
+        rows.append({"n": n, **_log_child(log, str(folder / "runs"), "on")})
+    print(
+        f"{'N':>9} {'how':>9} {'wall s':>7} {'ms/traj':>8} {'RSS GB':>7} {'PSS GB':>7} "
+        f"{'spill GB':>8} {'acc':>6} {'PCPG':>6} {'NC':>6}  stages (s)"
+    )
+    for r in rows:
+        how = "streamed" if r["stream"] == "on" else "in-memory"
+        print(
+            f"{r['n']:>9} {how:>9} {r['wall_s']:7.1f} {1000 * r['wall_s'] / r['n']:8.3f} "
+            f"{r['peak_tree_rss_gb']:7.2f} {r['peak_tree_pss_gb']:7.2f} {r.get('spilled_gb', 0):8.2f} "
+            f"{r['clustering_accuracy']:6.3f} {r['pcpg_p1']:6.3f} {r['nc_p1']:6.3f}  {r['stage_s']}"
+        )
+    by = {r["n"]: r for r in rows if r["stream"] == "on"}
+    if 100_000 in by and 1_000_000 in by:
+        a, b = by[100_000], by[1_000_000]
+        per = (b["wall_s"] / 1e6) / (a["wall_s"] / 1e5)
+        print(f"time per trajectory 10^6 / 10^5 = {per:.2f}  (target <= 1.2)")
+        print(
+            f"peak tree PSS 10^6 / 10^5 = {b['peak_tree_pss_gb'] / a['peak_tree_pss_gb']:.2f}, "
+            f"RSS sum {b['peak_tree_rss_gb'] / a['peak_tree_rss_gb']:.2f}  (target <= 1.5)"
+        )
+    low = min(by)
+    print(
+        "clustering accuracy by size: "
+        + ", ".join(f"{n}: {r['clustering_accuracy']:.4f}" for n, r in sorted(by.items()))
+        + f" (as good as at {low}: {all(r['clustering_accuracy'] >= by[low]['clustering_accuracy'] - 0.005 for r in by.values())})"
+    )
 
 
 if __name__ == "__main__":

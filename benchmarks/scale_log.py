@@ -47,7 +47,7 @@ def spilled_gb() -> float:
     return int(m.group(1)) / 1024 if m else 0.0
 
 
-def main(log: str, out: str, seeds: str = "0") -> None:
+def main(log: str, out: str, seeds: str = "0", stream: str = "on") -> None:
     import os
 
     from pcpg_dist.api.run import run_experiment
@@ -74,7 +74,7 @@ def main(log: str, out: str, seeds: str = "0") -> None:
             "name": "scale-log",
             "domain": "trajectories",
             "seeds": [int(s) for s in seeds.split(",")],
-            "trajectories": {"path": log, "stream": "on"},
+            "trajectories": {"path": log, "stream": stream},
             "clustering": {"k": 4},
             "ranking": {"ps": [1.0]},
         }
@@ -83,10 +83,30 @@ def main(log: str, out: str, seeds: str = "0") -> None:
     wall = time.perf_counter() - t0
     spill = spilled_gb()
     stop.set()
+    if stream == "off":  # the in-memory pipeline, for the side-by-side
+        stop.set()
+        print(
+            json.dumps(
+                {
+                    "stream": "off",
+                    "wall_s": round(wall, 1),
+                    "stage_s": {k: round(v, 1) for k, v in res.stage_seconds.items()},
+                    "peak_tree_rss_gb": round(peak["rss"], 2),
+                    "peak_tree_pss_gb": round(peak["pss"], 2),
+                    "clustering_accuracy": next(iter(res.clustering.values())).get(
+                        "clustering/accuracy"
+                    ),
+                    "pcpg_p1": res.metrics.get("pcpg/accuracy/p1"),
+                    "nc_p1": res.metrics.get("baseline/accuracy/p1"),
+                }
+            )
+        )
+        return
     record = json.loads((res.out_dir / "summary" / "streamed.json").read_text())
     print(
         json.dumps(
             {
+                "stream": "on",
                 "trajectories": record["n_trajectories"],
                 "steps": record["steps"],
                 "wall_s": round(wall, 1),

@@ -359,3 +359,49 @@ def test_private_ray_listens_on_loopback_only(cluster, tmp_path):
     addrs = json.loads(out.stdout.strip().splitlines()[-1])
     assert addrs, "found no listening sockets of the private Ray"
     assert all(a in ("127.0.0.1", "::ffff:127.0.0.1", "::1") for a in addrs), addrs
+
+
+def test_a_streamed_log_runs_over_both_nodes_with_no_shared_disk(cluster):
+    """The log lies on the driver's disk only: its blocks are read on the driver's node, every
+    later step (aggregation, k-means passes, the BC groups) runs on the worker node, and the
+    numbers equal a private embedded run's."""
+    from ray.util.state import list_nodes, list_tasks
+
+    from pcpg_dist.domains.trajectories.synthetic_log import write_styled_log
+
+    drv = cluster["drv"]
+    write_styled_log(drv / "big.parquet", 4000, d=8, seed=2)
+    cfg = {
+        "name": "streamed",
+        "domain": "trajectories",
+        "seeds": [0],
+        "trajectories": {"path": "big.parquet", "stream": "on"},
+        "clustering": {"k": 4},
+        "ranking": {"ps": [1.0, 0.5]},
+    }
+    (drv / "streamed.yaml").write_text(yaml.safe_dump(cfg))
+    remote = pcpg(
+        ["run", "streamed.yaml", "--no-tracking", "--quiet", "--workdir", "sremote",
+         "--ray-address", cluster["address"]],
+        drv,
+    )  # fmt: skip
+    assert remote.returncode == 0, remote.stderr[-3000:]
+    local = pcpg(["run", "streamed.yaml", "--no-tracking", "--quiet", "--workdir", "slocal"], drv)
+    assert local.returncode == 0, local.stderr[-3000:]
+    a, b = (
+        json.loads((drv / w / "streamed" / "summary" / "streamed.json").read_text())
+        for w in ("sremote", "slocal")
+    )
+    assert a["clustering"] == b["clustering"] and a["clustering"]["clustering/accuracy"] > 0.95
+    for key, value in b["metrics"].items():
+        assert a["metrics"][key] == pytest.approx(value, abs=0.01), key
+    head = next(n.node_id for n in list_nodes(address=cluster["dashboard"]) if n.is_head_node)
+    tasks = list_tasks(address=cluster["dashboard"], limit=10_000, raise_on_missing_output=False)
+    where = {}
+    for t in tasks:
+        where.setdefault(t.name, set()).add("head" if t.node_id == head else "worker")
+    reads = {w for name, nodes in where.items() if "MapBatches(read)" in name for w in nodes}
+    assert reads == {"head"}, sorted(where.items())
+    assert where.get("train_group") == {"worker"}, sorted(where.items())
+    aggregated = {w for name, nodes in where.items() if "Aggregate" in name for w in nodes}
+    assert "worker" in aggregated, sorted(where.items())

@@ -4,7 +4,6 @@ per-block vectors, and errors raised inside block functions brought back as them
 from __future__ import annotations
 
 import logging
-import warnings
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
@@ -75,23 +74,56 @@ def _ours(e: BaseException) -> bool:
 
 def read_steps(source: StreamSource, columns: list[str]):
     """The log as a lazy ``ray.data`` dataset of the given columns, in blocks of about
-    :data:`ROWS_PER_BLOCK` steps. Local files are read on the driver's node (no other node need
-    see its disk); every later step runs anywhere."""
-    import ray
+    :data:`ROWS_PER_BLOCK` steps. On one node, or from shared storage (a URI), Ray Data's Parquet
+    reader reads it anywhere. On a cluster, local files are read on the driver's node only (no
+    other node need see its disk: :func:`_read_here`); every later step runs anywhere."""
     import ray.data
+
+    pinned = None if any("://" in f for f in source.files) else _on_this_node()
+    if pinned is not None:
+        return _read_here(source, columns, pinned)
+    blocks = max(2, -(-source.steps // ROWS_PER_BLOCK))
+    return ray.data.read_parquet(list(source.files), columns=columns, override_num_blocks=blocks)
+
+
+def _read_here(source: StreamSource, columns: list[str], options: dict):
+    """The files' row groups as the rows of a small dataset, each read (in slices of
+    :data:`ROWS_PER_BLOCK`) by a task kept on this node. Ray Data's own reader lists and samples
+    the files in tasks no option keeps here, so a node without the driver's disk would fail."""
+    import pyarrow.parquet as pq
+    import ray.data
+
+    groups = [
+        {"file": f, "group": g}
+        for f in source.files
+        for g in range(pq.ParquetFile(f).metadata.num_row_groups)
+    ]
+
+    def read(batch: dict[str, np.ndarray]):
+        for f, g in zip(batch["file"], batch["group"], strict=True):
+            table = pq.ParquetFile(str(f)).read_row_group(int(g), columns=columns)
+            for lo in range(0, table.num_rows, ROWS_PER_BLOCK):
+                yield table.slice(lo, ROWS_PER_BLOCK)
+
+    return ray.data.from_items(groups).map_batches(
+        read, batch_size=1, batch_format="numpy", **options
+    )
+
+
+def _on_this_node() -> dict | None:
+    """Ray options that keep a task on the driver's node where the cluster has others (None on
+    one node); a driver's node with no CPU of its own (a head started with --num-cpus=0) runs
+    them asking for none."""
+    import ray
     from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
-    blocks = max(2, -(-source.steps // ROWS_PER_BLOCK))
-    here = NodeAffinitySchedulingStrategy(ray.get_runtime_context().get_node_id(), soft=False)
-    local = not any("://" in f for f in source.files)
-    with warnings.catch_warnings():  # Ray 2.60 deprecates ray_remote_args for named ones,
-        warnings.simplefilter("ignore")  # but has no named scheduling strategy yet
-        return ray.data.read_parquet(
-            list(source.files),
-            columns=columns,
-            override_num_blocks=blocks,
-            ray_remote_args={"scheduling_strategy": here} if local else None,
-        )
+    nodes = [n for n in ray.nodes() if n.get("Alive")]
+    if len(nodes) < 2:
+        return None
+    here = ray.get_runtime_context().get_node_id()
+    cpus = next((n["Resources"].get("CPU", 0.0) for n in nodes if n["NodeID"] == here), 0.0)
+    options = {"scheduling_strategy": NodeAffinitySchedulingStrategy(here, soft=False)}
+    return options if cpus >= 1 else {**options, "num_cpus": 0}
 
 
 def reduce_blocks(
