@@ -154,9 +154,10 @@ def logs(sizes: list[int], keep: str | None) -> None:
         log = folder / f"log-{n}.parquet"
         if not log.exists():
             write_styled_log(log, n, d=32, seed=0)
+        # a fresh run folder each time: the in-memory pipeline would resume from its cache
         if n == min(sizes):
-            rows.append({"n": n, **_log_child(log, str(folder / "runs-mem"), "off")})
-        rows.append({"n": n, **_log_child(log, str(folder / "runs"), "on")})
+            rows.append({"n": n, **_log_child(log, tempfile.mkdtemp(dir=folder), "off")})
+        rows.append({"n": n, **_log_child(log, tempfile.mkdtemp(dir=folder), "on")})
     print(
         f"{'N':>9} {'how':>9} {'wall s':>7} {'ms/traj':>8} {'RSS GB':>7} {'PSS GB':>7} "
         f"{'spill GB':>8} {'acc':>6} {'PCPG':>6} {'NC':>6}  stages (s)"

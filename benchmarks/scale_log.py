@@ -37,14 +37,21 @@ def tree_memory(pid: int) -> tuple[float, float]:
 
 
 def spilled_gb() -> float:
-    """Object-store bytes spilled to disk so far (Ray's memory summary)."""
-    import re
+    """Bytes in the object store's spill folder now (polled by the watcher for the peak)."""
+    import contextlib
+    import glob
+    import os
 
-    from ray._private.internal_api import memory_summary
+    import ray
 
-    text = memory_summary(stats_only=True)
-    m = re.search(r"Spilled (\d+) MiB", text)
-    return int(m.group(1)) / 1024 if m else 0.0
+    session = ray._private.worker.global_worker.node.get_session_dir_path()
+    total = 0
+    for folder in glob.glob(os.path.join(session, "ray_spilled_objects*")):
+        for root, _, files in os.walk(folder):
+            for f in files:
+                with contextlib.suppress(OSError):  # freed while we looked
+                    total += os.path.getsize(os.path.join(root, f))
+    return total / 2**30
 
 
 def main(log: str, out: str, seeds: str = "0", stream: str = "on") -> None:
@@ -54,12 +61,13 @@ def main(log: str, out: str, seeds: str = "0", stream: str = "on") -> None:
     from pcpg_dist.config import ExperimentConfig
     from pcpg_dist.orchestration.ray_pool import init_ray
 
-    peak = {"rss": 0.0, "pss": 0.0}
+    peak = {"rss": 0.0, "pss": 0.0, "spill": 0.0}
     stop = threading.Event()
 
     def watch() -> None:
         while not stop.is_set():
             rss, pss = tree_memory(os.getpid())
+            peak["spill"] = max(peak["spill"], spilled_gb())
             if rss > peak["rss"]:
                 peak["procs"] = sorted(LAST, reverse=True)[:4]
                 peak["at"] = round(time.perf_counter() - t0)
@@ -81,7 +89,6 @@ def main(log: str, out: str, seeds: str = "0", stream: str = "on") -> None:
     )
     res = run_experiment(cfg, workdir=Path(out), track=False, show_progress=False)
     wall = time.perf_counter() - t0
-    spill = spilled_gb()
     stop.set()
     if stream == "off":  # the in-memory pipeline, for the side-by-side
         stop.set()
@@ -102,6 +109,7 @@ def main(log: str, out: str, seeds: str = "0", stream: str = "on") -> None:
             )
         )
         return
+    spill = peak["spill"]
     record = json.loads((res.out_dir / "summary" / "streamed.json").read_text())
     print(
         json.dumps(

@@ -370,7 +370,9 @@ def test_a_streamed_log_runs_over_both_nodes_with_no_shared_disk(cluster):
     from pcpg_dist.domains.trajectories.synthetic_log import write_styled_log
 
     drv = cluster["drv"]
-    write_styled_log(drv / "big.parquet", 4000, d=8, seed=2)
+    # PCPG_NODES_TRAJECTORIES=1000000 makes this the million-trajectory run of docs/scale.md
+    n = int(os.environ.get("PCPG_NODES_TRAJECTORIES", "4000"))
+    write_styled_log(drv / "big.parquet", n, d=8 if n <= 10_000 else 32, seed=2)
     cfg = {
         "name": "streamed",
         "domain": "trajectories",
@@ -402,6 +404,10 @@ def test_a_streamed_log_runs_over_both_nodes_with_no_shared_disk(cluster):
         where.setdefault(t.name, set()).add("head" if t.node_id == head else "worker")
     reads = {w for name, nodes in where.items() if "MapBatches(read)" in name for w in nodes}
     assert reads == {"head"}, sorted(where.items())
+    print(
+        json.dumps({"trajectories": n, "remote": a["stage_seconds"], "local": b["stage_seconds"]})
+    )
+    print(json.dumps({name: sorted(nodes) for name, nodes in sorted(where.items())}))
     assert where.get("train_group") == {"worker"}, sorted(where.items())
     aggregated = {w for name, nodes in where.items() if "Aggregate" in name for w in nodes}
     assert "worker" in aggregated, sorted(where.items())

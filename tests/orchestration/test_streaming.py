@@ -160,3 +160,29 @@ def test_a_log_that_cannot_stream_is_refused_from_its_footer(tmp_path, change, s
 def test_a_named_score_column_needs_the_in_memory_pipeline(log):
     with pytest.raises(DataError, match="ranks by return, length or -length"):
         stream_source(config(log, trajectories={"score": "skill"}))
+
+
+def test_a_streamed_run_is_one_mlflow_run_with_its_log_as_input(ray_session, log, tmp_path):
+    from mlflow.tracking import MlflowClient
+
+    from pcpg_dist.api.run import run_experiment
+
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    res = run_experiment(
+        config(log, ranking={"ps": [1.0]}),
+        workdir=tmp_path / "runs",
+        tracking_uri=uri,
+        track=True,
+        show_progress=False,
+        command="pcpg run streamed.yaml",
+    )
+    run = MlflowClient(uri).get_run(res.parent_run_id)
+    m = run.data.metrics
+    assert m["pcpg/accuracy/p1"] == pytest.approx(res.metrics["pcpg/accuracy/p1"])
+    assert m["clustering/accuracy"] >= 0.95 and m["seconds/train"] > 0
+    assert run.data.params["clustering.k"] == "4"
+    assert run.data.tags["pcpg.streamed"] == "true"
+    (data,) = [i for i in run.inputs.dataset_inputs if i.tags[0].value == "training"]
+    assert data.dataset.name == "log.parquet" and data.dataset.source_type == "local"
+    artifacts = [a.path for a in MlflowClient(uri).list_artifacts(run.info.run_id)]
+    assert "streamed.json" in artifacts

@@ -83,11 +83,18 @@ def test_features_are_the_trajectory_statistics(rng):
 
 @pytest.mark.parametrize(
     ("column", "value", "says"),
-    [("action", 9, "actions are 0..3"), ("s1", np.nan, "non-finite"), ("action", -3, "action -3")],
+    [
+        ("action", 9, "actions are 0..3"),
+        ("s1", np.nan, "non-finite"),
+        ("action", -3, "action -3"),
+        ("style", 64, "styles are 0..63 or -1"),
+    ],
 )
 def test_a_bad_block_is_one_line_naming_the_column(rng, column, value, says):
     batch = steps(rng)
-    batch[column] = batch[column].astype(type(value) if column == "action" else np.float32)
+    batch[column] = batch[column].astype(
+        np.float32 if column.startswith("s") and column != "style" else int
+    )
     batch[column][4] = value
     with pytest.raises(DataError, match=says):
         F.step_partials(batch, STATES, A)

@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from pcpg_dist.common.errors import DataError
+from pcpg_dist.dataset import MAX_STYLES
 
 
 def partial_columns(d: int, n_actions: int) -> list[str]:
@@ -27,7 +28,8 @@ def partial_columns(d: int, n_actions: int) -> list[str]:
 
 
 def check_block(batch: dict[str, np.ndarray], states: tuple[str, ...], n_actions: int) -> None:
-    """What a block must hold: actions in -1..n-1, finite states, integer trajectory ids."""
+    """What a block must hold: integer trajectory ids, actions in -1..n-1, styles in -1..63,
+    finite states."""
     tid, action = batch["trajectory"], batch["action"]
     if not np.issubdtype(tid.dtype, np.integer):
         raise DataError(
@@ -39,6 +41,14 @@ def check_block(batch: dict[str, np.ndarray], states: tuple[str, ...], n_actions
             f"column 'action': trajectory {int(tid[bad[0]])} has action {int(action[bad[0]])}; "
             f"actions are 0..{n_actions - 1} (-1 on a closing row)"
         )
+    if "style" in batch:
+        style = batch["style"]
+        wrong = np.flatnonzero((style < -1) | (style >= MAX_STYLES))
+        if len(wrong):
+            raise DataError(
+                f"column 'style': trajectory {int(tid[wrong[0]])} has style {style[wrong[0]]}; "
+                f"styles are 0..{MAX_STYLES - 1} or -1 (unknown)"
+            )
     for name in states:
         col = batch[name]
         if not np.isfinite(col).all():
