@@ -87,7 +87,7 @@ def test_features_are_the_trajectory_statistics(rng):
         ("action", 9, "actions are 0..3"),
         ("s1", np.nan, "non-finite"),
         ("action", -3, "action -3"),
-        ("style", 64, "styles are 0..63 or -1"),
+        ("style", 100_000, "styles are 0..99999 or -1"),
     ],
 )
 def test_a_bad_block_is_one_line_naming_the_column(rng, column, value, says):

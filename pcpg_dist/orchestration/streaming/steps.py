@@ -6,7 +6,6 @@ from __future__ import annotations
 import numpy as np
 
 from pcpg_dist.common.errors import DataError
-from pcpg_dist.dataset import MAX_STYLES
 from pcpg_dist.domains.base import StreamSource
 from pcpg_dist.orchestration.streaming.engine import read_steps, reduce_blocks
 from pcpg_dist.stages.streamed import cells as P
@@ -131,13 +130,13 @@ def label_table(feats, mean, scale, centres, seed: int, cfg, source: StreamSourc
     contingency = None
     if "style" in source.optional:
 
-        def table(batch):
+        def table(batch):  # (styles seen in this block) x k counts, flattened
             known = batch["style"] >= 0
-            out = np.zeros((MAX_STYLES, k))
-            np.add.at(out, (batch["style"][known], batch["cluster"][known]), 1.0)
-            return out.ravel()
+            cell = batch["style"][known] * k + batch["cluster"][known]
+            return np.bincount(cell, minlength=k).astype(np.float64)
 
-        contingency = reduce_blocks(labels, table).reshape(MAX_STYLES, k)
+        counts = reduce_blocks(labels, table, combine=_padded_add)
+        contingency = np.pad(counts, (0, -len(counts) % k)).reshape(-1, k)
         contingency = contingency[contingency.sum(1) > 0]
     return labels, contingency
 
@@ -196,6 +195,15 @@ def top_p_cuts(labelled, k: int, ps: tuple[float, ...], split_seed: int) -> list
         mine = cols["p"] == pi
         cuts.append(R.exact_cuts(cols["score"][mine], cols["tie"][mine], cols["group"][mine], need))
     return cuts
+
+
+def _padded_add(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The sum of two count vectors of different lengths (blocks see different styles)."""
+    if len(a) < len(b):
+        a, b = b, a
+    out = a.copy()
+    out[: len(b)] += b
+    return out
 
 
 def clustering_quality(contingency: np.ndarray | None) -> dict[str, float]:

@@ -28,7 +28,7 @@ def partial_columns(d: int, n_actions: int) -> list[str]:
 
 
 def check_block(batch: dict[str, np.ndarray], states: tuple[str, ...], n_actions: int) -> None:
-    """What a block must hold: integer trajectory ids, actions in -1..n-1, styles in -1..63,
+    """What a block must hold: integer trajectory ids, actions in -1..n-1, styles in -1..99999,
     finite states."""
     tid, action = batch["trajectory"], batch["action"]
     if not np.issubdtype(tid.dtype, np.integer):
