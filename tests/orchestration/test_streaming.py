@@ -82,6 +82,7 @@ def test_a_streamed_run_finds_the_styles_and_its_agents_beat_no_clustering(
     assert kept.mean() == pytest.approx(0.5, abs=0.03)
 
 
+@pytest.mark.slow  # three streamed runs
 def test_the_same_seed_gives_the_same_numbers_however_the_log_is_cut(
     ray_session, log, tmp_path, monkeypatch
 ):
