@@ -247,3 +247,25 @@ def test_early_stop_keeps_each_cells_best_weights():
     assert stop.done.tolist() == [True, False]
     np.testing.assert_array_equal(stop.best_states[0][0], first[0])
     np.testing.assert_array_equal(stop.best_states[1][0], model.cell_state(1)[0])
+
+
+def test_an_error_said_in_a_worker_comes_back_as_itself():
+    from pcpg_dist.common.errors import ConfigError
+    from pcpg_dist.orchestration.streaming.engine import _said_in_worker
+    from pcpg_dist.orchestration.streaming.steps import _padded_add
+
+    text = (
+        "ray::ReadFiles->MapBatches(step_partials)() (pid=1)\n  File ...\n"
+        "pcpg_dist.common.errors.DataError: column 'action': trajectory 3 has action 7; "
+        "actions are 0..3 (-1 on a closing row)\n\nThe above exception was the direct cause"
+    )
+    said = _said_in_worker(text)
+    assert isinstance(said, DataError)
+    assert (
+        str(said)
+        == "column 'action': trajectory 3 has action 7; actions are 0..3 (-1 on a closing row)"
+    )
+    assert isinstance(_said_in_worker("pcpg_dist.common.errors.ConfigError: k"), ConfigError)
+    assert _said_in_worker("ValueError: something else") is None
+    assert _said_in_worker("pcpg_dist.common.errors.NoSuchError: x") is None
+    np.testing.assert_array_equal(_padded_add(np.ones(2), np.ones(5)), [2, 2, 1, 1, 1])
