@@ -41,11 +41,11 @@ def run_streamed(
 ) -> RunResult:
     import ray
 
-    from pcpg_dist.orchestration.streaming import stream_unit
+    from pcpg_dist.orchestration.streaming import STEPS_PER_SEED, stream_unit
 
     slots = max(1, int(ray.cluster_resources().get("CPU", 1)))
     with progress_bar(
-        "Streamed: features", 1 + 6 * len(cfg.seeds), enabled=show_progress
+        "Streamed: features", 1 + STEPS_PER_SEED * len(cfg.seeds), enabled=show_progress
     ) as advance:
         result = stream_unit(source, cfg, slots, advance)
     summary = out / "summary"

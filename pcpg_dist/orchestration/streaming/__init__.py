@@ -68,7 +68,8 @@ def stream_unit(
     source: StreamSource, cfg, slots: int, advance: Callable[..., None] = lambda *a, **k: None
 ) -> StreamOutcome:
     """Features once, then per seed: k-means, ranking, the tagged rows, every cell, evaluation.
-    ``advance`` is told of each finished step (6 per seed, 1 for the features)."""
+    ``advance`` is told of each finished step (:data:`STEPS_PER_SEED` per seed, 1 for the
+    features), with what runs next."""
     quiet_engine()
     out = StreamOutcome(steps=source.steps)
     k, ps = cfg.clustering.k, tuple(cfg.ranking.ps)
@@ -80,8 +81,8 @@ def stream_unit(
         with clock("features"):
             feats, smean, sscale = feature_table(source)
             out.n_trajectories = feats.count()
-        advance(1, description="Streamed: k-means")
-        for seed in cfg.seeds:
+        advance(1, description=f"Streamed: k-means (seed {cfg.seeds[0]})")
+        for i, seed in enumerate(cfg.seeds):
             with clock("cluster"):
                 mean, scale, centres, iterations = fit_kmeans(feats, k, seed)
             advance(1, description="Streamed: ranking")
@@ -103,7 +104,8 @@ def stream_unit(
                 held_out = tagged_rows(source, lookup, smean, sscale, test=True)
                 correct, test_rows = evaluate_cells(held_out, states, cells, spec, k)
             del rows, lookup
-            advance(1, description="Streamed: k-means")
+            later = cfg.seeds[i + 1 :]
+            advance(1, description=f"Streamed: k-means (seed {later[0]})" if later else "Streamed")
             per_seed.append(
                 {
                     **accuracies(correct, test_rows, cells, ps),
@@ -120,6 +122,9 @@ def stream_unit(
     out.metrics = {m: v for m, v in merged.items() if not m.startswith("clustering/")}
     out.metrics["bc/epochs_max"] = float(max(max(e) for e in out.epochs.values()))
     return out
+
+
+STEPS_PER_SEED = 5  # k-means, ranking, tagging, BC, evaluation
 
 
 class _Clock:
