@@ -95,16 +95,12 @@ def run_streamed(
 
 
 def _write_labels(labels, path: Path) -> None:
-    import pyarrow as pa
     import pyarrow.parquet as pq
 
     tmp = path.with_name(path.name + ".part")
     writer = None
     try:
-        for batch in labels.iter_batches(batch_format="pyarrow", batch_size=None):
-            table = (
-                pa.Table.from_batches(batch.to_batches()) if hasattr(batch, "to_batches") else batch
-            )
+        for table in labels.iter_batches(batch_format="pyarrow", batch_size=None):
             if writer is None:
                 writer = pq.ParquetWriter(tmp, table.schema)
             writer.write_table(table)

@@ -84,3 +84,26 @@ def catch_sigterm() -> None:
 
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, on_sigterm)
+
+
+def pcpg_error_in(e: BaseException) -> PcpgError | None:
+    """The project's own error inside what Ray raised: a task's (Ray keeps it as the cause), a
+    Ray Data block function's (Ray Data hands it back as its worker's traceback text only, a
+    ``UserCodeException``: the last pcpg error line in it), or ``e`` itself; None if there is
+    none."""
+    import ray.exceptions
+
+    if not isinstance(e, ray.exceptions.RayTaskError):
+        return e if isinstance(e, PcpgError) else None
+    return e.cause if isinstance(e.cause, PcpgError) else said_in_worker(str(e))
+
+
+def said_in_worker(text: str) -> PcpgError | None:
+    """The last pcpg error line of a worker's traceback text, as that error."""
+    import re
+
+    found = re.findall(r"pcpg_dist\.common\.errors\.(\w+): ([^\n]+)", text)
+    kind = globals().get(found[-1][0]) if found else None
+    if not (isinstance(kind, type) and issubclass(kind, PcpgError)):
+        return None
+    return kind(found[-1][1].strip())

@@ -17,9 +17,10 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
+from pcpg_dist.common import errors
 from pcpg_dist.common.commands import command
 from pcpg_dist.common.devices import available_cpus
-from pcpg_dist.common.errors import ConfigError, PcpgError, ServiceError, catch_sigterm, first_line
+from pcpg_dist.common.errors import ConfigError, ServiceError, catch_sigterm, first_line
 
 # Ray's `uv run` hook would start every worker through `uv run` in the driver's project folder: it
 # breaks outside that folder and costs ~20 s locally. The package ships itself instead (below).
@@ -372,8 +373,8 @@ def _collect(
                 value = ray.get(ref)
             except ray.exceptions.RayTaskError as e:
                 # A user mistake inside a task surfaces as the project's own one-line error.
-                if isinstance(e.cause, PcpgError):
-                    raise e.cause from None
+                if (found := errors.pcpg_error_in(e)) is not None:
+                    raise found from None
                 raise
             keep(i, value)
             del value

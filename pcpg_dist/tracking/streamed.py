@@ -9,7 +9,7 @@ from pcpg_dist.tracking.connection import _retry
 from pcpg_dist.tracking.datasets import log_data_inputs
 from pcpg_dist.tracking.logged import _log_metrics, _log_params
 from pcpg_dist.tracking.runs import open_experiment
-from pcpg_dist.tracking.tags import ROLE
+from pcpg_dist.tracking.tags import PARENT_ROLE, ROLE
 
 
 def log_streamed(
@@ -21,7 +21,7 @@ def log_streamed(
         client.create_run,
         exp_id,
         run_name=f"{cfg.name} (streamed)",
-        tags={ROLE: "parent", "pcpg.streamed": "true", "pcpg.command": command[:5000]},
+        tags={ROLE: PARENT_ROLE, "pcpg.streamed": "true", "pcpg.command": command[:5000]},
     )
     run_id = run.info.run_id
     _log_params(client, run_id, cfg.flat())

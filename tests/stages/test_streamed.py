@@ -251,7 +251,7 @@ def test_early_stop_keeps_each_cells_best_weights():
 
 def test_an_error_said_in_a_worker_comes_back_as_itself():
     from pcpg_dist.common.errors import ConfigError
-    from pcpg_dist.orchestration.streaming.engine import _said_in_worker
+    from pcpg_dist.common.errors import said_in_worker as _said_in_worker
     from pcpg_dist.orchestration.streaming.steps import _padded_add
 
     text = (

@@ -17,9 +17,7 @@ import numpy as np
 
 from pcpg_dist.domains.base import Domain, DomainHooks, FanOut, ScoreFn, StreamSource, Unit
 from pcpg_dist.domains.defaults import in_process
-from pcpg_dist.domains.trajectories.settings import SECTIONS
-
-BUILTIN_SCORES = ("return", "length", "-length")
+from pcpg_dist.domains.trajectories.settings import BUILTIN_SCORES, SECTIONS
 
 
 def minari_fingerprint(dataset_id: str) -> list[list]:

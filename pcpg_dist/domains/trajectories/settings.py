@@ -32,6 +32,10 @@ def minari_id_problem(dataset_id: object, need_version: bool = False) -> str | N
     return None
 
 
+#: Step B's scores computed from the log itself (any other ``score`` names a table column)
+BUILTIN_SCORES = ("return", "length", "-length")
+
+
 class TrajectoriesConfig(StrictModel):
     """A user's own play logs (domain ``trajectories``): see docs/bring-your-own-data.md."""
 

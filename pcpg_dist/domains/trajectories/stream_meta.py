@@ -11,31 +11,30 @@ import pyarrow.parquet as pq
 
 from pcpg_dist.common.errors import DataError
 from pcpg_dist.domains.base import StreamSource
+from pcpg_dist.domains.trajectories.settings import BUILTIN_SCORES
 from pcpg_dist.domains.trajectories.table_columns import state_columns
-from pcpg_dist.domains.trajectories.table_files import parquet_files
-
-SCORES = ("return", "length", "-length")
+from pcpg_dist.domains.trajectories.table_files import (
+    check_same_columns,
+    parquet_files,
+    unreadable,
+)
 
 
 def stream_source(settings, name: str) -> StreamSource | None:
     """The log as a :class:`StreamSource`, or None when ``stream: auto`` and it is small."""
     files = parquet_files(Path(settings.path))
-    schemas, rows = [], 0
-    for f in files:
+    metas = []
+    for f in files:  # footers only, each read once
         try:
-            meta = pq.read_metadata(f)
+            metas.append(pq.read_metadata(f))
         except (OSError, pa.ArrowException) as e:
-            raise DataError(f"{f}: not a readable Parquet file ({str(e)[:200]})") from None
-        schemas.append((f, meta.schema.to_arrow_schema()))
-        rows += meta.num_rows
+            raise unreadable(f, e) from None
+    rows = sum(m.num_rows for m in metas)
     if settings.stream == "auto" and rows <= settings.stream_above_steps:
         return None
-    first, schema = schemas[0]
-    for f, other in schemas[1:]:
-        if other.names != schema.names:
-            raise DataError(
-                f"{f}: its columns differ from {first.name}'s; every file of a log has the same columns"
-            )
+    first, schema = files[0], metas[0].schema.to_arrow_schema()
+    for f, meta in zip(files[1:], metas[1:], strict=True):
+        check_same_columns(first, schema, f, meta.schema.to_arrow_schema())
     names = schema.names
     for need in ("trajectory", "t", "action"):
         if need not in names:
@@ -58,12 +57,12 @@ def stream_source(settings, name: str) -> StreamSource | None:
         kind = schema.field(c).type
         if not (pa.types.is_floating(kind) or pa.types.is_integer(kind)):
             raise DataError(f"{first}: state column {c!r} is {kind}; states are numbers")
-    if settings.score not in SCORES:
+    if settings.score not in BUILTIN_SCORES:
         raise DataError(
             f"trajectories.score {settings.score!r}: a streamed log ranks by return, length or "
             f"-length (a per-trajectory score column needs trajectories.stream: off)"
         )
-    n_actions = settings.n_actions or _largest_action(files) + 1
+    n_actions = settings.n_actions or _largest_action(files, metas) + 1
     return StreamSource(
         name=name,
         files=tuple(str(f.resolve()) for f in files),
@@ -76,11 +75,10 @@ def stream_source(settings, name: str) -> StreamSource | None:
     )
 
 
-def _largest_action(files: list[Path]) -> int:
-    """The largest action from the row groups' statistics (every file's footer; no data read)."""
+def _largest_action(files: list[Path], metas: list) -> int:
+    """The largest action from the row groups' statistics (the footers already read)."""
     top = -1
-    for f in files:
-        meta = pq.ParquetFile(f).metadata
+    for f, meta in zip(files, metas, strict=True):
         col = meta.schema.to_arrow_schema().get_field_index("action")
         for g in range(meta.num_row_groups):
             stats = meta.row_group(g).column(col).statistics

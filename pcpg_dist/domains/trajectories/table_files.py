@@ -81,11 +81,11 @@ def parquet_files(path: Path) -> list[Path]:
     return [path]
 
 
-def _unreadable(f: Path, e: Exception) -> DataError:
+def unreadable(f: Path, e: Exception) -> DataError:
     return unreadable_parquet(f, e, READS)
 
 
-def _check_same_columns(first: Path, schema: pa.Schema, f: Path, other: pa.Schema) -> None:
+def check_same_columns(first: Path, schema: pa.Schema, f: Path, other: pa.Schema) -> None:
     """A folder's file ``f`` has the columns of its first file, of types that combine."""
     types, other_types = (
         dict(zip(schema.names, schema.types, strict=True)),
@@ -121,14 +121,14 @@ def read_step_table(path: str | Path) -> StepTable:
         try:
             schemas.append(pq.read_schema(f))
         except (pa.ArrowException, OSError) as e:
-            raise _unreadable(f, e) from None
-        _check_same_columns(files[0], schemas[0], f, schemas[-1])
+            raise unreadable(f, e) from None
+        check_same_columns(files[0], schemas[0], f, schemas[-1])
     tables = []
     for f in files:
         try:
             tables.append(pq.read_table(f))
         except (pa.ArrowException, OSError) as e:
-            raise _unreadable(f, e) from None
+            raise unreadable(f, e) from None
     try:
         table = (
             pa.concat_tables(tables, promote_options="permissive") if len(tables) > 1 else tables[0]

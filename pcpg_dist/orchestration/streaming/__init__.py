@@ -2,9 +2,9 @@
 and evaluation over blocks, with the driver holding only reduced statistics.
 
 The stages are :mod:`pcpg_dist.stages.streamed`'s pure block functions; this module only
-wires them into the engine. The log is read in blocks (``local://`` paths: the files are read on
-the driver's node, every later step runs anywhere, and the object store spills to disk rather
-than failing). Per-trajectory features are per-block partial sums merged by a hash aggregation;
+wires them into the engine. The log is read in blocks (on a cluster, local files on the driver's
+node only; every later step runs anywhere, and the object store spills to disk rather than
+failing). Per-trajectory features are per-block partial sums merged by a hash aggregation;
 the k-means fit, the score ranges and histograms, the evaluation counts are per-block vectors
 summed as they stream past. The one table that grows with the log is the trajectory -> code
 lookup (16 bytes a trajectory) that tags every step row with its cell; it is assembled in a task
@@ -47,7 +47,7 @@ class StreamOutcome:
     cells: dict[int, list[tuple[int, float]]] = field(default_factory=dict)  # seed -> cells
     weights: dict[int, list[list[np.ndarray]]] = field(default_factory=dict)
     epochs: dict[int, list[int]] = field(default_factory=dict)
-    labels: Any = None  # ray.data dataset: trajectory, split, cluster per seed
+    labels: dict[int, Any] = field(default_factory=dict)  # seed -> ray.data labels dataset
     n_trajectories: int = 0
     steps: int = 0
 
@@ -115,7 +115,6 @@ def stream_unit(
             )
             out.cells[seed], out.weights[seed] = cells, states
             out.epochs[seed] = [g["epochs"] for g in groups]
-            out.labels = out.labels or {}
             out.labels[seed] = labels.select_columns(["trajectory", "test", "cluster", "code"])
     merged = {key: float(np.mean([m[key] for m in per_seed])) for key in per_seed[0]}
     out.clustering = {m: v for m, v in merged.items() if m.startswith("clustering/")}

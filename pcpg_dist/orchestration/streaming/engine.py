@@ -9,7 +9,7 @@ from contextlib import contextmanager
 
 import numpy as np
 
-from pcpg_dist.common.errors import PcpgError
+from pcpg_dist.common.errors import pcpg_error_in
 from pcpg_dist.domains.base import StreamSource
 
 ROWS_PER_BLOCK = 250_000  # steps per read block (a few tens of MB of state)
@@ -32,44 +32,14 @@ def quiet_engine() -> None:
 
 @contextmanager
 def engine_errors() -> Iterator[None]:
-    """A :class:`PcpgError` raised inside a block function reaches the user as itself."""
+    """A :class:`PcpgError` raised inside a block function or task reaches the user as itself."""
     try:
         yield
     except Exception as e:  # noqa: BLE001 - Ray wraps a UDF's exception in its own types
-        cause, seen = e, 0
-        while cause is not None and seen < 20 and not _ours(cause):
-            cause, seen = cause.__cause__ or getattr(cause, "cause", None), seen + 1
-        if cause is not None and _ours(cause):
-            if cause is e:
-                raise
-            raise type(cause)(str(cause)) from None
-        said = _said_in_worker(str(e))
-        if said is not None:
-            raise said from None
-        raise
-
-
-def _said_in_worker(text: str) -> PcpgError | None:
-    """Ray Data hands back a failed block function's error as its worker's traceback text only
-    (``UserCodeException``): the last pcpg error line in it, as that error."""
-    import re
-
-    from pcpg_dist.common import errors
-
-    found = re.findall(r"pcpg_dist\.common\.errors\.(\w+): ([^\n]+)", text)
-    if not found:
-        return None
-    name, message = found[-1]
-    kind = getattr(errors, name, None)
-    if not (isinstance(kind, type) and issubclass(kind, PcpgError)):
-        return None
-    return kind(message.strip())
-
-
-def _ours(e: BaseException) -> bool:
-    """One of pcpg's errors as raised, not Ray's copy of it (a class made from both, whose
-    message carries the worker's traceback)."""
-    return isinstance(e, PcpgError) and type(e).__module__.startswith("pcpg_dist.")
+        found = pcpg_error_in(e)
+        if found is None or found is e:
+            raise
+        raise found from None
 
 
 def read_steps(source: StreamSource, columns: list[str]):

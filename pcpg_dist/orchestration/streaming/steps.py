@@ -87,11 +87,11 @@ def fit_kmeans(feats, k: int, seed: int, max_iter: int = 30, tol: float = 1e-4):
 
 
 def _score(batch: dict[str, np.ndarray], score: str) -> np.ndarray:
-    return {
-        "return": batch["ret"],
-        "length": batch["length"].astype(np.float64),
-        "-length": -batch["length"].astype(np.float64),
-    }[score]
+    """Step B's score: the return, or the length (``-length``: shorter is better)."""
+    if score == "return":
+        return batch["ret"]
+    length = batch["length"].astype(np.float64)
+    return -length if score == "-length" else length
 
 
 def label_table(feats, mean, scale, centres, seed: int, cfg, source: StreamSource):

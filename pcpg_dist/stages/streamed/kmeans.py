@@ -32,9 +32,9 @@ def scaling(total: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def distances(z: np.ndarray, centres: np.ndarray) -> np.ndarray:
     """Squared Euclidean distances (rows, k)."""
-    return (
-        (z * z).sum(1)[:, None] - 2.0 * z @ centres.T + (centres * centres).sum(1)[None, :]
-    ).clip(min=0.0)
+    from sklearn.metrics.pairwise import euclidean_distances
+
+    return euclidean_distances(z, centres, squared=True)
 
 
 def assign(z: np.ndarray, centres: np.ndarray) -> np.ndarray:
