@@ -7,7 +7,7 @@ from __future__ import annotations
 import time
 
 from pcpg_dist.api.finish import finish_point
-from pcpg_dist.common.progress import progress_bar
+from pcpg_dist.orchestration.executors import Executor, LocalExecutor
 from pcpg_dist.orchestration.points import Outcome, Point, RunResult
 
 
@@ -45,17 +45,13 @@ class OutputsAndTracking:
 
     def finished(self, outcomes: list[Outcome]) -> list[RunResult]:
         results = [finish_point(o) for o in outcomes]
-        unlogged = {
-            id(o): [e for e in o.point.units if not o.point.tracker.env_logged(e, o.point.ekeys[e])]
-            if o.point.tracker is not None
-            else []
-            for o in outcomes
-        }
-        total = sum(len(v) for v in unlogged.values())
-        enabled = self.show_progress and bool(total)
-        with progress_bar("MLflow child runs", total=total, enabled=enabled) as advance:
-            for o, result in zip(outcomes, results, strict=True):
-                _log_point(o, result, unlogged[id(o)], advance)
+        tracked = [(o, r) for o, r in zip(outcomes, results, strict=True) if o.point.tracker]
+        if not tracked:
+            return results
+        t0 = time.perf_counter()
+        _log_runs(tracked, outcomes[0].executor or LocalExecutor(), self.show_progress)
+        for _, result in tracked:
+            result.stage_seconds["tracking"] = time.perf_counter() - t0
         return results
 
     def failed(self, points: list[Point]) -> None:
@@ -64,25 +60,59 @@ class OutputsAndTracking:
                 p.tracker.fail()
 
 
-def _log_point(outcome: Outcome, result: RunResult, unlogged: list[str], advance) -> None:
-    """One point's MLflow runs, after every local result is written: child runs for the
-    ``unlogged`` environments (``advance()`` after each), then the parent. A rerun logs only the
-    environments without a FINISHED child run, recomputing nothing."""
+def _child_jobs(outcome: Outcome) -> list[tuple]:
+    """The arguments of :func:`~pcpg_dist.tracking.log_environment` for each of the point's
+    environments without a FINISHED child run of its unit (one search for all of them): a rerun
+    logs only those, recomputing nothing."""
     p = outcome.point
-    if p.tracker is None:
-        return
-    from pcpg_dist.tracking import log_environment
-
-    t0 = time.perf_counter()
-    for e in unlogged:
-        models = outcome.trained_cells(e)
-        log_environment(
+    logged = p.tracker.logged_units()
+    return [
+        (
             p.tracker.child_info(e, p.ekeys[e], outcome.cluster_result(e)["metrics"]),
             e,
             str(outcome.eval_dir(e)),
             outcome.eval_metrics(e),
-            [str(m.with_suffix(".pt")) for m in models],
+            [str(m.with_suffix(".pt")) for m in outcome.trained_cells(e)],
         )
-        advance()
-    p.tracker.finish(result, agents_dir=p.out / "agents", report_dir=p.out / "report")
-    result.stage_seconds["tracking"] = time.perf_counter() - t0
+        for e in p.units
+        if (e, p.ekeys[e]) not in logged
+    ]
+
+
+def _log_runs(
+    tracked: list[tuple[Outcome, RunResult]], executor: Executor, show_progress: bool
+) -> None:
+    """Every point's MLflow runs, logged by tasks on the driver's machine (where the run's files
+    are) while the driver only waits: the environments' child runs, a share of them per task,
+    then each point's parent run (its results, summary, report and agents model). After every
+    local result is written, so a tracking server that goes down costs no local result."""
+    from pcpg_dist.tracking import finish_parent, log_environments
+
+    jobs = [job for o, _ in tracked for job in _child_jobs(o)]
+    shares = min(len(jobs), 2 * executor.slots(1))
+    parents = [
+        (o.point.tracker, result, o.point.out / "agents", o.point.out / "report")
+        for o, result in tracked
+    ]
+    for fn, calls, what in (
+        (
+            log_environments,
+            [(jobs[i::shares],) for i in range(shares)],
+            f"{len(jobs)} environments",
+        ),
+        (
+            finish_parent,
+            parents,
+            "the parent run" if len(parents) == 1 else f"{len(parents)} parent runs",
+        ),
+    ):
+        executor.map(
+            fn,
+            calls,
+            f"MLflow: {what}",
+            num_cpus=1,
+            on_result=lambda i, ids: None,
+            show_progress=show_progress,
+            num_gpus=[0.0] * len(calls),
+            here=True,
+        )

@@ -45,7 +45,10 @@ class Executor(Protocol):
         on_result: Callable[[int, Any], None],
         show_progress: bool,
         num_gpus: Sequence[float],
-    ) -> None: ...
+        here: bool = False,
+    ) -> None:
+        """``fn(*call)`` for every call, ``on_result(i, result)`` as each ends; ``here``: on
+        the driver's machine (work on files only it has)."""
 
 
 class LocalExecutor:
@@ -68,7 +71,9 @@ class LocalExecutor:
 
         return in_process(fn, calls, description, show_progress)
 
-    def map(self, fn, calls, description, *, num_cpus, on_result, show_progress, num_gpus) -> None:
+    def map(
+        self, fn, calls, description, *, num_cpus, on_result, show_progress, num_gpus, here=False
+    ) -> None:
         from pcpg_dist.common.progress import progress_bar
 
         if not calls:
@@ -108,8 +113,10 @@ class RayExecutor:
 
         return fan_out(fn, calls, description, show_progress)
 
-    def map(self, fn, calls, description, *, num_cpus, on_result, show_progress, num_gpus) -> None:
-        from pcpg_dist.orchestration.ray_pool import run_tasks
+    def map(
+        self, fn, calls, description, *, num_cpus, on_result, show_progress, num_gpus, here=False
+    ) -> None:
+        from pcpg_dist.orchestration.ray_pool import on_driver_node, run_tasks
 
         limit = in_flight(num_cpus, max((nbytes(c) for c in calls), default=0)) if calls else 1
         run_tasks(
@@ -121,6 +128,7 @@ class RayExecutor:
             show_progress=show_progress and bool(calls),
             max_in_flight=limit,
             num_gpus=list(num_gpus),
+            options=on_driver_node() if here else None,
         )
 
 

@@ -16,6 +16,7 @@ from pcpg_dist.domains import contract
 from pcpg_dist.domains.base import FanOut, Unit
 from pcpg_dist.orchestration import ray_pool
 from pcpg_dist.orchestration.cache import Cache
+from pcpg_dist.orchestration.executors import Executor
 from pcpg_dist.pipeline.declared import data_key
 
 
@@ -74,6 +75,7 @@ class Outcome:
     times: dict[str, float]
     computed: dict[str, int]
     batch: int = 1
+    executor: Executor | None = None  # what ran the stages (and runs the child-run logging)
 
     def cluster_result(self, env: str) -> dict:
         return self.clusters[self.point.ckeys[env]]

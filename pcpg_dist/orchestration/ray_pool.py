@@ -270,6 +270,23 @@ def _waiting_for(num_cpus: int, in_flight: int, num_gpus: float = 0.0) -> str:
     return f"{queued} queued, each waiting for {need:g} {what}; {free.get(what, 0.0):g} of {total.get(what, 0.0):g} free"
 
 
+def on_driver_node() -> dict | None:
+    """Ray options that keep a task on the driver's node where the cluster has others (None on
+    one node): for work on files only that node has (a local log's row groups, the run folder an
+    MLflow child run is logged from). A driver's node with no CPU of its own (a head started with
+    --num-cpus=0) runs them asking for none."""
+    import ray
+    from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+
+    nodes = [n for n in ray.nodes() if n.get("Alive")]
+    if len(nodes) < 2:
+        return None
+    here = ray.get_runtime_context().get_node_id()
+    cpus = next((n["Resources"].get("CPU", 0.0) for n in nodes if n["NodeID"] == here), 0.0)
+    options = {"scheduling_strategy": NodeAffinitySchedulingStrategy(here, soft=False)}
+    return options if cpus >= 1 else {**options, "num_cpus": 0}
+
+
 # --------------------------------------------------------------------------- running tasks
 def run_tasks(
     fn: Callable[..., Any],
@@ -281,8 +298,10 @@ def run_tasks(
     show_progress: bool = True,
     max_in_flight: int | None = None,
     num_gpus: float | Sequence[float] = 0.0,
+    options: dict[str, Any] | None = None,
 ) -> list[Any]:
     """Run ``fn(*args)`` for every ``args`` in ``calls`` as Ray tasks; results in call order.
+    ``options``: Ray task options for every call (e.g. :func:`on_driver_node`).
 
     ``num_gpus`` (one for all calls, or one per call): GPUs a task asks for: Ray then runs it on a
     node with that share of a GPU free. (A Ray 2.60 task that asks for none still sees its node's
@@ -303,6 +322,8 @@ def run_tasks(
         return []
     check_resources(num_cpus)
     remote = ray.remote(num_cpus=num_cpus, max_retries=max_retries)(fn)
+    if options:
+        remote = remote.options(**options)
     one = isinstance(num_gpus, int | float)
     gpus = [float(num_gpus)] * len(calls) if one else [float(g) for g in num_gpus]
     limit = max(1, max_in_flight or len(calls))

@@ -146,7 +146,13 @@ def _run_stages(batch: Batch, hooks: RunHooks, stages: tuple[Stage, ...]) -> lis
             batch.times[stage.name] = time.perf_counter() - t0
         outcomes = [
             Outcome(
-                p, batch.cache, batch.clusters, dict(batch.times), batch.computed, len(batch.points)
+                p,
+                batch.cache,
+                batch.clusters,
+                dict(batch.times),
+                batch.computed,
+                len(batch.points),
+                batch.executor,
             )
             for p in batch.points
         ]

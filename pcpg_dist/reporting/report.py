@@ -46,6 +46,7 @@ from pcpg_dist.reporting.report_data import (
     read_csv,
     read_metrics,
     read_run,
+    reading_once,
 )
 from pcpg_dist.reporting.run_measures import kept_lengths
 
@@ -97,6 +98,12 @@ ENV_SECTIONS = (
         ("corruption_reward",),
     ),
 )
+
+
+# A page of hundreds of environment sections is read by nobody and takes the driver seconds per
+# environment to build: past this many, the rest are in the run-wide tables (every environment's
+# accuracy and clustering), their folders under summary/ and their MLflow runs.
+MAX_ENV_SECTIONS = 30
 
 
 def _env_sections(
@@ -219,6 +226,7 @@ class Report:
     paper: list[PaperRow]
     summary_sections: list[Section]
     envs: list[tuple[str, list[Section], list[Section]]]
+    more_envs: list[str]  # environments past MAX_ENV_SECTIONS: in the tables, without sections
     stages: list[list[str]]
     cached: list[str]
     reproduce: str
@@ -271,7 +279,11 @@ def _provenance_facts(run: dict, cfg: dict, prov: dict, target: str) -> list[tup
 
 def build(summary: Path, reproduce_target: str | None = None) -> Report:
     """The page model of a summary folder (reads only files inside it)."""
-    summary = Path(summary)
+    with reading_once():
+        return _build(Path(summary), reproduce_target)
+
+
+def _build(summary: Path, reproduce_target: str | None) -> Report:
     run = read_run(summary / "run.json")
     metrics = read_metrics(summary / "metrics.json")
     cfg = run.get("config", {})
@@ -283,17 +295,15 @@ def build(summary: Path, reproduce_target: str | None = None) -> Report:
     paper = paper_rows(domain, metrics, summary, envs)
     by_ref = _by_ref(paper)
     top = _summary_sections(summary, by_ref)
+    own_metrics: dict[str, dict[str, float]] = {env: {} for env in envs}
+    for key, value in metrics.items():  # "<env>/<metric>": one pass, not one per environment
+        env, _, rest = key.partition("/")
+        if rest and env in own_metrics:
+            own_metrics[env][rest] = value
 
     def rows_of(env: str) -> dict[str, PaperRow]:
         """This environment's own figures beside the paper's (the run-wide ones head the page)."""
-        own = _by_ref(
-            paper_rows(
-                domain,
-                {k[len(env) + 1 :]: v for k, v in metrics.items() if k.startswith(f"{env}/")},
-                summary,
-                [env],
-            )
-        )
+        own = _by_ref(paper_rows(domain, own_metrics[env], summary, [env]))
         # the kept data shares the rollouts' paper figures, not their numbers: its line comes
         # from its own table (this environment's kept lengths)
         kept = PaperRow("", "", own["Figs. 5 and 6"].paper, kept_lengths(summary, [env]))
@@ -301,7 +311,8 @@ def build(summary: Path, reproduce_target: str | None = None) -> Report:
             "subset_length": kept
         }
 
-    env_parts = [(env, *_env_sections(summary, env, rows_of(env))) for env in envs]
+    shown = envs[:MAX_ENV_SECTIONS]
+    env_parts = [(env, *_env_sections(summary, env, rows_of(env))) for env in shown]
     anchors = {sec.anchor for sec in top} | {
         sec.anchor for _, secs, more in env_parts for sec in secs + more
     }
@@ -329,6 +340,7 @@ def build(summary: Path, reproduce_target: str | None = None) -> Report:
         paper=paper,
         summary_sections=top,
         envs=env_parts,
+        more_envs=envs[len(shown) :],
         stages=stages,
         cached=cached,
         reproduce=f"pcpg reproduce {shlex.quote(reproduce_target or str(summary.resolve().parent))}",

@@ -8,8 +8,11 @@ folder, reached without symlinks); nothing takes a path from a file's content.
 from __future__ import annotations
 
 import base64
+import contextlib
+import contextvars
 import os
 import reprlib
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -233,7 +236,11 @@ def _cell_number(v) -> float | None:
 
 
 def _check_numbers(df: pd.DataFrame, col: str, path: Path) -> None:
-    values = df[col].map(_cell_number)
+    column = df[col]
+    if pd.api.types.is_numeric_dtype(column) and not pd.api.types.is_bool_dtype(column):
+        df[col] = column.astype(float)  # parsed as numbers already: every cell is one
+        return
+    values = column.map(_cell_number)
     bad = values.isna() & df[col].notna()
     if bad.any():
         i = int(bad.to_numpy().argmax())
@@ -288,8 +295,33 @@ def check_table(df: pd.DataFrame, path: Path) -> pd.DataFrame:
     return df
 
 
+_tables: contextvars.ContextVar[dict | None] = contextvars.ContextVar("tables", default=None)
+
+
+@contextlib.contextmanager
+def reading_once() -> Iterator[None]:
+    """Within the block, :func:`read_csv` reads and checks each file once (the page model reads
+    an environment's tables for its sections and again for the paper comparison)."""
+    token = _tables.set({})
+    try:
+        yield
+    finally:
+        _tables.reset(token)
+
+
 def read_csv(path: Path) -> pd.DataFrame | None:
-    """A summary table, checked by :func:`check_table`; None when the file has no columns at all."""
+    """A summary table, checked by :func:`check_table`; None when the file has no columns at all.
+    Inside :func:`reading_once`, a file already read comes back as a copy of the first reading."""
+    seen = _tables.get()
+    if seen is None:
+        return _read_checked(path)
+    key = str(path)
+    if key not in seen:
+        seen[key] = _read_checked(path)
+    return None if seen[key] is None else seen[key].copy()
+
+
+def _read_checked(path: Path) -> pd.DataFrame | None:
     try:
         df = pd.read_csv(path)
     except pd.errors.EmptyDataError:

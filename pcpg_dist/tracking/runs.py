@@ -130,7 +130,15 @@ def open_experiment(name: str, uri: str | None):
 def _runs_with(client, exp_id: str, tags: dict[str, str], parent: str | None = ...) -> list:
     """Live runs carrying ``tags`` (and, unless ``...``, exactly this parent run), oldest first."""
     flt = " and ".join(f"tags.`{k}` = '{v}'" for k, v in tags.items())
-    runs = _retry(client.search_runs, [exp_id], filter_string=flt, max_results=1000)
+    runs, token = [], None
+    while True:  # every page: a run of a thousand environments has more children than one holds
+        page = _retry(
+            client.search_runs, [exp_id], filter_string=flt, max_results=1000, page_token=token
+        )
+        runs.extend(page)
+        token = page.token
+        if not token:
+            break
     if parent is not ...:
         runs = [r for r in runs if r.data.tags.get(PARENT) == parent]
     return sorted(runs, key=lambda r: (r.info.start_time or 0, r.info.run_id))

@@ -128,6 +128,18 @@ class Tracker:
             for r in self._children(env)
         )
 
+    def logged_units(self) -> set[tuple[str, str]]:
+        """(environment, unit key) of every FINISHED environment run under this parent, found
+        with one search (a thousand environments are not a thousand queries)."""
+        runs = _runs_with(
+            _client(self.uri), self.experiment_id, {ROLE: "environment"}, self.parent_id
+        )
+        return {
+            (r.data.tags.get("pcpg.env", ""), r.data.tags.get(UNIT, ""))
+            for r in runs
+            if r.info.status == "FINISHED"
+        }
+
     def child_info(self, env: str, unit_key: str, cluster_metrics: dict[str, float]) -> dict:
         return {
             "uri": self.uri,
@@ -233,12 +245,25 @@ class Tracker:
             _retry(_client(self.uri).set_terminated, self.parent_id, "KILLED", attempts=2)
 
 
+def finish_parent(
+    tracker: Tracker, result, agents_dir: Path | None = None, report_dir: Path | None = None
+) -> None:
+    """:meth:`Tracker.finish` as a function (what a task on the driver's machine runs)."""
+    tracker.finish(result, agents_dir, report_dir)
+
+
+def log_environments(jobs: list[tuple[dict, str, str, dict[str, float], list[str]]]) -> list[str]:
+    """:func:`log_environment` for each job (its arguments) in turn; the run ids. One Ray task
+    logs a share of a run's environments on the driver's node, where their files are."""
+    return [log_environment(*job) for job in jobs]
+
+
 def log_environment(
     info: dict, env: str, out_dir: str, metrics: dict[str, float], model_paths: list[str]
 ) -> str:
     """One environment's child run: metrics (curves over p and c), tables, figures, models.
 
-    Runs in the driver (any thread). Under the (parent, environment) lock: a FINISHED child with
+    Runs in any process on the machine that holds ``out_dir`` and the models. Under the (parent, environment) lock: a FINISHED child with
     the same unit key is kept and nothing is logged; any other child of that environment (a
     half-written one of a killed run, or one from other settings) is deleted first.
     """

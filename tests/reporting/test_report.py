@@ -955,3 +955,34 @@ def test_table3_keeps_each_style_in_its_column_and_table5_spreads_within_an_envi
     assert rows["Table 5: subset rewards under label corruption"].endswith(
         " ; ".join(f"c={c:g}: {v:.1f}" for c, v in want.items())
     )
+
+
+def test_past_thirty_environments_the_page_lists_the_rest_and_reads_each_table_once(
+    summary, tmp_path, monkeypatch
+):
+    """A run of many environments: sections for the first MAX_ENV_SECTIONS, the rest named in
+    one section that says where their tables are. Building the page reads each summary table once (it used to read them twice)."""
+    from pcpg_dist.reporting import report, report_data
+
+    folder = copy_summary(tmp_path)
+    for i in range(report.MAX_ENV_SECTIONS + 4):
+        add_env(folder, f"X{i:02d}", [0, 1, 2, 3], shift=0.0)
+    reads: list[str] = []
+    real = report_data._read_checked
+
+    def counted(path):
+        reads.append(str(path))
+        return real(path)
+
+    monkeypatch.setattr(report_data, "_read_checked", counted)
+    html_path, md_path = render(folder, tmp_path / "report")
+    assert len(reads) == len(set(reads)) > 0
+    model = build(folder)
+    envs = sorted(["E1", *(f"X{i:02d}" for i in range(report.MAX_ENV_SECTIONS + 4))])
+    assert [env for env, _, _ in model.envs] == envs[: report.MAX_ENV_SECTIONS]
+    assert model.more_envs == envs[report.MAX_ENV_SECTIONS :] == [f"X{i}" for i in range(29, 34)]
+    doc = parse(html_path.read_text())
+    more = doc.find(f".//{NS}section[@id='more-envs']")
+    assert more is not None and "X29, X30, X31, X32, X33" in text_of(more)
+    assert "35 environments" in text_of(doc.find(f".//{NS}header"))
+    assert "## 5 more environments" in md_path.read_text()

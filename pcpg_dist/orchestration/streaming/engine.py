@@ -11,6 +11,7 @@ import numpy as np
 
 from pcpg_dist.common.errors import pcpg_error_in
 from pcpg_dist.domains.base import StreamSource
+from pcpg_dist.orchestration.ray_pool import on_driver_node
 
 ROWS_PER_BLOCK = 250_000  # steps per read block (a few tens of MB of state)
 
@@ -49,7 +50,7 @@ def read_steps(source: StreamSource, columns: list[str]):
     other node need see its disk: :func:`_read_here`); every later step runs anywhere."""
     import ray.data
 
-    pinned = None if any("://" in f for f in source.files) else _on_this_node()
+    pinned = None if any("://" in f for f in source.files) else on_driver_node()
     if pinned is not None:
         return _read_here(source, columns, pinned)
     blocks = max(2, -(-source.steps // ROWS_PER_BLOCK))
@@ -78,22 +79,6 @@ def _read_here(source: StreamSource, columns: list[str], options: dict):
     return ray.data.from_items(groups).map_batches(
         read, batch_size=1, batch_format="numpy", **options
     )
-
-
-def _on_this_node() -> dict | None:
-    """Ray options that keep a task on the driver's node where the cluster has others (None on
-    one node); a driver's node with no CPU of its own (a head started with --num-cpus=0) runs
-    them asking for none."""
-    import ray
-    from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
-
-    nodes = [n for n in ray.nodes() if n.get("Alive")]
-    if len(nodes) < 2:
-        return None
-    here = ray.get_runtime_context().get_node_id()
-    cpus = next((n["Resources"].get("CPU", 0.0) for n in nodes if n["NodeID"] == here), 0.0)
-    options = {"scheduling_strategy": NodeAffinitySchedulingStrategy(here, soft=False)}
-    return options if cpus >= 1 else {**options, "num_cpus": 0}
 
 
 def reduce_blocks(
