@@ -7,7 +7,11 @@ environment, peak driver RSS, peak object-store use and MLflow logging time, the
 cluster issue targets: driver peak RSS at N = 80 <= 1.5x its value at N = 5, time per environment
 at N = 80 within 1.2x of N = 20.
 
-Run: ``uv run python benchmarks/bench_scale.py [--sizes 5 20 80]``
+Also the driver's own CPU seconds over the whole run, and per added environment between sizes
+(the driver's serial work: planning, writing results, the summary and report, waiting on the
+MLflow tasks) beside the wall of the summary and MLflow logging.
+
+Run: ``uv run python benchmarks/bench_scale.py [--sizes 5 20 80] [--episodes 2000]``
 
 ``--log 10000 100000 1000000`` measures the other axis, one huge log (docs/scale.md): a synthetic
 log of N trajectories (about 25 steps each, 32 state columns, 4 styles;
@@ -42,7 +46,7 @@ CONFIG = {
 }
 
 
-def one(n: int) -> dict:
+def one(n: int, episodes: int | None = None) -> dict:
     """Run one size in this process and return its figures."""
     import psutil
     import ray
@@ -51,7 +55,10 @@ def one(n: int) -> dict:
     from pcpg_dist.config import parse_config
     from pcpg_dist.orchestration.ray_pool import init_ray
 
-    cfg = parse_config({**CONFIG, "gridworld": {"random_layouts": {"count": n, "seed": 2024}}})
+    settings = {**CONFIG, "gridworld": {"random_layouts": {"count": n, "seed": 2024}}}
+    if episodes:
+        settings["pbtg"] = {**CONFIG["pbtg"], "episodes": episodes}
+    cfg = parse_config(settings)
     init_ray()
     me = psutil.Process()
     peak = {"rss": me.memory_info().rss, "store": 0.0}
@@ -71,19 +78,20 @@ def one(n: int) -> dict:
     thread = threading.Thread(target=sample, daemon=True)
     thread.start()
     with tempfile.TemporaryDirectory() as tmp:
-        t0 = time.perf_counter()
+        t0, cpu0 = time.perf_counter(), time.process_time()
         result = run_experiment(
             cfg,
             workdir=Path(tmp) / "runs",
             tracking_uri=f"sqlite:///{tmp}/mlflow.db",
             show_progress=False,
         )
-        wall = time.perf_counter() - t0
+        wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
     stop.set()
     thread.join()
     return {
         "n": n,
         "wall": wall,
+        "driver_cpu": cpu,  # the driver process's own CPU seconds (not its Ray workers')
         "stages": result.stage_seconds,
         "rss_mb": peak["rss"] / 2**20,
         "store_mb": peak["store"] / 2**20,
@@ -95,6 +103,9 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--sizes", type=int, nargs="+", default=[5, 20, 80])
     ap.add_argument("--one", type=int, default=None, help=argparse.SUPPRESS)
+    ap.add_argument(
+        "--episodes", type=int, default=None, help="Q-learning episodes per layout (data only)"
+    )
     ap.add_argument("--log", type=int, nargs="+", default=None, help="trajectories per log")
     ap.add_argument("--log-dir", default=None, help="keep the generated logs here")
     args = ap.parse_args()
@@ -102,27 +113,41 @@ def main() -> None:
         logs(args.log, args.log_dir)
         return
     if args.one is not None:
-        print(json.dumps(one(args.one)))
+        print(json.dumps(one(args.one, args.episodes)))
         return
     rows = []
     for n in args.sizes:
+        extra = ["--episodes", str(args.episodes)] if args.episodes else []
         out = subprocess.run(
-            [sys.executable, __file__, "--one", str(n)], capture_output=True, text=True
+            [sys.executable, __file__, "--one", str(n), *extra], capture_output=True, text=True
         )
         if out.returncode != 0:
             sys.exit(f"N={n} failed:\n{out.stderr[-3000:]}")
         rows.append(json.loads(out.stdout.strip().splitlines()[-1]))
     stages = list(rows[0]["stages"])
     print(
-        f"{'N':>4} {'wall s':>8} {'s/env':>7} {'RSS MB':>8} {'store MB':>9} "
+        f"{'N':>4} {'wall s':>8} {'s/env':>7} {'driver CPU s':>12} {'RSS MB':>8} {'store MB':>9} "
         + " ".join(f"{s:>9}" for s in stages)
         + "  clustering acc"
     )
     for r in rows:
         print(
-            f"{r['n']:>4} {r['wall']:8.1f} {r['wall'] / r['n']:7.2f} {r['rss_mb']:8.0f} {r['store_mb']:9.1f} "
+            f"{r['n']:>4} {r['wall']:8.1f} {r['wall'] / r['n']:7.2f} {r['driver_cpu']:12.1f} "
+            f"{r['rss_mb']:8.0f} {r['store_mb']:9.1f} "
             + " ".join(f"{r['stages'].get(s, 0):9.1f}" for s in stages)
             + f"  {r['accuracy']:.3f}"
+        )
+    for small, large in zip(rows, rows[1:], strict=False):
+        added = large["n"] - small["n"]
+
+        def finishing(r: dict) -> float:
+            return r["stages"].get("summary", 0.0) + r["stages"].get("tracking", 0.0)
+
+        print(
+            f"N={small['n']} -> {large['n']}, per added environment: driver CPU "
+            f"{1000 * (large['driver_cpu'] - small['driver_cpu']) / added:.0f} ms, summary + "
+            f"MLflow wall {1000 * (finishing(large) - finishing(small)) / added:.0f} ms  "
+            f"(target: driver serial work <= 50 ms per environment)"
         )
     by = {r["n"]: r for r in rows}
     if 5 in by and 80 in by:

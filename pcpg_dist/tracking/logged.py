@@ -31,20 +31,27 @@ def _log_params(
 
 
 def _log_once(
-    client, run_id: str, points: list[tuple[str, float, int]], tags: dict[str, str]
+    client,
+    run_id: str,
+    points: list[tuple[str, float, int]],
+    tags: dict[str, str],
+    params: dict[str, str] | None = None,
 ) -> None:
-    """Metrics and tags in as few batches as MLflow allows, the tags (the digest) in the last one."""
-    from mlflow.entities import Metric, RunTag
+    """Metrics and tags in as few batches as MLflow allows, the tags (the digest) in the last one;
+    a few ``params`` of a new run (at most one batch's worth) in the first."""
+    from mlflow.entities import Metric, Param, RunTag
 
     now = int(time.time() * 1000)
     items = [Metric(k, float(v), now, int(step)) for k, v, step in points]
-    chunks = [items[i : i + METRIC_BATCH] for i in range(0, len(items), METRIC_BATCH)] or [[]]
+    size = METRIC_BATCH - len(tags) - len(params or {})  # MLflow counts every entity of a batch
+    chunks = [items[i : i + size] for i in range(0, len(items), size)] or [[]]
     for i, chunk in enumerate(chunks):
         last = i == len(chunks) - 1
         _retry(
             client.log_batch,
             run_id,
             metrics=chunk,
+            params=[Param(k, str(v)) for k, v in (params or {}).items()] if i == 0 else [],
             tags=[RunTag(k, v[:5000]) for k, v in tags.items()] if last else [],
         )
 

@@ -8,6 +8,7 @@ import hashlib
 import json
 import math
 import os
+import shutil
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,11 +18,11 @@ from pcpg_dist.tracking.connection import _client, _retry, check_tracking_uri
 from pcpg_dist.tracking.datasets import DataInput, data_inputs, log_data_inputs
 from pcpg_dist.tracking.logged import (
     _confidence_tag,
+    _copy_without_bookkeeping,
     _digest,
     _finite,
     _log_folder,
     _log_once,
-    _log_params,
     _std_table,
     child_metrics,
     describe_run,
@@ -263,9 +264,11 @@ def log_environment(
 ) -> str:
     """One environment's child run: metrics (curves over p and c), tables, figures, models.
 
-    Runs in any process on the machine that holds ``out_dir`` and the models. Under the (parent, environment) lock: a FINISHED child with
-    the same unit key is kept and nothing is logged; any other child of that environment (a
-    half-written one of a killed run, or one from other settings) is deleted first.
+    Runs in any process on the machine that holds ``out_dir`` and the models. Under the (parent,
+    environment) lock: a FINISHED child with the same unit key is kept and nothing is logged; any
+    other child of that environment (a half-written one of a killed run, or one from other
+    settings) is deleted first. Params, metrics and tags go in as few batches as MLflow allows,
+    the files in one upload.
     """
     uri, parent = info["uri"], info["parent_id"]
     client = _client(uri)
@@ -295,16 +298,19 @@ def log_environment(
             f"in `evaluation/metrics.csv`.",
         }
         run_id = _retry(client.create_run, info["experiment_id"], tags=tags).info.run_id
-        _log_params(client, run_id, {"env": env})
         log_data_inputs(client, run_id, info.get("inputs", []))
-        _log_once(client, run_id, points, {LOGGED: _digest(points)})
-        _log_folder(client, run_id, Path(out_dir), "evaluation")
-        _retry(client.log_text, run_id, _std_table(merged), "evaluation/metrics.csv")
-        for path in model_paths:
-            p = Path(path)
-            for f in (p, p.with_suffix(".json")):
-                if f.is_file():
-                    _retry(client.log_artifact, run_id, str(f), f"models/{p.parent.name}")
+        _log_once(client, run_id, points, {LOGGED: _digest(points)}, params={"env": env})
+        with tempfile.TemporaryDirectory() as tmp:  # every file in one upload
+            root = Path(tmp)
+            _copy_without_bookkeeping(Path(out_dir), root / "evaluation")
+            (root / "evaluation" / "metrics.csv").write_text(_std_table(merged))
+            for path in model_paths:
+                p = Path(path)
+                for f in (p, p.with_suffix(".json")):
+                    if f.is_file():
+                        (root / "models" / p.parent.name).mkdir(parents=True, exist_ok=True)
+                        shutil.copyfile(f, root / "models" / p.parent.name / f.name)
+            _retry(client.log_artifacts, run_id, str(root))
         _retry(client.set_terminated, run_id, "FINISHED")
         return run_id
 
