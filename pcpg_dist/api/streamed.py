@@ -39,15 +39,14 @@ def run_streamed(
     show_progress: bool,
     command: str,
 ) -> RunResult:
-    import ray
-
+    from pcpg_dist.orchestration.ray_pool import node_capacities
     from pcpg_dist.orchestration.streaming import STEPS_PER_SEED, stream_unit
 
-    slots = max(1, int(ray.cluster_resources().get("CPU", 1)))
+    node_cpus = [int(n["CPU"]) for n in node_capacities()]
     with progress_bar(
         "Streamed: features", 1 + STEPS_PER_SEED * len(cfg.seeds), enabled=show_progress
     ) as advance:
-        result = stream_unit(source, cfg, slots, advance)
+        result = stream_unit(source, cfg, node_cpus, advance)
     summary = out / "summary"
     summary.mkdir(parents=True, exist_ok=True)
     for seed, labels in result.labels.items():

@@ -18,11 +18,17 @@ def files_of(folder: str | Path) -> dict[str, bytes]:
     }
 
 
-def write_files(folder: Path, files: dict[str, bytes]) -> None:
-    """Write a task's returned files under ``folder``; a name that would leave it is refused."""
+def write_files(folder: Path, files: dict[str, bytes], atomic: bool = True) -> None:
+    """Write a task's returned files under ``folder``; a name that would leave it is refused.
+    ``atomic``: each file written aside, synced and renamed into place; without, written in place
+    (a cache unit's new folder, complete only once its marker, written last, lists the files)."""
     for rel, blob in files.items():
         target = folder
         for part in rel.split("/"):
             target = confined(target, part, "result file")
         target.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write_bytes(target, blob)
+        if atomic:
+            atomic_write_bytes(target, blob)
+        else:
+            with open(target, "xb") as f:  # "x": a name given twice is an error, not an overwrite
+                f.write(blob)

@@ -76,7 +76,10 @@ class Cache:
     def store(self, stage: str, key: str, files: dict[str, bytes], info: dict) -> Path:
         """Start, write a task's files and finish a unit in one call (the driver's only write)."""
         folder = self.start(stage, key)
-        write_files(folder, files)
+        # written in place, not synced one by one: the folder is new, and the marker, written
+        # last and synced, lists every file's hash, so a file that a kill or a power cut cut
+        # short fails `done` and the unit is computed again
+        write_files(folder, files, atomic=False)
         self.finish(stage, key, info)
         return folder
 

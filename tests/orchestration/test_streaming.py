@@ -187,3 +187,23 @@ def test_a_streamed_run_is_one_mlflow_run_with_its_log_as_input(ray_session, log
     assert data.dataset.name == "log.parquet" and data.dataset.source_type == "local"
     artifacts = [a.path for a in MlflowClient(uri).list_artifacts(run.info.run_id)]
     assert "streamed.json" in artifacts
+
+
+@pytest.mark.parametrize(
+    ("node_cpus", "cells", "expected"),
+    [
+        ([2], 5, (1, 2)),  # a laptop: one task, both cores (one torch import, one read an epoch)
+        ([0, 2], 5, (1, 2)),  # a head with no CPU of its own and one worker
+        ([16], 5, (4, 4)),  # a big node: a few threads a task, enough tasks to fill it
+        ([16], 2, (2, 4)),  # never more tasks than cells
+        ([2, 8, 8], 10, (9, 2)),  # threads fit the smallest node, so every task fits anywhere
+        ([1], 3, (1, 1)),
+        ([0], 3, (1, 1)),  # no CPU reported at all: still one task
+    ],
+)
+def test_bc_runs_in_as_few_tasks_as_keep_every_cpu_busy(node_cpus, cells, expected):
+    from pcpg_dist.orchestration.streaming.training import bc_tasks
+
+    tasks, threads = bc_tasks(node_cpus, cells)
+    assert (tasks, threads) == expected
+    assert tasks * threads <= max(sum(node_cpus), 1)

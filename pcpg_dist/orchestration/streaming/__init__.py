@@ -9,7 +9,8 @@ the k-means fit, the score ranges and histograms, the evaluation counts are per-
 summed as they stream past. The one table that grows with the log is the trajectory -> code
 lookup (16 bytes a trajectory) that tags every step row with its cell; it is assembled in a task
 and shared through the object store. The tagged rows are materialised once (spilled to disk
-when larger than the store) and every BC group (a task per CPU slot) streams them once an epoch.
+when larger than the store) and every BC group (as few tasks as keep every CPU busy, a few torch
+threads each) streams them once an epoch.
 """
 
 from __future__ import annotations
@@ -65,11 +66,15 @@ def accuracies(correct: np.ndarray, rows: np.ndarray, cells, ps) -> dict[str, fl
 
 
 def stream_unit(
-    source: StreamSource, cfg, slots: int, advance: Callable[..., None] = lambda *a, **k: None
+    source: StreamSource,
+    cfg,
+    node_cpus: list[int],
+    advance: Callable[..., None] = lambda *a, **k: None,
 ) -> StreamOutcome:
     """Features once, then per seed: k-means, ranking, the tagged rows, every cell, evaluation.
     ``advance`` is told of each finished step (:data:`STEPS_PER_SEED` per seed, 1 for the
-    features), with what runs next."""
+    features), with what runs next. ``node_cpus``: the CPUs of each node (how the BC cells are
+    split into tasks)."""
     quiet_engine()
     out = StreamOutcome(steps=source.steps)
     k, ps = cfg.clustering.k, tuple(cfg.ranking.ps)
@@ -96,7 +101,7 @@ def stream_unit(
                 rows = rows.randomize_block_order(seed=seed).materialize()
             advance(1, description="Streamed: BC cells")
             with clock("train"):
-                groups = train_cells(rows, cells, spec, seed, slots)
+                groups = train_cells(rows, cells, spec, seed, node_cpus)
             order = {cell: (g, i) for g in groups for i, cell in enumerate(g["cells"])}
             states = [order[c][0]["states"][order[c][1]] for c in cells]
             advance(1, description="Streamed: evaluation")

@@ -1,5 +1,6 @@
-"""Step C and the evaluation over blocks: the BC cells in one task per CPU slot, each streaming
-the materialised training rows once an epoch, and the held-out rows' accuracy counts."""
+"""Step C and the evaluation over blocks: the BC cells in as few tasks as use every CPU (a few
+torch threads each), each streaming the materialised training rows once an epoch, and the
+held-out rows' accuracy counts."""
 
 from __future__ import annotations
 
@@ -31,15 +32,30 @@ class TrainSpec:
     tol: float = 1e-3
 
 
-def train_group(rows, cells: list[tuple[int, int]], spec: TrainSpec, seed: int) -> dict:
+MAX_BC_THREADS = 4  # torch threads of one BC task: past a few, a small MLP's batches gain little
+
+
+def bc_tasks(node_cpus: list[int], n_cells: int) -> tuple[int, int]:
+    """(tasks, torch threads each) for ``n_cells`` BC cells on nodes of ``node_cpus`` CPUs: as
+    few tasks as keep every CPU busy, since each task imports torch once (~0.5 GB) and streams
+    every training row once an epoch; threads at most :data:`MAX_BC_THREADS` and no more than
+    the smallest node has, so that every task fits on any node; at most one task per cell."""
+    usable = [c for c in node_cpus if c >= 1] or [1]
+    threads = max(1, min(MAX_BC_THREADS, min(usable)))
+    return max(1, min(n_cells, sum(c // threads for c in usable))), threads
+
+
+def train_group(
+    rows, cells: list[tuple[int, int]], spec: TrainSpec, seed: int, threads: int = 1
+) -> dict:
     """Train ``cells`` (cluster or NC, p index) together over the streamed rows, epoch by epoch,
-    until every cell's validation loss stops improving. Runs in a Ray task: one CPU thread."""
+    until every cell's validation loss stops improving. Runs in a Ray task of ``threads`` CPUs."""
     import torch
 
     from pcpg_dist.common.devices import set_threads
     from pcpg_dist.stages.streamed import policy
 
-    set_threads(1)
+    set_threads(threads)
     quiet_engine()
     model = policy.StackedPolicy(
         len(cells), spec.d, spec.n_actions, spec.layers, spec.width, spec.activation, seed
@@ -77,15 +93,16 @@ def train_group(rows, cells: list[tuple[int, int]], spec: TrainSpec, seed: int) 
     return {"cells": cells, "states": states, "epochs": epochs, "val_loss": stop.best.tolist()}
 
 
-def train_cells(rows, cells, spec: TrainSpec, seed: int, slots: int) -> list[dict]:
-    """The cells split round-robin into one group per CPU slot, each a Ray task."""
+def train_cells(rows, cells, spec: TrainSpec, seed: int, node_cpus: list[int]) -> list[dict]:
+    """The cells split round-robin into :func:`bc_tasks` groups, each a Ray task."""
     import ray
 
+    tasks, threads = bc_tasks(node_cpus, len(cells))
     # max_calls=1: the worker exits with its task, so the memory it held goes back at once
-    task = ray.remote(num_cpus=1, max_retries=2, max_calls=1)(train_group)
-    groups = [cells[g::slots] for g in range(min(slots, len(cells)))]
+    task = ray.remote(num_cpus=threads, max_retries=2, max_calls=1)(train_group)
+    groups = [cells[g::tasks] for g in range(tasks)]
     return ray.get(
-        [task.remote(rows, group, spec, seed * 7919 + g) for g, group in enumerate(groups)]
+        [task.remote(rows, group, spec, seed * 7919 + g, threads) for g, group in enumerate(groups)]
     )
 
 
