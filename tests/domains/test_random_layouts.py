@@ -60,9 +60,42 @@ def test_config_names_units_and_domain_uses_the_generated_layouts(tmp_path):
     assert [lt.grid for lt in layouts] == [lt.grid for lt in gw.random_layouts(3, 5)]
     assert gridworld_layout(cfg, "R0002").grid == layouts[2].grid
     key = GridWorldDomain().data_key(cfg)
-    assert key[3] == ["R0000", "R0001", "R0002"] and key[4][0] == layouts[0].text()
+    # keyed by what draws them (count, seed, the generator's code and numpy), not by their text:
+    # the driver never draws a random family
+    assert key[3] == ["R0000", "R0001", "R0002"] and key[4][:3] == ["random", 3, 5]
     other = _config(tmp_path, {"random_layouts": {"count": 3, "seed": 6}})
     assert GridWorldDomain().data_key(other) != key
+
+
+def test_the_driver_draws_no_random_layout_and_a_generator_change_regenerates(
+    tmp_path, monkeypatch
+):
+    from pcpg_dist.domains.gridworld import domain
+
+    cfg = _config(tmp_path, {"random_layouts": {"count": 4, "seed": 5}})
+    drawn: list = []
+    real = gw.random_layout
+    monkeypatch.setattr(gw, "random_layout", lambda *a, **k: drawn.append(a) or real(*a, **k))
+    domain._random_layout.cache_clear()
+    key = GridWorldDomain().data_key(cfg)
+    assert drawn == []  # planning the data costs nothing per layout
+    data = GridWorldDomain().generate(
+        cfg.model_copy(
+            update={
+                "pbtg": cfg.pbtg.model_copy(
+                    update={"episodes": 50, "trajectories_per_style": 2, "dataset_per_style": 2}
+                )
+            }
+        ),
+        show_progress=False,
+    )
+    assert list(data) == ["R0000", "R0001", "R0002", "R0003"]
+    assert {a[0] for a in drawn} == {(5, i) for i in range(4)}  # each drawn where it is used
+    # a change to the generator's code (or numpy) is a new key, so old data is not reused
+    domain._generator_digest.cache_clear()
+    monkeypatch.setattr("numpy.__version__", "0.0-other")
+    assert GridWorldDomain().data_key(cfg) != key
+    domain._generator_digest.cache_clear()
 
 
 @pytest.mark.parametrize(

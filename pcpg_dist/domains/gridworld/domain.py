@@ -18,11 +18,40 @@ from pcpg_dist.domains.gridworld.settings import SECTIONS
 N_STYLES = 4  # PBTG's reward functions: one style each
 
 
-@lru_cache(maxsize=8)
-def _random_family(count: int, seed: int):
-    from pcpg_dist.domains.gridworld.layout import random_layouts
+@lru_cache(maxsize=1024)
+def _random_layout(seed: int, index: int):
+    """Layout ``index`` of the random family ``seed`` (drawn where it is used: in the data and
+    evaluation tasks, one each, never the whole family in the driver)."""
+    from pcpg_dist.domains.gridworld.layout import random_layout, random_layout_name
 
-    return tuple(random_layouts(count, seed))
+    return random_layout((seed, index), name=random_layout_name(index))
+
+
+@lru_cache(maxsize=1)
+def _generator_digest() -> str:
+    """What the random layouts are a function of besides (seed, index): the generator's code and
+    numpy's random streams. In the data key instead of the layouts' text, so that the driver need
+    not draw them (~13 ms a layout) and a generator change still regenerates."""
+    import hashlib
+    from pathlib import Path
+
+    import numpy as np
+
+    from pcpg_dist.domains.gridworld import layout
+
+    code = Path(layout.__file__).read_bytes()
+    return hashlib.sha256(code + np.__version__.encode()).hexdigest()[:16]
+
+
+def _random_family(count: int, seed: int):
+    return tuple(_random_layout(seed, i) for i in range(count))
+
+
+def _random_pair(seed: int, index: int, reward_index: int, pbtg, base_seed: int):
+    """:func:`~pcpg_dist.domains.gridworld.pbtg.generate_pair` for random layout ``index``."""
+    from pcpg_dist.domains.gridworld.pbtg import generate_pair
+
+    return generate_pair(_random_layout(seed, index), reward_index, pbtg, base_seed)
 
 
 def gridworld_layouts(cfg):
@@ -49,8 +78,9 @@ def _file_layout(cfg, env: str, check_styles: bool = True):
 
 def gridworld_layout(cfg, unit: str):
     """One unit's layout (unchecked for style problems: the data was generated from it)."""
-    if cfg.gridworld.random_layouts is not None:
-        return {lt.name: lt for lt in gridworld_layouts(cfg)}[unit]
+    rl = cfg.gridworld.random_layouts
+    if rl is not None:
+        return _random_layout(rl.seed, rl.names.index(unit))
     return _file_layout(cfg, unit, check_styles=False)
 
 
@@ -75,8 +105,9 @@ class GridWorldDomain(Domain):
 
     def data_key(self, cfg) -> list[Any]:
         gw = cfg.gridworld
-        if gw.random_layouts is not None:  # the layouts' text, so a generator change regenerates
-            layouts = [lt.text() for lt in gridworld_layouts(cfg)]
+        if gw.random_layouts is not None:
+            layouts = ["random", gw.random_layouts.count, gw.random_layouts.seed]
+            layouts.append(_generator_digest())
         else:
             layouts = [gw.layout_text(e) for e in gw.environments]
         return [self.name, cfg.seed, cfg.pbtg, gw.units, layouts]
@@ -84,11 +115,17 @@ class GridWorldDomain(Domain):
     def generate(self, cfg, show_progress: bool = True, fan_out: FanOut = in_process):
         from pcpg_dist.domains.gridworld.pbtg import assemble_dataset, generate_pair
 
-        layouts = gridworld_layouts(cfg)
-        calls = [(layout, r, cfg.pbtg, cfg.seed) for layout in layouts for r in range(N_STYLES)]
-        pairs = fan_out(generate_pair, calls, "PBTG (E, R)", show_progress=show_progress)
-        n = N_STYLES
-        return {lt.name: assemble_dataset(pairs[n * i : n * i + n]) for i, lt in enumerate(layouts)}
+        rl, n = cfg.gridworld.random_layouts, N_STYLES
+        if rl is not None:  # each task draws its own layout
+            names = rl.names
+            calls = [(rl.seed, i, r, cfg.pbtg, cfg.seed) for i in range(rl.count) for r in range(n)]
+            pairs = fan_out(_random_pair, calls, "PBTG (E, R)", show_progress=show_progress)
+        else:
+            layouts = gridworld_layouts(cfg)
+            names = [lt.name for lt in layouts]
+            calls = [(lt, r, cfg.pbtg, cfg.seed) for lt in layouts for r in range(n)]
+            pairs = fan_out(generate_pair, calls, "PBTG (E, R)", show_progress=show_progress)
+        return {name: assemble_dataset(pairs[n * i : n * i + n]) for i, name in enumerate(names)}
 
     def manifest(self, cfg, datasets) -> dict[str, Any]:
         from pcpg_dist.domains.gridworld.pbtg import pair_seed
