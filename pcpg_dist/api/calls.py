@@ -119,12 +119,17 @@ def classify(model: str | Path, dataset: str | Path | Any, *, out: str | Path | 
 
     ``table.attrs`` holds ``unknown_rows`` (the share of rows in states the model was not fitted
     on; None where the model has no such notion) and ``against_styles`` (accuracy and agreement
-    with the dataset's true styles where it has them, else None)."""
+    with the dataset's true styles where it has them, else None).
+
+    With a streamed run's clustering (``RUN/summary/model_seed<S>``) ``dataset`` is a Parquet log
+    of any size, labelled block by block into ``out`` (required), and the table holds the cluster
+    sizes (:func:`pcpg_dist.api.streamed.classify_streamed`)."""
     import pandas as pd
 
     from pcpg_dist.common.files import atomic_write_bytes
     from pcpg_dist.dataset import Dataset, load_dataset
     from pcpg_dist.stages.clustering import clustering_metrics, load_model
+    from pcpg_dist.stages.streamed.model import is_streamed_model
 
     if out is not None:
         from pcpg_dist.common.run_folders import check_outside_run
@@ -133,6 +138,10 @@ def classify(model: str | Path, dataset: str | Path | Any, *, out: str | Path | 
             Path(out), Path(model), None if isinstance(dataset, Dataset) else Path(dataset)
         )
         check_outside_run(Path(out))
+    if not isinstance(dataset, Dataset) and is_streamed_model(Path(model)):
+        from pcpg_dist.api.streamed import classify_streamed
+
+        return classify_streamed(Path(model), Path(dataset), None if out is None else Path(out))
     fitted = load_model(Path(model))
     ds = dataset if isinstance(dataset, Dataset) else load_dataset(Path(dataset))
     pred = fitted.predict(ds)

@@ -3,7 +3,8 @@
 
 Outputs, under ``RUN/summary``: ``streamed.json`` (metrics, clustering quality, seconds per
 stage, sizes, epochs per BC group), ``labels_seed<S>.parquet`` (trajectory, held out, cluster,
-the ranking code) and ``agents_seed<S>.npz`` (every cell's weights, as plain arrays). The label
+the ranking code), ``agents_seed<S>.npz`` (every cell's weights, as plain arrays) and
+``model_seed<S>/`` (the clustering, for `pcpg classify` on other logs). The label
 files are written batch by batch as the engine streams them, to a temporary name renamed when
 complete, so the driver never holds the labels of the whole log.
 """
@@ -17,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pcpg_dist.common.errors import ConfigError, DataError
 from pcpg_dist.common.files import atomic_write_bytes
 from pcpg_dist.common.progress import progress_bar
 from pcpg_dist.domains.base import StreamSource
@@ -57,6 +59,7 @@ def run_streamed(
             for j, a in enumerate(state)
         }
         _write_npz(summary / f"agents_seed{seed}.npz", arrays)
+        result.models[seed].save(summary / f"model_seed{seed}")  # what `pcpg classify` reads
     record = {
         "streamed": True,
         "log": list(source.files),
@@ -94,6 +97,9 @@ def run_streamed(
 
 
 def _write_labels(labels, path: Path) -> None:
+    """A ``ray.data`` table to ``path`` (Parquet, or CSV where the name ends in .csv) batch by
+    batch, under a temporary name renamed when complete."""
+    import pyarrow.csv as pcsv
     import pyarrow.parquet as pq
 
     tmp = path.with_name(path.name + ".part")
@@ -101,12 +107,62 @@ def _write_labels(labels, path: Path) -> None:
     try:
         for table in labels.iter_batches(batch_format="pyarrow", batch_size=None):
             if writer is None:
-                writer = pq.ParquetWriter(tmp, table.schema)
+                csv = path.suffix.lower() == ".csv"
+                writer = (pcsv.CSVWriter if csv else pq.ParquetWriter)(tmp, table.schema)
             writer.write_table(table)
     finally:
         if writer is not None:
             writer.close()
     os.replace(tmp, path)
+
+
+def classify_streamed(model: Path, log: Path, out: Path | None):
+    """`pcpg classify` with a streamed run's clustering (``RUN/summary/model_seed<S>``): every
+    trajectory of the Parquet ``log`` labelled block by block, the labels written to ``out``
+    (CSV, or Parquet by its name) batch by batch; the driver holds only the k cluster sizes.
+    Returns them as a table (``predicted_style``, ``trajectories``); ``attrs`` carry
+    ``against_styles`` (where the log has styles), ``trajectories`` and ``out``."""
+    import pandas as pd
+
+    from pcpg_dist.domains.trajectories.settings import TrajectoriesConfig
+    from pcpg_dist.domains.trajectories.stream_meta import stream_source
+    from pcpg_dist.orchestration.ray_pool import init_ray
+    from pcpg_dist.orchestration.streaming.engine import engine_errors, quiet_engine
+    from pcpg_dist.orchestration.streaming.steps import classify_log, clustering_quality
+    from pcpg_dist.stages.streamed.model import load_streamed_model
+
+    fitted = load_streamed_model(model)
+    if out is None:
+        raise ConfigError(
+            f"{model} is a streamed run's clustering: it labels logs too large to hold in memory, "
+            f"so name the file for the labels (--out / out=, .csv or .parquet)"
+        )
+    settings = TrajectoriesConfig(path=str(log), stream="on", n_actions=fitted.n_actions)
+    source = stream_source(settings, Path(log).stem)
+    if list(source.states) != fitted.states:
+        raise DataError(
+            f"{log}: state columns {_columns(source.states)}; the model {model} was fitted on "
+            f"{_columns(fitted.states)}, which a log it labels must have"
+        )
+    init_ray()
+    quiet_engine()
+    with engine_errors():
+        labels, sizes, contingency = classify_log(source, fitted)
+        _write_labels(labels.select_columns(["trajectory", "predicted_style"]), Path(out))
+    table = pd.DataFrame({"predicted_style": range(fitted.k), "trajectories": sizes.astype(int)})
+    table.attrs.update(
+        streamed=True,
+        out=str(out),
+        trajectories=int(sizes.sum()),
+        unknown_rows=None,
+        against_styles=clustering_quality(contingency) or None,
+    )
+    return table
+
+
+def _columns(names) -> str:
+    names = list(names)
+    return f"{names[0]}..{names[-1]} ({len(names)})" if len(names) > 3 else ", ".join(names)
 
 
 def _write_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:

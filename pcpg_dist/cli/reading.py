@@ -46,11 +46,12 @@ def classify(args: argparse.Namespace) -> None:
     # by default into the current folder: the dataset's folder may be a signed `pcpg generate` output
     out = Path(args.out) if args.out else Path(Path(args.dataset).stem + ".styles.csv")
     table = classify_dataset(args.model, args.dataset, out=out)
-    pred = table["predicted_style"].to_numpy()
-    console.print(
-        f"{len(table)} trajectories -> {out}; cluster sizes "
-        f"{[int((pred == c).sum()) for c in range(int(pred.max()) + 1)]}"
-    )
+    if table.attrs.get("streamed"):  # a streamed run's clustering: the labels are in `out`
+        n, sizes = table.attrs["trajectories"], table["trajectories"].tolist()
+    else:
+        pred = table["predicted_style"].to_numpy()
+        n, sizes = len(table), [int((pred == c).sum()) for c in range(int(pred.max()) + 1)]
+    console.print(f"{n} trajectories -> {out}; cluster sizes {sizes}")
     unknown = table.attrs["unknown_rows"]
     if unknown is not None:
         console.print(f"{unknown:.0%} of the rows are in states the model was not fitted on")

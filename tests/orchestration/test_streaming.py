@@ -44,10 +44,14 @@ def run(cfg, out: Path):
     return run_experiment(cfg, workdir=out, track=False, show_progress=False)
 
 
-def test_a_streamed_run_finds_the_styles_and_its_agents_beat_no_clustering(
-    ray_session, log, tmp_path
-):
-    res = run(config(log), tmp_path)
+@pytest.fixture(scope="module")
+def streamed(ray_session, log, tmp_path_factory):
+    """One streamed run of the module's log (two tests read it)."""
+    return run(config(log), tmp_path_factory.mktemp("streamed-run"))
+
+
+def test_a_streamed_run_finds_the_styles_and_its_agents_beat_no_clustering(streamed, log):
+    res = streamed
     (env,) = res.clustering
     assert res.clustering[env]["clustering/accuracy"] >= 0.95
     m = res.metrics
@@ -207,3 +211,79 @@ def test_bc_runs_in_as_few_tasks_as_keep_every_cpu_busy(node_cpus, cells, expect
     tasks, threads = bc_tasks(node_cpus, cells)
     assert (tasks, threads) == expected
     assert tasks * threads <= max(sum(node_cpus), 1)
+
+
+def test_classify_labels_a_log_block_by_block_with_the_runs_clustering(
+    streamed, log, tmp_path, capsys
+):
+    """`pcpg classify RUN/summary/model_seed0 LOG`: the run's own log gets the run's clusters,
+    trajectory by trajectory; a fresh log of the same styles is labelled as well; the driver
+    holds only the cluster sizes (the labels go to --out batch by batch)."""
+    import pandas as pd
+
+    import pcpg_dist
+    from pcpg_dist.cli import main
+
+    model = streamed.out_dir / "summary" / "model_seed0"
+    out = tmp_path / "labels.csv"
+    assert main(["classify", str(model), str(log), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert f"3000 trajectories -> {out}; cluster sizes [" in printed
+    (quality,) = streamed.clustering.values()  # the run's own score of the same labels
+    assert f"against the true styles: clustering/accuracy {quality['clustering/accuracy']:.3f}" in (
+        printed
+    )
+    got = pd.read_csv(out).sort_values("trajectory")
+    run_labels = pq.read_table(streamed.out_dir / "summary" / "labels_seed0.parquet").to_pandas()
+    run_labels = run_labels.sort_values("trajectory")
+    assert (got.trajectory.to_numpy() == run_labels.trajectory.to_numpy()).all()
+    assert (got.predicted_style.to_numpy() == run_labels.cluster.to_numpy()).all()
+    # a fresh log of the same styles (other noise), as Parquet: labelled as well as the first
+    fresh = tmp_path / "fresh.parquet"
+    write_styled_log(fresh, 600, d=8, seed=7)
+    table = pcpg_dist.classify(model, fresh, out=tmp_path / "fresh.styles.parquet")
+    assert list(table.columns) == ["predicted_style", "trajectories"]
+    assert table.trajectories.sum() == table.attrs["trajectories"] == 600
+    assert table.attrs["against_styles"]["clustering/accuracy"] >= 0.95
+    written = pq.read_table(tmp_path / "fresh.styles.parquet").to_pandas()
+    assert sorted(written.trajectory) == list(range(600))
+    assert np.bincount(written.predicted_style, minlength=4).tolist() == table.trajectories.tolist()
+
+
+@pytest.mark.parametrize(
+    ("damage", "says"),
+    [
+        (lambda m: m["centres"][1].pop(), "centres[1]:"),
+        (lambda m: m["scale"].__setitem__(0, 0.0), "scale: every value must be a positive"),
+        (lambda m: m.update(n_actions="four"), "n_actions"),
+        (lambda m: m.update(extra=1), "extra"),
+        (lambda m: m.update(states=["s0", "s1"]), "mean: 21 values; the features need 9"),
+    ],
+)
+def test_a_damaged_streamed_model_is_one_line_naming_the_field(
+    streamed, log, tmp_path, capsys, damage, says
+):
+    import shutil
+
+    from pcpg_dist.cli import main
+
+    model = tmp_path / "model"
+    shutil.copytree(streamed.out_dir / "summary" / "model_seed0", model)
+    raw = json.loads((model / "streamed_model.json").read_text())
+    damage(raw)
+    (model / "streamed_model.json").write_text(json.dumps(raw))
+    assert main(["classify", str(model), str(log), "--out", str(tmp_path / "o.csv")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert says in err and "streamed_model.json" in err and "\n" not in err, err
+    assert not (tmp_path / "o.csv").exists()
+
+
+def test_a_log_of_other_columns_is_refused_in_one_line(streamed, tmp_path, capsys):
+    from pcpg_dist.cli import main
+
+    other = tmp_path / "other.parquet"
+    write_styled_log(other, 200, d=6, seed=3)
+    model = streamed.out_dir / "summary" / "model_seed0"
+    assert main(["classify", str(model), str(other), "--out", str(tmp_path / "o.csv")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "state columns s0..s5 (6)" in err and "s0..s7 (8)" in err and "\n" not in err, err

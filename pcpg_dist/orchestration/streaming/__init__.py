@@ -35,6 +35,7 @@ from pcpg_dist.orchestration.streaming.steps import (
 )
 from pcpg_dist.orchestration.streaming.training import evaluate_cells, train_cells, train_spec
 from pcpg_dist.stages.streamed import cells as P
+from pcpg_dist.stages.streamed.model import StreamedModel
 
 
 @dataclass
@@ -49,6 +50,7 @@ class StreamOutcome:
     weights: dict[int, list[list[np.ndarray]]] = field(default_factory=dict)
     epochs: dict[int, list[int]] = field(default_factory=dict)
     labels: dict[int, Any] = field(default_factory=dict)  # seed -> ray.data labels dataset
+    models: dict[int, StreamedModel] = field(default_factory=dict)  # seed -> its k-means
     n_trajectories: int = 0
     steps: int = 0
 
@@ -90,6 +92,14 @@ def stream_unit(
         for i, seed in enumerate(cfg.seeds):
             with clock("cluster"):
                 mean, scale, centres, iterations = fit_kmeans(feats, k, seed)
+            out.models[seed] = StreamedModel(
+                seed=seed,
+                states=list(source.states),
+                n_actions=source.n_actions,
+                mean=mean.tolist(),
+                scale=scale.tolist(),
+                centres=centres.tolist(),
+            )
             advance(1, description="Streamed: ranking")
             with clock("rank"):
                 labels, contingency = label_table(feats, mean, scale, centres, seed, cfg, source)

@@ -127,18 +127,46 @@ def label_table(feats, mean, scale, centres, seed: int, cfg, source: StreamSourc
         return {**batch, "code": code}
 
     labels = labelled.map_batches(coded, batch_format="numpy").materialize()
-    contingency = None
-    if "style" in source.optional:
-
-        def table(batch):  # (styles seen in this block) x k counts, flattened
-            known = batch["style"] >= 0
-            cell = batch["style"][known] * k + batch["cluster"][known]
-            return np.bincount(cell, minlength=k).astype(np.float64)
-
-        counts = reduce_blocks(labels, table, combine=_padded_add)
-        contingency = np.pad(counts, (0, -len(counts) % k)).reshape(-1, k)
-        contingency = contingency[contingency.sum(1) > 0]
+    contingency = style_contingency(labels, k, "cluster") if "style" in source.optional else None
     return labels, contingency
+
+
+def style_contingency(labels, k: int, column: str) -> np.ndarray:
+    """(true styles present) x k counts of the trajectories with a known style, over blocks."""
+
+    def table(batch):  # (styles seen in this block) x k counts, flattened
+        known = batch["style"] >= 0
+        cell = batch["style"][known] * k + batch[column][known]
+        return np.bincount(cell, minlength=k).astype(np.float64)
+
+    counts = reduce_blocks(labels, table, combine=_padded_add)
+    contingency = np.pad(counts, (0, -len(counts) % k)).reshape(-1, k)
+    return contingency[contingency.sum(1) > 0]
+
+
+def classify_log(source: StreamSource, model):
+    """Each trajectory of ``source`` under a streamed run's k-means (``model``, a
+    :class:`~pcpg_dist.stages.streamed.model.StreamedModel`): the labels (``trajectory``,
+    ``predicted_style``, ``style``) materialised in the object store, the cluster sizes, and the
+    contingency against the log's styles (None where it has none). The features are the run's,
+    built block by block as in :func:`feature_table`."""
+    feats, _, _ = feature_table(source)
+    mean, scale, centres = model.arrays()
+
+    def label(batch: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        return {
+            "trajectory": batch["trajectory"],
+            "predicted_style": K.assign((batch["x"] - mean) / scale, centres).astype(np.int64),
+            "style": batch["style"],
+        }
+
+    labels = feats.map_batches(label, batch_format="numpy").materialize()
+    sizes = reduce_blocks(
+        labels, lambda b: np.bincount(b["predicted_style"], minlength=model.k).astype(np.float64)
+    )
+    has_styles = "style" in source.optional
+    contingency = style_contingency(labels, model.k, "predicted_style") if has_styles else None
+    return labels, sizes, contingency
 
 
 def _grouped(batch: dict[str, np.ndarray], k: int):
