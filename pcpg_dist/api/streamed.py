@@ -41,7 +41,7 @@ def run_streamed(
     show_progress: bool,
     command: str,
 ) -> RunResult:
-    from pcpg_dist.orchestration.ray_pool import node_capacities
+    from pcpg_dist.orchestration.nodes import node_capacities
     from pcpg_dist.orchestration.streaming import STEPS_PER_SEED, stream_unit
 
     node_cpus = [int(n["CPU"]) for n in node_capacities()]

@@ -99,7 +99,7 @@ class RayExecutor:
         check_resources(num_cpus, memory_bytes)
 
     def most_gpus(self) -> float:
-        from pcpg_dist.orchestration.ray_pool import node_gpus
+        from pcpg_dist.orchestration.nodes import node_gpus
 
         return node_gpus()
 
@@ -116,7 +116,8 @@ class RayExecutor:
     def map(
         self, fn, calls, description, *, num_cpus, on_result, show_progress, num_gpus, here=False
     ) -> None:
-        from pcpg_dist.orchestration.ray_pool import on_driver_node, run_tasks
+        from pcpg_dist.orchestration.nodes import on_driver_node
+        from pcpg_dist.orchestration.ray_pool import run_tasks
 
         limit = in_flight(num_cpus, max((nbytes(c) for c in calls), default=0)) if calls else 1
         run_tasks(

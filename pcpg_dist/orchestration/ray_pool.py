@@ -21,6 +21,7 @@ from pcpg_dist.common import errors
 from pcpg_dist.common.commands import command
 from pcpg_dist.common.devices import available_cpus
 from pcpg_dist.common.errors import ConfigError, ServiceError, catch_sigterm, first_line
+from pcpg_dist.orchestration.nodes import node_capacities
 
 # Ray's `uv run` hook would start every worker through `uv run` in the driver's project folder: it
 # breaks outside that folder and costs ~20 s locally. The package ships itself instead (below).
@@ -219,21 +220,6 @@ def _answers_http2(conn, timeout: float) -> bool:
 
 
 # --------------------------------------------------------------------------- what the cluster has
-def node_capacities() -> list[dict[str, float]]:
-    """CPUs, GPUs and task memory (bytes) of every live node."""
-    import ray
-
-    keys = ("CPU", "GPU", "memory")
-    return [
-        {k: float(n["Resources"].get(k, 0)) for k in keys} for n in ray.nodes() if n.get("Alive")
-    ]
-
-
-def node_gpus() -> float:
-    """The most GPUs one live node offers (0 on a cluster without GPUs)."""
-    return max((n["GPU"] for n in node_capacities()), default=0.0)
-
-
 def check_resources(
     num_cpus: int, memory_bytes: float = 0.0, key: str = "runner.cpus_per_task"
 ) -> None:
@@ -270,23 +256,6 @@ def _waiting_for(num_cpus: int, in_flight: int, num_gpus: float = 0.0) -> str:
     return f"{queued} queued, each waiting for {need:g} {what}; {free.get(what, 0.0):g} of {total.get(what, 0.0):g} free"
 
 
-def on_driver_node() -> dict | None:
-    """Ray options that keep a task on the driver's node where the cluster has others (None on
-    one node): for work on files only that node has (a local log's row groups, the run folder an
-    MLflow child run is logged from). A driver's node with no CPU of its own (a head started with
-    --num-cpus=0) runs them asking for none."""
-    import ray
-    from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
-
-    nodes = [n for n in ray.nodes() if n.get("Alive")]
-    if len(nodes) < 2:
-        return None
-    here = ray.get_runtime_context().get_node_id()
-    cpus = next((n["Resources"].get("CPU", 0.0) for n in nodes if n["NodeID"] == here), 0.0)
-    options = {"scheduling_strategy": NodeAffinitySchedulingStrategy(here, soft=False)}
-    return options if cpus >= 1 else {**options, "num_cpus": 0}
-
-
 # --------------------------------------------------------------------------- running tasks
 def run_tasks(
     fn: Callable[..., Any],
@@ -301,7 +270,7 @@ def run_tasks(
     options: dict[str, Any] | None = None,
 ) -> list[Any]:
     """Run ``fn(*args)`` for every ``args`` in ``calls`` as Ray tasks; results in call order.
-    ``options``: Ray task options for every call (e.g. :func:`on_driver_node`).
+    ``options``: Ray task options for every call (e.g. :func:`~pcpg_dist.orchestration.nodes.on_driver_node`).
 
     ``num_gpus`` (one for all calls, or one per call): GPUs a task asks for: Ray then runs it on a
     node with that share of a GPU free. (A Ray 2.60 task that asks for none still sees its node's

@@ -8,7 +8,7 @@ from pcpg_dist.stages.clustering.auto import needs_network
 
 def cluster_gpus(cfg: ExperimentConfig, node_gpus: float) -> float:
     """GPUs a clustering task of ``cfg`` asks Ray for (none unless a neural method is on a GPU);
-    ``node_gpus``: the most one live node has (:func:`pcpg_dist.orchestration.ray_pool.node_gpus`)."""
+    ``node_gpus``: the most one live node has (:func:`pcpg_dist.orchestration.nodes.node_gpus`)."""
     from pcpg_dist.common.devices import stage_gpus
     from pcpg_dist.config.clusterers import NEURAL_CLUSTERERS
 

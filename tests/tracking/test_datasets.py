@@ -17,8 +17,9 @@ from pcpg_dist.config import load_config, parse_config
 from pcpg_dist.domains import sources
 from pcpg_dist.domains.base import Domain, Unit
 from pcpg_dist.pipeline.declared import input_key
+from pcpg_dist.tracking.children import log_environment
 from pcpg_dist.tracking.datasets import data_inputs
-from pcpg_dist.tracking.trackers import Tracker, log_environment
+from pcpg_dist.tracking.trackers import Tracker
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -31,8 +31,9 @@ from pcpg_dist.domains.base import Unit
 from pcpg_dist.orchestration.points import RunResult
 from pcpg_dist.pipeline.declared import input_key
 from pcpg_dist.stages import figures
+from pcpg_dist.tracking.children import log_environment
 from pcpg_dist.tracking.logged import ui_link
-from pcpg_dist.tracking.trackers import Tracker, log_environment
+from pcpg_dist.tracking.trackers import Tracker
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = Path(__file__).parents[1] / "data" / "report_summary"

@@ -22,13 +22,14 @@ from pcpg_dist.common.errors import ServiceError
 from pcpg_dist.common.point_labels import point_label, short_keys
 from pcpg_dist.config import load_config
 from pcpg_dist.orchestration.points import RunResult
+from pcpg_dist.tracking.children import log_environment
 from pcpg_dist.tracking.runs import (
     find_run,
     open_experiment,
     sweep_points_of,
 )
 from pcpg_dist.tracking.tags import EXPERIMENT_KIND, MAX_PARENT_METRICS
-from pcpg_dist.tracking.trackers import SweepTracker, Tracker, log_environment
+from pcpg_dist.tracking.trackers import SweepTracker, Tracker
 
 ROOT = Path(__file__).resolve().parents[2]
 REFERENCE = json.loads((ROOT / "tests" / "reference" / "metrics.json").read_text())["gridworld"]

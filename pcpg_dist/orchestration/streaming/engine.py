@@ -11,7 +11,7 @@ import numpy as np
 
 from pcpg_dist.common.errors import pcpg_error_in
 from pcpg_dist.domains.base import StreamSource
-from pcpg_dist.orchestration.ray_pool import on_driver_node
+from pcpg_dist.orchestration.nodes import on_driver_node
 
 ROWS_PER_BLOCK = 250_000  # steps per read block (a few tens of MB of state)
 

@@ -131,7 +131,7 @@ def run_study(
 def _trial_gpus(cfg: ExperimentConfig) -> float:
     """A trial clusters and trains: it asks for a GPU where either stage runs on one (a setting no
     node can serve fails here, before the study is touched)."""
-    from pcpg_dist.orchestration.ray_pool import node_gpus
+    from pcpg_dist.orchestration.nodes import node_gpus
     from pcpg_dist.orchestration.resources import bc_gpus, cluster_gpus
 
     most_gpus = node_gpus()
