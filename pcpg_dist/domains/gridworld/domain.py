@@ -7,7 +7,7 @@ style's reward, optimal returns and drawings (Tables 3/5, Figs. 5, 6, 8).
 
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import cache, lru_cache
 from typing import Any
 
 from pcpg_dist.domains.base import Domain, DomainHooks, FanOut
@@ -143,10 +143,12 @@ class GridWorldDomain(Domain):
         from pcpg_dist.domains.gridworld import play
 
         steps = cfg.evaluation.max_steps
-        layout = gridworld_layout(cfg, unit)
+        # drawn (or read) on first use, in the evaluation task: the driver asks every unit for
+        # its hooks, and a random layout costs ~13 ms to draw
+        layout = cache(lambda: gridworld_layout(cfg, unit))
         return DomainHooks(
-            rollout=lambda policy, n, rng: play.rollout(layout, policy, n, rng, max_steps=steps),
+            rollout=lambda policy, n, rng: play.rollout(layout(), policy, n, rng, max_steps=steps),
             returns=play.returns,
-            optimal_return=lambda r: gw.optimal_return(layout, r, max_steps=steps),
-            draw=lambda ax, ds: play.draw_trajectory(ax, layout, ds),
+            optimal_return=lambda r: gw.optimal_return(layout(), r, max_steps=steps),
+            draw=lambda ax, ds: play.draw_trajectory(ax, layout(), ds),
         )
