@@ -69,7 +69,7 @@ def main(log: str, out: str, seeds: str = "0", stream: str = "on") -> None:
             rss, pss = tree_memory(os.getpid())
             peak["spill"] = max(peak["spill"], spilled_gb())
             if rss > peak["rss"]:
-                peak["procs"] = sorted(LAST, reverse=True)[:4]
+                peak["procs"] = sorted((p for p in LAST if p[0] >= 50), reverse=True)
                 peak["at"] = round(time.perf_counter() - t0)
             peak["rss"], peak["pss"] = max(peak["rss"], rss), max(peak["pss"], pss)
             time.sleep(1.0)

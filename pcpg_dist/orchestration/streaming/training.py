@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pcpg_dist.domains.base import StreamSource
-from pcpg_dist.orchestration.streaming.engine import quiet_engine, reduce_blocks
+from pcpg_dist.orchestration.streaming.engine import quiet_engine
 from pcpg_dist.stages.streamed import cells as P
 
 
@@ -46,10 +46,20 @@ def bc_tasks(node_cpus: list[int], n_cells: int) -> tuple[int, int]:
 
 
 def train_group(
-    rows, cells: list[tuple[int, int]], spec: TrainSpec, seed: int, threads: int = 1
+    rows,
+    held_out,
+    cells: list[tuple[int, int]],
+    spec: TrainSpec,
+    seed: int,
+    k: int,
+    threads: int = 1,
 ) -> dict:
     """Train ``cells`` (cluster or NC, p index) together over the streamed rows, epoch by epoch,
-    until every cell's validation loss stops improving. Runs in a Ray task of ``threads`` CPUs."""
+    until every cell's validation loss stops improving, then count their correct predictions on
+    the ``held_out`` rows (here, where torch is already loaded: no other worker imports it).
+    Runs in a Ray task of ``threads`` CPUs."""
+    import time
+
     import torch
 
     from pcpg_dist.common.devices import set_threads
@@ -90,11 +100,28 @@ def train_group(
         if stop.all_done:
             break
     states = [s if s is not None else model.cell_state(i) for i, s in enumerate(stop.best_states)]
-    return {"cells": cells, "states": states, "epochs": epochs, "val_loss": stop.best.tolist()}
+    t0 = time.perf_counter()
+    model.load_cells(states)
+    counts = np.zeros(len(cells) * k + k)
+    for batch in held_out.iter_batches(batch_size=spec.batch, batch_format="numpy"):
+        cluster = (batch["code"] & 0xFF).astype(np.int64)
+        counts += policy.accuracy_counts(model, batch["x"], batch["y"].astype(np.int64), cluster, k)
+    return {
+        "cells": cells,
+        "states": states,
+        "epochs": epochs,
+        "val_loss": stop.best.tolist(),
+        "correct": counts[: len(cells) * k].reshape(len(cells), k),
+        "test_rows": counts[len(cells) * k :],
+        "evaluate_s": time.perf_counter() - t0,
+    }
 
 
-def train_cells(rows, cells, spec: TrainSpec, seed: int, node_cpus: list[int]) -> list[dict]:
-    """The cells split round-robin into :func:`bc_tasks` groups, each a Ray task."""
+def train_cells(
+    rows, held_out, cells, spec: TrainSpec, seed: int, k: int, node_cpus: list[int]
+) -> list[dict]:
+    """The cells split round-robin into :func:`bc_tasks` groups, each a Ray task that trains its
+    cells and counts their correct predictions on the ``held_out`` rows."""
     import ray
 
     tasks, threads = bc_tasks(node_cpus, len(cells))
@@ -102,27 +129,11 @@ def train_cells(rows, cells, spec: TrainSpec, seed: int, node_cpus: list[int]) -
     task = ray.remote(num_cpus=threads, max_retries=2, max_calls=1)(train_group)
     groups = [cells[g::tasks] for g in range(tasks)]
     return ray.get(
-        [task.remote(rows, group, spec, seed * 7919 + g, threads) for g, group in enumerate(groups)]
+        [
+            task.remote(rows, held_out, group, spec, seed * 7919 + g, k, threads)
+            for g, group in enumerate(groups)
+        ]
     )
-
-
-def evaluate_cells(rows, model_states, cells, spec: TrainSpec, k: int) -> np.ndarray:
-    """(cells, k) correct test predictions and (k,) test rows, summed over blocks."""
-
-    def counts(batch):
-        from pcpg_dist.common.devices import set_threads
-        from pcpg_dist.stages.streamed import policy
-
-        set_threads(1)
-        model = policy.StackedPolicy(
-            len(cells), spec.d, spec.n_actions, spec.layers, spec.width, spec.activation, 0
-        )
-        model.load_cells(model_states)
-        cluster = (batch["code"] & 0xFF).astype(np.int64)
-        return policy.accuracy_counts(model, batch["x"], batch["y"].astype(np.int64), cluster, k)
-
-    total = reduce_blocks(rows, counts)
-    return total[: len(cells) * k].reshape(len(cells), k), total[len(cells) * k :]
 
 
 def train_spec(cfg, source: StreamSource) -> TrainSpec:
