@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from pcpg_dist.common.disk import disk_full, is_disk_full
 from pcpg_dist.common.files import atomic_write_bytes, confined
 
 
@@ -30,5 +31,10 @@ def write_files(folder: Path, files: dict[str, bytes], atomic: bool = True) -> N
         if atomic:
             atomic_write_bytes(target, blob)
         else:
-            with open(target, "xb") as f:  # "x": a name given twice is an error, not an overwrite
-                f.write(blob)
+            try:
+                with open(target, "xb") as f:  # "x": a name given twice is an error
+                    f.write(blob)
+            except OSError as e:
+                if is_disk_full(e):  # one line naming the file, as an atomic write says it
+                    raise disk_full(target, len(blob)) from None
+                raise
