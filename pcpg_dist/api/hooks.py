@@ -86,33 +86,29 @@ def _log_runs(
     are) while the driver only waits: the environments' child runs, a share of them per task,
     then each point's parent run (its results, summary, report and agents model). After every
     local result is written, so a tracking server that goes down costs no local result."""
-    from pcpg_dist.tracking import finish_parent, log_environments
+    from pcpg_dist.tracking import Tracker, log_environments
 
     jobs = [job for o, _ in tracked for job in _child_jobs(o)]
     shares = min(len(jobs), 2 * executor.slots(1))
+    calls = [(jobs[i::shares],) for i in range(shares)]
+    _here(executor, log_environments, calls, f"MLflow: {len(jobs)} environments", show_progress)
     parents = [
         (o.point.tracker, result, o.point.out / "agents", o.point.out / "report")
         for o, result in tracked
     ]
-    for fn, calls, what in (
-        (
-            log_environments,
-            [(jobs[i::shares],) for i in range(shares)],
-            f"{len(jobs)} environments",
-        ),
-        (
-            finish_parent,
-            parents,
-            "the parent run" if len(parents) == 1 else f"{len(parents)} parent runs",
-        ),
-    ):
-        executor.map(
-            fn,
-            calls,
-            f"MLflow: {what}",
-            num_cpus=1,
-            on_result=lambda i, ids: None,
-            show_progress=show_progress,
-            num_gpus=[0.0] * len(calls),
-            here=True,
-        )
+    what = "the parent run" if len(parents) == 1 else f"{len(parents)} parent runs"
+    _here(executor, Tracker.finish, parents, f"MLflow: {what}", show_progress)
+
+
+def _here(executor: Executor, fn, calls: list[tuple], description: str, show: bool) -> None:
+    """``fn(*call)`` for every call, as tasks on the driver's machine; results dropped."""
+    executor.map(
+        fn,
+        calls,
+        description,
+        num_cpus=1,
+        on_result=lambda i, _: None,
+        show_progress=show,
+        num_gpus=[0.0] * len(calls),
+        here=True,
+    )

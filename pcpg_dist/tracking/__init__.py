@@ -35,6 +35,6 @@ os.environ.setdefault("MLFLOW_HTTP_REQUEST_MAX_RETRIES", "2")
 # The names the runner imports from here (plain re-exports; everything else is imported from
 # its module: store, connection, logged, runs, trackers, tags).
 from pcpg_dist.tracking.children import log_environment, log_environments  # noqa: E402
-from pcpg_dist.tracking.trackers import Tracker, finish_parent  # noqa: E402
+from pcpg_dist.tracking.trackers import Tracker  # noqa: E402
 
-__all__ = ["Tracker", "finish_parent", "log_environment", "log_environments"]
+__all__ = ["Tracker", "log_environment", "log_environments"]

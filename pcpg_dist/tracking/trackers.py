@@ -116,14 +116,8 @@ class Tracker:
         log_data_inputs(client, parent, list(inputs))
         return Tracker(uri, exp_id, parent, chash, cfg, label, bool(parent_run_id), inputs)
 
-    def _children(self, env: str) -> list:
-        return _runs_with(_client(self.uri), self.experiment_id, {"pcpg.env": env}, self.parent_id)
-
     def env_logged(self, env: str, unit_key: str) -> bool:
-        return any(
-            r.info.status == "FINISHED" and r.data.tags.get(UNIT) == unit_key
-            for r in self._children(env)
-        )
+        return (env, unit_key) in self.logged_units()
 
     def logged_units(self) -> set[tuple[str, str]]:
         """(environment, unit key) of every FINISHED environment run under this parent, found
@@ -240,13 +234,6 @@ class Tracker:
     def fail(self) -> None:
         with contextlib.suppress(Exception):  # best effort while already failing
             _retry(_client(self.uri).set_terminated, self.parent_id, "KILLED", attempts=2)
-
-
-def finish_parent(
-    tracker: Tracker, result, agents_dir: Path | None = None, report_dir: Path | None = None
-) -> None:
-    """:meth:`Tracker.finish` as a function (what a task on the driver's machine runs)."""
-    tracker.finish(result, agents_dir, report_dir)
 
 
 @dataclass

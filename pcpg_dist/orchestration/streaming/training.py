@@ -104,7 +104,7 @@ def train_group(
     model.load_cells(states)
     counts = np.zeros(len(cells) * k + k)
     for batch in held_out.iter_batches(batch_size=spec.batch, batch_format="numpy"):
-        cluster = (batch["code"] & 0xFF).astype(np.int64)
+        cluster = P.cluster_of(batch["code"])
         counts += policy.accuracy_counts(model, batch["x"], batch["y"].astype(np.int64), cluster, k)
     return {
         "cells": cells,

@@ -30,14 +30,19 @@ def code_of(
     return code
 
 
+def cluster_of(code: np.ndarray) -> np.ndarray:
+    """Each code's cluster (its low byte)."""
+    return (code & 0xFF).astype(np.int64)
+
+
 def membership(code: np.ndarray, cells: list[tuple[int, int]]) -> np.ndarray:
     """(cells, rows) bool: the training and validation rows of each (cluster, p index) cell."""
-    train = (code & TEST) == 0
+    train, cluster = (code & TEST) == 0, cluster_of(code)
     out = np.empty((len(cells), len(code)), bool)
     for i, (c, pi) in enumerate(cells):
         if c == NC:
             out[i] = train & ((code >> (11 + 2 * pi)) & 1).astype(bool)
         else:
             kept = ((code >> (10 + 2 * pi)) & 1).astype(bool)
-            out[i] = train & kept & ((code & 0xFF) == c)
+            out[i] = train & kept & (cluster == c)
     return out

@@ -9,7 +9,6 @@ the file and the field, never a traceback or a model that gives other labels.
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Literal
@@ -18,7 +17,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from pcpg_dist.common.errors import DataError
-from pcpg_dist.common.files import atomic_write_bytes
+from pcpg_dist.common.files import atomic_write_bytes, read_json
 from pcpg_dist.common.inputs import input_file
 
 FILE = "streamed_model.json"
@@ -88,10 +87,7 @@ def load_streamed_model(folder: Path) -> StreamedModel:
     path = input_file(
         Path(folder) / FILE, "streamed model file", folder=Path(folder), max_bytes=MAX_BYTES
     )
-    try:
-        raw = json.loads(path.read_text())
-    except (OSError, ValueError, RecursionError) as e:
-        raise DataError(f"{path}: unreadable ({' '.join(str(e).split())[:200]})") from None
+    raw = read_json(path)
     try:
         return StreamedModel.model_validate(raw)
     except ValidationError as e:
