@@ -14,13 +14,12 @@ def generate(args: argparse.Namespace) -> None:
     from pcpg_dist.common.progress import out as console  # results: stdout
     from pcpg_dist.config.overrides import load_config_with
     from pcpg_dist.orchestration import ray_pool
-    from pcpg_dist.orchestration.ray_pool import init_ray
     from pcpg_dist.pipeline.checks import check_apart_from_inputs
     from pcpg_dist.stages.data import generate_to
 
     cfg = load_config_with(args.config, args.overrides)
     check_apart_from_inputs(cfg, Path(args.out), "--out")
-    init_ray(args.ray_address)
+    _start_ray(args)
     datasets = generate_to(cfg, Path(args.out), not args.quiet, ray_pool.fan_out)
     for env, ds in datasets.items():
         console.print(
@@ -28,6 +27,19 @@ def generate(args: argparse.Namespace) -> None:
             f"success {ds.success.mean():.3f}, mean length {ds.lengths.mean():.1f}"
         )
     console.print(f"wrote {args.out}/manifest.json")
+
+
+def _start_ray(args: argparse.Namespace) -> None:
+    """Ray in this process or joined; on a local Ray, the numba kernels compile in the
+    background meanwhile where a fresh install has not cached them yet."""
+    import os
+
+    from pcpg_dist.cli.warm_kernels import start_in_background
+    from pcpg_dist.orchestration.ray_pool import init_ray
+
+    if args.ray_address is None and not os.environ.get("RAY_ADDRESS"):
+        start_in_background()
+    init_ray(args.ray_address)
 
 
 def _check_tracking(args: argparse.Namespace) -> None:
@@ -43,12 +55,11 @@ def run(args: argparse.Namespace) -> None:
     from pcpg_dist.api.run import run_experiment
     from pcpg_dist.common.progress import out
     from pcpg_dist.config.overrides import load_config_with
-    from pcpg_dist.orchestration.ray_pool import init_ray
     from pcpg_dist.reporting.summary import print_summary
 
     cfg = load_config_with(args.config, args.overrides)
     _check_tracking(args)
-    init_ray(args.ray_address)
+    _start_ray(args)
     result = run_experiment(
         cfg,
         workdir=Path(args.workdir),
@@ -83,11 +94,10 @@ def sweep(args: argparse.Namespace) -> None:
     """A grid over config axes, every point together on Ray; shared stages run once."""
     from pcpg_dist.api.sweep import run_sweep
     from pcpg_dist.config.overrides import split_sweep_items
-    from pcpg_dist.orchestration.ray_pool import init_ray
 
     axes, fixed = split_sweep_items(args.axes)
     _check_tracking(args)
-    init_ray(args.ray_address)
+    _start_ray(args)
     res = run_sweep(
         args.config,
         axes,
@@ -147,11 +157,10 @@ def cluster(args: argparse.Namespace) -> None:
     from pcpg_dist.common.files import confined
     from pcpg_dist.common.progress import out as console  # results: stdout
     from pcpg_dist.config.overrides import load_config_with
-    from pcpg_dist.orchestration.ray_pool import init_ray
     from pcpg_dist.stages.clustering.confidence import verdict_of
 
     cfg = load_config_with(args.config, args.overrides)
-    init_ray(args.ray_address)
+    _start_ray(args)
     out = Path(args.out)
     results = cluster(cfg, out, Path(args.data) if args.data else None, not args.quiet)
     for env, res in results.items():
@@ -172,7 +181,6 @@ def tune(args: argparse.Namespace) -> None:
     from pcpg_dist.api.tune import tune
     from pcpg_dist.common.progress import out as console  # results: stdout
     from pcpg_dist.config.overrides import load_config_with
-    from pcpg_dist.orchestration.ray_pool import init_ray
     from pcpg_dist.orchestration.tuning import open_storage, tune_settings
 
     cfg = load_config_with(args.config, args.overrides)
@@ -180,7 +188,7 @@ def tune(args: argparse.Namespace) -> None:
         args.optuna_storage, tune_settings(cfg, args.n_trials)
     )  # before Ray starts
     _check_tracking(args)
-    init_ray(args.ray_address)
+    _start_ray(args)
     res = tune(
         cfg,
         storage_url=storage,

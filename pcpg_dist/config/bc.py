@@ -27,19 +27,37 @@ class BCConfig(StrictModel):
         ge=0,
         le=MAX_COUNT,
         description=(
-            "Full-batch Adam steps (paper: '2000 episodes'); with batch_size, passes over the rows."
+            "Adam steps of a full-batch cell (paper: '2000 episodes'; batch_size auto gives its "
+            "minibatched cells the same number of steps); with an explicit batch_size, passes over "
+            "the rows. Early stopping (stop_tol) may end a cell sooner."
         ),
     )
-    batch_size: int | None = Field(
-        None,
-        ge=1,
-        le=10**9,
+    batch_size: int | Literal["auto"] | None = Field(
+        "auto",
         description=(
-            "Rows per Adam step; null (the paper) trains full batch. Set it where cells hold tens of "
-            "thousands of distinct rows (counters that make every step distinct): one epoch is "
-            "then one pass over a cell's rows, shuffled once from the cell's seed, in blocks of "
-            "this many. Numba engine only."
+            "Rows per Adam step. auto: full batch (the paper) for a cell of up to 20,000 distinct "
+            "rows (every cell of the paper's three games), minibatches of 4,096 for "
+            "larger ones (a continuous log's cells), with the same budget of Adam steps. null: "
+            "full batch always. A number: one epoch is one pass over a cell's rows, shuffled once "
+            "from the cell's seed, in blocks of this many (numba engine only). The torch engine "
+            "trains full batch under auto."
         ),
+    )
+    stop_tol: float = Field(
+        1e-4,
+        ge=0.0,
+        le=1.0,
+        description=(
+            "Early stopping: a cell stops once its loss (mean cross-entropy over all its rows, in "
+            "nats) improved by less than this over the last stop_window Adam steps (0: every cell "
+            "takes all its epochs, as the paper)."
+        ),
+    )
+    stop_window: int = Field(
+        100,
+        ge=1,
+        le=MAX_COUNT,
+        description="Adam steps between early-stopping checks (rounded up to whole epochs).",
     )
     lr: float = Field(0.01, gt=0.0, le=100.0, description="Adam learning rate (finite, > 0).")
     init: Literal["scratch", "no_clustering"] = Field(
@@ -96,6 +114,15 @@ class BCConfig(StrictModel):
         ),
     )
 
+    @field_validator("batch_size")
+    @classmethod
+    def _batch_size(cls, v: int | str | None) -> int | str | None:
+        if isinstance(v, int) and not 1 <= v <= 10**9:
+            raise ValueError(
+                f"batch_size must be auto, null or a number of rows in [1, 10^9], got {v}"
+            )
+        return v
+
     @field_validator("betas")
     @classmethod
     def _betas(cls, v: tuple[float, float]) -> tuple[float, float]:
@@ -106,7 +133,7 @@ class BCConfig(StrictModel):
 
     @model_validator(mode="after")
     def _batch_engine(self) -> BCConfig:
-        if self.batch_size is not None and (
+        if isinstance(self.batch_size, int) and (
             self.engine == "torch" or self.device == "cuda" or self.dtype != "float32"
         ):
             raise ValueError(

@@ -26,6 +26,9 @@ class Executor(Protocol):
     def slots(self, num_cpus: int) -> int:
         """How many jobs of ``num_cpus`` CPUs run at once (how finely to cut a stage's work)."""
 
+    def widest(self) -> int:
+        """The most CPUs one job can be given (the smallest worker's CPUs: a job fits anywhere)."""
+
     def fan_out(
         self,
         fn: Callable[..., Any],
@@ -65,6 +68,9 @@ class LocalExecutor:
 
     def slots(self, num_cpus: int) -> int:
         return 1  # one job at a time
+
+    def widest(self) -> int:
+        return 1  # this process's thread count stays the config's
 
     def fan_out(self, fn, calls, description, show_progress=True) -> list[Any]:
         from pcpg_dist.domains.defaults import in_process
@@ -107,6 +113,11 @@ class RayExecutor:
         import ray
 
         return max(1, int(ray.cluster_resources().get("CPU", 1)) // max(1, num_cpus))
+
+    def widest(self) -> int:
+        from pcpg_dist.orchestration.nodes import node_capacities
+
+        return max(1, int(min((n["CPU"] for n in node_capacities() if n["CPU"] >= 1), default=1)))
 
     def fan_out(self, fn, calls, description, show_progress=True) -> list[Any]:
         from pcpg_dist.orchestration.ray_pool import fan_out

@@ -39,6 +39,9 @@ from pcpg_dist.orchestration.resources import bc_gpus, cluster_gpus, unit_cluste
 from pcpg_dist.pipeline import declared
 from pcpg_dist.pipeline.declared import CLUSTER, EVALUATE, TRAIN, Stage
 
+#: the most threads :meth:`Batch.spread` gives one job (torch's gain flattens beyond)
+MAX_SPREAD_THREADS = 4
+
 # fields of a config that cannot change its evaluation units (dataset, split, what Step A sees)
 NOT_IN_UNITS = {"name", "clustering", "bc", "evaluation", "runner", "tuning", "seeds", "sweep"}
 
@@ -59,6 +62,13 @@ class Batch:
     def threads(self) -> int:
         return max(p.cfg.runner.cpus_per_task for p in self.points)
 
+    def spread(self, n_jobs: int) -> int:
+        """Threads for each of ``n_jobs`` jobs that cannot be cut finer (one unit's clustering):
+        ``runner.cpus_per_task``, or where the jobs are fewer than the CPUs, a share of every CPU
+        (at most what the smallest worker has). One log's clustering ran on one of two cores."""
+        share = self.executor.slots(1) // max(1, n_jobs)
+        return max(self.threads, min(share, self.executor.widest(), MAX_SPREAD_THREADS))
+
     def run_jobs(
         self,
         stage: Stage,
@@ -66,16 +76,17 @@ class Batch:
         save: Callable[[str, Any], None],
         gpus: dict[str, float] | None = None,
         description: str | None = None,
+        threads: int | None = None,
     ) -> int:
         """Run one job of ``stage`` per key of ``jobs`` (keys shared by several points run once);
         ``save`` each result as it comes. ``gpus``: what each key's job asks for (none where
-        missing)."""
+        missing); ``threads``: the CPUs each asks for (default ``runner.cpus_per_task``)."""
         keys = list(jobs)
         self.executor.map(
             stage.function(),
             [jobs[k] for k in keys],
             description or stage.description,
-            num_cpus=self.threads,
+            num_cpus=threads or self.threads,
             on_result=lambda i, res: save(keys[i], res),
             show_progress=self.show_progress,
             num_gpus=[(gpus or {}).get(k, 0.0) for k in keys],
@@ -210,8 +221,10 @@ def _cluster(batch: Batch, stage: Stage) -> None:
                 p.dkey, e, p.cfg, u.cluster_input_note, p.digests[e]
             )
             if k not in jobs and batch.cache.done("cluster", k) is None:
-                jobs[k] = (p.refs[e], p.cfg.clustering, p.cfg.seed, p.cfg.runner.cpus_per_task)
+                jobs[k] = (p.refs[e], p.cfg.clustering, p.cfg.seed)
                 gpus[k] = unit_cluster_gpus(p.gpus[0], p.cfg.clustering, u.clustered)
+    threads = batch.spread(len(jobs)) if not any(gpus.values()) else batch.threads
+    jobs = {k: (*job, threads) for k, job in jobs.items()}
 
     def save(key: str, res: dict) -> None:
         files = {
@@ -222,7 +235,7 @@ def _cluster(batch: Batch, stage: Stage) -> None:
         }
         batch.cache.store("cluster", key, files, {"stage": "cluster"})
 
-    batch.computed[stage.counter] = batch.run_jobs(stage, jobs, save, gpus)
+    batch.computed[stage.counter] = batch.run_jobs(stage, jobs, save, gpus, threads=threads)
     batch.clusters.update(
         {
             k: batch.cache.read_json("cluster", k, "result.json")

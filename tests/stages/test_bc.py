@@ -335,3 +335,44 @@ def test_training_starts_from_given_parameters(toy):
         train_cells(cells[1:2], BCConfig(epochs=5, hidden_size=7), init=[start])
     with pytest.raises(DataError, match="2 starting parameter sets for 1 cells"):
         train_cells(cells[1:2], BCConfig(epochs=5), init=[start, start])
+
+
+def test_early_stopping_ends_a_converged_cell_and_both_engines_stop_alike(toy):
+    """A cell stops once its whole-cell loss improves by less than stop_tol over stop_window
+    steps: far fewer steps than epochs, a loss within a hair of training on, and the torch engine
+    (which stops each cell of a batched group on its own) lands on the numba kernel's weights."""
+    from pcpg_dist.stages.bc.network import layer_sizes, start_vector
+    from pcpg_dist.stages.bc.numba_engine import train_numba
+    from pcpg_dist.stages.cell_rows import dedupe_rows
+
+    _, _, cells = toy
+    group = cells[:3]
+    cfg = BCConfig(epochs=6000)  # the defaults: 1e-4 nats a row over 100 steps
+    data = [dedupe_rows(c.states, c.valid, c.actions, c.weights) for c in group]
+    sizes = layer_sizes(group[0].state_dim, group[0].n_actions, cfg)
+    starts = [start_vector(sizes, c, None) for c in group]
+    _, loss_stop, steps = train_numba(group, data, sizes, cfg, starts)
+    assert (steps < 6000).all() and (steps % 100 == 0).all(), steps
+    _, loss_all, steps_all = train_numba(
+        group, data, sizes, cfg.model_copy(update={"stop_tol": 0.0}), starts
+    )
+    assert (steps_all == 6000).all()
+    assert (loss_stop >= loss_all - 1e-6).all() and (loss_stop <= loss_all + 0.01).all()
+    numba_model = train_cells(group, cfg)
+    torch_model = train_cells(group, cfg.model_copy(update={"engine": "torch"}))
+    np.testing.assert_allclose(torch_model.final_loss, numba_model.final_loss, rtol=1e-3, atol=1e-4)
+    np.testing.assert_allclose(torch_model.final_loss, loss_stop, rtol=1e-3, atol=1e-4)
+
+
+def test_auto_batch_keeps_small_cells_full_batch_and_gives_big_ones_the_same_steps():
+    from pcpg_dist.stages.bc.numba_engine import AUTO_BATCH, AUTO_FULL_BATCH_ROWS, cell_batches
+
+    rows = [500, AUTO_FULL_BATCH_ROWS, AUTO_FULL_BATCH_ROWS + 1, 256_000]
+    batch, passes = cell_batches(rows, BCConfig(epochs=2000))
+    assert batch.tolist() == [0, 0, AUTO_BATCH, AUTO_BATCH]
+    assert passes[:2].tolist() == [2000, 2000]
+    steps = passes[2:] * np.ceil(np.array(rows[2:]) / AUTO_BATCH)
+    assert ((steps >= 2000) & (steps < 2000 + np.ceil(np.array(rows[2:]) / AUTO_BATCH))).all()
+    assert cell_batches(rows, BCConfig(batch_size=None))[0].tolist() == [0] * 4
+    b, e = cell_batches(rows, BCConfig(batch_size=64, epochs=3))
+    assert b.tolist() == [64] * 4 and e.tolist() == [3] * 4

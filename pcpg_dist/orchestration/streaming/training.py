@@ -148,6 +148,8 @@ def train_spec(cfg, source: StreamSource) -> TrainSpec:
         betas=tuple(b.betas),
         eps=b.eps,
         # about 256 steps an epoch on a small log, at most 16,384 rows a step on a large one
-        batch=b.batch_size or int(np.clip(source.steps // 256, 1024, 16384)),
+        batch=b.batch_size
+        if isinstance(b.batch_size, int)
+        else int(np.clip(source.steps // 256, 1024, 16384)),
         max_epochs=min(b.epochs, source.max_epochs),
     )

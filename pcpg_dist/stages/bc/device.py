@@ -14,8 +14,9 @@ from pcpg_dist.config.stages import BCConfig
 
 
 def runs_on_cpu_only(cfg: BCConfig) -> bool:
-    """Minibatches (``batch_size``) and the numba kernel are CPU-only: ``auto`` then means the CPU."""
-    return cfg.batch_size is not None or cfg.engine == "numba"
+    """Minibatches (an explicit ``batch_size``) and the numba kernel are CPU-only: ``auto`` then
+    means the CPU (``batch_size: auto`` trains full batch where the torch engine runs)."""
+    return isinstance(cfg.batch_size, int) or cfg.engine == "numba"
 
 
 def bc_device(cfg: BCConfig) -> torch.device:
@@ -36,7 +37,7 @@ def choose_engine(cfg: BCConfig, device: torch.device) -> str:
     engine = cfg.engine
     if engine == "auto":
         engine = "numba" if device.type == "cpu" and cfg.dtype == "float32" else "torch"
-    if engine == "torch" and cfg.batch_size is not None:
+    if engine == "torch" and isinstance(cfg.batch_size, int):
         raise ConfigError(
             f"bc.batch_size={cfg.batch_size} needs the numba engine (CPU, float32); "
             f"got engine {engine} on {device.type} in {cfg.dtype}: set bc.batch_size: null"

@@ -18,7 +18,7 @@ rows measured 5x slower).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 _F = np.float32
 _CLAMP = _F(7.90531110763549805)
@@ -47,7 +47,7 @@ A0, A1, A2, A3, A4, A5, A6 = _A
 B0, B1, B2, B3 = _B
 
 
-@njit(inline="always", fastmath=True)
+@njit(inline="always", fastmath=True, error_model="numpy")
 def tanh32(x):  # pragma: no cover - compiled
     """Eigen's rational tanh for float32 (max error ~4e-7): only +, *, / and clamps, so the
     loops that call it vectorise, where libm's tanh is a scalar call per element."""
@@ -61,7 +61,7 @@ def tanh32(x):  # pragma: no cover - compiled
 _FM = {"reassoc", "contract", "nsz"}
 
 
-@njit(inline="always", fastmath=_FM)
+@njit(inline="always", fastmath=_FM, error_model="numpy")
 def _load(xt, neg, acts, wn, start, rows, scale, h, negb, actb, wb):  # pragma: no cover - compiled
     """Copy ``rows`` rows from ``start`` into the block buffers (weights times ``scale``)."""
     for i in range(xt.shape[0]):
@@ -75,7 +75,7 @@ def _load(xt, neg, acts, wn, start, rows, scale, h, negb, actb, wb):  # pragma: 
         wb[k] = wn[start + k] * scale
 
 
-@njit(inline="always", fastmath=_FM)
+@njit(inline="always", fastmath=_FM, error_model="numpy")
 def _forward(h, th, negb, sizes, w_off, b_off, rows, relu):  # pragma: no cover - compiled
     """h[l+1] = act(W_l^T h[l] + b_l); h[L] = logits + mask, for the first ``rows`` columns."""
     n_layers = len(sizes) - 1
@@ -104,7 +104,7 @@ def _forward(h, th, negb, sizes, w_off, b_off, rows, relu):  # pragma: no cover 
                     h[layer + 1, j, k] += negb[j, k]
 
 
-@njit(inline="always", fastmath=_FM)
+@njit(inline="always", fastmath=_FM, error_model="numpy")
 def _softmax(lg, e, mx, tot, rows, n_actions):  # pragma: no cover - compiled
     """e = exp(logits - max) per row; mx the max, tot the sum."""
     for k in range(rows):
@@ -121,7 +121,7 @@ def _softmax(lg, e, mx, tot, rows, n_actions):  # pragma: no cover - compiled
             tot[k] += x
 
 
-@njit(inline="always", fastmath=_FM)
+@njit(inline="always", fastmath=_FM, error_model="numpy")
 def _output_grad(h, g, mx, tot, wb, actb, rows, n_actions, n_layers):  # pragma: no cover - compiled
     """Softmax over actions of the logits ``h[n_layers]``; g[0] = w * (softmax - onehot)."""
     _softmax(h[n_layers], g[0], mx, tot, rows, n_actions)
@@ -132,7 +132,7 @@ def _output_grad(h, g, mx, tot, wb, actb, rows, n_actions, n_layers):  # pragma:
         g[0, actb[k], k] -= wb[k]
 
 
-@njit(inline="always", fastmath=_FM)
+@njit(inline="always", fastmath=_FM, error_model="numpy")
 def _backward(h, g, th, grad, sizes, w_off, b_off, rows, relu):  # pragma: no cover - compiled
     """``grad`` of every weight and bias from the output gradient in g[0]; g[0] and g[1] take
     turns holding the gradient of the current layer's output."""
@@ -173,7 +173,7 @@ def _backward(h, g, th, grad, sizes, w_off, b_off, rows, relu):  # pragma: no co
             cur = nxt
 
 
-@njit(inline="always", fastmath=_FM)
+@njit(inline="always", fastmath=_FM, error_model="numpy")
 def _adam(th, m, v, grad, n_params, step, lr, beta1, beta2, eps):  # pragma: no cover - compiled
     """One Adam step on ``th``, exactly as ``torch.optim.Adam`` (no weight decay, no amsgrad)."""
     bc1 = 1.0 - beta1**step
@@ -184,7 +184,7 @@ def _adam(th, m, v, grad, n_params, step, lr, beta1, beta2, eps):  # pragma: no 
         th[p] -= lr / bc1 * m[p] / (np.sqrt(v[p]) / bc2 + eps)
 
 
-@njit(inline="always", fastmath=_FM)
+@njit(inline="always", fastmath=_FM, error_model="numpy")
 def _cell_loss(
     xt,
     neg,
@@ -227,37 +227,28 @@ def _cell_loss(
     return loss
 
 
-@njit(cache=True, fastmath=_FM, parallel=True)
+@njit(cache=True, fastmath=_FM, nogil=True, error_model="numpy")
 def train_kernel(
-    xt,
-    neg,
-    acts,
-    wn,
-    row_off,
-    theta,
-    sizes,
-    w_off,
-    b_off,
-    epochs,
-    lr,
-    beta1,
-    beta2,
-    eps,
-    relu,
-    schedule,
-    sched_off,
-    loss_out,
-    batch,
-):  # pragma: no cover - compiled
+    xt, neg, acts, wn, row_off, theta, sizes, w_off, b_off, epochs, lr, beta1, beta2, eps, relu,
+    cells, loss_out, batches, stop_window, stop_tol, steps_out,
+):  # pragma: no cover - compiled  # fmt: skip
     """Train every cell in place.
 
     xt (d, R) normalised inputs; neg (A, R) 0 or -1e9 per action; acts (R,) targets;
     wn (R,) per-row weights summing to 1 within each cell; row_off (C+1,) cell row ranges;
     theta (C, P) parameters (updated in place); sizes (L+1,) layer widths; w_off/b_off (L,)
     offsets of each layer's (in, out) weights and (out,) bias in a row of theta.
-    ``schedule[sched_off[t]:sched_off[t+1]]`` lists the cells thread slot t trains.
-    ``batch`` rows per Adam step (0: the whole cell, full batch); ``loss_out`` is the loss over
-    the whole cell after training.
+    ``cells`` lists the cells this call trains, one after another. The kernel releases the GIL,
+    so the caller runs one call per thread on disjoint cells: a ``prange`` over thread slots
+    (``parallel=True``) ran as fast but took 25 s to compile on a fresh install's first run, this
+    6 s. ``error_model="numpy"`` (a zero division gives inf, caught by the caller's finiteness
+    check, instead of raising) lets the row loops vectorise: without it they ran 2x slower.
+    ``batches[c]`` rows per Adam step of cell c (0: the whole cell, full batch) for ``epochs[c]``
+    passes over its rows; ``loss_out`` is the loss over the whole cell after training,
+    ``steps_out`` the Adam steps it took. Early stopping: every
+    ``stop_window`` steps (rounded up to whole epochs) the loss over the whole cell is computed and
+    the cell stops once it improved by less than ``stop_tol`` (nats a row) since the last check
+    (``stop_window`` 0: every cell takes ``epochs`` epochs).
     """
     n_layers = len(sizes) - 1
     maxw = 0
@@ -265,40 +256,52 @@ def train_kernel(
         maxw = max(maxw, s)
     n_actions = sizes[n_layers]
     n_params = theta.shape[1]
-    for slot in prange(len(sched_off) - 1):
-        for q in range(sched_off[slot], sched_off[slot + 1]):
-            c = schedule[q]
-            r0 = row_off[c]
-            n = row_off[c + 1] - r0
-            nb = 1 if batch <= 0 or batch >= n else (n + batch - 1) // batch
-            cap = n if nb == 1 else batch
-            h = np.empty((n_layers + 1, maxw, cap), np.float32)
-            g = np.empty((2, maxw, cap), np.float32)
-            negb = np.empty((n_actions, cap), np.float32)
-            actb = np.empty(cap, np.int64)
-            wb = np.empty(cap, np.float32)
-            mx = np.empty(cap, np.float32)
-            tot = np.empty(cap, np.float32)
-            th = theta[c]
-            m = np.zeros(n_params, np.float32)
-            v = np.zeros(n_params, np.float32)
-            grad = np.zeros(n_params, np.float32)
-            rows = n
-            if nb == 1:
-                _load(xt, neg, acts, wn, r0, n, np.float32(1.0), h, negb, actb, wb)
-            for step in range(1, epochs * nb + 1):
-                if nb > 1:
-                    # a block's weights scaled by n / rows: its gradient is an unbiased estimate
-                    # of the full-batch gradient (distinct rows keep their counts as weights, so
-                    # renormalising within a block would favour rare rows)
-                    k0 = ((step - 1) % nb) * batch
-                    rows = min(n, k0 + batch) - k0
-                    _load(xt, neg, acts, wn, r0 + k0, rows, np.float32(n / rows), h, negb, actb, wb)
-                _forward(h, th, negb, sizes, w_off, b_off, rows, relu)
-                _output_grad(h, g, mx, tot, wb, actb, rows, n_actions, n_layers)
-                _backward(h, g, th, grad, sizes, w_off, b_off, rows, relu)
-                _adam(th, m, v, grad, n_params, step, lr, beta1, beta2, eps)
-            loss_out[c] = _cell_loss(
-                xt, neg, acts, wn, r0, n, nb, batch, h, g, negb, actb, wb, mx, tot, th, sizes,
-                w_off, b_off, relu,
-            )  # fmt: skip
+    for q in range(len(cells)):
+        c = cells[q]
+        batch = batches[c]
+        r0 = row_off[c]
+        n = row_off[c + 1] - r0
+        nb = 1 if batch <= 0 or batch >= n else (n + batch - 1) // batch
+        cap = n if nb == 1 else batch
+        h = np.empty((n_layers + 1, maxw, cap), np.float32)
+        g = np.empty((2, maxw, cap), np.float32)
+        negb = np.empty((n_actions, cap), np.float32)
+        actb = np.empty(cap, np.int64)
+        wb = np.empty(cap, np.float32)
+        mx = np.empty(cap, np.float32)
+        tot = np.empty(cap, np.float32)
+        th = theta[c]
+        m = np.zeros(n_params, np.float32)
+        v = np.zeros(n_params, np.float32)
+        grad = np.zeros(n_params, np.float32)
+        rows = n
+        every = 0 if stop_window <= 0 else ((stop_window + nb - 1) // nb) * nb
+        last = np.inf
+        if nb == 1:
+            _load(xt, neg, acts, wn, r0, n, np.float32(1.0), h, negb, actb, wb)
+        step = 0
+        for step in range(1, epochs[c] * nb + 1):
+            if nb > 1:
+                # a block's weights scaled by n / rows: its gradient is an unbiased estimate
+                # of the full-batch gradient (distinct rows keep their counts as weights, so
+                # renormalising within a block would favour rare rows)
+                k0 = ((step - 1) % nb) * batch
+                rows = min(n, k0 + batch) - k0
+                _load(xt, neg, acts, wn, r0 + k0, rows, np.float32(n / rows), h, negb, actb, wb)
+            _forward(h, th, negb, sizes, w_off, b_off, rows, relu)
+            _output_grad(h, g, mx, tot, wb, actb, rows, n_actions, n_layers)
+            _backward(h, g, th, grad, sizes, w_off, b_off, rows, relu)
+            _adam(th, m, v, grad, n_params, step, lr, beta1, beta2, eps)
+            if every > 0 and step % every == 0:
+                now = _cell_loss(
+                    xt, neg, acts, wn, r0, n, nb, batch, h, g, negb, actb, wb, mx, tot, th,
+                    sizes, w_off, b_off, relu,
+                )  # fmt: skip
+                if last - now < stop_tol:
+                    break
+                last = now
+        steps_out[c] = step
+        loss_out[c] = _cell_loss(
+            xt, neg, acts, wn, r0, n, nb, batch, h, g, negb, actb, wb, mx, tot, th, sizes,
+            w_off, b_off, relu,
+        )  # fmt: skip

@@ -7,7 +7,9 @@ the cells) is plain NumPy that the kernel should not carry.
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import torch
@@ -31,27 +33,58 @@ def _thread_schedule(rows: Sequence[int], slots: int) -> tuple[np.ndarray, np.nd
     )
 
 
+#: ``bc.batch_size: auto``: a cell of more distinct rows than this trains in minibatches of
+#: AUTO_BATCH rows (full batch below: every cell of the paper's three domains)
+AUTO_FULL_BATCH_ROWS = 20_000
+AUTO_BATCH = 4096
+
+
+def cell_batches(rows: Sequence[int], cfg: BCConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Each cell's rows per Adam step (0: full batch) and passes over its rows.
+
+    ``batch_size: auto`` keeps full batch (the paper) up to AUTO_FULL_BATCH_ROWS distinct rows
+    and gives larger cells minibatches of AUTO_BATCH rows with the same budget of Adam steps
+    (``bc.epochs``): full batch over a continuous log's hundreds of thousands of distinct rows
+    took ~100x the compute to reach the same loss (docs/bc_and_evaluation.md). An explicit
+    ``batch_size`` applies to every cell, and ``epochs`` are then passes over the rows.
+    """
+    rows = np.asarray(rows, np.int64)
+    if cfg.batch_size is None:
+        return np.zeros(len(rows), np.int64), np.full(len(rows), cfg.epochs, np.int64)
+    if cfg.batch_size != "auto":
+        return np.full(len(rows), cfg.batch_size, np.int64), np.full(
+            len(rows), cfg.epochs, np.int64
+        )
+    big = rows > AUTO_FULL_BATCH_ROWS
+    batch = np.where(big, AUTO_BATCH, 0)
+    blocks = -(-rows // AUTO_BATCH)
+    passes = np.where(big, -(-cfg.epochs // np.maximum(blocks, 1)), cfg.epochs)
+    return batch.astype(np.int64), np.maximum(passes, min(cfg.epochs, 1)).astype(np.int64)
+
+
+def _shuffled(rows: tuple[np.ndarray, ...], seed: int) -> tuple[np.ndarray, ...]:
+    """A minibatched cell's rows in one fixed order drawn from its seed: its blocks."""
+    order = np.random.default_rng([seed, 1]).permutation(len(rows[2]))
+    return tuple(a[order] for a in rows)
+
+
 def train_numba(
     cells: Sequence[Cell],
     data: list[tuple[np.ndarray, ...]],
     sizes: tuple[int, ...],
     cfg: BCConfig,
     starts: list[np.ndarray],
-) -> tuple[dict, np.ndarray]:
+) -> tuple[dict, np.ndarray, np.ndarray]:
     """Train every cell with the compiled kernel on this process's threads; (parameters by
-    name, final loss per cell), as :func:`~pcpg_dist.stages.bc.torch_engine.train_group`."""
-    import numba
-
+    name, final loss per cell, Adam steps per cell), as
+    :func:`~pcpg_dist.stages.bc.torch_engine.train_group`."""
     from pcpg_dist.stages.bc.kernel import train_kernel
 
-    if cfg.batch_size is not None:  # minibatches are blocks of one fixed shuffle per cell
-        data = [
-            tuple(a[order] for a in x)
-            for x, order in (
-                (x, np.random.default_rng([c.spec.seed, 1]).permutation(len(x[2])))
-                for c, x in zip(cells, data, strict=True)
-            )
-        ]
+    batch, epochs = cell_batches([len(x[2]) for x in data], cfg)
+    data = [
+        x if b == 0 else _shuffled(x, c.spec.seed)
+        for c, x, b in zip(cells, data, batch, strict=True)
+    ]
     rows = [len(x[2]) for x in data]
     row_off = np.r_[0, np.cumsum(rows)].astype(np.int64)
     xt = np.concatenate([(s - c.mean) / c.std for c, (s, _, _, _) in zip(cells, data, strict=True)])
@@ -63,12 +96,14 @@ def train_numba(
     theta = np.stack(starts).astype(np.float32)
     numel = [x for a, b in zip(sizes[:-1], sizes[1:], strict=True) for x in (a * b, b)]
     offs = np.r_[0, np.cumsum(numel)].astype(np.int64)
-    # follow the thread count the caller gave torch (parallel.set_threads): an oversubscribed
-    # prange on a busy machine waits for its slowest thread
-    numba.set_num_threads(max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)))
-    schedule, sched_off = _thread_schedule(rows, numba.get_num_threads())
-    losses = np.zeros(len(cells))
-    train_kernel(
+    # follow the thread count the caller gave torch (parallel.set_threads): more threads than
+    # the CPUs this process was given wait for their slowest one
+    slots = max(1, min(torch.get_num_threads(), len(cells)))
+    schedule, sched_off = _thread_schedule(
+        [r * e for r, e in zip(rows, epochs, strict=True)], slots
+    )
+    losses, steps = np.zeros(len(cells)), np.zeros(len(cells), np.int64)
+    args = (
         np.ascontiguousarray(xt.T, np.float32),
         np.ascontiguousarray(neg.T),
         acts,
@@ -78,19 +113,19 @@ def train_numba(
         np.array(sizes, np.int64),
         offs[0:-1:2].copy(),
         offs[1::2].copy(),
-        cfg.epochs,
+        epochs,
         cfg.lr,
         cfg.betas[0],
         cfg.betas[1],
         cfg.eps,
         cfg.activation == "relu",
-        schedule,
-        sched_off,
-        losses,
-        cfg.batch_size or 0,
     )
+    tail = (batch, cfg.stop_window if cfg.stop_tol > 0 else 0, cfg.stop_tol, steps)
+    shares = [schedule[a:b] for a, b in itertools.pairwise(sched_off)]
+    with ThreadPoolExecutor(slots) as pool:  # the kernel releases the GIL: a thread per share
+        list(pool.map(lambda share: train_kernel(*args, share, losses, *tail), shares))
     out = {}
     for i, (a, b) in enumerate(zip(sizes[:-1], sizes[1:], strict=True)):
         out[f"W{i}"] = theta[:, offs[2 * i] : offs[2 * i + 1]].reshape(-1, a, b).copy()
         out[f"b{i}"] = theta[:, offs[2 * i + 1] : offs[2 * i + 2]].copy()
-    return out, losses
+    return out, losses, steps

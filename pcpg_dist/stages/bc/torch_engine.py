@@ -119,8 +119,9 @@ def _adam_full_batch(
     n_layers: int,
     cfg: BCConfig,
 ) -> torch.Tensor:
-    """``cfg.epochs`` steps of hand-written backward and Adam on ``theta`` (in place; ``ps`` and
-    ``gs`` are per-layer views of ``theta`` and ``grad``); the final loss per cell."""
+    """Up to ``cfg.epochs`` steps of hand-written backward and Adam on ``theta`` (in place; ``ps``
+    and ``gs`` are per-layer views of ``theta`` and ``grad``), each cell stopping early as in the
+    numba kernel; the final loss per cell."""
     m, v = torch.zeros_like(theta), torch.zeros_like(theta)
     relu = cfg.activation == "relu"
     act_back = (
@@ -136,6 +137,13 @@ def _adam_full_batch(
         logits = torch.baddbmm(ps[-1], hs[-1], ps[-2]).add_(neg)
         return hs, logits
 
+    def loss() -> torch.Tensor:
+        _, logits = forward()
+        return -(torch.log_softmax(logits, dim=-1) * target).sum(dim=(1, 2))
+
+    window = cfg.stop_window if cfg.stop_tol > 0 else 0
+    last = torch.full((theta.shape[0],), torch.inf, dtype=theta.dtype, device=theta.device)
+    live = None  # (cells, 1) 1 while a cell trains, 0 once it stopped (None: all train)
     with torch.no_grad():
         for step in range(1, cfg.epochs + 1):
             hs, logits = forward()
@@ -152,7 +160,16 @@ def _adam_full_batch(
             v.mul_(beta2).addcmul_(grad, grad, value=1 - beta2)
             bc1, bc2 = 1 - beta1**step, 1 - beta2**step
             denom = (v.sqrt() / bc2**0.5).add_(cfg.eps)
-            theta.addcdiv_(m, denom, value=-cfg.lr / bc1)
-        _, logits = forward()
-        logp = torch.log_softmax(logits, dim=-1)
-        return -(logp * target).sum(dim=(1, 2))
+            theta.addcdiv_(m if live is None else m * live, denom, value=-cfg.lr / bc1)
+            if window and step % window == 0:  # early stopping, as the numba kernel
+                now = loss()
+                done = (last - now) < cfg.stop_tol
+                if live is not None:
+                    done &= live[:, 0] > 0
+                if done.any():
+                    live = torch.ones_like(last)[:, None] if live is None else live
+                    live[done] = 0
+                    if not live.any():
+                        break
+                last = torch.where(done, last, now)
+        return loss()

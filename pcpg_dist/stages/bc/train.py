@@ -49,7 +49,7 @@ def train_cells(
     ]
     device = bc_device(cfg)
     if choose_engine(cfg, device) == "numba":
-        params, losses = train_numba(cells, data, sizes, cfg, starts)
+        params, losses, _ = train_numba(cells, data, sizes, cfg, starts)
     else:
         params, losses = _train_buckets(cells, data, sizes, cfg, device, starts)
     check_finite(cells, params, losses, cfg)
