@@ -16,7 +16,14 @@ class RunnerConfig(StrictModel):
         int, Field(ge=1, le=1_000_000, description="BC cells trained together in one Ray task")
     ] = 125
     cpus_per_task: Annotated[
-        int, Field(ge=1, le=4096, description="CPUs (and torch threads) per Ray task")
+        int,
+        Field(
+            ge=1,
+            le=4096,
+            description="CPUs (and torch threads) per Ray task; where Step A has fewer units "
+            "than CPUs, each unit's clustering gets a share of every CPU instead (at most 4, "
+            "at most what the smallest node has)",
+        ),
     ] = 1
     gpus_per_task: Annotated[
         float,

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from pcpg_dist.common.file_bytes import files_of
 from pcpg_dist.common.files import confined
 from pcpg_dist.common.keys import content_key
 from pcpg_dist.common.progress import progress_bar
@@ -39,6 +40,8 @@ from pcpg_dist.orchestration.resources import bc_gpus, cluster_gpus, unit_cluste
 from pcpg_dist.pipeline import declared
 from pcpg_dist.pipeline.declared import CLUSTER, EVALUATE, TRAIN, Stage
 
+#: a train unit's files (:meth:`~pcpg_dist.stages.bc.TrainedCells.save` of ``cells``)
+TRAINED_FILES = ("cells.pt", "cells.json")
 #: the most threads :meth:`Batch.spread` gives one job (torch's gain flattens beyond)
 MAX_SPREAD_THREADS = 4
 
@@ -334,19 +337,29 @@ def _add_groups(
 # --------------------------------------------------------------------------- evaluation
 def _evaluate(batch: Batch, stage: Stage) -> None:
     """One evaluation per environment (MLflow child runs are the hooks', after the summary)."""
-    from pcpg_dist.stages.bc import TrainedCells
-
     jobs: dict[str, tuple] = {}
     for p in batch.points:
         for e in p.units:
             tkeys = p.train_keys(e)
             p.ekeys[e] = k = declared.evaluate_key(tkeys, p.cfg)
             if k not in jobs and batch.cache.done("evaluate", k) is None:
-                trained = TrainedCells.concat(
-                    [TrainedCells.load(batch.cache.path("train", t) / "cells") for t in tkeys]
-                )
+                # the trained files as bytes: the task reads them (the driver parsed every
+                # environment's tensors here, ~8 ms each of its serial work)
+                trained = [
+                    {n: (batch.cache.path("train", t) / n).read_bytes() for n in TRAINED_FILES}
+                    for t in tkeys
+                ]
                 labels, margins = clusters_of(batch.clusters[p.ckeys[e]])
-                jobs[k] = (p.refs[e], labels, trained, p.cfg, p.cfg.runner.cpus_per_task, margins)
+                model = batch.cache.path("cluster", p.ckeys[e]) / "model"
+                jobs[k] = (
+                    p.refs[e],
+                    labels,
+                    trained,
+                    p.cfg,
+                    p.cfg.runner.cpus_per_task,
+                    margins,
+                    files_of(model) if model.is_dir() else None,
+                )
 
     def save(key: str, res: dict) -> None:
         batch.cache.store("evaluate", key, res["files"], {"stage": "evaluate"})

@@ -52,13 +52,31 @@ def evaluate_task(
     cfg,
     threads: int,
     margins: np.ndarray | None = None,
+    model_files: dict[str, bytes] | None = None,
 ) -> dict:
-    """Evaluate one unit: its metrics and its tables and figures as bytes."""
+    """Evaluate one unit: its metrics and its tables and figures as bytes. ``trained``: the
+    TrainedCells, or the files of each of its train units (``{"cells.pt": ..., "cells.json":
+    ...}``, read here). ``model_files``: the fitted clustering's files (what `pcpg classify`
+    reads), to classify the agents' rollouts."""
+    from pcpg_dist.common.file_bytes import write_files
     from pcpg_dist.pipeline.units import evaluate_unit
+    from pcpg_dist.stages.bc import TrainedCells
+    from pcpg_dist.stages.clustering.model_io import load_model
 
     set_threads(threads)
+    model = None
     with tempfile.TemporaryDirectory() as tmp:
-        metrics = evaluate_unit(unit, labels, trained, cfg, tmp, margins=margins)
+        if model_files:
+            write_files(Path(tmp) / "model", model_files)
+            model = load_model(Path(tmp) / "model")
+        if isinstance(trained, list):
+            for i, files in enumerate(trained):
+                write_files(Path(tmp) / f"train{i}", files)
+            trained = TrainedCells.concat(
+                [TrainedCells.load(Path(tmp) / f"train{i}" / "cells") for i in range(len(trained))]
+            )
+    with tempfile.TemporaryDirectory() as tmp:
+        metrics = evaluate_unit(unit, labels, trained, cfg, tmp, margins=margins, model=model)
         files = files_of(tmp)
     files["metrics.json"] = json.dumps(metrics, indent=1, sort_keys=True).encode()
     return {"metrics": metrics, "files": files}

@@ -147,8 +147,10 @@ def evaluate_unit(
     rollouts: bool = True,
     extras: bool = True,
     margins: np.ndarray | None = None,
+    model=None,
 ) -> dict[str, float]:
-    """Accuracy tables, cross accuracy, rollouts and the domain's extras; finite metrics only."""
+    """Accuracy tables, cross accuracy, rollouts and the domain's extras; finite metrics only.
+    ``model``: the fitted clustering, to classify the agents' rollouts."""
     from pcpg_dist.stages.evaluation import evaluate
 
     result = evaluate(
@@ -163,6 +165,7 @@ def evaluate_unit(
         score=contract.score(cfg),
         k=cfg.clustering.k,
         margins=margins,
+        model=model,
     )
     metrics = {k: float(v) for k, v in result.metrics.items() if np.isfinite(v)}
     if extras and out_dir is not None:
@@ -220,5 +223,6 @@ def run_unit(
         rollouts=rollouts,
         extras=extras,
         margins=clustering.margins,
+        model=clustering.model,
     )
     return UnitResult(clustering, {**clustering.metrics, **metrics})

@@ -38,15 +38,17 @@ PROTOCOL: tuple[tuple[str, object], ...] = (
     ("bc.hidden_size", 5),
     ("bc.epochs", 2000),
     ("bc.batch_size", None),  # full batch
+    ("bc.stop_tol", 0.0),  # every cell all its epochs
     ("bc.init", "scratch"),  # every agent from its own initialisation
 )
 #: how the report names a paper setting whose value alone would not say it
-PAPER_MEANS = {"bc.batch_size": "none (full batch)"}
+PAPER_MEANS = {"bc.batch_size": "none (full batch)", "bc.stop_tol": "0 (no early stopping)"}
 
 #: a protocol setting added after runs were logged: a recorded config without it ran with its default
 ABSENT_MEANS = {
     "ranking.style_margin": RankConfig.model_fields["style_margin"].default,
     "bc.init": BCConfig.model_fields["init"].default,
+    "bc.stop_tol": 0.0,  # before early stopping existed
 }
 
 #: the domain of a recorded config that names none

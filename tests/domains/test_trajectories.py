@@ -523,6 +523,12 @@ def test_gymnasium_rollouts_report_each_agents_success_rate(tmp_path) -> None:
     table = pd.read_csv(tmp_path / "eval" / "rollout_success.csv")
     assert len(table) == len(agents)
     assert sorted(table["mean"]) == pytest.approx(sorted(m[f"rollout/success/{a}"] for a in agents))
+    # each style's agent plays its own route: classified back to its own cluster by the clustering
+    # model (what `pcpg classify` does) in most episodes; No Clustering has no cluster to keep
+    kept = [m[f"rollout/style_kept/k{c}/p1"] for c in range(4)]
+    assert all(0 <= x <= 1 for x in kept) and np.mean(kept) >= 0.75, kept
+    assert m["rollout/style_kept/p1"] == pytest.approx(np.mean(kept))
+    assert not any(key.startswith("rollout/style_kept/nc") for key in m)
 
 
 @pytest.mark.slow

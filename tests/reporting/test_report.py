@@ -378,6 +378,8 @@ def test_quick_config_gets_the_banner_and_the_paper_config_does_not():
         "seeds",
         "ranking.ps",
         "bc.epochs",
+        "bc.batch_size",  # auto: full batch on GridWorld's cells, but not the paper's setting
+        "bc.stop_tol",  # early stopping
         "gridworld.environments",
         "pbtg.trajectories_per_style",
         "pbtg.dataset_per_style",

@@ -54,10 +54,13 @@ def evaluate(
     score: ScoreFn | None = None,
     k: int | None = None,
     margins: np.ndarray | None = None,
+    model=None,
 ) -> EvalResult:
     """Tables, metrics and figures of one environment's ensemble; written to ``out_dir``.
     ``margins``: the clustering's, for ``rank_cfg.style_margin`` (the test subsets are ranked as
-    the training subsets were)."""
+    the training subsets were). ``model``: the fitted clustering
+    (:class:`~pcpg_dist.stages.clustering.model.ClusterModel`), to classify each agent's
+    rollouts back to a cluster (does the agent keep its style?)."""
     ctx = build_context(dataset, labels, test_idx, trained, rank_cfg, cfg, hooks, score, k, margins)
     accuracy_table(ctx)  # Fig. 4
     cluster_style_table(ctx)
@@ -66,7 +69,7 @@ def evaluate(
     subset_length_table(ctx)  # Fig. 6 from the data
     rollout_sets: dict[tuple, Dataset] = {}
     if ctx.hooks.rollout is not None:  # Table 3, Fig. 5/6, Fig. 8
-        rollout_tables(ctx, rollout_sets)
+        rollout_tables(ctx, rollout_sets, model)
     if any(kind == "corrupt" for kind, *_ in ctx.cells):  # Fig. 9 / Table 5
         corruption_tables(ctx)
     figures: dict[str, Path] = {}

@@ -37,12 +37,15 @@ def rollout_rng(base: int, key: str) -> np.random.Generator:
     return np.random.default_rng([base, zlib.crc32(key.encode())])
 
 
-def rollout_tables(ctx: EvalContext, rollout_sets: dict[tuple, Dataset]) -> None:
+def rollout_tables(ctx: EvalContext, rollout_sets: dict[tuple, Dataset], model=None) -> None:
     """Tables ``rollouts``, ``rollout_*`` and ``reward_distance`` with their metrics; one
     rollout of each cluster's first-seed agent at ``eval.reward_p`` lands in ``rollout_sets``
-    (Fig. 8), keyed by (cluster, style)."""
+    (Fig. 8), keyed by (cluster, style). With the clustering's ``model``, each PCPG agent's
+    rollouts are classified as `pcpg classify` would: ``rollout/style_kept/k{c}/p{p}`` is the
+    share of agent c's episodes put back in cluster c (``rollout/style_kept/p{p}``: over the
+    agents)."""
     styles = style_of_clusters(ctx.dataset, ctx.labels, ctx.k)
-    runs = _rollout_runs(ctx, styles, rollout_sets)
+    runs = _rollout_runs(ctx, styles, rollout_sets, model)
     ctx.tables["rollouts"] = runs
     for col in ("length", "success", "return"):
         if col in runs:
@@ -55,15 +58,21 @@ def rollout_tables(ctx: EvalContext, rollout_sets: dict[tuple, Dataset]) -> None
         )  # share of rollouts that succeed
         if "return" in grp:
             ctx.put(f"rollout/return/{who}/p{fmt(p)}", list(grp["return"]))
+        if method == "pcpg" and "style_kept" in grp:
+            ctx.put(f"rollout/style_kept/{who}/p{fmt(p)}", list(grp["style_kept"]))
+    if "style_kept" in runs:
+        for p, grp in runs[runs["method"] == "pcpg"].groupby("p"):
+            ctx.put(f"rollout/style_kept/p{fmt(p)}", list(grp.groupby("seed")["style_kept"].mean()))
     if ctx.hooks.returns is None or ctx.hooks.optimal_return is None:
         return
     _reward_distance(ctx, runs, styles)
 
 
 def _rollout_runs(
-    ctx: EvalContext, styles: list[int], rollout_sets: dict[tuple, Dataset]
+    ctx: EvalContext, styles: list[int], rollout_sets: dict[tuple, Dataset], model=None
 ) -> pd.DataFrame:
-    """One row per PCPG or No Clustering agent: its rollouts' mean length, success and return."""
+    """One row per PCPG or No Clustering agent: its rollouts' mean length, success and return
+    (and, with ``model``, the share of a PCPG agent's rollouts classified to its own cluster)."""
     cfg, hooks, trained = ctx.cfg, ctx.hooks, ctx.trained
     mode = "greedy" if cfg.greedy else "sampled"
     rows = []
@@ -88,6 +97,8 @@ def _rollout_runs(
             row["return"] = float(ds.returns.mean())
         if hooks.returns is not None and kind == "pcpg":
             row["return_own_style"] = float(hooks.returns(ds, styles[c]).mean())
+        if model is not None and kind == "pcpg":
+            row["style_kept"] = float((model.predict(ds) == c).mean())
         rows.append(row)
         if kind == "pcpg" and seed == ctx.seeds[0] and p == cfg.reward_p:
             rollout_sets[(c, styles[c])] = ds.subset([0])
