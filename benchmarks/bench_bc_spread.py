@@ -62,6 +62,7 @@ def main() -> None:
     from pcpg_dist.orchestration.ray_pool import init_ray
     from pcpg_dist.pipeline.tasks import train_task
     from pcpg_dist.pipeline.units import plan_unit
+    from pcpg_dist.stages.bc import TrainedCells
 
     ds = synthetic_log(args.trajectories, args.steps)
     init_ray()
@@ -85,7 +86,10 @@ def main() -> None:
             (f"{slots} groups", [cells[g : g + size] for g in range(0, len(cells), size)]),
         ):
             t0 = time.perf_counter()
-            got = ray.get([task.remote(g, cfg.bc, 1) for g in groups])
+            got = [
+                TrainedCells.from_files([r["files"]])
+                for r in ray.get([task.remote(g, cfg.bc, 1) for g in groups])
+            ]
             walls[name].append(time.perf_counter() - t0)
             params[name] = {k: np.concatenate([t.params[k] for t in got]) for k in got[0].params}
     for name, w in walls.items():

@@ -275,10 +275,8 @@ def _train(batch: Batch, stage: Stage) -> None:
                     later.append((p, e, rest, p.train_keys(e)))
                 advance()
 
-    def save(key: str, trained) -> None:
-        folder = batch.cache.start("train", key)
-        trained.save(folder / "cells")
-        batch.cache.finish("train", key, {"stage": "train", "cells": len(trained.specs)})
+    def save(key: str, res: dict) -> None:
+        batch.cache.store("train", key, res["files"], {"stage": "train", "cells": res["cells"]})
 
     def gpus() -> dict[str, float]:
         return {k: p.gpus[1] for p in batch.points for _, k, _ in p.groups}

@@ -36,13 +36,15 @@ def cluster_task(unit: Unit, cluster_cfg, seed: int, threads: int) -> dict:
     }
 
 
-def train_task(cells: list, bc_cfg, threads: int, init: list | None = None):
-    """Train one group of cells in one vectorised pass; returns the trained arrays.
+def train_task(cells: list, bc_cfg, threads: int, init: list | None = None) -> dict:
+    """Train one group of cells in one vectorised pass; returns the trained ensemble's files
+    (:meth:`~pcpg_dist.stages.bc.TrainedCells.to_files`: the driver only writes them).
     ``init``: the cells' starting parameters (``bc.init: no_clustering``)."""
     from pcpg_dist.stages.bc import train_cells
 
     set_threads(threads)
-    return train_cells(cells, bc_cfg, init)
+    trained = train_cells(cells, bc_cfg, init)
+    return {"files": trained.to_files(), "cells": len(trained.specs)}
 
 
 def evaluate_task(
@@ -65,16 +67,12 @@ def evaluate_task(
 
     set_threads(threads)
     model = None
-    with tempfile.TemporaryDirectory() as tmp:
-        if model_files:
-            write_files(Path(tmp) / "model", model_files)
-            model = load_model(Path(tmp) / "model")
-        if isinstance(trained, list):
-            for i, files in enumerate(trained):
-                write_files(Path(tmp) / f"train{i}", files)
-            trained = TrainedCells.concat(
-                [TrainedCells.load(Path(tmp) / f"train{i}" / "cells") for i in range(len(trained))]
-            )
+    if model_files:
+        with tempfile.TemporaryDirectory() as tmp:
+            write_files(Path(tmp), model_files)
+            model = load_model(tmp)
+    if isinstance(trained, list):
+        trained = TrainedCells.from_files(trained)
     with tempfile.TemporaryDirectory() as tmp:
         metrics = evaluate_unit(unit, labels, trained, cfg, tmp, margins=margins, model=model)
         files = files_of(tmp)

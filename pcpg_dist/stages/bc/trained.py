@@ -178,6 +178,29 @@ class TrainedCells:
         path.with_suffix(".json").write_text(json.dumps(meta, indent=1))
         return path.with_suffix(".pt")
 
+    def to_files(self) -> dict[str, bytes]:
+        """What :meth:`save` writes, as ``{"cells.pt": ..., "cells.json": ...}`` (what a task
+        returns: the driver only writes the bytes)."""
+        import tempfile
+
+        with tempfile.TemporaryDirectory() as tmp:
+            self.save(Path(tmp) / "cells")
+            return {n: (Path(tmp) / n).read_bytes() for n in ("cells.pt", "cells.json")}
+
+    @staticmethod
+    def from_files(parts: Sequence[dict[str, bytes]]) -> TrainedCells:
+        """The ensemble of several :meth:`to_files` results, read and checked as :meth:`load`."""
+        import tempfile
+
+        from pcpg_dist.common.file_bytes import write_files
+
+        with tempfile.TemporaryDirectory() as tmp:
+            for i, files in enumerate(parts):
+                write_files(Path(tmp) / str(i), files)
+            return TrainedCells.concat(
+                [TrainedCells.load(Path(tmp) / str(i) / "cells") for i in range(len(parts))]
+            )
+
     @staticmethod
     def load(path: str | Path) -> TrainedCells:
         from pcpg_dist.stages.clustering.model_io import read_tensors
