@@ -52,7 +52,9 @@ def run_game(name: str, out: Path, ci: bool, rollouts: int) -> dict:
     cfg = yaml.safe_load((out / name / "pcpg.yaml").read_text())
     cfg["trajectories"]["path"] = str(out / name / "labelled")
     cfg["trajectories"].update(
-        gymnasium_env=game.gymnasium_env,
+        # ALE's ids exist once ale_py is imported: Gymnasium's "module:id" form imports it
+        gymnasium_env=("ale_py:" if game.gymnasium_env.startswith("ALE/") else "")
+        + game.gymnasium_env,
         gymnasium_kwargs=dict(game.gymnasium_kwargs),
         gymnasium_success=SUCCESS.get(name, "terminated"),
     )

@@ -195,6 +195,10 @@ def test_make_env_errors():
     _one_line(err)
     with pytest.raises(ConfigError, match="trajectories.gymnasium_env.*Please use `Taxi-v4`"):
         make_env("Taxi-v3", {"is_rainy": False})  # retired in Gymnasium 1.x
+    # a namespace a package registers on import (ALE, in a process that has not imported ale_py)
+    with pytest.raises(ConfigError, match=r"Namespace NoSuchPkg not found.*package first") as err:
+        make_env("NoSuchPkg/Game-v0", {})
+    _one_line(err)
     with pytest.raises(ConfigError, match="trajectories.gymnasium_kwargs.*slipery"):
         make_env("FrozenLake-v1", {"is_slipery": False})
     with pytest.raises(ConfigError, match="trajectories.gymnasium_kwargs.*5x5"):

@@ -82,7 +82,13 @@ def make_env(env_id: str, kwargs: Mapping[str, Any]) -> gymnasium.Env:
     except (gymnasium.error.UnregisteredEnv, gymnasium.error.DeprecatedEnv) as e:
         # an unknown or retired id: Gymnasium's own message names the close match ("Did you
         # mean: `FrozenLake`?") or the successor ("Please use `Taxi-v4` instead")
-        raise ConfigError(f"key '{ENV_KEY}': {' '.join(str(e).split())}") from None
+        hint = (
+            " (an env a package registers when imported: name the package first, "
+            "e.g. ale_py:ALE/Pong-v5)"
+            if "Namespace" in str(e) and ":" not in env_id
+            else ""
+        )
+        raise ConfigError(f"key '{ENV_KEY}': {' '.join(str(e).split())}{hint}") from None
     except Exception as e:  # whatever the env's constructor rejects is user input
         # ids like "module:Env-v0" import a module first; a missing one is the env key's fault
         missing = isinstance(e, ImportError | gymnasium.error.DependencyNotInstalled)
