@@ -378,3 +378,38 @@ def test_the_in_process_executor_gives_the_ray_runs_numbers(first_run, tiny_cfg,
     )
     assert results_only(here.metrics) == results_only(on_ray.metrics)
     assert here.computed == {"data": 1, "clustering": 1, "train_groups": 1, "evaluations": 1}
+
+
+class _Cluster:
+    """An executor's view of a Ray cluster: its CPUs in all and its smallest node's."""
+
+    def __init__(self, cpus: int, smallest: int) -> None:
+        self.cpus, self.smallest = cpus, smallest
+
+    def slots(self, num_cpus: int) -> int:
+        return max(1, self.cpus // num_cpus)
+
+    def widest(self) -> int:
+        return self.smallest
+
+
+@pytest.mark.parametrize(
+    ("cpus", "smallest", "jobs", "floor", "want"),
+    [
+        (2, 2, 1, 1, 2),  # one log on a 2-core machine: both cores (it ran on one)
+        (2, 2, 2, 1, 1),  # as many jobs as CPUs: the config's one each
+        (2, 2, 80, 1, 1),  # a sweep of many environments: unchanged
+        (64, 8, 1, 1, 4),  # one log on a big cluster: at most 4 threads
+        (64, 2, 1, 1, 2),  # ... and no more than the smallest node has (a job fits anywhere)
+        (16, 16, 3, 1, 4),
+        (2, 2, 1, 3, 3),  # runner.cpus_per_task is the floor
+    ],
+)
+def test_a_few_clustering_jobs_share_every_cpu(cpus, smallest, jobs, floor, want) -> None:
+    from types import SimpleNamespace
+
+    from pcpg_dist.orchestration.runner import Batch
+
+    point = SimpleNamespace(cfg=SimpleNamespace(runner=SimpleNamespace(cpus_per_task=floor)))
+    batch = Batch([point], cache=None, executor=_Cluster(cpus, smallest), show_progress=False)
+    assert batch.spread(jobs) == want
