@@ -39,7 +39,7 @@ import yaml
 
 ROOT = Path(__file__).resolve().parent.parent
 #: the summary metrics printed per variant: clustering accuracy, PCPG and No Clustering at each p
-ACCURACY = r".*(clustering/accuracy|pcpg/accuracy/p[\d.]+|baseline/accuracy/p[\d.]+)"
+ACCURACY = r"(clustering/accuracy|pcpg/accuracy/p[\d.]+|baseline/accuracy/p[\d.]+)"
 PAPER_BC = {"batch_size": None, "stop_tol": 0.0}
 
 

@@ -4,9 +4,11 @@ Why: numba compiles a kernel the first time it runs and caches the machine code 
 source (``__pycache__/*.nbi``, or ``NUMBA_CACHE_DIR``). On a fresh install the first `pcpg run`
 paid that in its Ray workers, in the hot path: ~12 s on this project's 2-core machine (the BC
 kernel 6 s, greedy_mix's 4 s; the BC kernel alone took 25 s before it dropped ``parallel=True``).
-A domain's own kernels (a built-in game's data generation, ~2 s) compile where they run. `pcpg run` and `pcpg sweep` start this module in a background process
-when a kernel's cache index is missing, so the compiling overlaps Ray's start and the first stage;
-a worker that needs a kernel before it is cached compiles it itself, as before.
+The commands that start a local Ray (`pcpg run`, `sweep`, `cluster`, `tune`, `generate`) start
+this module in a background process when a kernel's cache index is missing, so the compiling
+overlaps Ray's start and the first stage; a worker that needs a kernel before it is cached
+compiles it itself, as before. A domain's own kernels (a built-in game's data generation, ~2 s)
+compile where they run.
 
 It runs the public entry points on a tiny problem built as a log is (never hand-typed dummies:
 the argument types, and so the compiled specialisations, are exactly those of a run): greedy_mix

@@ -40,8 +40,6 @@ from pcpg_dist.orchestration.resources import bc_gpus, cluster_gpus, unit_cluste
 from pcpg_dist.pipeline import declared
 from pcpg_dist.pipeline.declared import CLUSTER, EVALUATE, TRAIN, Stage
 
-#: a train unit's files (:meth:`~pcpg_dist.stages.bc.TrainedCells.save` of ``cells``)
-TRAINED_FILES = ("cells.pt", "cells.json")
 #: the most threads :meth:`Batch.spread` gives one job (torch's gain flattens beyond)
 MAX_SPREAD_THREADS = 4
 
@@ -335,6 +333,8 @@ def _add_groups(
 # --------------------------------------------------------------------------- evaluation
 def _evaluate(batch: Batch, stage: Stage) -> None:
     """One evaluation per environment (MLflow child runs are the hooks', after the summary)."""
+    from pcpg_dist.stages.bc import TrainedCells
+
     jobs: dict[str, tuple] = {}
     for p in batch.points:
         for e in p.units:
@@ -344,7 +344,7 @@ def _evaluate(batch: Batch, stage: Stage) -> None:
                 # the trained files as bytes: the task reads them (the driver parsed every
                 # environment's tensors here, ~8 ms each of its serial work)
                 trained = [
-                    {n: (batch.cache.path("train", t) / n).read_bytes() for n in TRAINED_FILES}
+                    {n: (batch.cache.path("train", t) / n).read_bytes() for n in TrainedCells.FILES}
                     for t in tkeys
                 ]
                 labels, margins = clusters_of(batch.clusters[p.ckeys[e]])

@@ -50,15 +50,15 @@ def train_task(cells: list, bc_cfg, threads: int, init: list | None = None) -> d
 def evaluate_task(
     unit: Unit,
     labels: np.ndarray,
-    trained,
+    trained: list[dict[str, bytes]],
     cfg,
     threads: int,
     margins: np.ndarray | None = None,
     model_files: dict[str, bytes] | None = None,
 ) -> dict:
     """Evaluate one unit: its metrics and its tables and figures as bytes. ``trained``: the
-    TrainedCells, or the files of each of its train units (``{"cells.pt": ..., "cells.json":
-    ...}``, read here). ``model_files``: the fitted clustering's files (what `pcpg classify`
+    files of each of its train units (:meth:`~pcpg_dist.stages.bc.TrainedCells.to_files`, read
+    here, not in the driver). ``model_files``: the fitted clustering's files (what `pcpg classify`
     reads), to classify the agents' rollouts."""
     from pcpg_dist.common.file_bytes import write_files
     from pcpg_dist.pipeline.units import evaluate_unit
@@ -71,10 +71,9 @@ def evaluate_task(
         with tempfile.TemporaryDirectory() as tmp:
             write_files(Path(tmp), model_files)
             model = load_model(tmp)
-    if isinstance(trained, list):
-        trained = TrainedCells.from_files(trained)
+    cells = TrainedCells.from_files(trained)
     with tempfile.TemporaryDirectory() as tmp:
-        metrics = evaluate_unit(unit, labels, trained, cfg, tmp, margins=margins, model=model)
+        metrics = evaluate_unit(unit, labels, cells, cfg, tmp, margins=margins, model=model)
         files = files_of(tmp)
     files["metrics.json"] = json.dumps(metrics, indent=1, sort_keys=True).encode()
     return {"metrics": metrics, "files": files}

@@ -59,7 +59,7 @@ def cell_batches(rows: Sequence[int], cfg: BCConfig) -> tuple[np.ndarray, np.nda
     batch = np.where(big, AUTO_BATCH, 0)
     blocks = -(-rows // AUTO_BATCH)
     passes = np.where(big, -(-cfg.epochs // np.maximum(blocks, 1)), cfg.epochs)
-    return batch.astype(np.int64), np.maximum(passes, min(cfg.epochs, 1)).astype(np.int64)
+    return batch.astype(np.int64), passes.astype(np.int64)
 
 
 def _shuffled(rows: tuple[np.ndarray, ...], seed: int) -> tuple[np.ndarray, ...]:

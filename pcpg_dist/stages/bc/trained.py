@@ -11,6 +11,7 @@ import json
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 import torch
@@ -36,6 +37,9 @@ class TrainedCells:
     mean: np.ndarray  # (cells, d)
     std: np.ndarray  # (cells, d)
     final_loss: np.ndarray  # (cells,)
+
+    #: the files :meth:`save` writes for ``path`` = ``.../cells`` (what a task returns as bytes)
+    FILES: ClassVar[tuple[str, str]] = ("cells.pt", "cells.json")
 
     @property
     def keys(self) -> list[str]:
@@ -179,13 +183,13 @@ class TrainedCells:
         return path.with_suffix(".pt")
 
     def to_files(self) -> dict[str, bytes]:
-        """What :meth:`save` writes, as ``{"cells.pt": ..., "cells.json": ...}`` (what a task
-        returns: the driver only writes the bytes)."""
+        """What :meth:`save` writes, as ``{name: bytes}`` for :data:`FILES` (what a task returns:
+        the driver only writes the bytes)."""
         import tempfile
 
         with tempfile.TemporaryDirectory() as tmp:
             self.save(Path(tmp) / "cells")
-            return {n: (Path(tmp) / n).read_bytes() for n in ("cells.pt", "cells.json")}
+            return {n: (Path(tmp) / n).read_bytes() for n in self.FILES}
 
     @staticmethod
     def from_files(parts: Sequence[dict[str, bytes]]) -> TrainedCells:
