@@ -150,8 +150,8 @@ def _run_stages(batch: Batch, hooks: RunHooks, stages: tuple[Stage, ...]) -> lis
     t0 = time.perf_counter()
     _load_data(batch)  # a bad input file fails here, before any MLflow run or cache entry exists
     batch.times[declared.DATA.name] = time.perf_counter() - t0
-    hooks.started(batch.points)
     try:
+        hooks.started(batch.points)  # inside: an interrupt here still marks the runs made so far
         for stage in stages[1:]:
             t0 = time.perf_counter()
             STAGE_DRIVERS[stage.name](batch, stage)

@@ -3,6 +3,7 @@ find-or-create of a run under a store lock, and the labels and provenance tags r
 
 from __future__ import annotations
 
+import contextlib
 import json
 from pathlib import Path
 
@@ -176,16 +177,30 @@ def _find_or_create(
                 _retry(client.set_tag, run.info.run_id, RUN_NAME, tags[RUN_NAME])
             if run.info.status != "FINISHED":
                 _retry(client.update_run, run.info.run_id, status="RUNNING")
-                _log_params(client, run.info.run_id, params, have=run.data.params)
+                with killed_if_interrupted(client, run.info.run_id):
+                    _log_params(client, run.info.run_id, params, have=run.data.params)
             return run.info.run_id, run.info.status == "FINISHED"
         all_tags = {**tags, **key, **({PARENT: parent} if parent else {})}
         mine = _retry(client.create_run, exp_id, tags=all_tags).info.run_id
-        found = _runs_with(client, exp_id, key, parent)
-        if found and found[0].info.run_id != mine:
-            _retry(client.delete_run, mine)
-            return found[0].info.run_id, found[0].info.status == "FINISHED"
-        _log_params(client, mine, params)
+        with killed_if_interrupted(client, mine):
+            found = _runs_with(client, exp_id, key, parent)
+            if found and found[0].info.run_id != mine:
+                _retry(client.delete_run, mine)
+                return found[0].info.run_id, found[0].info.status == "FINISHED"
+            _log_params(client, mine, params)
         return mine, False
+
+
+@contextlib.contextmanager
+def killed_if_interrupted(client, run_id: str):
+    """Mark ``run_id`` KILLED where Ctrl-C or SIGTERM lands inside the block: a run made but not
+    yet handed to its caller (whose own cleanup marks it) would otherwise stay RUNNING."""
+    try:
+        yield
+    except KeyboardInterrupt:
+        with contextlib.suppress(Exception):  # best effort while already interrupted
+            _retry(client.set_terminated, run_id, "KILLED", attempts=2)
+        raise
 
 
 def _provenance_tags(out_dir: Path | None = None) -> dict[str, str]:

@@ -29,6 +29,7 @@ from pcpg_dist.tracking.runs import (
     _find_or_create,
     _provenance_tags,
     _runs_with,
+    killed_if_interrupted,
     open_experiment,
 )
 from pcpg_dist.tracking.store import default_tracking_uri, prepare_store
@@ -113,7 +114,8 @@ class Tracker:
             legacy=legacy,
         )
         inputs = tuple(data_inputs(cfg, ikey, units)) if ikey else ()
-        log_data_inputs(client, parent, list(inputs))
+        with killed_if_interrupted(client, parent):
+            log_data_inputs(client, parent, list(inputs))
         return Tracker(uri, exp_id, parent, chash, cfg, label, bool(parent_run_id), inputs)
 
     def env_logged(self, env: str, unit_key: str) -> bool:

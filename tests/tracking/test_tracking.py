@@ -199,6 +199,29 @@ def test_killed_parent_resumes_and_is_finished_once(cfg, tmp_path):
     assert client.get_run(tracker.parent_id).info.status == "FINISHED"
 
 
+@pytest.mark.parametrize(
+    "where", ["pcpg_dist.tracking.runs._log_params", "pcpg_dist.tracking.trackers.log_data_inputs"]
+)
+def test_sigterm_while_the_parent_is_being_made_marks_it_killed(cfg, tmp_path, monkeypatch, where):
+    """SIGTERM between the parent's creation and Tracker.start's return (its params or data inputs
+    being logged: seconds on a loaded store) left it RUNNING: the caller's cleanup had no tracker
+    yet to mark (CI, test_sigterm_is_one_line_exit_143_and_marks_the_mlflow_run_killed)."""
+    from mlflow import MlflowClient
+
+    from pcpg_dist.common.errors import Terminated
+
+    def interrupted(*args, **kwargs):
+        raise Terminated()
+
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    monkeypatch.setattr(where, interrupted)
+    with pytest.raises(Terminated):
+        Tracker.start(cfg, uri, tmp_path / "out", ikey="data-key", units=[])
+    client = MlflowClient(uri)
+    runs = client.search_runs([e.experiment_id for e in client.search_experiments()])
+    assert [r.info.status for r in runs] == ["KILLED"]
+
+
 CONCURRENT = textwrap.dedent("""
     import sys
     from pathlib import Path
