@@ -108,6 +108,14 @@ class ClusterConfig(StrictModel):
         description="policy_mix: stop once fewer than this fraction of "
         "labels change in an EM round (0 = run all em_iterations).",
     )
+    policy_min_share: float = Field(
+        0.25,
+        ge=0.0,
+        le=1.0,
+        description="policy_mix: a cluster left with fewer than this fraction of an equal share "
+        "(trajectories / k) after an EM round is re-seeded with the half of the largest cluster "
+        "that its policy explains worst (0 = never; docs/clustering.md).",
+    )
     confidence_runs: int = Field(
         2,
         ge=0,
