@@ -141,3 +141,17 @@ def test_counters_are_found_without_labels():
     summary = counter_summary(states, offsets)  # gain and mean of features 0 and 3
     assert summary.shape == (2, 4)
     np.testing.assert_allclose(summary.mean(axis=0), 0, atol=1e-9)
+
+
+def test_an_emptied_cluster_takes_the_worst_explained_half_of_the_largest():
+    from pcpg_dist.stages.clustering.policy_mix import reseed_small
+
+    labels = np.array([0, 0, 0, 0, 0, 0, 1, 1, 1, 2])  # cluster 2 holds 1 of 10, k = 3
+    steps = np.array([10, 10, 20, 20, 10, 10, 5, 5, 5, 5], float)
+    scores = np.zeros((3, 10))
+    scores[0, :6] = [-1, -9, -2, -40, -3, -4]  # per step: -0.1 -0.9 -0.1 -2.0 -0.3 -0.4
+    out = labels.copy()
+    assert reseed_small(out, scores, steps, 3, 0.25) == 0  # 1 >= 0.25 * 10 / 3: kept
+    assert reseed_small(out, scores, steps, 3, 0.5) == 1  # 1 < 0.5 * 10 / 3: re-seeded
+    np.testing.assert_array_equal(out, [0, 2, 0, 2, 0, 2, 1, 1, 1, 2])
+    assert reseed_small(labels.copy(), scores, steps, 3, 0.0) == 0
