@@ -113,8 +113,8 @@ class Tracker:
             all_params,
             legacy=legacy,
         )
-        inputs = tuple(data_inputs(cfg, ikey, units)) if ikey else ()
-        with killed_if_interrupted(client, parent):
+        with killed_if_interrupted(client, parent):  # profiling the data takes a while
+            inputs = tuple(data_inputs(cfg, ikey, units)) if ikey else ()
             log_data_inputs(client, parent, list(inputs))
         return Tracker(uri, exp_id, parent, chash, cfg, label, bool(parent_run_id), inputs)
 

@@ -200,7 +200,12 @@ def test_killed_parent_resumes_and_is_finished_once(cfg, tmp_path):
 
 
 @pytest.mark.parametrize(
-    "where", ["pcpg_dist.tracking.runs._log_params", "pcpg_dist.tracking.trackers.log_data_inputs"]
+    "where",
+    [
+        "pcpg_dist.tracking.runs._log_params",
+        "pcpg_dist.tracking.trackers.data_inputs",
+        "pcpg_dist.tracking.trackers.log_data_inputs",
+    ],
 )
 def test_sigterm_while_the_parent_is_being_made_marks_it_killed(cfg, tmp_path, monkeypatch, where):
     """SIGTERM between the parent's creation and Tracker.start's return (its params or data inputs
