@@ -71,3 +71,5 @@ def test_policy_mix_recovers_the_styles_its_start_collapsed(tmp_path):
     assert before <= 0.45 and after >= before + 0.2, (before, after)
     sizes = np.bincount(reseeded.labels, minlength=k)
     assert sizes.min() >= 0.25 * ds.n_trajectories / k, sizes
+    # the labels are the fitted policies' own: the saved model (pcpg classify) gives them back
+    np.testing.assert_array_equal(reseeded.model.predict(ds), reseeded.labels)

@@ -132,11 +132,13 @@ def _fit_policy_mix(
         with torch.no_grad():
             scores = trajectory_scores(policy, inputs, n).double().cpu().numpy()
         new = scores.argmax(0).astype(np.int64)
+        reseeded = 0
         if rounds < cfg.em_iterations:  # the last round's labels are its policies' own
-            reseeds += reseed_small(new, scores, steps, cfg.k, cfg.policy_min_share)
+            reseeded = reseed_small(new, scores, steps, cfg.k, cfg.policy_min_share)
+            reseeds += reseeded
         moved = float((new != labels).mean())
         labels = new
-        if moved < cfg.em_tol:
+        if moved < cfg.em_tol and not reseeded:  # re-seeded labels are refitted first
             break
     # the prior stays the one the final labels were drawn with, so predict() gives them back
     metrics.update(
