@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-METHODS = ("bag_auto", "policy_mix", "visits_kmeans", "summary_kmeans")
+from benchmarks.zoo.evaluate import METHODS
 
 
 def table(evaluated: list[dict], confidence: list[dict]) -> str:
@@ -54,8 +54,7 @@ def main() -> None:
     ap.add_argument("evaluated", type=Path, help="benchmarks.zoo.evaluate --out")
     ap.add_argument("confidence", type=Path, help="benchmarks.zoo.confidence --out")
     args = ap.parse_args()
-    evaluated = json.loads(args.evaluated.read_text())
-    evaluated = evaluated["rows"] if isinstance(evaluated, dict) else evaluated
+    evaluated = json.loads(args.evaluated.read_text())  # evaluate writes a list of rows
     print(table(evaluated, json.loads(args.confidence.read_text())["rows"]))
 
 

@@ -3,6 +3,7 @@ client, and the retry of transient failures that reports a down or hung server o
 
 from __future__ import annotations
 
+import contextlib
 import http.client
 import os
 import re
@@ -180,6 +181,13 @@ def _client(uri: str):
     from mlflow import MlflowClient
 
     return MlflowClient(tracking_uri=uri)
+
+
+def end_quietly(client, run_id: str, status: str = "KILLED") -> None:
+    """Mark ``run_id`` ended with ``status``, best effort (two tries, no error): for a run that is
+    being abandoned because the command was interrupted or failed."""
+    with contextlib.suppress(Exception):
+        _retry(client.set_terminated, run_id, status, attempts=2)
 
 
 def _retry(fn, *args, attempts: int = 5, **kwargs):

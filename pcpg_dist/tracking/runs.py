@@ -10,7 +10,7 @@ from pathlib import Path
 import pcpg_dist
 from pcpg_dist.common.errors import ServiceError
 from pcpg_dist.common.provenance import git_commit, uv_lock_hash
-from pcpg_dist.tracking.connection import _client, _retry, check_tracking_uri
+from pcpg_dist.tracking.connection import _client, _retry, check_tracking_uri, end_quietly
 from pcpg_dist.tracking.logged import _log_params
 from pcpg_dist.tracking.store import (
     _artifact_root,
@@ -198,8 +198,7 @@ def killed_if_interrupted(client, run_id: str):
     try:
         yield
     except KeyboardInterrupt:
-        with contextlib.suppress(Exception):  # best effort while already interrupted
-            _retry(client.set_terminated, run_id, "KILLED", attempts=2)
+        end_quietly(client, run_id)
         raise
 
 

@@ -8,7 +8,6 @@ arguments (the Optuna study, the result), so tracking imports nothing of orchest
 
 from __future__ import annotations
 
-import contextlib
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -136,7 +135,6 @@ class StudyTracker:
 
     def failed(self, status: str = "KILLED") -> None:
         """Mark the study's run ended: KILLED when interrupted, FAILED when no trial completed."""
-        from pcpg_dist.tracking.connection import _client, _retry
+        from pcpg_dist.tracking.connection import _client, end_quietly
 
-        with contextlib.suppress(Exception):  # best effort while already failing
-            _retry(_client(self.uri).set_terminated, self.parent_id, status, attempts=2)
+        end_quietly(_client(self.uri), self.parent_id, status)

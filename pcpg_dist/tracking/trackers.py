@@ -3,7 +3,6 @@ environments' children and the agents model), :func:`log_environment` and :class
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import json
 import math
@@ -13,7 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from pcpg_dist.common.point_labels import point_label, short_keys
-from pcpg_dist.tracking.connection import _client, _retry, check_tracking_uri
+from pcpg_dist.tracking.connection import _client, _retry, check_tracking_uri, end_quietly
 from pcpg_dist.tracking.datasets import DataInput, data_inputs, log_data_inputs
 from pcpg_dist.tracking.logged import (
     _digest,
@@ -234,8 +233,7 @@ class Tracker:
                     os.environ["MLFLOW_UV_AUTO_DETECT"] = before
 
     def fail(self) -> None:
-        with contextlib.suppress(Exception):  # best effort while already failing
-            _retry(_client(self.uri).set_terminated, self.parent_id, "KILLED", attempts=2)
+        end_quietly(_client(self.uri), self.parent_id)
 
 
 @dataclass
@@ -350,5 +348,4 @@ class SweepTracker:
         _retry(client.set_terminated, run_id, "FINISHED")
 
     def fail(self) -> None:
-        with contextlib.suppress(Exception):  # best effort while already failing
-            _retry(_client(self.uri).set_terminated, self.parent_id, "KILLED", attempts=2)
+        end_quietly(_client(self.uri), self.parent_id)
