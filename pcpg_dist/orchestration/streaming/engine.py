@@ -3,6 +3,10 @@ per-block vectors, and errors raised inside block functions brought back as them
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
+import functools
+import inspect
 import logging
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -29,6 +33,53 @@ def quiet_engine() -> None:
     ctx.enable_progress_bars = False
     ctx.print_on_execution_start = False
     logging.getLogger("ray.data").setLevel(logging.ERROR)
+
+
+def map_blocks(ds, fn: Callable, **kwargs):
+    """``ds.map_batches(fn)`` on numpy batches, with the worker's freed memory handed back to the
+    system after every call. A worker keeps the heap of its largest block (Arrow's pool and
+    malloc's arenas) while it idles: measured, an idle worker held 0.8-1.1 GB through the BC
+    step of a million-trajectory run, and 0.55 GB with this."""
+    kwargs.setdefault("batch_format", "numpy")
+    return ds.map_batches(_released(fn), **kwargs)
+
+
+def _released(fn: Callable) -> Callable:
+    @functools.wraps(fn)
+    def run(*args, **kwargs):
+        out = fn(*args, **kwargs)
+        if not inspect.isgenerator(out):
+            release_memory()
+            return out
+
+        def drained():
+            yield from out
+            release_memory()
+
+        return drained()
+
+    return run
+
+
+@functools.cache
+def _libc():
+    name = ctypes.util.find_library("c")
+    try:
+        lib = ctypes.CDLL(name) if name else None
+    except OSError:
+        return None
+    return lib if lib is not None and hasattr(lib, "malloc_trim") else None  # glibc only
+
+
+def release_memory() -> None:
+    """Hand this process's freed memory back: Arrow's pool, then malloc's (glibc; a no-op
+    elsewhere). A few milliseconds."""
+    import pyarrow as pa
+
+    pa.default_memory_pool().release_unused()
+    libc = _libc()
+    if libc is not None:
+        libc.malloc_trim(0)
 
 
 @contextmanager
@@ -76,9 +127,7 @@ def _read_here(source: StreamSource, columns: list[str], options: dict):
             for lo in range(0, table.num_rows, ROWS_PER_BLOCK):
                 yield table.slice(lo, ROWS_PER_BLOCK)
 
-    return ray.data.from_items(groups).map_batches(
-        read, batch_size=1, batch_format="numpy", **options
-    )
+    return map_blocks(ray.data.from_items(groups), read, batch_size=1, **options)
 
 
 def reduce_blocks(
@@ -90,7 +139,7 @@ def reduce_blocks(
         return {"v": fn(batch, **kwargs)[None, :]}
 
     total = None
-    for out in ds.map_batches(per_block, batch_format="numpy", batch_size=None).iter_batches(
+    for out in map_blocks(ds, per_block, batch_size=None).iter_batches(
         batch_format="numpy", batch_size=None
     ):
         for part in out["v"]:

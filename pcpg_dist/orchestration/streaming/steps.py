@@ -7,7 +7,7 @@ import numpy as np
 
 from pcpg_dist.common.errors import DataError
 from pcpg_dist.domains.base import StreamSource
-from pcpg_dist.orchestration.streaming.engine import read_steps, reduce_blocks
+from pcpg_dist.orchestration.streaming.engine import map_blocks, read_steps, reduce_blocks
 from pcpg_dist.stages.streamed import cells as P
 from pcpg_dist.stages.streamed import features as F
 from pcpg_dist.stages.streamed import kmeans as K
@@ -25,10 +25,10 @@ def feature_table(source: StreamSource):
     columns = ["trajectory", "action", *source.states]
     columns += [c for c in ("reward", "style") if c in source.optional]
     summed_cols = F.partial_columns(d, a)
-    partials = read_steps(source, columns).map_batches(
+    partials = map_blocks(
+        read_steps(source, columns),
         F.step_partials,
         fn_kwargs={"states": source.states, "n_actions": a},
-        batch_format="numpy",
         batch_size=None,
     )
     partitions = max(2, min(200, source.steps // 1_000_000))
@@ -40,8 +40,8 @@ def feature_table(source: StreamSource):
     rows = max(state[0], 1.0)
     mean = state[1 : 1 + d] / rows
     scale = np.sqrt(np.maximum(state[1 + d :] / rows - mean * mean, 0.0))
-    feats = summed.map_batches(
-        F.trajectory_features, fn_kwargs={"d": d, "n_actions": a}, batch_format="numpy"
+    feats = map_blocks(
+        summed, F.trajectory_features, fn_kwargs={"d": d, "n_actions": a}
     ).materialize()
     return feats, mean.astype(np.float32), np.where(scale > 1e-8, scale, 1.0).astype(np.float32)
 
@@ -68,11 +68,7 @@ def fit_kmeans(feats, k: int, seed: int, max_iter: int = 30, tol: float = 1e-4):
         keep = u < share
         return {"u": u[keep], "z": ((batch["x"][keep] - mean) / scale).astype(np.float64)}
 
-    found = list(
-        feats.map_batches(sample, batch_format="numpy").iter_batches(
-            batch_format="numpy", batch_size=None
-        )
-    )
+    found = list(map_blocks(feats, sample).iter_batches(batch_format="numpy", batch_size=None))
     # ordered by the hash, not by arrival: the same sample, in the same order, however the log
     # is cut into blocks and files
     u = np.concatenate([b["u"] for b in found])
@@ -113,7 +109,7 @@ def label_table(feats, mean, scale, centres, seed: int, cfg, source: StreamSourc
             "style": batch["style"],
         }
 
-    labelled = feats.map_batches(base, batch_format="numpy").materialize()
+    labelled = map_blocks(feats, base).materialize()
     cuts = top_p_cuts(labelled, k, ps, split_seed)
 
     def coded(batch):
@@ -126,7 +122,7 @@ def label_table(feats, mean, scale, centres, seed: int, cfg, source: StreamSourc
         code = P.code_of(batch["cluster"], batch["test"], batch["validation"], kc, kn)
         return {**batch, "code": code}
 
-    labels = labelled.map_batches(coded, batch_format="numpy").materialize()
+    labels = map_blocks(labelled, coded).materialize()
     contingency = style_contingency(labels, k, "cluster") if "style" in source.optional else None
     return labels, contingency
 
@@ -160,7 +156,7 @@ def classify_log(source: StreamSource, model):
             "style": batch["style"],
         }
 
-    labels = feats.map_batches(label, batch_format="numpy").materialize()
+    labels = map_blocks(feats, label).materialize()
     sizes = reduce_blocks(
         labels, lambda b: np.bincount(b["predicted_style"], minlength=model.k).astype(np.float64)
     )
@@ -213,7 +209,7 @@ def top_p_cuts(labelled, k: int, ps: tuple[float, ...], split_seed: int) -> list
 
     found = [
         b
-        for b in labelled.map_batches(boundary_rows, batch_format="numpy").iter_batches(
+        for b in map_blocks(labelled, boundary_rows).iter_batches(
             batch_format="numpy", batch_size=None
         )
     ]
@@ -286,6 +282,9 @@ def tagged_rows(source: StreamSource, lookup, mean: np.ndarray, scale: np.ndarra
             "code": code[keep],
         }
 
-    return read_steps(source, ["trajectory", "action", *source.states]).map_batches(
-        tag, fn_kwargs={"lookup": lookup}, batch_format="numpy", batch_size=None
+    return map_blocks(
+        read_steps(source, ["trajectory", "action", *source.states]),
+        tag,
+        fn_kwargs={"lookup": lookup},
+        batch_size=None,
     )
