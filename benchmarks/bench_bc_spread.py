@@ -71,8 +71,10 @@ def main() -> None:
     _, test = split_trajectories(ds.n_trajectories, 0.2, 0)
     unit = Unit("log", ds, test)
     cfg = _config()
-    cells = plan_unit(unit, np.asarray(ds.styles), cfg, corruption=False)
+    labels = np.asarray(ds.styles)
+    cells = plan_unit(unit, labels, cfg, corruption=False)
     task = ray.remote(num_cpus=1)(train_task)
+    shared = ray.put(unit)
     size = -(-len(cells) // slots)
     print(
         f"{ds.n_trajectories} trajectories x {args.steps} steps, {len(cells)} cells; "
@@ -88,7 +90,12 @@ def main() -> None:
             t0 = time.perf_counter()
             got = [
                 TrainedCells.from_files([r["files"]])
-                for r in ray.get([task.remote(g, cfg.bc, 1) for g in groups])
+                for r in ray.get(
+                    [
+                        task.remote(shared, labels, None, cfg, [c.key for c in g], cfg.bc, 1)
+                        for g in groups
+                    ]
+                )
             ]
             walls[name].append(time.perf_counter() - t0)
             params[name] = {k: np.concatenate([t.params[k] for t in got]) for k in got[0].params}

@@ -9,6 +9,7 @@ published. Only the driver writes here: tasks return their files as bytes (:func
 
 from __future__ import annotations
 
+import hashlib
 import json
 import shutil
 from pathlib import Path
@@ -64,13 +65,14 @@ class Cache:
         path.mkdir(parents=True)
         return path
 
-    def finish(self, stage: str, key: str, info: dict) -> None:
+    def finish(self, stage: str, key: str, info: dict, listing: dict | None = None) -> None:
+        """Mark a unit complete: its marker lists every file's size and hash (``listing``, where
+        the caller has them; else read back from the folder)."""
         folder = self.path(stage, key)
+        files = _listing(folder) if listing is None else dict(sorted(listing.items()))
         atomic_write_bytes(
             folder / DONE,
-            json.dumps(
-                {**info, "files": _listing(folder)}, indent=1, sort_keys=True, default=str
-            ).encode(),
+            json.dumps({**info, "files": files}, indent=1, sort_keys=True, default=str).encode(),
         )
 
     def store(self, stage: str, key: str, files: dict[str, bytes], info: dict) -> Path:
@@ -80,7 +82,12 @@ class Cache:
         # last and synced, lists every file's hash, so a file that a kill or a power cut cut
         # short fails `done` and the unit is computed again
         write_files(folder, files, atomic=False)
-        self.finish(stage, key, info)
+        # hashed from the bytes in hand, not read back: a file a kill cut short still fails
+        # `done`, which hashes what is on disk
+        listing = {
+            rel: [len(blob), hashlib.sha256(blob).hexdigest()] for rel, blob in files.items()
+        }
+        self.finish(stage, key, info, listing)
         return folder
 
     def read_json(self, stage: str, key: str, name: str) -> Any:

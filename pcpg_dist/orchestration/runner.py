@@ -248,9 +248,11 @@ def _cluster(batch: Batch, stage: Stage) -> None:
 
 # --------------------------------------------------------------------------- Steps B + C
 def _train(batch: Batch, stage: Stage) -> None:
-    """Plan every cell (Step B, in the driver), train in groups. With ``bc.init: no_clustering``
-    a second round trains the other cells, each from the first round's No Clustering agent."""
-    from pcpg_dist.pipeline.units import plan_unit
+    """Rank every unit and cut its cells into groups (Step B: the cells' specs here, each
+    group's rows built in its training task), train the groups. With ``bc.init:
+    no_clustering`` a second round trains the other cells, each from the first round's No
+    Clustering agent."""
+    from pcpg_dist.pipeline.units import plan_unit_specs
     from pcpg_dist.stages.bc import TrainedCells, finetune_config, split_for_init
 
     later: list[tuple[Point, str, list, list[str]]] = []
@@ -259,18 +261,19 @@ def _train(batch: Batch, stage: Stage) -> None:
     def slots(p: Point) -> int:  # one unit's cells spread over every CPU the cluster offers
         return batch.executor.slots(p.cfg.runner.cpus_per_task)
 
-    # ranking and cutting a unit into cells runs here, in the driver: on 40,000 trajectories
-    # that is ~15 s, which showed as a frozen Step A bar
+    # the ranking runs here (scores and thresholds); the rows of the cells, the costly part of
+    # Step B (on 40,000 trajectories ~15 s), are built by the training tasks
     total = sum(len(p.units) for p in batch.points)
     with progress_bar("Step B: ranking", total=total, enabled=batch.show_progress) as advance:
         for p in batch.points:
             for e, u in p.units.items():
                 labels, margins = clusters_of(batch.clusters[p.ckeys[e]])
-                cells = plan_unit(u, labels, p.cfg, margins=margins)
-                first, rest = split_for_init(cells, p.cfg.bc)
-                _add_groups(p, e, first, batch.cache, jobs, p.cfg.bc, [], slots=slots(p))
+                specs = plan_unit_specs(u, labels, p.cfg, margins=margins)
+                first, rest = split_for_init(specs, p.cfg.bc)
+                plan = (p.refs[e], labels, margins, p.cfg)
+                _add_groups(p, e, first, plan, batch.cache, jobs, p.cfg.bc, [], slots=slots(p))
                 if rest:
-                    later.append((p, e, rest, p.train_keys(e)))
+                    later.append((p, e, rest, plan, p.train_keys(e)))
                 advance()
 
     def save(key: str, res: dict) -> None:
@@ -282,16 +285,15 @@ def _train(batch: Batch, stage: Stage) -> None:
     batch.computed[stage.counter] = batch.run_jobs(stage, jobs, save, gpus())
     if later:
         jobs = {}
-        for p, e, rest, base_keys in later:
+        for p, e, rest, plan, base_keys in later:
             # read only when some group of this unit is not cached yet
             base = functools.cache(
                 lambda keys=tuple(base_keys): TrainedCells.concat(
                     [TrainedCells.load(batch.cache.path("train", k) / "cells") for k in keys]
                 )
             )
-            _add_groups(
-                p, e, rest, batch.cache, jobs, finetune_config(p.cfg.bc), base_keys, base, slots(p)
-            )
+            bc_cfg = finetune_config(p.cfg.bc)
+            _add_groups(p, e, rest, plan, batch.cache, jobs, bc_cfg, base_keys, base, slots(p))
         batch.computed[stage.counter] += batch.run_jobs(
             stage, jobs, save, gpus(), f"{stage.description} from No Clustering"
         )
@@ -301,6 +303,7 @@ def _add_groups(
     p: Point,
     unit: str,
     cells: list,
+    plan: tuple,
     cache: Cache,
     jobs: dict[str, tuple],
     bc_cfg,
@@ -308,11 +311,12 @@ def _add_groups(
     base: Callable[[], Any] | None = None,
     slots: int = 1,
 ) -> None:
-    """Cut ``cells`` into groups of at most ``runner.group_size``, and into at least ``slots``
-    groups (the jobs the cluster runs at once) where there are cells enough, so one unit's
-    training uses every CPU; each group is a content-keyed training job (unless cached). A cell
-    trains the same in any group (tests/stages/test_bc.py::test_batched_equals_alone). With
-    ``base`` (returns the No Clustering agents) each cell starts from its own."""
+    """Cut ``cells`` (their specs) into groups of at most ``runner.group_size``, and into at
+    least ``slots`` groups (the jobs the cluster runs at once) where there are cells enough, so
+    one unit's training uses every CPU; each group is a content-keyed training job (unless
+    cached) that builds its cells from ``plan`` (the unit, its labels and margins, the config).
+    A cell trains the same in any group (tests/stages/test_bc.py::test_batched_equals_alone).
+    With ``base`` (returns the No Clustering agents) each cell starts from its own."""
     from pcpg_dist.stages.bc import init_from
 
     cfg = p.cfg
@@ -323,7 +327,8 @@ def _add_groups(
         p.groups.append((unit, key, chunk))
         if key not in jobs and cache.done("train", key) is None:
             jobs[key] = (
-                chunk,
+                *plan,
+                [c.key for c in chunk],
                 bc_cfg,
                 cfg.runner.cpus_per_task,
                 None if base is None else init_from(chunk, base()),

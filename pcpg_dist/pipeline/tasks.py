@@ -36,13 +36,25 @@ def cluster_task(unit: Unit, cluster_cfg, seed: int, threads: int) -> dict:
     }
 
 
-def train_task(cells: list, bc_cfg, threads: int, init: list | None = None) -> dict:
-    """Train one group of cells in one vectorised pass; returns the trained ensemble's files
-    (:meth:`~pcpg_dist.stages.bc.TrainedCells.to_files`: the driver only writes them).
+def train_task(
+    unit: Unit,
+    labels: np.ndarray,
+    margins: np.ndarray | None,
+    cfg,
+    keys: list[str],
+    bc_cfg,
+    threads: int,
+    init: list | None = None,
+) -> dict:
+    """Build one group of cells (Step B for the cells of ``keys`` of the unit's plan, here and
+    not in the driver) and train them in one vectorised pass; returns the trained ensemble's
+    files (:meth:`~pcpg_dist.stages.bc.TrainedCells.to_files`: the driver only writes them).
     ``init``: the cells' starting parameters (``bc.init: no_clustering``)."""
+    from pcpg_dist.pipeline.units import plan_unit
     from pcpg_dist.stages.bc import train_cells
 
     set_threads(threads)
+    cells = plan_unit(unit, labels, cfg, margins=margins, only=keys)
     trained = train_cells(cells, bc_cfg, init)
     return {"files": trained.to_files(), "cells": len(trained.specs)}
 

@@ -113,26 +113,42 @@ def plan_unit(
     seeds=None,
     corruption: bool = True,
     margins: np.ndarray | None = None,
+    only: list[str] | None = None,
 ):
     """Step B: every training cell of the unit (PCPG, No Clustering, corrupted labels), ranked by
     the domain's skill score (and the clustering's ``margins`` with ``ranking.style_margin``).
-    Corruption cells need true styles to mean anything."""
+    Corruption cells need true styles to mean anything. ``only``: just the cells of those keys
+    (a training task builds its own group's cells)."""
     from pcpg_dist.stages.ranking import plan_cells
 
-    rank_cfg = rank_cfg or cfg.ranking
-    corrupt = cfg.evaluation.corruption_levels if corruption and has_styles(unit) else ()
     return plan_cells(
-        unit.dataset,
-        labels,
-        unit.train_idx,
-        rank_cfg,
-        cfg.seeds if seeds is None else seeds,
-        k=cfg.clustering.k,
-        score=contract.score(cfg),
-        corruption_levels=corrupt,
-        corruption_ps=cfg.evaluation.corruption_ps,
-        margins=margins,
+        **_plan_args(unit, labels, cfg, rank_cfg, seeds, corruption, margins), only=only
     )
+
+
+def plan_unit_specs(unit: Unit, labels: np.ndarray, cfg, *, margins: np.ndarray | None = None):
+    """The specs of :func:`plan_unit`'s cells, in its order, without their rows: what a runner
+    needs to cut a unit into training groups (each group's task builds its cells)."""
+    from pcpg_dist.stages.ranking import cell_subsets
+
+    args = _plan_args(unit, labels, cfg, None, None, True, margins)
+    return [spec for spec, _ in cell_subsets(**args)]
+
+
+def _plan_args(unit: Unit, labels, cfg, rank_cfg, seeds, corruption: bool, margins) -> dict:
+    corrupt = cfg.evaluation.corruption_levels if corruption and has_styles(unit) else ()
+    return {
+        "dataset": unit.dataset,
+        "labels": labels,
+        "train_idx": unit.train_idx,
+        "cfg": rank_cfg or cfg.ranking,
+        "seeds": cfg.seeds if seeds is None else seeds,
+        "k": cfg.clustering.k,
+        "score": contract.score(cfg),
+        "corruption_levels": corrupt,
+        "corruption_ps": cfg.evaluation.corruption_ps,
+        "margins": margins,
+    }
 
 
 def evaluate_unit(

@@ -12,7 +12,7 @@ trajectories it never saw, and the test subsets are thresholded exactly like the
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -279,9 +279,11 @@ def plan_cells(
     dedupe: bool = True,
     prefix: str = "",
     margins: np.ndarray | None = None,
+    only: Collection[str] | None = None,
 ) -> list[Cell]:
     """Every training cell of one environment: PCPG (k, p, seed), No Clustering (p, seed), and
-    with ``corruption_levels`` the corrupted-label cells (c, k, p, seed).
+    with ``corruption_levels`` the corrupted-label cells (c, k, p, seed); with ``only``, just the
+    cells of those keys (each the same as in the whole plan), in the plan's order.
 
     ``labels`` gives a cluster 0..k-1 per trajectory (e.g. ``dataset.styles``); only the
     trajectories at ``train_idx`` are used. Seeds change the models' initialisation (and the
@@ -289,34 +291,71 @@ def plan_cells(
     ``cfg.style_margin`` (:func:`ranked_last`; it applies to PCPG and corrupted cells, whose c = 0
     is PCPG, not to No Clustering, which has no clusters).
     """
+    subsets = cell_subsets(
+        dataset,
+        labels,
+        train_idx,
+        cfg,
+        seeds,
+        k=k,
+        score=score,
+        baseline=baseline,
+        corruption_levels=corruption_levels,
+        corruption_ps=corruption_ps,
+        prefix=prefix,
+        margins=margins,
+    )
+    if only is not None:
+        wanted = set(only)
+        subsets = [(spec, idx) for spec, idx in subsets if spec.key in wanted]
+        missing = wanted - {spec.key for spec, _ in subsets}
+        if missing:
+            raise DataError(
+                f"dataset {dataset.domain}-{dataset.env}: no cell {sorted(missing)[0]} in its plan"
+            )
+    mean, std = _input_scale(dataset, np.asarray(train_idx, dtype=np.int64))
+    rows_of = SubsetRows(dataset, dedupe)
+    return [
+        Cell(spec, *rows_of(idx, spec.key), mean, std, n_trajectories=len(idx))
+        for spec, idx in subsets
+    ]
+
+
+def cell_subsets(
+    dataset: Dataset,
+    labels: np.ndarray,
+    train_idx: np.ndarray,
+    cfg: RankConfig,
+    seeds: Sequence[int],
+    *,
+    k: int | None = None,
+    score: ScoreFn | None = None,
+    baseline: bool = True,
+    corruption_levels: Sequence[float] = (),
+    corruption_ps: Sequence[float] = (1.0,),
+    prefix: str = "",
+    margins: np.ndarray | None = None,
+) -> list[tuple[CellSpec, np.ndarray]]:
+    """Step B without the rows: every cell's spec and its training trajectories (indices), in
+    the order :func:`plan_cells` builds them (arguments as there). Cheap: scores and
+    thresholds only; a runner plans groups from these and each task builds its own cells."""
     labels = _checked_labels(dataset, labels)
     k = int(labels.max()) + 1 if k is None else int(k)
     train_idx = np.asarray(train_idx, dtype=np.int64)
     scores = score_dataset(dataset, cfg, score)
     last = ranked_last(margins, cfg, dataset)
     ids = dataset.trajectory_ids
-    mean, std = _input_scale(dataset, train_idx)
-    rows_of = SubsetRows(dataset, dedupe)
-
-    def make(spec: CellSpec, idx: np.ndarray) -> Cell:
-        s, v, a, w = rows_of(idx, spec.key)
-        return Cell(spec, s, v, a, w, mean, std, n_trajectories=len(idx))
-
-    cells = []
+    out: list[tuple[CellSpec, np.ndarray]] = []
     subsets = threshold(labels, train_idx, scores, ids, cfg.ps, k, last)
     # A cluster with no training trajectory (k above the number of styles, a tiny split) gets no
     # agent; the evaluation scores its test trajectories with No Clustering's agent of that p.
     for seed in seeds:
         for (c, p), idx in subsets.items():
             if idx.size:
-                cells.append(
-                    make(CellSpec(f"{prefix}k{c}-p{fmt(p)}-s{seed}", "pcpg", c, p, seed), idx)
-                )
+                out.append((CellSpec(f"{prefix}k{c}-p{fmt(p)}-s{seed}", "pcpg", c, p, seed), idx))
         if baseline:
             for p, idx in threshold_all(train_idx, scores, ids, cfg.ps).items():
-                cells.append(
-                    make(CellSpec(f"{prefix}nc-p{fmt(p)}-s{seed}", "nc", -1, p, seed), idx)
-                )
+                out.append((CellSpec(f"{prefix}nc-p{fmt(p)}-s{seed}", "nc", -1, p, seed), idx))
         for level in corruption_levels:
             bad = corrupt_labels(
                 labels,
@@ -330,5 +369,5 @@ def plan_cells(
             ).items():
                 key = f"{prefix}corrupt{fmt(level)}-k{c}-p{fmt(p)}-s{seed}"
                 if idx.size:
-                    cells.append(make(CellSpec(key, "corrupt", c, p, seed, float(level)), idx))
-    return cells
+                    out.append((CellSpec(key, "corrupt", c, p, seed, float(level)), idx))
+    return out

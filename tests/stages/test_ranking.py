@@ -12,6 +12,7 @@ from pcpg_dist.dataset import Dataset
 from pcpg_dist.domains.defaults import performance, split_trajectories
 from pcpg_dist.stages.ranking import (
     RankConfig,
+    cell_subsets,
     corrupt_labels,
     n_kept,
     plan_cells,
@@ -136,6 +137,29 @@ def test_plan_cells_builds_pcpg_baseline_and_corruption_cells(toy):
     assert np.array_equal(by_key["corrupt0-k0-p1-s0"].states, by_key["k0-p1-s0"].states)
     # inputs are normalised on the environment's training rows: one scale for every cell
     assert np.array_equal(by_key["k0-p1-s0"].mean, by_key["nc-p0.5-s1"].mean)
+
+
+def test_a_group_builds_the_same_cells_as_the_whole_plan(toy):
+    """A training task builds only its group's cells (``only``): each equals the whole plan's
+    cell of that key, in the plan's order; the specs alone (what the runner cuts into groups)
+    come in the same order; a key not in the plan is one clear error."""
+    cfg = RankConfig(ps=(1.0, 0.5))
+    tr, _ = split_trajectories(toy.n_trajectories, 0.2, 0)
+    args = dict(seeds=[0, 1], corruption_levels=(0.0, 0.5))
+    whole = plan_cells(toy, toy.styles, tr, cfg, **args)
+    specs = [spec for spec, _ in cell_subsets(toy, toy.styles, tr, cfg, **args)]
+    assert [s.key for s in specs] == [c.key for c in whole]
+    group = [whole[5].key, whole[1].key, whole[-1].key]
+    part = plan_cells(toy, toy.styles, tr, cfg, **args, only=group)
+    assert [c.key for c in part] == [whole[1].key, whole[5].key, whole[-1].key]
+    by_key = {c.key: c for c in whole}
+    for cell in part:
+        full = by_key[cell.key]
+        assert cell.spec == full.spec and cell.n_trajectories == full.n_trajectories
+        for name in ("states", "valid", "actions", "weights", "mean", "std"):
+            assert np.array_equal(getattr(cell, name), getattr(full, name)), name
+    with pytest.raises(DataError, match="no cell k9-p1-s0"):
+        plan_cells(toy, toy.styles, tr, cfg, **args, only=["k9-p1-s0"])
 
 
 def test_plan_cells_skips_a_cluster_without_training_trajectories(toy):

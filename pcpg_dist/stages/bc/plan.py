@@ -8,6 +8,7 @@ Ray tasks and needs the split, the starting parameters and the fine-tuning setti
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TypeVar
 
 import numpy as np
 
@@ -15,27 +16,36 @@ from pcpg_dist.common.errors import DataError
 from pcpg_dist.config.stages import BCConfig
 from pcpg_dist.stages.bc.train import train_cells
 from pcpg_dist.stages.bc.trained import TrainedCells
-from pcpg_dist.stages.ranking import Cell
+from pcpg_dist.stages.ranking import Cell, CellSpec
+
+C = TypeVar("C", Cell, CellSpec)
 
 
-def split_for_init(cells: Sequence[Cell], cfg: BCConfig) -> tuple[list[Cell], list[Cell]]:
+def _spec(cell: Cell | CellSpec) -> CellSpec:
+    return cell.spec if isinstance(cell, Cell) else cell
+
+
+def split_for_init(cells: Sequence[C], cfg: BCConfig) -> tuple[list[C], list[C]]:
     """(cells that start from their seeded init, cells that start from a No Clustering agent):
-    with ``bc.init: no_clustering`` the No Clustering cells train first, the others after."""
+    with ``bc.init: no_clustering`` the No Clustering cells train first, the others after.
+    Cells or their specs (a runner plans groups from specs)."""
     if cfg.init == "scratch":
         return list(cells), []
-    return [c for c in cells if c.spec.kind == "nc"], [c for c in cells if c.spec.kind != "nc"]
+    nc = [c for c in cells if _spec(c).kind == "nc"]
+    return nc, [c for c in cells if _spec(c).kind != "nc"]
 
 
-def init_from(cells: Sequence[Cell], base: TrainedCells) -> list[list[np.ndarray]]:
+def init_from(cells: Sequence[Cell | CellSpec], base: TrainedCells) -> list[list[np.ndarray]]:
     """Each cell's starting parameters: the No Clustering agent in ``base`` of its p and seed."""
     table = {(s.p, s.seed): i for i, s in enumerate(base.specs) if s.kind == "nc"}
-    missing = [c.key for c in cells if (c.spec.p, c.spec.seed) not in table]
+    specs = [_spec(c) for c in cells]
+    missing = [s.key for s in specs if (s.p, s.seed) not in table]
     if missing:
         raise DataError(
             f"bc.init no_clustering: cell {missing[0]} has no No Clustering agent of "
             "its p and seed to start from"
         )
-    return [base.cell_params(table[(c.spec.p, c.spec.seed)]) for c in cells]
+    return [base.cell_params(table[(s.p, s.seed)]) for s in specs]
 
 
 def finetune_config(cfg: BCConfig) -> BCConfig:
