@@ -69,7 +69,7 @@ class Cache:
         """Mark a unit complete: its marker lists every file's size and hash (``listing``, where
         the caller has them; else read back from the folder)."""
         folder = self.path(stage, key)
-        files = _listing(folder) if listing is None else dict(sorted(listing.items()))
+        files = _listing(folder) if listing is None else listing
         atomic_write_bytes(
             folder / DONE,
             json.dumps({**info, "files": files}, indent=1, sort_keys=True, default=str).encode(),

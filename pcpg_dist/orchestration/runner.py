@@ -255,7 +255,7 @@ def _train(batch: Batch, stage: Stage) -> None:
     from pcpg_dist.pipeline.units import plan_unit_specs
     from pcpg_dist.stages.bc import TrainedCells, finetune_config, split_for_init
 
-    later: list[tuple[Point, str, list, list[str]]] = []
+    later: list[tuple[Point, str, list, tuple, list[str]]] = []
     jobs: dict[str, tuple] = {}
 
     def slots(p: Point) -> int:  # one unit's cells spread over every CPU the cluster offers

@@ -271,19 +271,15 @@ def plan_cells(
     cfg: RankConfig,
     seeds: Sequence[int],
     *,
-    k: int | None = None,
-    score: ScoreFn | None = None,
-    baseline: bool = True,
-    corruption_levels: Sequence[float] = (),
-    corruption_ps: Sequence[float] = (1.0,),
     dedupe: bool = True,
-    prefix: str = "",
-    margins: np.ndarray | None = None,
     only: Collection[str] | None = None,
+    **subsets_args,
 ) -> list[Cell]:
     """Every training cell of one environment: PCPG (k, p, seed), No Clustering (p, seed), and
     with ``corruption_levels`` the corrupted-label cells (c, k, p, seed); with ``only``, just the
-    cells of those keys (each the same as in the whole plan), in the plan's order.
+    cells of those keys (each the same as in the whole plan), in the plan's order. The other
+    keyword arguments (``k``, ``score``, ``baseline``, ``corruption_levels``, ``corruption_ps``,
+    ``prefix``, ``margins``) are :func:`cell_subsets`'s.
 
     ``labels`` gives a cluster 0..k-1 per trajectory (e.g. ``dataset.styles``); only the
     trajectories at ``train_idx`` are used. Seeds change the models' initialisation (and the
@@ -291,20 +287,7 @@ def plan_cells(
     ``cfg.style_margin`` (:func:`ranked_last`; it applies to PCPG and corrupted cells, whose c = 0
     is PCPG, not to No Clustering, which has no clusters).
     """
-    subsets = cell_subsets(
-        dataset,
-        labels,
-        train_idx,
-        cfg,
-        seeds,
-        k=k,
-        score=score,
-        baseline=baseline,
-        corruption_levels=corruption_levels,
-        corruption_ps=corruption_ps,
-        prefix=prefix,
-        margins=margins,
-    )
+    subsets = cell_subsets(dataset, labels, train_idx, cfg, seeds, **subsets_args)
     if only is not None:
         wanted = set(only)
         subsets = [(spec, idx) for spec, idx in subsets if spec.key in wanted]

@@ -63,12 +63,11 @@ def _released(fn: Callable) -> Callable:
 
 @functools.cache
 def _libc():
-    name = ctypes.util.find_library("c")
-    try:
-        lib = ctypes.CDLL(name) if name else None
+    try:  # find_library may say None: CDLL(None) is this process, glibc's symbols included
+        lib = ctypes.CDLL(ctypes.util.find_library("c"))
     except OSError:
         return None
-    return lib if lib is not None and hasattr(lib, "malloc_trim") else None  # glibc only
+    return lib if hasattr(lib, "malloc_trim") else None  # glibc only
 
 
 def release_memory() -> None:
