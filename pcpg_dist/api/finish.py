@@ -1,6 +1,8 @@
 """A point's local outputs once its stages are done: the summary tables and figures, the agents
 folder and the report, built aside and swapped in by renames (local only; MLflow comes after,
-:mod:`pcpg_dist.api.hooks`)."""
+:mod:`pcpg_dist.api.hooks`). The report is rendered by a task on the driver's machine
+(:func:`render_report`, between :func:`finish_point` and :func:`place_report`), so a sweep's
+reports render side by side and the driver does no per-environment reading for them."""
 
 from __future__ import annotations
 
@@ -56,10 +58,10 @@ def _cached_stages(outcome: Outcome, out: Path, times: dict[str, float]) -> list
 
 
 def finish_point(outcome: Outcome) -> RunResult:
-    """Across one point's environments: summary tables, figures, agents and report (local only).
-    The times and counts are the batch's (a sweep's points ran their stages together)."""
+    """Across one point's environments: summary tables, figures and agents (local only); the
+    report is left to :func:`render_report` and :func:`place_report`. The times and counts are
+    the batch's (a sweep's points ran their stages together)."""
     from pcpg_dist.common.provenance import provenance
-    from pcpg_dist.reporting.report import render
     from pcpg_dist.reporting.summary import write_summary
 
     p, times = outcome.point, dict(outcome.times)
@@ -105,8 +107,20 @@ def finish_point(outcome: Outcome) -> RunResult:
         staging / "summary" / "run.json", json.dumps(run_info, indent=1, default=str).encode()
     )
     _swap_in(out, staging, ("agents", "summary"))
-    render(out / "summary", staging / "report")
-    _swap_in(out, staging, ("report",))
-    shutil.rmtree(staging)
-    result.report = out / "report" / "report.html"
     return result
+
+
+def render_report(out: str) -> None:
+    """The report of the run in ``out`` (its new summary) into ``out``'s staging folder: a task's
+    body, run where the run's files are."""
+    from pcpg_dist.reporting.report import render
+
+    render(Path(out) / "summary", Path(out) / STAGING / "report")
+
+
+def place_report(result: RunResult) -> None:
+    """Swap the report :func:`render_report` wrote in and drop the staging folder."""
+    out = result.out_dir
+    _swap_in(out, out / STAGING, ("report",))
+    shutil.rmtree(out / STAGING)
+    result.report = out / "report" / "report.html"

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import time
 
-from pcpg_dist.api.finish import finish_point
+from pcpg_dist.api.finish import finish_point, place_report, render_report
 from pcpg_dist.orchestration.executors import Executor, LocalExecutor
 from pcpg_dist.orchestration.points import Outcome, Point, RunResult
 
@@ -44,12 +44,21 @@ class OutputsAndTracking:
             )
 
     def finished(self, outcomes: list[Outcome]) -> list[RunResult]:
+        executor = outcomes[0].executor or LocalExecutor()
         results = [finish_point(o) for o in outcomes]
+        t0 = time.perf_counter()
+        what = "the report" if len(results) == 1 else f"{len(results)} reports"
+        _here(
+            executor, render_report, [(str(r.out_dir),) for r in results], what, self.show_progress
+        )
+        for r in results:
+            place_report(r)
+            r.stage_seconds["report"] = time.perf_counter() - t0
         tracked = [(o, r) for o, r in zip(outcomes, results, strict=True) if o.point.tracker]
         if not tracked:
             return results
         t0 = time.perf_counter()
-        _log_runs(tracked, outcomes[0].executor or LocalExecutor(), self.show_progress)
+        _log_runs(tracked, executor, self.show_progress)
         for _, result in tracked:
             result.stage_seconds["tracking"] = time.perf_counter() - t0
         return results

@@ -60,7 +60,7 @@ def write_summary(
 ) -> dict[str, float]:
     """Write a new ``summary`` folder (metrics, tables, figures, per-environment folders); return
     metrics. The folder must not exist: the runner builds it aside and swaps it in when complete
-    (:func:`pcpg_dist.orchestration.runner._finish_point`), so a killed write never mixes two runs' files."""
+    (:func:`pcpg_dist.api.finish.finish_point`), so a killed write never mixes two runs' files."""
     summary = Path(summary)
     summary.mkdir(parents=True)
     metrics = summary_metrics(per_env, clusters)
