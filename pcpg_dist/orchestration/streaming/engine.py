@@ -94,23 +94,32 @@ def engine_errors() -> Iterator[None]:
 
 
 def read_steps(source: StreamSource, columns: list[str]):
-    """The log as a lazy ``ray.data`` dataset of the given columns, in blocks of about
-    :data:`ROWS_PER_BLOCK` steps. On one node, or from shared storage (a URI), Ray Data's Parquet
-    reader reads it anywhere. On a cluster, local files are read on the driver's node only (no
-    other node need see its disk: :func:`_read_here`); every later step runs anywhere."""
+    """The log as a lazy ``ray.data`` dataset of the given columns, in blocks of at most
+    :data:`ROWS_PER_BLOCK` steps.
+
+    Local files are read row group by row group (:func:`_row_groups`), by tasks kept on the
+    driver's node where the cluster has others (no other node need see its disk); every later
+    step runs anywhere. Files on shared storage (a URI) go through Ray Data's Parquet reader,
+    which reads them on any node. Measured on a million-trajectory log (25 M steps, 32 state
+    columns) with the tagging step after it, on one node: Ray Data 2.60's reader held 744 MB of
+    private memory in each reading worker against 257 MB by row group, and took 37.1 s against
+    33.9 s (docs/scale.md)."""
     import ray.data
 
-    pinned = None if any("://" in f for f in source.files) else on_driver_node()
-    if pinned is not None:
-        return _read_here(source, columns, pinned)
-    blocks = max(2, -(-source.steps // ROWS_PER_BLOCK))
-    return ray.data.read_parquet(list(source.files), columns=columns, override_num_blocks=blocks)
+    if any("://" in f for f in source.files):
+        blocks = max(2, -(-source.steps // ROWS_PER_BLOCK))
+        return ray.data.read_parquet(
+            list(source.files), columns=columns, override_num_blocks=blocks
+        )
+    return _row_groups(source, columns, on_driver_node() or {})
 
 
-def _read_here(source: StreamSource, columns: list[str], options: dict):
-    """The files' row groups as the rows of a small dataset, each read (in slices of
-    :data:`ROWS_PER_BLOCK`) by a task kept on this node. Ray Data's own reader lists and samples
-    the files in tasks no option keeps here, so a node without the driver's disk would fail."""
+def _row_groups(source: StreamSource, columns: list[str], options: dict):
+    """The files' row groups as the rows of a small dataset, each read in batches of
+    :data:`ROWS_PER_BLOCK` steps by a task with ``options`` (e.g. kept on this node: Ray Data's
+    own reader lists and samples the files in tasks no option keeps here, so a node without
+    the driver's disk would fail)."""
+    import pyarrow as pa
     import pyarrow.parquet as pq
     import ray.data
 
@@ -122,9 +131,11 @@ def _read_here(source: StreamSource, columns: list[str], options: dict):
 
     def read(batch: dict[str, np.ndarray]):
         for f, g in zip(batch["file"], batch["group"], strict=True):
-            table = pq.ParquetFile(str(f)).read_row_group(int(g), columns=columns)
-            for lo in range(0, table.num_rows, ROWS_PER_BLOCK):
-                yield table.slice(lo, ROWS_PER_BLOCK)
+            parts = pq.ParquetFile(str(f)).iter_batches(
+                batch_size=ROWS_PER_BLOCK, row_groups=[int(g)], columns=columns
+            )
+            for part in parts:
+                yield pa.Table.from_batches([part])
 
     return map_blocks(ray.data.from_items(groups), read, batch_size=1, **options)
 
