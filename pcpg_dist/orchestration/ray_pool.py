@@ -31,6 +31,12 @@ os.environ.setdefault("RAY_raylet_start_wait_time_s", "120")
 
 THREAD_ENV = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "TOKENIZERS_PARALLELISM": "false"}
 
+# A private Ray's object store, and its spill and restore workers (Ray's default is up to four
+# of each): every process that touches the store keeps its pages in its RSS, and each I/O
+# worker is a Python process (docs/scale.md, measured on a million-trajectory streamed run).
+PRIVATE_STORE_BYTES = 200_000_000
+PRIVATE_SYSTEM_CONFIG = {"max_io_workers": 2}
+
 
 def _disable_uv_hook() -> None:
     """The flag is read from ray_constants at init time; set it there too if ray was imported."""
@@ -112,9 +118,10 @@ def init_ray(address: str | None = None, num_cpus: int | None = None) -> None:
                             address="local",
                             num_cpus=num_cpus or available_cpus(),
                             include_dashboard=False,
-                            object_store_memory=300_000_000,
+                            object_store_memory=PRIVATE_STORE_BYTES,
                             log_to_driver=False,
                             runtime_env={"env_vars": dict(THREAD_ENV)},
+                            _system_config=PRIVATE_SYSTEM_CONFIG,
                             logging_level=logging.WARNING,
                             _node_ip_address="127.0.0.1",
                         )

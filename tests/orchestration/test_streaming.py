@@ -213,6 +213,62 @@ def test_bc_runs_in_as_few_tasks_as_keep_every_cpu_busy(node_cpus, cells, expect
     assert tasks * threads <= max(sum(node_cpus), 1)
 
 
+def test_bc_workers_have_exited_when_training_returns(ray_session):
+    """Each BC task's worker (torch and its buffers, ~1 GB on a large log) is gone before the
+    next step starts workers of its own; the cells still learn their rows."""
+    import psutil
+    import ray.data
+
+    from pcpg_dist.orchestration.streaming.training import TrainSpec, train_cells
+    from pcpg_dist.stages.streamed import cells as P
+
+    rng = np.random.default_rng(0)
+    n = 4000
+    cluster = rng.integers(0, 2, n)
+    x = (rng.normal(size=(n, 3)) + 2.0 * cluster[:, None]).astype(np.float32)
+    y = cluster.astype(np.int16)  # each cluster's policy: its own action
+    test = rng.random(n) < 0.2
+    kept = [np.ones(n, bool)]
+    code = P.code_of(cluster, test, rng.random(n) < 0.1, kept, kept)
+
+    def table(rows):  # one block, as the tagging step makes them
+        return ray.data.from_items([{"block": 0}]).map_batches(
+            lambda _: {"x": x[rows], "y": y[rows], "code": code[rows]}, batch_size=None
+        )
+
+    spec = TrainSpec(
+        d=3,
+        n_actions=2,
+        layers=1,
+        width=16,
+        activation="relu",
+        lr=1e-2,
+        betas=(0.9, 0.999),
+        eps=1e-8,
+        batch=256,
+        max_epochs=5,
+    )
+    groups = train_cells(
+        table(np.flatnonzero(~test)).materialize(),
+        table(np.flatnonzero(test)).materialize(),
+        [(0, 0), (1, 0), (P.NC, 0)],
+        spec,
+        seed=0,
+        k=2,
+        node_cpus=[2],
+    )
+    for g in groups:
+        assert not psutil.pid_exists(g["worker"][1])
+    rows = groups[0]["test_rows"]  # held-out rows of each cluster
+    assert rows.sum() == test.sum()
+    for g in groups:
+        for (c, _), correct in zip(g["cells"], g["correct"], strict=True):
+            if c == P.NC:  # No Clustering saw both clusters
+                assert correct.sum() >= 0.95 * rows.sum()
+            else:  # a cluster's cell knows its own cluster's action
+                assert correct[c] >= 0.95 * rows[c]
+
+
 def test_classify_labels_a_log_block_by_block_with_the_runs_clustering(
     streamed, log, tmp_path, capsys
 ):

@@ -4,9 +4,11 @@ held-out rows' accuracy counts."""
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass
 
 import numpy as np
+import psutil
 
 from pcpg_dist.domains.base import StreamSource
 from pcpg_dist.orchestration.streaming.engine import quiet_engine
@@ -58,8 +60,10 @@ def train_group(
     until every cell's validation loss stops improving, then count their correct predictions on
     the ``held_out`` rows (here, where torch is already loaded: no other worker imports it).
     Runs in a Ray task of ``threads`` CPUs."""
+    import os
     import time
 
+    import ray
     import torch
 
     from pcpg_dist.common.devices import set_threads
@@ -114,6 +118,7 @@ def train_group(
         "correct": counts[: len(cells) * k].reshape(len(cells), k),
         "test_rows": counts[len(cells) * k :],
         "evaluate_s": time.perf_counter() - t0,
+        "worker": (ray.get_runtime_context().get_node_id(), os.getpid()),
     }
 
 
@@ -128,12 +133,30 @@ def train_cells(
     # max_calls=1: the worker exits with its task, so the memory it held goes back at once
     task = ray.remote(num_cpus=threads, max_retries=2, max_calls=1)(train_group)
     groups = [cells[g::tasks] for g in range(tasks)]
-    return ray.get(
+    results = ray.get(
         [
             task.remote(rows, held_out, group, spec, seed * 7919 + g, k, threads)
             for g, group in enumerate(groups)
         ]
     )
+    _until_exited([r["worker"] for r in results])
+    return results
+
+
+def _until_exited(workers: list[tuple[str, int]], timeout: float = 10.0) -> None:
+    """Wait, at most ``timeout`` seconds, for the BC tasks' workers on this node to exit. Each
+    exits after its task (``max_calls=1``) but holds torch and its buffers (~1 GB) a second or
+    two longer, while the next step already starts workers of its own: measured, that overlap
+    was a million-trajectory run's peak memory."""
+    import ray
+
+    here = ray.get_runtime_context().get_node_id()
+    procs = []
+    for node, pid in workers:
+        if node == here:
+            with contextlib.suppress(psutil.NoSuchProcess):
+                procs.append(psutil.Process(pid))
+    psutil.wait_procs(procs, timeout=timeout)
 
 
 def train_spec(cfg, source: StreamSource) -> TrainSpec:
