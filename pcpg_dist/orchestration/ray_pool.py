@@ -34,8 +34,9 @@ THREAD_ENV = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "TOKENIZERS_PARALL
 # A private Ray's object store, and its spill and restore workers (Ray's default is up to four
 # of each): every process that touches the store keeps its pages in its RSS, and each I/O
 # worker is a Python process (docs/scale.md, measured on a million-trajectory streamed run).
+# RAY_max_io_workers in the environment still decides (the system config would override it).
 PRIVATE_STORE_BYTES = 200_000_000
-PRIVATE_SYSTEM_CONFIG = {"max_io_workers": 2}
+PRIVATE_SYSTEM_CONFIG = {} if "RAY_max_io_workers" in os.environ else {"max_io_workers": 2}
 
 
 def _disable_uv_hook() -> None:
