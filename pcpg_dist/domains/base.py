@@ -15,7 +15,7 @@ See docs/writing-a-domain.md for a worked example.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar, Protocol
@@ -40,7 +40,12 @@ class StreamSource:
     """A log too large for one process, as the streamed pipeline reads it (``ray.data``): its
     Parquet files, the state columns, the number of actions, the steps (from the files' metadata)
     and which optional columns (``reward``, ``style``) it has. ``score`` is Step B's score
-    (``return``, ``length`` or ``-length``); ``max_epochs`` caps BC's passes over the rows."""
+    (``return``, ``length`` or ``-length``); ``max_epochs`` caps BC's passes over the rows.
+
+    A log that is not Parquet (a Minari dataset) names its ``parts`` (small dicts of plain
+    values) and ``read_part(part, columns)``, a module-level function that yields a part's rows as
+    Arrow tables of those columns, run inside the engine's block tasks; ``files`` then names what
+    identifies the data on disk (for lineage)."""
 
     name: str
     files: tuple[str, ...]
@@ -50,6 +55,8 @@ class StreamSource:
     optional: tuple[str, ...] = ()
     score: str = "return"
     max_epochs: int = 20
+    parts: tuple[dict[str, Any], ...] = ()
+    read_part: Callable[[dict[str, Any], list[str]], Iterator[Any]] | None = None
 
 
 #: A domain's own skill score: one float per trajectory, higher = more skilled.

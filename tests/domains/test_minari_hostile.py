@@ -280,3 +280,46 @@ def test_json_nesting_limit_is_exact_and_needs_no_recursion():
             json_text(text, "x")
     with pytest.raises(DataError, match=r"x: not valid JSON \("):
         json_text(b"\xff{", "x")
+
+
+def streamed_settings(stream: str = "on"):
+    from pcpg_dist.config import ExperimentConfig
+
+    cfg = ExperimentConfig.model_validate(
+        {
+            "name": "h",
+            "domain": "trajectories",
+            "trajectories": {"path": f"minari:{ID}", "stream": stream},
+        }
+    )
+    return cfg.trajectories
+
+
+def test_a_streamed_read_checks_the_files_and_every_episode_as_a_whole_read_does(data):
+    """`stream: on`: the driver checks the dataset's files as a whole read does before anything
+    runs; each block task checks its own episodes (one line naming the episode)."""
+    from pcpg_dist.domains.trajectories.minari_stream import minari_stream_source, read_episodes
+
+    source = minari_stream_source(streamed_settings(), "h")
+    assert source.steps == 6 * 4 and source.states == ("s0", "s1") and source.n_actions == 3
+    assert minari_stream_source(streamed_settings("auto"), "h") is None  # small: loaded whole
+    columns = ["trajectory", "action", "s0", "s1", "reward", "style"]
+    (table,) = [t for part in source.parts for t in read_episodes(part, columns)]
+    whole, _ = read_minari(ID)
+    for c in columns:  # a part's rows are the whole read's rows
+        np.testing.assert_array_equal(table.column(c).to_numpy(), whole.column(c).to_numpy())
+
+    meta = json.loads((data / "metadata.json").read_text())
+    edit_metadata(data, action_space=meta["action_space"].replace('"n": 3', '"n": 2'))
+    source = minari_stream_source(streamed_settings(), "h")
+    with pytest.raises(DataError) as e:
+        [t for part in source.parts for t in read_episodes(part, columns)]
+    with pytest.raises(DataError) as whole_error:
+        read_minari(ID)
+    msg = str(e.value)  # the same line as the whole read's (here, episode 0's masks)
+    assert "\n" not in msg and msg.startswith(f"minari:{ID}, episode 0: "), msg
+    assert msg == str(whole_error.value)
+
+    episode_file(data, 3).write_bytes(b"garbage" * 100)  # refused before any task runs
+    with pytest.raises(DataError, match="part-0.arrow: not an Arrow IPC file"):
+        minari_stream_source(streamed_settings(), "h")

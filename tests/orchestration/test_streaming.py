@@ -86,6 +86,52 @@ def test_a_streamed_run_finds_the_styles_and_its_agents_beat_no_clustering(strea
     assert kept.mean() == pytest.approx(0.5, abs=0.03)
 
 
+def test_a_minari_dataset_streams_like_the_same_log_in_parquet(
+    streamed, log, tmp_path, monkeypatch
+):
+    """The module's log exported to a local Minari dataset and streamed (episodes read a part at
+    a time in the block tasks): the same trajectories and steps, the same clusters, agents as
+    good."""
+    from pcpg_dist.dataset import Dataset
+    from pcpg_dist.domains.trajectories.minari_io import write_minari
+
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "minari"))
+    table = pq.read_table(log).to_pandas()
+    n_actions = int(table.action.max()) + 1
+    states = [c for c in table.columns if c.startswith("s") and c[1:].isdigit()]
+    trajs, styles = [], []
+    for _, rows in table.groupby("trajectory", sort=True):
+        trajs.append(
+            {
+                "states": rows[states].to_numpy(np.float32),
+                "actions": rows.action.to_numpy()[:-1],  # the closing row has none
+                "valid": np.ones((len(rows), n_actions), bool),
+                "rewards": rows.reward.to_numpy()[:-1],
+            }
+        )
+        styles.append(int(rows["style"].iloc[0]))
+    ds = Dataset.from_trajectories(
+        "trajectories", "log", n_actions, trajs, styles=styles, success=[True] * len(trajs)
+    )
+    write_minari({"log": ds}, tmp_path / "minari", "pcpg/styled-v0")
+    from pcpg_dist.domains.trajectories import minari_stream
+
+    monkeypatch.setattr(minari_stream, "STEPS_PER_PART", 20_000)  # several parts, as a big log
+    res = run(config("minari:pcpg/styled-v0"), tmp_path / "run")
+    record = json.loads((res.out_dir / "summary" / "streamed.json").read_text())
+    parquet = json.loads((streamed.out_dir / "summary" / "streamed.json").read_text())
+    assert (record["n_trajectories"], record["steps"]) == (3000, pq.read_metadata(log).num_rows)
+    (env,) = res.clustering
+    (penv,) = streamed.clustering
+    assert res.clustering[env]["clustering/accuracy"] == pytest.approx(
+        streamed.clustering[penv]["clustering/accuracy"], abs=0.01
+    )
+    assert res.clustering[env]["clustering/accuracy"] >= 0.95
+    m = res.metrics
+    assert m["pcpg/accuracy/p1"] == pytest.approx(parquet["metrics"]["pcpg/accuracy/p1"], abs=0.02)
+    assert m["pcpg/accuracy/p1"] >= m["baseline/accuracy/p1"] + 0.15
+
+
 @pytest.mark.slow  # three streamed runs
 def test_the_same_seed_gives_the_same_numbers_however_the_log_is_cut(
     ray_session, log, tmp_path, monkeypatch

@@ -86,11 +86,16 @@ class TrajectoriesDomain(Domain):
         }
 
     def stream_source(self, cfg) -> StreamSource | None:
-        """A Parquet log to stream (trajectories.stream, or 'auto' above stream_above_steps
-        rows), read from the files' metadata only; Minari datasets and small logs load whole."""
+        """A Parquet log or a local Minari dataset to stream (trajectories.stream, or 'auto'
+        above stream_above_steps rows), known from the files' or the dataset's metadata only;
+        small logs load whole."""
         s = cfg.trajectories
-        if s.stream == "off" or s.path.startswith("minari:"):
+        if s.stream == "off":
             return None
+        if s.path.startswith("minari:"):
+            from pcpg_dist.domains.trajectories.minari_stream import minari_stream_source
+
+            return minari_stream_source(s, cfg.name)
         from pcpg_dist.domains.trajectories.stream_meta import stream_source
 
         return stream_source(s, cfg.name)

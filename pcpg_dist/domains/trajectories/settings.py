@@ -80,7 +80,7 @@ class TrajectoriesConfig(StrictModel):
     stream: Literal["auto", "on", "off"] = Field(
         "auto",
         description="run the log through ray.data in blocks instead of loading it into one "
-        "process (docs/scale.md): 'auto' streams a Parquet log of more than stream_above_steps "
+        "process (docs/scale.md): 'auto' streams a Parquet log or Minari dataset of more than stream_above_steps "
         "rows; 'on' always, 'off' never. The streamed run clusters with k-means on per-trajectory "
         "summary features and trains every BC cell over the streamed rows with early stopping",
     )

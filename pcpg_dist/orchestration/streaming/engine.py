@@ -7,6 +7,7 @@ import ctypes
 import ctypes.util
 import functools
 import inspect
+import json
 import logging
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -106,6 +107,8 @@ def read_steps(source: StreamSource, columns: list[str]):
     33.9 s (docs/scale.md)."""
     import ray.data
 
+    if source.read_part is not None:  # not Parquet: the source's own parts and reader
+        return _parts(source, columns, on_driver_node() or {})
     if any("://" in f for f in source.files):
         blocks = max(2, -(-source.steps // ROWS_PER_BLOCK))
         return ray.data.read_parquet(
@@ -138,6 +141,21 @@ def _row_groups(source: StreamSource, columns: list[str], options: dict):
                 yield pa.Table.from_batches([part])
 
     return map_blocks(ray.data.from_items(groups), read, batch_size=1, **options)
+
+
+def _parts(source: StreamSource, columns: list[str], options: dict):
+    """``source.parts`` as the rows of a small dataset, each read by ``source.read_part`` in a
+    task with ``options`` (kept on this node where the cluster has others: a local dataset)."""
+    import ray.data
+
+    read_part = source.read_part
+
+    def read(batch: dict[str, np.ndarray]):
+        for part in batch["part"]:
+            yield from read_part(json.loads(part), columns)
+
+    items = [{"part": json.dumps(part)} for part in source.parts]  # plain values, one column
+    return map_blocks(ray.data.from_items(items), read, batch_size=1, **options)
 
 
 def reduce_blocks(
