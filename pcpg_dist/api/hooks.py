@@ -47,7 +47,7 @@ class OutputsAndTracking:
         executor = outcomes[0].executor or LocalExecutor()
         results = [finish_point(o) for o in outcomes]
         t0 = time.perf_counter()
-        what = "the report" if len(results) == 1 else f"{len(results)} reports"
+        what = "Report" if len(results) == 1 else f"Reports of {len(results)} points"
         _here(
             executor, render_report, [(str(r.out_dir),) for r in results], what, self.show_progress
         )
