@@ -19,32 +19,6 @@ import time
 from pathlib import Path
 
 
-def styled_dataset(log: Path):
-    """The log as one pcpg Dataset (each trajectory's closing row holds its last state)."""
-    import numpy as np
-    import pyarrow.parquet as pq
-
-    from pcpg_dist.dataset import Dataset
-
-    table = pq.read_table(log).to_pandas()
-    n_actions = int(table.action.max()) + 1
-    states = [c for c in table.columns if c.startswith("s") and c[1:].isdigit()]
-    trajs, styles = [], []
-    for _, rows in table.groupby("trajectory", sort=True):
-        trajs.append(
-            {
-                "states": rows[states].to_numpy(np.float32),
-                "actions": rows.action.to_numpy()[:-1],
-                "valid": np.ones((len(rows), n_actions), bool),
-                "rewards": rows.reward.to_numpy()[:-1],
-            }
-        )
-        styles.append(int(rows["style"].iloc[0]))
-    return Dataset.from_trajectories(
-        "trajectories", "log", n_actions, trajs, styles=styles, success=[True] * len(trajs)
-    )
-
-
 def run(path: str, out: Path) -> dict:
     from pcpg_dist.api.run import run_experiment
     from pcpg_dist.config import ExperimentConfig
@@ -81,7 +55,10 @@ def main() -> None:
         tmp = Path(tmp)
         os.environ["MINARI_DATASETS_PATH"] = str(tmp / "minari")
         from pcpg_dist.domains.trajectories.minari_io import write_minari
-        from pcpg_dist.domains.trajectories.synthetic_log import write_styled_log
+        from pcpg_dist.domains.trajectories.synthetic_log import (
+            styled_dataset,
+            write_styled_log,
+        )
         from pcpg_dist.orchestration.ray_pool import init_ray
 
         log = tmp / "log.parquet"

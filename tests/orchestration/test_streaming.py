@@ -92,27 +92,11 @@ def test_a_minari_dataset_streams_like_the_same_log_in_parquet(
     """The module's log exported to a local Minari dataset and streamed (episodes read a part at
     a time in the block tasks): the same trajectories and steps, the same clusters, agents as
     good."""
-    from pcpg_dist.dataset import Dataset
     from pcpg_dist.domains.trajectories.minari_io import write_minari
+    from pcpg_dist.domains.trajectories.synthetic_log import styled_dataset
 
     monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "minari"))
-    table = pq.read_table(log).to_pandas()
-    n_actions = int(table.action.max()) + 1
-    states = [c for c in table.columns if c.startswith("s") and c[1:].isdigit()]
-    trajs, styles = [], []
-    for _, rows in table.groupby("trajectory", sort=True):
-        trajs.append(
-            {
-                "states": rows[states].to_numpy(np.float32),
-                "actions": rows.action.to_numpy()[:-1],  # the closing row has none
-                "valid": np.ones((len(rows), n_actions), bool),
-                "rewards": rows.reward.to_numpy()[:-1],
-            }
-        )
-        styles.append(int(rows["style"].iloc[0]))
-    ds = Dataset.from_trajectories(
-        "trajectories", "log", n_actions, trajs, styles=styles, success=[True] * len(trajs)
-    )
+    ds = styled_dataset(log)
     write_minari({"log": ds}, tmp_path / "minari", "pcpg/styled-v0")
     from pcpg_dist.domains.trajectories import minari_stream
 

@@ -84,3 +84,27 @@ def write_styled_log(
         if writer is not None:
             writer.close()
     return rows
+
+
+def styled_dataset(path: str | Path, env: str = "log"):
+    """A (small) log :func:`write_styled_log` wrote as one pcpg ``Dataset``, each trajectory's
+    closing row its last state: what exporting it to Minari (``write_minari``) takes."""
+    from pcpg_dist.dataset import Dataset
+
+    table = pq.read_table(path).to_pandas()
+    n_actions = int(table.action.max()) + 1
+    states = [c for c in table.columns if c.startswith("s") and c[1:].isdigit()]
+    trajs, styles = [], []
+    for _, rows in table.groupby("trajectory", sort=True):
+        trajs.append(
+            {
+                "states": rows[states].to_numpy(np.float32),
+                "actions": rows.action.to_numpy()[:-1],  # the closing row has none
+                "valid": np.ones((len(rows), n_actions), bool),
+                "rewards": rows.reward.to_numpy()[:-1],
+            }
+        )
+        styles.append(int(rows["style"].iloc[0]))
+    return Dataset.from_trajectories(
+        "trajectories", env, n_actions, trajs, styles=styles, success=[True] * len(trajs)
+    )
