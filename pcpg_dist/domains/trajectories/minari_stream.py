@@ -17,7 +17,7 @@ from pcpg_dist.common.errors import DataError, first_line
 from pcpg_dist.domains.base import StreamSource
 from pcpg_dist.domains.trajectories.minari_io import env_name
 from pcpg_dist.domains.trajectories.minari_read import _Episodes, _load, _metadata_styles
-from pcpg_dist.domains.trajectories.settings import BUILTIN_SCORES
+from pcpg_dist.domains.trajectories.stream_meta import check_stream_score
 
 STEPS_PER_PART = 250_000  # about this many steps of episodes a block task reads at once
 
@@ -39,11 +39,7 @@ def minari_stream_source(settings, name: str) -> StreamSource | None:
             f"{source}: action space {dataset.action_space}; pcpg needs a discrete action space "
             f"(Discrete(n))"
         )
-    if settings.score not in BUILTIN_SCORES:
-        raise DataError(
-            f"trajectories.score {settings.score!r}: a streamed log ranks by return, length or "
-            f"-length (a per-trajectory score column needs trajectories.stream: off)"
-        )
+    check_stream_score(settings)
     if not episodes:
         raise DataError(f"{source}: the dataset has no episodes")
     data = str(Path(get_dataset_path(dataset_id)) / "data")  # read there by the block tasks

@@ -57,11 +57,7 @@ def stream_source(settings, name: str) -> StreamSource | None:
         kind = schema.field(c).type
         if not (pa.types.is_floating(kind) or pa.types.is_integer(kind)):
             raise DataError(f"{first}: state column {c!r} is {kind}; states are numbers")
-    if settings.score not in BUILTIN_SCORES:
-        raise DataError(
-            f"trajectories.score {settings.score!r}: a streamed log ranks by return, length or "
-            f"-length (a per-trajectory score column needs trajectories.stream: off)"
-        )
+    check_stream_score(settings)
     n_actions = settings.n_actions or _largest_action(files, metas) + 1
     return StreamSource(
         name=name,
@@ -73,6 +69,15 @@ def stream_source(settings, name: str) -> StreamSource | None:
         score=settings.score,
         max_epochs=settings.stream_epochs,
     )
+
+
+def check_stream_score(settings) -> None:
+    """A streamed log ranks by a built-in score only."""
+    if settings.score not in BUILTIN_SCORES:
+        raise DataError(
+            f"trajectories.score {settings.score!r}: a streamed log ranks by return, length or "
+            f"-length (a per-trajectory score column needs trajectories.stream: off)"
+        )
 
 
 def _largest_action(files: list[Path], metas: list) -> int:
