@@ -36,7 +36,7 @@ THREAD_ENV = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "TOKENIZERS_PARALL
 # worker is a Python process (docs/scale.md, measured on a million-trajectory streamed run).
 # RAY_max_io_workers in the environment still decides (the system config would override it).
 PRIVATE_STORE_BYTES = 200_000_000
-PRIVATE_SYSTEM_CONFIG = {} if "RAY_max_io_workers" in os.environ else {"max_io_workers": 2}
+PRIVATE_IO_WORKERS = 2
 
 
 def _disable_uv_hook() -> None:
@@ -122,7 +122,9 @@ def init_ray(address: str | None = None, num_cpus: int | None = None) -> None:
                             object_store_memory=PRIVATE_STORE_BYTES,
                             log_to_driver=False,
                             runtime_env={"env_vars": dict(THREAD_ENV)},
-                            _system_config=PRIVATE_SYSTEM_CONFIG,
+                            _system_config={}
+                            if "RAY_max_io_workers" in os.environ
+                            else {"max_io_workers": PRIVATE_IO_WORKERS},
                             logging_level=logging.WARNING,
                             _node_ip_address="127.0.0.1",
                         )
