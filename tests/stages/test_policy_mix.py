@@ -155,3 +155,17 @@ def test_an_emptied_cluster_takes_the_worst_explained_half_of_the_largest():
     assert reseed_small(out, scores, steps, 3, 0.5) == 1  # 1 < 0.5 * 10 / 3: re-seeded
     np.testing.assert_array_equal(out, [0, 2, 0, 2, 0, 2, 1, 1, 1, 2])
     assert reseed_small(labels.copy(), scores, steps, 3, 0.0) == 0
+
+
+def test_em_started_from_given_labels_keeps_their_names(goals):
+    # benchmarks/zoo/search.py starts EM from the true styles to tell the search from the objective
+    from pcpg_dist.config.clustering import ClusterConfig as Cfg
+    from pcpg_dist.stages.clustering.policy_mix import _fit_policy_mix
+
+    start = (np.asarray(goals.styles) + 1) % 4  # the styles under other names
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(0)
+        labels, *_ = _fit_policy_mix(
+            goals, goals.states, goals.offsets, Cfg(**FAST), 0, {}, start, first_round_steps=200
+        )
+    assert np.mean(labels == start) >= 0.95

@@ -84,10 +84,14 @@ def _fit_policy_mix(
     cfg: ClusterConfig,
     seed: int,
     metrics: dict[str, float],
+    start: np.ndarray | None = None,
+    first_round_steps: int | None = None,
 ) -> tuple[np.ndarray, PolicyMixture, np.ndarray, np.ndarray]:
     """Hard EM for a mixture of k policies over whole trajectories (call inside a forked torch RNG).
 
-    Start: k-means on :func:`counter_summary`. Each round refits the k policy heads (and the shared
+    Start: k-means on :func:`counter_summary` (or the labels ``start``; the first round may train
+    ``first_round_steps`` instead of ``policy_steps``: ``benchmarks/zoo/search.py`` uses both to
+    tell a limit of the search from one of the objective). Each round refits the k policy heads (and the shared
     trunk) to the current labels by ``policy_steps`` full-batch Adam steps on the steps' log
     likelihood, then moves every trajectory to the policy under which its actions are most likely
     (+ log cluster share), and re-seeds the clusters that emptied (:func:`reseed_small`). Stops
@@ -102,11 +106,11 @@ def _fit_policy_mix(
             f"policy_mix: {dataset.domain}-{dataset.env} has no step with an action "
             "(it clusters by the actions taken)"
         )
-    labels = (
-        KMeans(n_clusters=cfg.k, n_init=cfg.kmeans_n_init, random_state=seed)
-        .fit_predict(counter_summary(states, offsets))
-        .astype(np.int64)
-    )
+    if start is None:
+        start = KMeans(n_clusters=cfg.k, n_init=cfg.kmeans_n_init, random_state=seed).fit_predict(
+            counter_summary(states, offsets)
+        )
+    labels = np.array(start, dtype=np.int64)
     device = resolve_device(cfg.device, "clustering.device")
     gen = torch.Generator().manual_seed(seed)
     policy = PolicyMixture(states.shape[1], cfg.hidden_size, cfg.k, dataset.n_actions)
@@ -123,7 +127,10 @@ def _fit_policy_mix(
         with torch.no_grad():
             share = np.bincount(labels, minlength=cfg.k) / n
             policy.log_prior.copy_(torch.from_numpy(np.log(np.maximum(share, 1e-12))).float())
-        for _ in range(cfg.policy_steps):
+        train_steps = cfg.policy_steps
+        if rounds == 1 and first_round_steps is not None:
+            train_steps = first_round_steps
+        for _ in range(train_steps):
             lp = policy.step_log_probs(s, a, valid)
             loss = -lp.gather(0, own[None]).mean()
             opt.zero_grad()
