@@ -42,10 +42,11 @@ class StreamSource:
     and which optional columns (``reward``, ``style``) it has. ``score`` is Step B's score
     (``return``, ``length`` or ``-length``); ``max_epochs`` caps BC's passes over the rows.
 
-    A log that is not Parquet (a Minari dataset) names its ``parts`` (small dicts of plain
-    values) and ``read_part(part, columns)``, a module-level function that yields a part's rows as
-    Arrow tables of those columns, run inside the engine's block tasks; ``files`` then names what
-    identifies the data on disk (for lineage)."""
+    A local log names its ``parts`` (small dicts of plain values: a Parquet file's row group, a
+    Minari dataset's run of episodes) and ``read_part(part, columns)``, a module-level function
+    that yields a part's rows as Arrow tables of those columns, run inside the engine's block tasks
+    on the driver's node; ``files`` names what identifies the data on disk (for lineage). Without
+    parts, ``files`` are Parquet files Ray Data reads on any node (shared storage)."""
 
     name: str
     files: tuple[str, ...]

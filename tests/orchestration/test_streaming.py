@@ -120,7 +120,7 @@ def test_a_minari_dataset_streams_like_the_same_log_in_parquet(
 def test_the_same_seed_gives_the_same_numbers_however_the_log_is_cut(
     ray_session, log, tmp_path, monkeypatch
 ):
-    from pcpg_dist.orchestration.streaming import engine as streaming
+    from pcpg_dist.domains.trajectories import stream_meta
 
     first = run(config(log), tmp_path / "a")
     again = run(config(log), tmp_path / "b")
@@ -132,7 +132,7 @@ def test_the_same_seed_gives_the_same_numbers_however_the_log_is_cut(
     table = pq.read_table(log)
     for i, lo in enumerate(range(0, table.num_rows, -(-table.num_rows // 3))):
         pq.write_table(table.slice(lo, -(-table.num_rows // 3)), folder / f"part-{i}.parquet")
-    monkeypatch.setattr(streaming, "ROWS_PER_BLOCK", table.num_rows // 7)
+    monkeypatch.setattr(stream_meta, "STEPS_PER_BATCH", table.num_rows // 7)
     cut = run(config(folder), tmp_path / "c")
     a = pq.read_table(first.out_dir / "summary" / "labels_seed0.parquet").to_pandas()
     c = pq.read_table(cut.out_dir / "summary" / "labels_seed0.parquet").to_pandas()

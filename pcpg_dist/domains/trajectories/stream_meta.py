@@ -1,10 +1,13 @@
 """What the streamed pipeline needs to know of a Parquet log, from the files' footers alone:
-the columns (checked as the in-memory reader checks them), the number of actions and the rows.
+the columns (checked as the in-memory reader checks them), the number of actions, the rows, and
+its parts (the files' row groups, each read by :func:`read_row_group` in the engine's tasks).
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pyarrow as pa
 import pyarrow.parquet as pq
@@ -18,6 +21,8 @@ from pcpg_dist.domains.trajectories.table_files import (
     parquet_files,
     unreadable,
 )
+
+STEPS_PER_BATCH = 250_000  # at most this many steps a block task holds at once (tens of MB)
 
 
 def stream_source(settings, name: str) -> StreamSource | None:
@@ -59,16 +64,35 @@ def stream_source(settings, name: str) -> StreamSource | None:
             raise DataError(f"{first}: state column {c!r} is {kind}; states are numbers")
     check_stream_score(settings)
     n_actions = settings.n_actions or _largest_action(files, metas) + 1
+    resolved = tuple(str(f.resolve()) for f in files)
     return StreamSource(
         name=name,
-        files=tuple(str(f.resolve()) for f in files),
+        files=resolved,
         states=tuple(states),
         n_actions=n_actions,
         steps=rows,
         optional=tuple(c for c in ("reward", "style") if c in names),
         score=settings.score,
         max_epochs=settings.stream_epochs,
+        parts=tuple(
+            {"file": f, "group": g, "batch": STEPS_PER_BATCH}
+            for f, meta in zip(resolved, metas, strict=True)
+            for g in range(meta.num_row_groups)
+        ),
+        read_part=read_row_group,
     )
+
+
+def read_row_group(part: dict[str, Any], columns: list[str]) -> Iterator[pa.Table]:
+    """Row group ``part["group"]`` of the Parquet file ``part["file"]``, as tables of at most
+    ``part["batch"]`` rows of ``columns``. Measured on a million-trajectory log (25 M steps):
+    Ray Data 2.60's own Parquet reader held 744 MB private in each reading worker against 257 MB
+    read this way, and was slower (docs/scale.md)."""
+    batches = pq.ParquetFile(part["file"]).iter_batches(
+        batch_size=int(part["batch"]), row_groups=[int(part["group"])], columns=columns
+    )
+    for batch in batches:
+        yield pa.Table.from_batches([batch])
 
 
 def check_stream_score(settings) -> None:

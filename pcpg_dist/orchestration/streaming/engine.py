@@ -18,7 +18,7 @@ from pcpg_dist.common.errors import pcpg_error_in
 from pcpg_dist.domains.base import StreamSource
 from pcpg_dist.orchestration.nodes import on_driver_node
 
-ROWS_PER_BLOCK = 250_000  # steps per read block (a few tens of MB of state)
+ROWS_PER_BLOCK = 250_000  # steps per block of a source without parts (a few tens of MB)
 
 
 def quiet_engine() -> None:
@@ -95,57 +95,25 @@ def engine_errors() -> Iterator[None]:
 
 
 def read_steps(source: StreamSource, columns: list[str]):
-    """The log as a lazy ``ray.data`` dataset of the given columns, in blocks of at most
-    :data:`ROWS_PER_BLOCK` steps.
+    """The log as a lazy ``ray.data`` dataset of the given columns.
 
-    Local files are read row group by row group (:func:`_row_groups`), by tasks kept on the
-    driver's node where the cluster has others (no other node need see its disk); every later
-    step runs anywhere. Files on shared storage (a URI) go through Ray Data's Parquet reader,
-    which reads them on any node. Measured on a million-trajectory log (25 M steps, 32 state
-    columns) with the tagging step after it, on one node: Ray Data 2.60's reader held 744 MB of
-    private memory in each reading worker against 257 MB by row group, and took 37.1 s against
-    33.9 s (docs/scale.md)."""
+    A source with ``parts`` (a local Parquet log's row groups, a local Minari dataset's runs of
+    episodes) is read part by part by ``source.read_part`` in tasks kept on the driver's node
+    where the cluster has others (no other node need see its disk); every later step runs
+    anywhere. A source without parts (files on shared storage, URIs) goes through Ray Data's
+    Parquet reader, on any node, in blocks of about :data:`ROWS_PER_BLOCK` steps."""
     import ray.data
 
-    if source.read_part is not None:  # not Parquet: the source's own parts and reader
+    if source.parts:
         return _parts(source, columns, on_driver_node() or {})
-    if any("://" in f for f in source.files):
-        blocks = max(2, -(-source.steps // ROWS_PER_BLOCK))
-        return ray.data.read_parquet(
-            list(source.files), columns=columns, override_num_blocks=blocks
-        )
-    return _row_groups(source, columns, on_driver_node() or {})
-
-
-def _row_groups(source: StreamSource, columns: list[str], options: dict):
-    """The files' row groups as the rows of a small dataset, each read in batches of
-    :data:`ROWS_PER_BLOCK` steps by a task with ``options`` (e.g. kept on this node: Ray Data's
-    own reader lists and samples the files in tasks no option keeps here, so a node without
-    the driver's disk would fail)."""
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-    import ray.data
-
-    groups = [
-        {"file": f, "group": g}
-        for f in source.files
-        for g in range(pq.ParquetFile(f).metadata.num_row_groups)
-    ]
-
-    def read(batch: dict[str, np.ndarray]):
-        for f, g in zip(batch["file"], batch["group"], strict=True):
-            parts = pq.ParquetFile(str(f)).iter_batches(
-                batch_size=ROWS_PER_BLOCK, row_groups=[int(g)], columns=columns
-            )
-            for part in parts:
-                yield pa.Table.from_batches([part])
-
-    return map_blocks(ray.data.from_items(groups), read, batch_size=1, **options)
+    blocks = max(2, -(-source.steps // ROWS_PER_BLOCK))
+    return ray.data.read_parquet(list(source.files), columns=columns, override_num_blocks=blocks)
 
 
 def _parts(source: StreamSource, columns: list[str], options: dict):
     """``source.parts`` as the rows of a small dataset, each read by ``source.read_part`` in a
-    task with ``options`` (kept on this node where the cluster has others: a local dataset)."""
+    task with ``options`` (e.g. kept on this node: Ray Data's own reader lists and samples the
+    files in tasks no option keeps here, so a node without the driver's disk would fail)."""
     import ray.data
 
     read_part = source.read_part
