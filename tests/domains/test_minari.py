@@ -14,6 +14,7 @@ from minari.data_collector import EpisodeBuffer
 
 from pcpg_dist.cli import main
 from pcpg_dist.common.errors import DataError
+from pcpg_dist.config import ExperimentConfig
 from pcpg_dist.dataset import Dataset, write_datasets
 from pcpg_dist.domains.trajectories.minari_io import (
     env_name,
@@ -26,6 +27,7 @@ from pcpg_dist.domains.trajectories.minari_read import (
     observation_names,
     read_minari,
 )
+from pcpg_dist.domains.trajectories.minari_stream import minari_stream_source
 
 N_ACTIONS = 5
 
@@ -251,6 +253,12 @@ def test_continuous_actions_and_unknown_ids_are_one_line_errors(minari_root):
     with pytest.raises(DataError, match=r"pcpg needs a discrete action space") as err:
         read_minari("toy/reacher-v0")
     assert "Box(" in str(err.value)
+    streamed = ExperimentConfig.model_validate(  # streamed: the same line, before any task
+        {"name": "r", "domain": "trajectories",
+         "trajectories": {"path": "minari:toy/reacher-v0", "stream": "on"}}
+    )  # fmt: skip
+    with pytest.raises(DataError, match=r"pcpg needs a discrete action space"):
+        minari_stream_source(streamed.trajectories, "r")
 
     with pytest.raises(DataError) as err:
         read_minari("toy/reacher-v1")

@@ -107,8 +107,8 @@ def observation_names(space: Any, prefix: str = "obs") -> list[str]:
 
 # --------------------------------------------------------------------------- reading
 def _load(dataset_id: str) -> tuple[Any, dict]:
-    """The local Minari dataset ``dataset_id`` (never downloaded) and its checked metadata
-    (:func:`check_local_dataset`, before Minari reads it), or one-line DataError."""
+    """The local Minari dataset ``dataset_id`` (never downloaded, its actions Discrete(n)) and its
+    checked metadata (:func:`check_local_dataset`, before Minari reads it), or one-line DataError."""
     check_id(dataset_id)
     import minari
     from minari.storage import get_dataset_path
@@ -132,11 +132,19 @@ def _load(dataset_id: str) -> tuple[Any, dict]:
         )
     meta = check_local_dataset(path, dataset_id)
     try:  # AssertionError: Minari asserts on what it reads
-        return minari.load_dataset(dataset_id, download=False), meta
+        dataset = minari.load_dataset(dataset_id, download=False)
     except (ValueError, KeyError, TypeError, OSError, AssertionError, pa.ArrowException) as e:
         raise DataError(
             f"minari:{dataset_id}: not a readable Minari dataset at {path} ({first_line(e)})"
         ) from None
+    from gymnasium import spaces
+
+    if not isinstance(dataset.action_space, spaces.Discrete):
+        raise DataError(
+            f"minari:{dataset_id}: action space {dataset.action_space}; pcpg needs a discrete "
+            "action space (Discrete(n))"
+        )
+    return dataset, meta
 
 
 def _episodes(dataset: Any, dataset_id: str) -> Iterator[Any]:
@@ -229,16 +237,10 @@ def read_minari(dataset_id: str) -> tuple[pa.Table, dict]:
     ``env_spec`` (its id or None), the spaces as text and, for data pcpg wrote, ``pcpg`` (domain,
     env, names). Episodes are decoded one at a time by Minari and joined once.
     """
-    from gymnasium import spaces
 
     source = f"minari:{dataset_id}"
     dataset, checked = _load(dataset_id)
     action_space, obs_space = dataset.action_space, dataset.observation_space
-    if not isinstance(action_space, spaces.Discrete):
-        raise DataError(
-            f"{source}: action space {action_space}; pcpg needs a discrete action space "
-            f"(Discrete(n))"
-        )
     n_actions, start = int(action_space.n), int(action_space.start)
     raw_meta = dataset.storage.metadata
     eps = _Episodes()

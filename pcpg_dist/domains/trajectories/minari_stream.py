@@ -34,11 +34,6 @@ def minari_stream_source(settings, name: str) -> StreamSource | None:
     rows = steps + episodes  # one row per observation: T + 1 an episode
     if settings.stream == "auto" and rows <= settings.stream_above_steps:
         return None
-    if not isinstance(dataset.action_space, spaces.Discrete):
-        raise DataError(
-            f"{source}: action space {dataset.action_space}; pcpg needs a discrete action space "
-            f"(Discrete(n))"
-        )
     check_stream_score(settings)
     if not episodes:
         raise DataError(f"{source}: the dataset has no episodes")
