@@ -169,3 +169,15 @@ def test_em_started_from_given_labels_keeps_their_names(goals):
             goals, goals.states, goals.offsets, Cfg(**FAST), 0, {}, start, first_round_steps=200
         )
     assert np.mean(labels == start) >= 0.95
+
+
+def test_the_ceiling_panel_holds_the_supervised_policy_mixture(goals):
+    # given the styles, k policies classify what only the actions show; seeded, the global RNG kept
+    from pcpg_dist.stages.clustering.ceiling import ceiling_panel
+
+    torch.manual_seed(5)
+    state = torch.random.get_rng_state()
+    panel = ceiling_panel(goals, seed=0)
+    assert torch.equal(torch.random.get_rng_state(), state)
+    assert panel["policy_likelihood"] >= 0.95, panel
+    assert ceiling_panel(goals, seed=0) == panel
