@@ -110,50 +110,74 @@ def _boosted_on_profiles(ds: Dataset, seed: int):
 
 
 def _policy_likelihood(ds: Dataset, cv, seed: int) -> float:
-    """Cross-validated accuracy of the policy classifier (module doc): per fold, a fresh
-    :class:`PolicyMixture` with one head a style, :data:`POLICY_STEPS` Adam steps on minibatches
-    of :data:`POLICY_BATCH` training rows (a fixed cost, whatever the log's size)."""
+    """Cross-validated accuracy of the policy classifier (module doc): for every fold at once
+    (batched matrix products, one network a fold), :data:`POLICY_STEPS` Adam steps on minibatches
+    of :data:`POLICY_BATCH` training rows (a fixed cost, whatever the log's size) of the log
+    likelihood of each row's action under its style's head; then each test trajectory goes to
+    the head with the largest summed log likelihood plus log style share."""
     import torch
 
-    from pcpg_dist.stages.clustering.policy_network import (
-        PolicyMixture,
-        policy_inputs,
-        trajectory_scores,
-    )
+    from pcpg_dist.stages.clustering.policy_network import policy_inputs
     from pcpg_dist.stages.clustering.states import checked_sequences, fit_normaliser
 
     states, offsets = checked_sequences(ds, "clustering/ceiling")
     n, y = len(offsets) - 1, np.asarray(ds.styles, np.int64)
-    k = int(y.max()) + 1
-    inputs = policy_inputs(ds, states, *fit_normaliser(states))
-    s, a, valid, traj = inputs
+    k, n_actions = int(y.max()) + 1, int(ds.n_actions)
+    s, a, valid, traj = policy_inputs(ds, states, *fit_normaliser(states))
     if not len(a):
         return float("nan")
+    folds = list(cv.split(np.zeros(n), y))
+    gen = torch.Generator().manual_seed(seed)
+    sizes = [(states.shape[1], POLICY_HIDDEN), (POLICY_HIDDEN, POLICY_HIDDEN)]
+    sizes.append((POLICY_HIDDEN, k * n_actions))
+    params = []  # per layer (weight (F, in, out), bias (F, 1, out)), PyTorch's default init
+    for fan_in, fan_out in sizes:
+        bound = 1.0 / np.sqrt(fan_in)
+        for shape in ((len(folds), fan_in, fan_out), (len(folds), 1, fan_out)):
+            w = torch.rand(shape, generator=gen) * (2 * bound) - bound
+            params.append(w.requires_grad_())
+
+    def log_probs(x, acts, ok, own, f=slice(None)):
+        """log pi_own(a | s) for rows (F, B, ...) under fold f's networks."""
+        h = x
+        for i in range(0, len(params), 2):
+            h = torch.baddbmm(params[i + 1][f], h, params[i][f])
+            h = torch.tanh(h) if i < len(params) - 2 else h
+        logits = h.view(*h.shape[:2], k, n_actions)
+        logits = logits.gather(2, own[..., None, None].expand(-1, -1, 1, n_actions))[:, :, 0]
+        logits = logits.masked_fill(~ok, -1e9)
+        return torch.log_softmax(logits, -1).gather(2, acts[..., None])[..., 0]
+
+    trained = [torch.from_numpy(np.isin(traj.numpy(), tr)).nonzero()[:, 0] for tr, _ in folds]
+    own = torch.from_numpy(y)[traj]
+    opt = torch.optim.Adam(params, lr=0.01)
+    for _ in range(POLICY_STEPS):
+        rows = torch.stack(
+            [r[torch.randint(0, len(r), (POLICY_BATCH,), generator=gen)] for r in trained]
+        )
+        loss = -log_probs(s[rows], a[rows], valid[rows], own[rows]).mean(dim=1).sum()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
     accuracies = []
-    for train, test in cv.split(np.zeros(n), y):
-        gen = torch.Generator().manual_seed(seed)
-        with torch.random.fork_rng(devices=[]):  # nn.Linear's own init draws from the global RNG
-            policy = PolicyMixture(states.shape[1], 32, k, int(ds.n_actions))
-        policy.reset_parameters(gen)
-        share = np.bincount(y[train], minlength=k) / len(train)
-        policy.log_prior.copy_(torch.from_numpy(np.log(np.maximum(share, 1e-12))).float())
-        rows = torch.from_numpy(np.isin(traj.numpy(), train)).nonzero()[:, 0]
-        own = torch.from_numpy(y)[traj]
-        opt = torch.optim.Adam(policy.parameters(), lr=0.01)
-        for _ in range(POLICY_STEPS):
-            b = rows[torch.randint(0, len(rows), (min(POLICY_BATCH, len(rows)),), generator=gen)]
-            loss = -policy.step_log_probs(s[b], a[b], valid[b]).gather(0, own[b][None]).mean()
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-        with torch.no_grad():
-            scores = trajectory_scores(policy, inputs, n).numpy()
-        accuracies.append(float((scores[:, test].argmax(0) == y[test]).mean()))
+    with torch.no_grad():
+        for f, (train, test) in enumerate(folds):
+            rows = torch.from_numpy(np.isin(traj.numpy(), test)).nonzero()[:, 0]
+            at = traj[rows]
+            scores = torch.zeros(k, n)
+            for c in range(k):  # each test row under every style's head
+                lp = log_probs(s[rows][None], a[rows][None], valid[rows][None],
+                               torch.full((1, len(rows)), c), slice(f, f + 1))[0]  # fmt: skip
+                scores[c].index_add_(0, at, lp)
+            share = np.bincount(y[train], minlength=k) / len(train)
+            scores += torch.from_numpy(np.log(np.maximum(share, 1e-12))).float()[:, None]
+            accuracies.append(float((scores[:, test].argmax(0).numpy() == y[test]).mean()))
     return float(np.mean(accuracies))
 
 
-POLICY_STEPS = 300  # Adam steps of the policy classifier per fold
-POLICY_BATCH = 4096  # training rows a step (sampled with replacement, seeded)
+POLICY_STEPS = 300  # Adam steps of the policy classifier (all folds at once)
+POLICY_HIDDEN = 32  # its two tanh layers, as policy_mix's network
+POLICY_BATCH = 4096  # training rows a fold and step (sampled with replacement, seeded)
 
 
 def _cross_validated(make):
