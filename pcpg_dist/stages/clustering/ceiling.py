@@ -123,6 +123,8 @@ def _policy_likelihood(ds: Dataset, cv, seed: int) -> float:
     states, offsets = checked_sequences(ds, "clustering/ceiling")
     n, y = len(offsets) - 1, np.asarray(ds.styles, np.int64)
     k, n_actions = int(y.max()) + 1, int(ds.n_actions)
+    if k * n_actions > POLICY_MAX_OUTPUTS:  # its output layer, and its cost, grow with both
+        return float("nan")
     s, a, valid, traj = policy_inputs(ds, states, *fit_normaliser(states))
     if not len(a):
         return float("nan")
@@ -177,6 +179,9 @@ def _policy_likelihood(ds: Dataset, cv, seed: int) -> float:
 
 POLICY_STEPS = 300  # Adam steps of the policy classifier (all folds at once)
 POLICY_HIDDEN = 32  # its two tanh layers, as policy_mix's network
+#: left out above this many styles x actions (a 1,000-action log took minutes; the zoo's largest
+#: is 4 x 9 = 36)
+POLICY_MAX_OUTPUTS = 512
 POLICY_BATCH = 4096  # training rows a fold and step (sampled with replacement, seeded)
 
 
