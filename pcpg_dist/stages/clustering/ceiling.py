@@ -139,16 +139,15 @@ def _policy_likelihood(ds: Dataset, cv, seed: int) -> float:
             w = torch.rand(shape, generator=gen) * (2 * bound) - bound
             params.append(w.requires_grad_())
 
-    def log_probs(x, acts, ok, own, f=slice(None)):
-        """log pi_own(a | s) for rows (F, B, ...) under fold f's networks."""
+    def log_probs(x, acts, ok, f=slice(None)):
+        """(F, B, k): log pi_c(a | s) of rows (F, B, ...) under every head of fold f's networks."""
         h = x
         for i in range(0, len(params), 2):
             h = torch.baddbmm(params[i + 1][f], h, params[i][f])
             h = torch.tanh(h) if i < len(params) - 2 else h
-        logits = h.view(*h.shape[:2], k, n_actions)
-        logits = logits.gather(2, own[..., None, None].expand(-1, -1, 1, n_actions))[:, :, 0]
-        logits = logits.masked_fill(~ok, -1e9)
-        return torch.log_softmax(logits, -1).gather(2, acts[..., None])[..., 0]
+        logits = h.view(*h.shape[:2], k, n_actions).masked_fill(~ok[:, :, None], -1e9)
+        picked = acts[..., None, None].expand(-1, -1, k, 1)
+        return torch.log_softmax(logits, -1).gather(3, picked)[..., 0]
 
     trained = [torch.from_numpy(np.isin(traj.numpy(), tr)).nonzero()[:, 0] for tr, _ in folds]
     own = torch.from_numpy(y)[traj]
@@ -157,7 +156,8 @@ def _policy_likelihood(ds: Dataset, cv, seed: int) -> float:
         rows = torch.stack(
             [r[torch.randint(0, len(r), (POLICY_BATCH,), generator=gen)] for r in trained]
         )
-        loss = -log_probs(s[rows], a[rows], valid[rows], own[rows]).mean(dim=1).sum()
+        lp = log_probs(s[rows], a[rows], valid[rows]).gather(2, own[rows][..., None])[..., 0]
+        loss = -lp.mean(dim=1).sum()
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -165,12 +165,8 @@ def _policy_likelihood(ds: Dataset, cv, seed: int) -> float:
     with torch.no_grad():
         for f, (train, test) in enumerate(folds):
             rows = torch.from_numpy(np.isin(traj.numpy(), test)).nonzero()[:, 0]
-            at = traj[rows]
-            scores = torch.zeros(k, n)
-            for c in range(k):  # each test row under every style's head
-                lp = log_probs(s[rows][None], a[rows][None], valid[rows][None],
-                               torch.full((1, len(rows)), c), slice(f, f + 1))[0]  # fmt: skip
-                scores[c].index_add_(0, at, lp)
+            lp = log_probs(s[rows][None], a[rows][None], valid[rows][None], slice(f, f + 1))[0]
+            scores = torch.zeros(k, n).index_add_(1, traj[rows], lp.T)
             share = np.bincount(y[train], minlength=k) / len(train)
             scores += torch.from_numpy(np.log(np.maximum(share, 1e-12))).float()[:, None]
             accuracies.append(float((scores[:, test].argmax(0).numpy() == y[test]).mean()))
