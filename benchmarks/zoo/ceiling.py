@@ -19,6 +19,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 from benchmarks.zoo.confidence import summary
+from pcpg_dist.stages.clustering.ceiling import gap_to_ceiling
 
 
 def panel_of(name: str) -> tuple[str, dict, float]:
@@ -50,7 +51,7 @@ def main() -> None:
         r.update(ceiling=max(panel.values()), panel=panel, ceiling_seconds=seconds)
     for r in confidence["rows"]:
         r["ceiling"] = max(panels[r["game"]][0].values())
-        r["gap"] = r["ceiling"] - r["accuracy"]
+        r["gap"] = gap_to_ceiling(r["ceiling"], r["accuracy"])
     confidence["summary"] = summary(confidence["rows"])
     args.evaluated.write_text(json.dumps(evaluated, indent=1))
     args.confidence.write_text(json.dumps(confidence, indent=1))
