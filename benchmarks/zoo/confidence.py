@@ -5,6 +5,7 @@ stability and the gap, and how often the verdict "styles found" agrees with "gap
 (design games and held-out games apart).
 
     uv run python -m benchmarks.zoo.confidence --ci --out zoo_confidence.json
+    uv run python -m benchmarks.zoo.confidence --reverdict zoo_confidence.json  # new thresholds
 """
 
 from __future__ import annotations
@@ -55,6 +56,7 @@ def confidence_row(name: str, ci: bool, runs: int) -> dict:
         "gap": float(ceiling - accuracy),
         **found,
         "verdict": verdict_of(metrics, k).verdict,
+        "n_clusters_used": float(result.metrics.get("n_clusters_used", k)),
         "fell_back": bool(result.metrics.get("auto_fell_back", 0)),
         "fit_seconds": fit,
         "confidence_seconds": refit,
@@ -77,6 +79,21 @@ def summary(rows: list[dict]) -> dict:
     return out
 
 
+def reverdict(row: dict) -> str:
+    """The row's verdict under the current thresholds (its clustering is not rerun). Rows written
+    before they kept ``n_clusters_used``: "no evidence" at a stability of at least WEAK can only
+    have been a collapse, and is kept."""
+    from pcpg_dist.stages.clustering.confidence import WEAK, verdict_of
+
+    used = row.get("n_clusters_used")
+    if used is None and row["verdict"].startswith("no evidence") and row["stability"] >= WEAK:
+        return row["verdict"]
+    metrics = {"stability": row["stability"], "stability_k": row["stability_k"]}
+    if used is not None:
+        metrics["n_clusters_used"] = used
+    return verdict_of(metrics, int(row["stability_k"])).verdict
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("games", nargs="*")
@@ -84,7 +101,18 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=2)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--reverdict", type=Path, default=None, help="re-derive a results file's verdicts")
     args = ap.parse_args()
+    if args.reverdict:
+        results = json.loads(args.reverdict.read_text())
+        for r in results["rows"]:
+            before, r["verdict"] = r["verdict"], reverdict(r)
+            if before != r["verdict"]:
+                print(f"{r['game']}: stability {r['stability']:.2f}: {before} -> {r['verdict']}")
+        results["summary"] = summary(results["rows"])
+        args.reverdict.write_text(json.dumps(results, indent=1))
+        print(json.dumps(results["summary"], indent=1))
+        return
     rows = []
     with ProcessPoolExecutor(args.workers) as pool:
         jobs = [
