@@ -101,7 +101,9 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=2)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--out", type=Path, default=None)
-    ap.add_argument("--reverdict", type=Path, default=None, help="re-derive a results file's verdicts")
+    ap.add_argument(
+        "--reverdict", type=Path, default=None, help="re-derive a results file's verdicts"
+    )
     args = ap.parse_args()
     if args.reverdict:
         results = json.loads(args.reverdict.read_text())

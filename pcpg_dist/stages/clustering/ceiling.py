@@ -112,7 +112,8 @@ def _boosted_on_profiles(ds: Dataset, seed: int):
 def _policy_likelihood(ds: Dataset, cv, seed: int) -> float:
     """Cross-validated accuracy of the policy classifier (module doc): for every fold at once
     (batched matrix products, one network a fold), :data:`POLICY_STEPS` Adam steps on minibatches
-    of :data:`POLICY_BATCH` training rows (a fixed cost, whatever the log's size) of the log
+    of :data:`POLICY_BATCH` training rows, or as many as the smallest fold trains on where that is
+    fewer (a cost bounded whatever the log's size, and small for a small log), of the log
     likelihood of each row's action under its style's head; then each test trajectory goes to
     the head with the largest summed log likelihood plus log style share."""
     import torch
@@ -150,12 +151,11 @@ def _policy_likelihood(ds: Dataset, cv, seed: int) -> float:
         return torch.log_softmax(logits, -1).gather(3, picked)[..., 0]
 
     trained = [torch.from_numpy(np.isin(traj.numpy(), tr)).nonzero()[:, 0] for tr, _ in folds]
+    batch = min(POLICY_BATCH, min(len(r) for r in trained))  # a small log: about its own size
     own = torch.from_numpy(y)[traj]
     opt = torch.optim.Adam(params, lr=0.01)
     for _ in range(POLICY_STEPS):
-        rows = torch.stack(
-            [r[torch.randint(0, len(r), (POLICY_BATCH,), generator=gen)] for r in trained]
-        )
+        rows = torch.stack([r[torch.randint(0, len(r), (batch,), generator=gen)] for r in trained])
         lp = log_probs(s[rows], a[rows], valid[rows]).gather(2, own[rows][..., None])[..., 0]
         loss = -lp.mean(dim=1).sum()
         opt.zero_grad()
