@@ -20,25 +20,6 @@ from pathlib import Path
 import numpy as np
 
 
-def load(root: Path, name: str):
-    """The game and its labelled step table (``benchmarks.zoo.build``'s output) as one unit."""
-    from benchmarks.zoo.common import load_game
-    from pcpg_dist.config import parse_config
-    from pcpg_dist.domains import contract
-
-    game = load_game(name)
-    cfg = parse_config(
-        {
-            "name": f"agree_{name}",
-            "domain": "trajectories",
-            "trajectories": {"path": str(root / name / "labelled"), "n_actions": game.n_actions},
-            "clustering": {"k": len(game.styles)},
-        }
-    )
-    (ds,) = contract.generate(cfg, show_progress=False).values()
-    return game, ds
-
-
 def agreement(ds, neighbours: int = 16, queries: int = 40_000, index: int = 80_000, seed: int = 0):
     """(S, C) n x n: summed centred action agreement of trajectory i's steps with j's nearest
     steps, and how many such pairs were seen."""
@@ -178,7 +159,8 @@ def as_em_start(ds, k: int, truth: np.ndarray) -> str:
 
 
 def main() -> None:
-    from benchmarks.zoo.common import game_names, load_game
+    from benchmarks.zoo.check import read_unit
+    from benchmarks.zoo.common import design_games
     from pcpg_dist.common.devices import set_threads
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -186,13 +168,9 @@ def main() -> None:
     ap.add_argument("mode", choices=("alone", "em"))
     ap.add_argument("games", nargs="+")
     args = ap.parse_args()
-    design = [g for g in game_names() if not load_game(g).held_out]
-    for g in args.games:
-        if g not in design:
-            ap.error(f"{g}: not a design game of the zoo (held-out games are not searched)")
     set_threads(1)
-    for name in args.games:
-        game, ds = load(args.root, name)
+    for name in design_games(args.games, ap.error):
+        game, _, ds = read_unit(name, args.root / name / "labelled")
         truth, k = np.asarray(ds.styles), len(game.styles)
         run = alone if args.mode == "alone" else as_em_start
         print(f"{name}: {run(ds, k, truth)}", flush=True)

@@ -22,18 +22,24 @@ from benchmarks.zoo.common import episodes, load_game, step_table
 
 def dataset_of(name: str, ci: bool, tmp: Path):
     """The game's episodes read back through pcpg's own step-table reader (one unit)."""
+    (tmp / "steps").mkdir()
+    table = step_table(episodes(load_game(name), ci=ci))
+    table.to_parquet(tmp / "steps" / "steps.parquet", index=False)
+    return read_unit(name, tmp / "steps")
+
+
+def read_unit(name: str, folder: Path):
+    """(game, config, unit): the step table in ``folder`` (one written by :func:`dataset_of` or
+    ``benchmarks.zoo.build``) read by pcpg's own step-table reader as ``domain: trajectories``."""
     from pcpg_dist.config import parse_config
     from pcpg_dist.domains import contract
 
     game = load_game(name)
-    table = step_table(episodes(game, ci=ci))
-    (tmp / "steps").mkdir()
-    table.to_parquet(tmp / "steps" / "steps.parquet", index=False)
     cfg = parse_config(
         {
             "name": f"check_{name}",
             "domain": "trajectories",
-            "trajectories": {"path": str(tmp / "steps"), "n_actions": game.n_actions},
+            "trajectories": {"path": str(folder), "n_actions": game.n_actions},
             "clustering": {"k": len(game.styles)},
         }
     )

@@ -97,6 +97,16 @@ def game_names() -> list[str]:
     return sorted(p.parent.name for p in ZOO.glob("*/generator.py"))
 
 
+def design_games(asked: list[str], error: Callable[[str], object]) -> list[str]:
+    """``asked`` (default: every design game), after ``error`` was called for any held-out or
+    unknown game: the held-out games take no part in design decisions."""
+    design = [g for g in game_names() if not load_game(g).held_out]
+    for g in asked:
+        if g not in design:
+            error(f"{g}: not a design game of the zoo (held-out games are not searched)")
+    return list(asked) or design
+
+
 def episodes(game: Game, ci: bool = False, seed: int = 0) -> list[tuple[int, Episode]]:
     """Every (style, episode) of the game, each episode seeded from (seed, style, index) alone."""
     counts = game.ci_counts if ci else game.counts

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from benchmarks.zoo.common import game_names, load_game
+from benchmarks.zoo.common import design_games, load_game
 
 
 def partition_scores(ds, labels: np.ndarray, k: int, steps: int, seed: int = 0) -> dict:
@@ -105,11 +105,7 @@ def main() -> None:
     parser.add_argument("--warmup", type=int, default=4, help="first-round training multiple")
     parser.add_argument("--steps", type=int, default=400, help="Adam steps of the scoring fit")
     args = parser.parse_args()
-    design = [g for g in game_names() if not load_game(g).held_out]
-    games = args.games or design
-    for g in games:
-        if g not in design:
-            parser.error(f"{g}: not a design game of the zoo (held-out games are not searched)")
+    games = design_games(args.games, parser.error)
     print("| game | start | first round steps | accuracy | fit ll/step | held-out ll/step |")
     print("|---|---|---|---|---|---|")
     for g in games:
