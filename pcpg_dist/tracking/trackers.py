@@ -31,7 +31,7 @@ from pcpg_dist.tracking.runs import (
     killed_if_interrupted,
     open_experiment,
 )
-from pcpg_dist.tracking.store import default_tracking_uri, prepare_store
+from pcpg_dist.tracking.store import default_tracking_uri, prepare_store, store_lock
 from pcpg_dist.tracking.tags import (
     AGENTS,
     ARTIFACTS,
@@ -147,7 +147,12 @@ class Tracker:
     def finish(
         self, result, agents_dir: Path | None = None, report_dir: Path | None = None
     ) -> None:
-        """Log the headline once: a rerun from cache finds the digest and logs nothing again."""
+        """Log the headline once: a rerun from cache finds the digest and logs nothing again, and
+        of two runs finishing one parent together, the second finds the first's digest."""
+        with store_lock(self.uri, f"finish:{self.parent_id}"):
+            self._finish(result, agents_dir, report_dir)
+
+    def _finish(self, result, agents_dir: Path | None, report_dir: Path | None) -> None:
         client = _client(self.uri)
         run = _retry(client.get_run, self.parent_id)
         tags = run.data.tags
@@ -285,6 +290,11 @@ class SweepTracker:
         """
         client = _client(self.uri)
         log_data_inputs(client, self.parent_id, inputs or [])
+        lock = store_lock(self.uri, f"finish:{self.parent_id}")
+        with lock:  # two sweeps finishing one sweep run: the second finds the first's digest
+            self._finish(client, metrics, artifacts, best_points, timings, note)
+
+    def _finish(self, client, metrics, artifacts, best_points, timings, note) -> None:
         run = _retry(client.get_run, self.parent_id)
         points = [(k, float(v), 0) for k, v in sorted((metrics or {}).items()) if _finite(v)]
         files = sorted(
