@@ -18,6 +18,8 @@ clustering:
   k: 4
   pretrain_epochs: 2
   dec_epochs: 1
+  ceiling: false
+  confidence_runs: 0
 ranking:
   ps: [1.0]
 bc:

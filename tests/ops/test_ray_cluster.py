@@ -36,7 +36,7 @@ TINY = {
     "seeds": [0, 1],
     "gridworld": {"layout_dir": "layouts", "environments": ["E1", "E2"]},
     "pbtg": {"episodes": 20000, "trajectories_per_style": 200, "dataset_per_style": 100},
-    "clustering": {"k": 4, "method": "bag_auto"},
+    "clustering": {"k": 4, "method": "bag_auto", "ceiling": False, "confidence_runs": 0},
     "ranking": {"ps": [1.0, 0.5]},
     "bc": {"epochs": 200, "hidden_size": 16},
     "evaluation": {"rollouts_per_policy": 10, "corruption_levels": [0.0, 1.0], "figures": True},
@@ -378,7 +378,7 @@ def test_a_streamed_log_runs_over_both_nodes_with_no_shared_disk(cluster):
         "domain": "trajectories",
         "seeds": [0],
         "trajectories": {"path": "big.parquet", "stream": "on"},
-        "clustering": {"k": 4},
+        "clustering": {"k": 4, "ceiling": False, "confidence_runs": 0},
         "ranking": {"ps": [1.0, 0.5]},
     }
     (drv / "streamed.yaml").write_text(yaml.safe_dump(cfg))

@@ -24,7 +24,7 @@ def config(path: Path, **over) -> ExperimentConfig:
         "domain": "trajectories",
         "seeds": [0],
         "trajectories": {"path": str(path), "stream": "on", **over.pop("trajectories", {})},
-        "clustering": {"k": 4},
+        "clustering": {"k": 4, "ceiling": False, "confidence_runs": 0},
         "ranking": {"ps": [1.0, 0.5]},
         **over,
     }

@@ -49,3 +49,25 @@ def test_a_gap_of_float_noise_is_zero_not_minus_zero():
     gap = ceiling.gap_to_ceiling(top, acc)
     assert gap == 0.0 and f"{gap:+.3f}" == "+0.000"
     assert ceiling.gap_to_ceiling(0.9, 0.8) == 0.1 and ceiling.gap_to_ceiling(0.8, 0.9) == -0.1
+
+
+def test_the_ceiling_is_scored_unless_the_config_turns_it_off():
+    """`clustering.ceiling: false` leaves out the panel and the gap, and only them: the clustering
+    and its scores against the styles are the same."""
+    from pcpg_dist.config.clustering import ClusterConfig
+    from pcpg_dist.domains.base import Unit
+    from pcpg_dist.pipeline import cluster_unit
+    from tests.stages.test_policy_mix import goal_seekers
+
+    ds = goal_seekers(20, seed=7)
+    unit = Unit("goals", ds, np.arange(0))
+    on = cluster_unit(unit, ClusterConfig(k=2, confidence_runs=0), 0)
+    off = cluster_unit(unit, ClusterConfig(k=2, confidence_runs=0, ceiling=False), 0)
+    assert on.metrics["clustering/ceiling"] > 0.9  # the goal seekers' styles are separable
+    assert on.metrics["clustering/gap_to_ceiling"] == ceiling.gap_to_ceiling(
+        on.metrics["clustering/ceiling"], on.metrics["clustering/accuracy"]
+    )
+    assert not any("ceiling" in k for k in off.metrics)
+    assert np.array_equal(on.labels, off.labels)
+    same = {k: v for k, v in on.metrics.items() if "ceiling" not in k and "seconds" not in k}
+    assert same == {k: v for k, v in off.metrics.items() if "seconds" not in k}
