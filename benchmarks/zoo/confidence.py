@@ -37,12 +37,15 @@ def confidence_row(name: str, ci: bool, runs: int) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         _, _, ds = dataset_of(name, ci, Path(tmp))
     k = len(game.styles)
-    cfg = ClusterConfig(k=k)
+    cfg = ClusterConfig(k=k, confidence_runs=runs)
     t0 = time.perf_counter()
     result = cluster(ds, cfg, 0)
     fit = time.perf_counter() - t0
     t0 = time.perf_counter()
-    found = stability(ds, cfg, 0, result.labels, runs, 0.8)
+    if "stability" in result.metrics:  # bag_auto chose its method by it (select.py)
+        found = {k: v for k, v in result.metrics.items() if k.startswith(("stability", "merged"))}
+    else:
+        found = stability(ds, cfg, 0, result.labels, runs, 0.8)
     refit = time.perf_counter() - t0
     accuracy = clustering_metrics(ds.styles, result.labels)["accuracy"]
     ceiling = max(ceiling_panel(ds, seed=0).values())
@@ -58,6 +61,7 @@ def confidence_row(name: str, ci: bool, runs: int) -> dict:
         "verdict": verdict_of(metrics, k).verdict,
         "n_clusters_used": float(result.metrics.get("n_clusters_used", k)),
         "fell_back": bool(result.metrics.get("auto_fell_back", 0)),
+        "chose_policy_mix": bool(result.metrics.get("auto_chose_policy_mix", 0)),
         "fit_seconds": fit,
         "confidence_seconds": refit,
     }

@@ -1,7 +1,8 @@
 """Self-training across views: does a classifier of another view, trained on the default's own
 clusters and asked out of fold, move them towards the styles? Measured on design games.
 
-    uv run python -m benchmarks.zoo.selftrain_exp highway leduc_poker
+    uv run python -m benchmarks.zoo.build --out zoo_data
+    uv run python -m benchmarks.zoo.selftrain_exp zoo_data highway leduc_poker
 
 Start: the default clustering (``cluster`` with ``ClusterConfig(k=...)``). Then, for a few
 rounds, each trajectory's label becomes what a model of one view predicts for it when trained
@@ -16,13 +17,12 @@ agreement with the current labels (label-free). Held-out games are refused.
 from __future__ import annotations
 
 import argparse
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-from benchmarks.zoo.common import design_games, load_game
+from benchmarks.zoo.common import design_games
 
 
 def view(ds, name: str, seed: int):
@@ -33,7 +33,9 @@ def view(ds, name: str, seed: int):
     from pcpg_dist.stages.clustering.profile import trajectory_profiles
 
     if name == "profiles":
-        model = HistGradientBoostingClassifier(max_iter=100, early_stopping=False, random_state=seed)
+        model = HistGradientBoostingClassifier(
+            max_iter=100, early_stopping=False, random_state=seed
+        )
         return trajectory_profiles(ds), model
     return ceiling_features(ds), LogisticRegression(C=1.0, max_iter=2000)
 
@@ -57,16 +59,14 @@ def self_train(x, model, labels: np.ndarray, rounds: int, seed: int, truth, k: i
     return out
 
 
-def run_game(name: str, ci: bool, rounds: int, views: list[str]) -> None:
-    from benchmarks.zoo.check import dataset_of
+def run_game(name: str, root: Path, rounds: int, views: list[str]) -> None:
+    from benchmarks.zoo.check import read_unit
     from pcpg_dist.common.devices import set_threads
     from pcpg_dist.config.clustering import ClusterConfig
     from pcpg_dist.stages.clustering import cluster, clustering_metrics
 
     set_threads(1)
-    game = load_game(name)
-    with tempfile.TemporaryDirectory() as tmp:
-        _, _, ds = dataset_of(name, ci, Path(tmp))
+    game, _, ds = read_unit(name, root / name / "labelled")
     k = len(game.styles)
     truth = np.asarray(ds.styles, np.int64)
     t0 = time.perf_counter()
@@ -78,20 +78,22 @@ def run_game(name: str, ci: bool, rounds: int, views: list[str]) -> None:
         x, model = view(ds, v, 0)
         for r, acc, agree, used in self_train(x, model, start.copy(), rounds, 0, truth, k):
             s = time.perf_counter() - t0
-            print(f"| {name} | {v} | {r} | {acc:.3f} | {agree:.3f} ({used}) | {s:.0f} |", flush=True)
+            print(
+                f"| {name} | {v} | {r} | {acc:.3f} | {agree:.3f} ({used}) | {s:.0f} |", flush=True
+            )
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("root", type=Path, help="a zoo built by benchmarks.zoo.build")
     parser.add_argument("games", nargs="*", help="design games (default: every design game)")
-    parser.add_argument("--ci", action="store_true", help="the CI-size logs")
     parser.add_argument("--rounds", type=int, default=4)
     parser.add_argument("--views", default="profiles,bags")
     args = parser.parse_args()
     print("| game | view | round | accuracy | out-of-fold agreement (clusters) | s |")
     print("|---|---|---|---|---|---|")
     for g in design_games(args.games, parser.error):
-        run_game(g, args.ci, args.rounds, args.views.split(","))
+        run_game(g, args.root, args.rounds, args.views.split(","))
 
 
 if __name__ == "__main__":

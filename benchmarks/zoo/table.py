@@ -33,7 +33,7 @@ def table(evaluated: list[dict], confidence: list[dict]) -> str:
         for r in rows:
             c = conf[r["game"]]
             accs = " | ".join(f"{r['methods'][m]['accuracy']:.3f}" for m in METHODS)
-            ran = "policy_mix" if c["fell_back"] else "greedy_mix"
+            ran = "policy_mix" if c["fell_back"] or c.get("chose_policy_mix") else "greedy_mix"
             lines.append(
                 f"| {r['game']} | {', '.join(r['kinds'])} | {r['trajectories']} | "
                 f"{r['ceiling']:.3f} | {accs} | {c['accuracy']:.3f} ({ran}) | {c['gap']:+.3f} | "

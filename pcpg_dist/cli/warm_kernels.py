@@ -71,7 +71,7 @@ def warm() -> None:
     from pcpg_dist.config.stages import BCConfig
     from pcpg_dist.dataset import Dataset
     from pcpg_dist.stages.bc import train_cells
-    from pcpg_dist.stages.clustering.step import cluster
+    from pcpg_dist.stages.clustering.step import cluster_once as cluster
     from pcpg_dist.stages.ranking import RankConfig, plan_cells
 
     rng = np.random.default_rng(0)

@@ -72,7 +72,8 @@ def cluster_unit(
     metrics = {
         f"clustering/{k}": float(v) for k, v in result.metrics.items() if isinstance(v, int | float)
     }
-    if confidence and cluster_cfg.confidence_runs > 0 and cluster_cfg.k > 1:
+    measured = "clustering/stability" in metrics  # bag_auto chose by it (stages/clustering/select)
+    if confidence and not measured and cluster_cfg.confidence_runs > 0 and cluster_cfg.k > 1:
         found = stability(
             unit.clustered,
             cluster_cfg,

@@ -176,9 +176,18 @@ def print_clustering(result, console, method: str | None = None) -> None:
             "style; a mixture of neural policies still sees which action each style takes "
             "where (docs/zoo.md)"
         )
+    for env, cm in result.clustering.items():
+        if method and cm.get(CHOSE):
+            console.print(
+                f"{method} clustered {env} with policy_mix: its clusters came back on subsamples "
+                f"(stability {cm.get('clustering/auto_stability_policy_mix', float('nan')):.2f}) "
+                "where greedy_mix's did not "
+                f"({cm.get('clustering/auto_stability_greedy_mix', float('nan')):.2f}; docs/zoo.md)"
+            )
 
 
 FELL_BACK = "clustering/auto_fell_back"
+CHOSE = "clustering/auto_chose_policy_mix"
 
 
 def method_used(method: str, clustering: dict[str, float]) -> str:
@@ -189,6 +198,8 @@ def method_used(method: str, clustering: dict[str, float]) -> str:
     fallback = CLUSTERERS[method].continuous_fallback if method in CLUSTERERS else None
     if clustering.get("clustering/auto_fell_back_to_lstm"):
         fallback = "lstm_dec"  # the log's actions said nothing (auto.fallback_for)
+    if clustering.get(CHOSE):
+        return f"{method} -> policy_mix"  # the more stable on discrete states (select.py)
     return f"{method} -> {fallback}" if clustering.get(FELL_BACK) and fallback else method
 
 

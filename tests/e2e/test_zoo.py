@@ -73,3 +73,35 @@ def test_policy_mix_recovers_the_styles_its_start_collapsed(tmp_path):
     assert sizes.min() >= 0.25 * ds.n_trajectories / k, sizes
     # the labels are the fitted policies' own: the saved model (pcpg classify) gives them back
     np.testing.assert_array_equal(reseeded.model.predict(ds), reseeded.labels)
+
+
+@pytest.mark.slow
+def test_bag_auto_keeps_policy_mix_where_greedy_mix_wanders(tmp_path):
+    """minigrid_empty at CI size (egocentric views: few exact states repeat): greedy_mix's fit moves
+    with the sample, policy_mix's comes back, so bag_auto keeps policy_mix, says so, and beats
+    greedy_mix alone; with no refits asked for it is greedy_mix, as before."""
+    from benchmarks.zoo.check import dataset_of
+    from pcpg_dist.config.clustering import ClusterConfig
+    from pcpg_dist.stages.clustering import cluster, clustering_metrics
+    from pcpg_dist.stages.clustering.confidence import verdict_of
+    from pcpg_dist.stages.clustering.select import MARGIN
+
+    game, _, ds = dataset_of("minigrid_empty", True, tmp_path)
+    k = len(game.styles)
+    chosen = cluster(ds, ClusterConfig(k=k), 0)
+    m = chosen.metrics
+    assert m["auto_chose_policy_mix"] == 1.0
+    assert m["auto_stability_policy_mix"] > m["auto_stability_greedy_mix"] + MARGIN
+    assert m["stability"] == m["auto_stability_policy_mix"]  # its confidence, not measured again
+    policy = cluster(ds, ClusterConfig(k=k, method="policy_mix"), 0)
+    np.testing.assert_array_equal(chosen.labels, policy.labels)
+    greedy = cluster(ds, ClusterConfig(k=k, method="greedy_mix"), 0)
+
+    def accuracy(result) -> float:
+        return clustering_metrics(ds.styles, result.labels)["accuracy"]
+
+    assert accuracy(chosen) > accuracy(greedy), (accuracy(chosen), accuracy(greedy))  # 0.627, 0.587
+    assert "bag_auto chose policy_mix" in verdict_of(m, k).line()
+    alone = cluster(ds, ClusterConfig(k=k, confidence_runs=0), 0)
+    np.testing.assert_array_equal(alone.labels, greedy.labels)
+    assert "auto_chose_policy_mix" not in alone.metrics

@@ -92,7 +92,11 @@ def test_only_a_clustering_that_trains_a_network_asks_for_a_gpu():
     ]  # 9 distinct states
     discrete = Dataset.from_trajectories("toy", "grid", 4, grid, [0] * 20, [True] * 20)
     auto = ClusterConfig(method="bag_auto")
-    assert needs_network(auto, continuous) and not needs_network(auto, discrete)
+    # on discrete states bag_auto fits policy_mix beside greedy_mix to choose by stability, unless
+    # no refits are asked for (then greedy_mix alone)
+    assert needs_network(auto, continuous) and needs_network(auto, discrete)
+    alone = ClusterConfig(method="bag_auto", confidence_runs=0)
+    assert needs_network(alone, continuous) and not needs_network(alone, discrete)
     for method, neural in (
         ("lstm_dec", True),
         ("policy_mix", True),

@@ -2,8 +2,9 @@
 (:func:`clustering_metrics`) and read a saved model back (:func:`load_model`).
 
 The package's modules, by concern: :mod:`.step` (the dispatch over the table of clusterers in
-:mod:`pcpg_dist.config.clusterers`), :mod:`.auto` (which method runs on a dataset, whether it
-trains a network), one module per clusterer family (:mod:`.kmeans`, :mod:`.bags`,
+:mod:`pcpg_dist.config.clusterers`; one fit), :mod:`.select` (``cluster``: ``bag_auto``'s choice
+between two fits by stability), :mod:`.auto` (which method runs on a dataset, whether it trains
+a network), one module per clusterer family (:mod:`.kmeans`, :mod:`.bags`,
 :mod:`.greedy_mix` with :mod:`.greedy_likelihood`, :mod:`.lstm` with :mod:`.autoencoder`,
 :mod:`.policy_mix` with :mod:`.policy_network`), the shared inputs (:mod:`.states`,
 :mod:`.features`), the fitted model (:mod:`.model`, :mod:`.model_io`), :mod:`.metrics` and the
@@ -30,13 +31,14 @@ if TYPE_CHECKING:
     from pcpg_dist.stages.clustering.model import ClusterModel
     from pcpg_dist.stages.clustering.model_io import load_model
     from pcpg_dist.stages.clustering.policy_mix import counter_summary, monotone_features
+    from pcpg_dist.stages.clustering.select import cluster
     from pcpg_dist.stages.clustering.states import checked_sequences
-    from pcpg_dist.stages.clustering.step import Clustering, cluster
+    from pcpg_dist.stages.clustering.step import Clustering
 
 #: public name -> the module of this package that defines it
 _EXPORTS = {
     "Clustering": "step",
-    "cluster": "step",
+    "cluster": "select",
     "ClusterModel": "model",
     "load_model": "model_io",
     "clustering_metrics": "metrics",

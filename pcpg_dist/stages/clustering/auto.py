@@ -32,15 +32,22 @@ def fallback_for(method: str, dataset) -> str | None:
     return "lstm_dec" if acts.size and (acts == acts[0]).all() else fallback
 
 
+def chooses(cfg: ClusterConfig) -> bool:
+    """Whether ``cfg`` has ``bag_auto`` choose between greedy_mix and policy_mix on discrete states
+    by their stability (:mod:`.select`; ``clustering.confidence_runs`` refits each)."""
+    return cfg.method == "bag_auto" and cfg.confidence_runs > 0 and cfg.k > 1
+
+
 def needs_network(cluster_cfg: ClusterConfig, dataset) -> bool:
     """Whether Step A trains a network on ``dataset`` (a unit's clustering input): a method with a
-    continuous-state fallback (``bag_auto``) trains one only where it falls back to a method that
-    does, so on discrete states its task needs no GPU."""
+    continuous-state fallback (``bag_auto``) trains one where it falls back to a method that does,
+    or where it chooses between greedy_mix and policy_mix (``confidence_runs`` > 0)."""
     spec = CLUSTERERS[cluster_cfg.method]
     if spec.continuous_fallback is not None:
         if falls_back(dataset):
             return CLUSTERERS[fallback_for(cluster_cfg.method, dataset)].trains_network
-        return spec.trains_network
+        # on discrete states it may fit policy_mix beside greedy_mix to choose (select.py)
+        return spec.trains_network or chooses(cluster_cfg)
     return spec.trains_network
 
 

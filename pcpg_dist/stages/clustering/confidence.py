@@ -12,7 +12,9 @@ is compared with the clustering on the trajectories they share:
 - ``merged_pairs``: pairs of clusters whose trajectories the refits mostly put together (their
   distributions over the refit's clusters overlap by more than half): two clusters that look like
   one style.
-- the clusterer's own fall-back (``bag_auto`` handing continuous states to ``policy_mix``) is said.
+- the clusterer's own fall-back (``bag_auto`` handing continuous states to ``policy_mix``) is said,
+  and so is its choice of policy_mix on discrete states (:mod:`.select`: there the stability is
+  the larger of two, so it leans optimistic).
 
 A clustering that leaves clusters empty (a collapse is stable, and says there are fewer styles)
 is "no evidence of k styles" whatever its stability. Otherwise the verdict reads ``stability``
@@ -38,10 +40,11 @@ MERGED = 0.5  # overlap of two clusters' refit distributions above which they lo
 
 def stability(dataset, cfg, seed: int, labels: np.ndarray, runs: int, fraction: float) -> dict:
     """Refit ``cfg``'s method ``runs`` times on seeded subsamples; the metrics of the module doc."""
-    from pcpg_dist.stages.clustering.step import cluster
+    from pcpg_dist.stages.clustering.step import cluster_once as cluster
 
     labels = np.asarray(labels)
     n, k = len(labels), cfg.k
+    cfg = cfg.model_copy(update={"confidence_runs": 0})  # a refit is one fit, never a choice
     rng = np.random.default_rng([seed, 7919])
     size = max(k, int(round(fraction * n)))
     aris, overlaps = [], np.zeros((k, k))
@@ -98,6 +101,9 @@ def verdict_of(metrics: dict, k: int | None = None) -> Verdict:
     if get("auto_fell_back"):
         to = "lstm_dec" if get("auto_fell_back_to_lstm") else "policy_mix"
         reasons.append(f"bag_auto fell back to {to} (continuous states)")
+    if get("auto_chose_policy_mix"):
+        g, p = get("auto_stability_greedy_mix"), get("auto_stability_policy_mix")
+        reasons.append(f"bag_auto chose policy_mix (stability {p:.2f}; greedy_mix {g:.2f})")
     merged = [
         key.rsplit("merged_pair_", 1)[1].replace("_", " and ")
         for key in metrics

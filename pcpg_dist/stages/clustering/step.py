@@ -17,7 +17,8 @@ Methods (one interface, one row each in :data:`pcpg_dist.config.clusterers.CLUST
 - ``bag_mop`` — a mixture of k policies pi_c(a | s) fitted by EM from bag_kmeans' labels.
 - ``greedy_mix`` — a mixture of k greedy policies with one uniform noise level, fitted by
   coordinate ascent from bag_kmeans' labels (pcpg_dist/stages/clustering/greedy_mix.py): style = which action.
-- ``bag_auto`` (the default) — greedy_mix on discrete states, policy_mix on continuous ones
+- ``bag_auto`` (the default) — on discrete states greedy_mix, or policy_mix where its fit is
+  clearly the more stable under resampling (:mod:`.select`); policy_mix on continuous states
   (where a state is almost never seen twice, a per-state policy says nothing; lstm_dec where the
   log holds one action throughout, so only the states can show a style).
 - ``policy_mix`` — a mixture of k neural policies pi_c(a | s) (shared trunk, k heads) fitted by
@@ -79,8 +80,10 @@ def fitting_function(method: str):
     return getattr(importlib.import_module(module), function)
 
 
-def cluster(dataset, cfg: ClusterConfig, seed: int) -> Clustering:
-    """Cluster ``dataset``'s trajectories into ``cfg.k`` play-styles; never reads ``dataset.styles``.
+def cluster_once(dataset, cfg: ClusterConfig, seed: int) -> Clustering:
+    """One fit of ``cfg.method`` (or its continuous-state fallback): ``dataset``'s trajectories in
+    ``cfg.k`` play-styles; never reads ``dataset.styles``. :func:`.select.cluster` (the package's
+    ``cluster``) may fit two methods and keep one.
 
     Raises :class:`DataError` for an empty dataset, non-finite states, or fewer trajectories than k.
     Call :func:`pcpg_dist.common.devices.set_threads` first: same data + seed + threads = same labels.

@@ -1,0 +1,73 @@
+"""``bag_auto`` on discrete states: greedy_mix or policy_mix, whichever the data supports better,
+chosen without labels.
+
+greedy_mix (one greedy action per exact state) is at the supervised ceiling on GridWorld-shaped
+logs, where states repeat and each style holds one action in each; on discrete logs where they
+do not (an egocentric view, a card game's information states) its fit wanders with the sample
+while a mixture of neural policies, which generalises across states, comes back the same. Both are
+fitted, each is refitted ``clustering.confidence_runs`` times on subsamples (the label-free
+confidence, :mod:`.confidence`), and the clustering whose refits agree with it more is kept:
+policy_mix only where its stability is higher by more than :data:`MARGIN`, greedy_mix otherwise
+(docs/zoo.md, "Choosing between greedy_mix and policy_mix"). With ``confidence_runs: 0`` nothing is
+refitted and greedy_mix runs alone, as before.
+
+The chosen clustering's stability is its confidence (kept in its metrics, not measured again);
+having been picked as the more stable of two, it leans optimistic by the selection.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from pcpg_dist.stages.clustering.auto import chooses, resolve_method
+from pcpg_dist.stages.clustering.confidence import stability
+from pcpg_dist.stages.clustering.states import checked_sequences
+from pcpg_dist.stages.clustering.step import Clustering, cluster_once
+
+#: policy_mix replaces greedy_mix only where its stability is higher by more than this: on the
+#: design logs the two differ by at most 0.03 where greedy_mix is the better (GridWorld E1-E5) and
+#: by at least 0.28 where policy_mix is (minigrid_empty, leduc_poker); two refits move stability
+#: by a few hundredths
+MARGIN = 0.10
+CANDIDATES = ("greedy_mix", "policy_mix")
+
+
+def cluster(dataset, cfg, seed: int) -> Clustering:
+    """Cluster ``dataset``'s trajectories into ``cfg.k`` play-styles; never reads ``dataset.styles``.
+
+    ``bag_auto`` on discrete states chooses between greedy_mix and policy_mix (module doc); every
+    other method, and bag_auto on continuous states, is one fit (:func:`.step.cluster_once`).
+    Raises :class:`DataError` for an empty dataset, non-finite states, or fewer trajectories than k.
+    Call :func:`pcpg_dist.common.devices.set_threads` first: same data + seed + threads = same labels.
+    """
+    if chooses(cfg):
+        noted: dict[str, float] = {}
+        resolve_method(cfg, dataset, checked_sequences(dataset)[0], noted)
+        if not noted.get("auto_fell_back"):
+            return most_stable(dataset, cfg, seed)
+    return cluster_once(dataset, cfg, seed)
+
+
+def most_stable(dataset, cfg, seed: int) -> Clustering:
+    """The clustering of the candidate with the more stable fit (module doc), with both
+    stabilities and the choice in its metrics."""
+    fits, seconds = {}, 0.0
+    for method in CANDIDATES:
+        one = cfg.model_copy(update={"method": method})
+        result = cluster_once(dataset, one, seed)
+        found = stability(
+            dataset, one, seed, result.labels, cfg.confidence_runs, cfg.confidence_fraction
+        )
+        fits[method] = (result, found)
+        seconds += result.fit_seconds
+    greedy, policy = (fits[m][1]["stability"] for m in CANDIDATES)
+    chosen = "policy_mix" if policy > greedy + MARGIN else "greedy_mix"
+    result, found = fits[chosen]
+    metrics = {
+        **result.metrics,
+        **found,
+        "auto_chose_policy_mix": float(chosen == "policy_mix"),
+        "auto_stability_greedy_mix": greedy,
+        "auto_stability_policy_mix": policy,
+    }
+    return dataclasses.replace(result, metrics=metrics, fit_seconds=seconds)
