@@ -38,3 +38,19 @@ def test_a_fall_back_is_named_in_the_table_and_explained_below_it():
 def test_without_a_fall_back_nothing_is_explained():
     text = _printed({"grid": {"clustering/accuracy": 0.9}}, "greedy_mix")
     assert "greedy_mix" in text and "policy_mix" not in text
+
+
+def test_a_choice_of_policy_mix_on_discrete_states_is_named_with_both_stabilities():
+    chose = {
+        "clustering/accuracy": 0.64,
+        "clustering/stability": 0.95,
+        "clustering/auto_chose_policy_mix": 1.0,
+        "clustering/auto_stability_greedy_mix": 0.63,
+        "clustering/auto_stability_policy_mix": 0.95,
+    }
+    kept = {**chose, "clustering/auto_chose_policy_mix": 0.0, "clustering/stability": 0.99}
+    text = _printed({"views": chose, "grid": kept}, "bag_auto")
+    rows = {line.split()[1]: line for line in text.splitlines() if line.strip().startswith("│")}
+    assert "bag_auto -> policy_mix" in rows["views"] and "policy_mix" not in rows["grid"]
+    assert "bag_auto clustered views with policy_mix" in text and "(0.63;" in text
+    assert "clustered grid" not in text
