@@ -8,7 +8,9 @@ while a mixture of neural policies, which generalises across states, comes back 
 fitted, each is refitted ``clustering.confidence_runs`` times on subsamples (the label-free
 confidence, :mod:`.confidence`), and the clustering whose refits agree with it more is kept:
 policy_mix only where its stability is higher by more than :data:`MARGIN`, greedy_mix otherwise
-(docs/zoo.md, "Choosing between greedy_mix and policy_mix"). With ``confidence_runs: 0`` nothing is
+(docs/zoo.md, "Choosing between greedy_mix and policy_mix"). Where greedy_mix's stability is
+``1 - MARGIN`` or more no stability can beat it, so policy_mix is not fitted (every GridWorld
+layout measured: the choice costs nothing there). With ``confidence_runs: 0`` nothing is
 refitted and greedy_mix runs alone, as before.
 
 The chosen clustering's stability is its confidence (kept in its metrics, not measured again);
@@ -62,14 +64,16 @@ def most_stable(dataset, cfg, seed: int) -> Clustering:
             dataset, one, seed, result.labels, cfg.confidence_runs, cfg.confidence_fraction
         )
         fits[method] = (result, found)
-    greedy, policy = (fits[m][1]["stability"] for m in CANDIDATES)
+        if found["stability"] + MARGIN >= 1.0:  # no stability can beat it by MARGIN: GridWorld
+            break
+    stable = {m: found["stability"] for m, (_, found) in fits.items()}
+    greedy, policy = stable["greedy_mix"], stable.get("policy_mix", -1.0)
     chosen = "policy_mix" if policy > greedy + MARGIN else "greedy_mix"
     result, found = fits[chosen]
     metrics = {
         **result.metrics,
         **found,
         "auto_chose_policy_mix": float(chosen == "policy_mix"),
-        "auto_stability_greedy_mix": greedy,
-        "auto_stability_policy_mix": policy,
+        **{f"auto_stability_{m}": v for m, v in stable.items()},
     }
     return dataclasses.replace(result, metrics=metrics, fit_seconds=time.perf_counter() - start)
