@@ -40,7 +40,7 @@ def view(ds, name: str, seed: int):
     return ceiling_features(ds), LogisticRegression(C=1.0, max_iter=2000)
 
 
-def self_train(x, model, labels: np.ndarray, rounds: int, seed: int, truth, k: int):
+def self_train(x, model, labels: np.ndarray, rounds: int, seed: int, truth):
     from sklearn.model_selection import KFold, cross_val_predict
 
     from pcpg_dist.stages.clustering import clustering_metrics
@@ -76,7 +76,7 @@ def run_game(name: str, root: Path, rounds: int, views: list[str]) -> None:
     for v in views:
         t0 = time.perf_counter()
         x, model = view(ds, v, 0)
-        for r, acc, agree, used in self_train(x, model, start.copy(), rounds, 0, truth, k):
+        for r, acc, agree, used in self_train(x, model, start.copy(), rounds, 0, truth):
             s = time.perf_counter() - t0
             print(
                 f"| {name} | {v} | {r} | {acc:.3f} | {agree:.3f} ({used}) | {s:.0f} |", flush=True

@@ -290,8 +290,8 @@ class SweepTracker:
         """
         client = _client(self.uri)
         log_data_inputs(client, self.parent_id, inputs or [])
-        lock = store_lock(self.uri, f"finish:{self.parent_id}")
-        with lock:  # two sweeps finishing one sweep run: the second finds the first's digest
+        # two sweeps finishing one sweep run: the second finds the first's digest
+        with store_lock(self.uri, f"finish:{self.parent_id}"):
             self._finish(client, metrics, artifacts, best_points, timings, note)
 
     def _finish(self, client, metrics, artifacts, best_points, timings, note) -> None:

@@ -22,9 +22,8 @@ from __future__ import annotations
 import dataclasses
 import time
 
-from pcpg_dist.stages.clustering.auto import chooses, resolve_method
+from pcpg_dist.stages.clustering.auto import chooses, falls_back
 from pcpg_dist.stages.clustering.confidence import stability
-from pcpg_dist.stages.clustering.states import checked_sequences
 from pcpg_dist.stages.clustering.step import Clustering, cluster_once
 
 #: policy_mix replaces greedy_mix only where its stability is higher by more than this: on the
@@ -43,11 +42,8 @@ def cluster(dataset, cfg, seed: int) -> Clustering:
     Raises :class:`DataError` for an empty dataset, non-finite states, or fewer trajectories than k.
     Call :func:`pcpg_dist.common.devices.set_threads` first: same data + seed + threads = same labels.
     """
-    if chooses(cfg):
-        noted: dict[str, float] = {}
-        resolve_method(cfg, dataset, checked_sequences(dataset)[0], noted)
-        if not noted.get("auto_fell_back"):
-            return most_stable(dataset, cfg, seed)
+    if chooses(cfg) and not falls_back(dataset):
+        return most_stable(dataset, cfg, seed)
     return cluster_once(dataset, cfg, seed)
 
 
