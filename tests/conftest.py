@@ -40,3 +40,41 @@ def _one_torch_thread():
     from pcpg_dist.common.devices import set_threads
 
     set_threads(1)
+
+
+# Modules that run for minutes (real clusters, servers and `pcpg run` processes; measured
+# 80-260 s each on a 2-core machine). Under xdist (`--dist loadfile`, one module per worker at a
+# time) they start first, so the many short modules fill the other worker around them instead of
+# two of these ending the run side by side. Only the order depends on this list, never a result.
+LONG_MODULES = (
+    "test_faults.py",
+    "ops/test_ray_cluster.py",
+    "orchestration/test_streaming.py",
+    "ops/test_team_mode.py",
+    "orchestration/test_sweep.py",
+    "e2e/test_wheel.py",
+)
+
+
+def pytest_xdist_auto_num_workers(config) -> int:
+    """``-n auto``: one worker per CPU this process may use, at most 4 (each worker holds its own
+    torch, and the multi-process tests start Ray clusters of their own)."""
+    return max(1, min(len(os.sched_getaffinity(0)), 4))
+
+
+def pytest_collection_modifyitems(config, items) -> None:
+    """The long modules first (in LONG_MODULES' order), then every other module with a slow test,
+    then the rest; tests keep their order within a module."""
+
+    def rank(item) -> tuple[int, int]:
+        path = item.path.as_posix()
+        for i, name in enumerate(LONG_MODULES):
+            if path.endswith("/tests/" + name):
+                return (0, i)
+        return (1, 0) if item.get_closest_marker("slow") else (2, 0)
+
+    modules: dict = {}
+    for item in items:
+        modules.setdefault(item.path, []).append(item)
+    order = sorted(modules.values(), key=lambda its: min(rank(it) for it in its))
+    items[:] = [it for its in order for it in its]

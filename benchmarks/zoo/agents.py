@@ -47,7 +47,7 @@ def rollable(name: str) -> str | None:
     return None
 
 
-def run_game(name: str, out: Path, ci: bool, rollouts: int) -> dict:
+def run_game(name: str, out: Path, ci: bool, rollouts: int, sets: tuple[str, ...] = ()) -> dict:
     """One game through `pcpg run`: with rollouts where the game has a usable env, else the
     held-out accuracies only (PCPG against No Clustering needs no env)."""
     game = load_game(name)
@@ -71,7 +71,16 @@ def run_game(name: str, out: Path, ci: bool, rollouts: int) -> dict:
     path.write_text(yaml.safe_dump(cfg))
     t0 = time.perf_counter()
     done = subprocess.run(
-        ["pcpg", "run", str(path), "--no-tracking", "-q", "--workdir", str(out / name / "runs")],
+        [
+            "pcpg",
+            "run",
+            str(path),
+            *sets,
+            "--no-tracking",
+            "-q",
+            "--workdir",
+            str(out / name / "runs"),
+        ],
         capture_output=True,
         text=True,
         env={**os.environ, "RAY_ENABLE_UV_RUN_RUNTIME_ENV": "0"},
@@ -108,6 +117,7 @@ def main() -> None:
     ap.add_argument("--rollouts", type=int, default=20, help="episodes per agent")
     ap.add_argument("--json", type=Path, help="also write the rows here")
     ap.add_argument("--rollable-only", action="store_true", help="only games with a usable env")
+    ap.add_argument("--set", nargs="*", default=[], help="config overrides, as `pcpg run` takes")
     args = ap.parse_args()
     names = args.games or game_names()
     rows = []
@@ -115,7 +125,7 @@ def main() -> None:
         for name in names:
             if args.rollable_only and rollable(name) is not None:
                 continue
-            row = run_game(name, Path(tmp), args.ci, args.rollouts)
+            row = run_game(name, Path(tmp), args.ci, args.rollouts, tuple(args.set))
             rows.append(row)
             print(json.dumps(row), flush=True)
     print()

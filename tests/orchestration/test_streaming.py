@@ -116,13 +116,13 @@ def test_a_minari_dataset_streams_like_the_same_log_in_parquet(
     assert m["pcpg/accuracy/p1"] >= m["baseline/accuracy/p1"] + 0.15
 
 
-@pytest.mark.slow  # three streamed runs
+@pytest.mark.slow  # two streamed runs besides the module's
 def test_the_same_seed_gives_the_same_numbers_however_the_log_is_cut(
-    ray_session, log, tmp_path, monkeypatch
+    streamed, log, tmp_path, monkeypatch
 ):
     from pcpg_dist.domains.trajectories import stream_meta
 
-    first = run(config(log), tmp_path / "a")
+    first = streamed  # the module's run of the same config, in a folder of its own
     again = run(config(log), tmp_path / "b")
     assert first.metrics == again.metrics
     assert first.clustering == again.clustering
