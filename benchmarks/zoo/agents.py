@@ -97,6 +97,7 @@ def run_game(name: str, out: Path, ci: bool, rollouts: int, sets: tuple[str, ...
         "game": name,
         "held_out": game.held_out,
         "clustering": m.get("clustering/accuracy"),
+        "stability": m.get("clustering/stability"),
         "pcpg": m.get("pcpg/accuracy/p1"),
         "nc": m.get("baseline/accuracy/p1"),
         "kept": m.get("rollout/style_kept/p1"),

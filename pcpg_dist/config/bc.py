@@ -60,13 +60,17 @@ class BCConfig(StrictModel):
         description="Adam steps between early-stopping checks (rounded up to whole epochs).",
     )
     lr: float = Field(0.01, gt=0.0, le=100.0, description="Adam learning rate (finite, > 0).")
-    init: Literal["scratch", "no_clustering"] = Field(
-        "scratch",
+    init: Literal["auto", "scratch", "no_clustering"] = Field(
+        "auto",
         description=(
             "scratch (the paper): every agent starts from its seeded initialisation. no_clustering: "
             "the No Clustering agents train first, then every other agent (per cluster, corrupted "
             "labels) starts from the No Clustering agent of its p and seed and trains "
-            "finetune_epochs on its own rows, so it keeps what all players share (docs/bc_and_evaluation.md)."
+            "finetune_epochs on its own rows, so it keeps what all players share. auto: "
+            "no_clustering where the unit's clustering verdict is 'weak evidence' or 'no "
+            "evidence' (its clusters may not be styles), scratch where the styles were found or "
+            "no confidence was measured (docs/bc_and_evaluation.md). The streamed pipeline "
+            "trains from scratch."
         ),
     )
     finetune_epochs: int | None = Field(
@@ -74,7 +78,8 @@ class BCConfig(StrictModel):
         ge=0,
         le=MAX_COUNT,
         description=(
-            "Epochs of the agents that start from No Clustering (init no_clustering; null: epochs)."
+            "Epochs of the agents that start from No Clustering (null: epochs under init "
+            "no_clustering, at most 100 under init auto)."
         ),
     )
     betas: tuple[float, float] = Field(

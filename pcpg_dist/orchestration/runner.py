@@ -249,11 +249,12 @@ def _cluster(batch: Batch, stage: Stage) -> None:
 # --------------------------------------------------------------------------- Steps B + C
 def _train(batch: Batch, stage: Stage) -> None:
     """Rank every unit and cut its cells into groups (Step B: the cells' specs here, each
-    group's rows built in its training task), train the groups. With ``bc.init:
-    no_clustering`` a second round trains the other cells, each from the first round's No
-    Clustering agent."""
+    group's rows built in its training task), train the groups. Where ``bc.init`` resolves to
+    no_clustering (auto: by the unit's clustering verdict) a second round trains the other
+    cells, each from the first round's No Clustering agent."""
     from pcpg_dist.pipeline.units import plan_unit_specs
     from pcpg_dist.stages.bc import TrainedCells, finetune_config, split_for_init
+    from pcpg_dist.stages.clustering.confidence import verdict_of
 
     later: list[tuple[Point, str, list, tuple, list[str]]] = []
     jobs: dict[str, tuple] = {}
@@ -267,9 +268,11 @@ def _train(batch: Batch, stage: Stage) -> None:
     with progress_bar("Step B: ranking", total=total, enabled=batch.show_progress) as advance:
         for p in batch.points:
             for e, u in p.units.items():
-                labels, margins = clusters_of(batch.clusters[p.ckeys[e]])
+                clustered = batch.clusters[p.ckeys[e]]
+                labels, margins = clusters_of(clustered)
                 specs = plan_unit_specs(u, labels, p.cfg, margins=margins)
-                first, rest = split_for_init(specs, p.cfg.bc)
+                said = verdict_of(clustered.get("metrics", {}), p.cfg.clustering.k).verdict
+                first, rest = split_for_init(specs, p.cfg.bc, said)
                 plan = (p.refs[e], labels, margins, p.cfg)
                 _add_groups(p, e, first, plan, batch.cache, jobs, p.cfg.bc, [], slots=slots(p))
                 if rest:

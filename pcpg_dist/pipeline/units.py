@@ -211,6 +211,7 @@ def run_unit(
     :func:`evaluate_unit` (a tuning trial skips what its score does not use); ``after_cluster``
     sees Step A's result and may return a reason to stop there (the result's ``stopped``)."""
     from pcpg_dist.stages.bc import train_plan
+    from pcpg_dist.stages.clustering.confidence import verdict_of
 
     clustering = cluster_unit(
         unit, cfg.clustering, cfg.seed, ceiling=ceiling, confidence=confidence
@@ -228,7 +229,8 @@ def run_unit(
         corruption=corruption,
         margins=clustering.margins,
     )
-    trained = train_plan(cells, cfg.bc)
+    said = verdict_of(clustering.metrics, cfg.clustering.k).verdict
+    trained = train_plan(cells, cfg.bc, said)
     metrics = evaluate_unit(
         unit,
         clustering.labels,

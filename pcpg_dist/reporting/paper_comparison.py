@@ -13,7 +13,7 @@ from pathlib import Path
 import pandas as pd
 
 from pcpg_dist.config import ExperimentConfig
-from pcpg_dist.config.stages import BCConfig, RankConfig
+from pcpg_dist.config.stages import RankConfig
 from pcpg_dist.domains.base import PaperResults
 from pcpg_dist.reporting.formatting import fmt
 from pcpg_dist.reporting.report_data import PaperRow, inside
@@ -47,7 +47,7 @@ PAPER_MEANS = {"bc.batch_size": "none (full batch)", "bc.stop_tol": "0 (no early
 #: a protocol setting added after runs were logged: a recorded config without it ran with its default
 ABSENT_MEANS = {
     "ranking.style_margin": RankConfig.model_fields["style_margin"].default,
-    "bc.init": BCConfig.model_fields["init"].default,
+    "bc.init": "scratch",  # the only behaviour before init existed
     "bc.stop_tol": 0.0,  # before early stopping existed
 }
 

@@ -239,17 +239,21 @@ def test_report_renders_everything(first_run, tmp_path):
 
 
 @pytest.mark.slow
-def test_agents_start_from_no_clustering(first_run, tiny_cfg):
-    """bc.init no_clustering: a second round of Ray tasks trains every per-cluster and corrupted
-    agent from the No Clustering agent of its p and seed. With 0 fine-tuning epochs each must be
-    that agent exactly; the data and clustering come from the cache."""
+@pytest.mark.parametrize("init", ["no_clustering", "auto"])
+def test_agents_start_from_no_clustering(first_run, tiny_cfg, init, monkeypatch):
+    """bc.init no_clustering (and auto, where the clustering's verdict doubts the styles): a
+    second round of Ray tasks trains every per-cluster and corrupted agent from the No Clustering
+    agent of its p and seed. With 0 fine-tuning epochs each must be that agent exactly; the data
+    and clustering come from the cache."""
     from pcpg_dist.stages.bc import TrainedCells
+    from pcpg_dist.stages.clustering import confidence
 
+    if init == "auto":  # the runner reads the verdict of the cached clustering: make it doubt
+        doubt = confidence.Verdict("no evidence of 4 styles", ())
+        monkeypatch.setattr(confidence, "verdict_of", lambda metrics, k=None: doubt)
     work, _, _ = first_run
     cfg = tiny_cfg.model_copy(
-        update={
-            "bc": tiny_cfg.bc.model_copy(update={"init": "no_clustering", "finetune_epochs": 0})
-        }
+        update={"bc": tiny_cfg.bc.model_copy(update={"init": init, "finetune_epochs": 0})}
     )
     train_dir = work / "runs" / "tiny" / "cache" / "train"
     before = set(train_dir.iterdir())

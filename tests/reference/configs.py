@@ -32,7 +32,7 @@ GRIDWORLD = {
     "pbtg": {"episodes": 8000, "trajectories_per_style": 120, "dataset_per_style": 60},
     "clustering": {"method": "lstm_dec", "k": 4, "pretrain_epochs": 4, "dec_epochs": 2},
     "ranking": {"ps": [1.0, 0.5]},
-    "bc": {"epochs": 200, "hidden_size": 8},
+    "bc": {"epochs": 200, "hidden_size": 8, "init": "scratch"},
     "evaluation": {"rollouts_per_policy": 5, "corruption_levels": [0.0, 1.0], "figures": False},
 }
 
@@ -49,7 +49,7 @@ MINIDUNGEONS = {
     },
     "clustering": {"method": "lstm_dec", "k": 6, "pretrain_epochs": 4, "dec_epochs": 2},
     "ranking": {"ps": [1.0, 0.5]},
-    "bc": {"epochs": 200, "hidden_size": 8},
+    "bc": {"epochs": 200, "hidden_size": 8, "init": "scratch"},
     "evaluation": {
         "rollouts_per_policy": 4,
         "max_steps": 60,
@@ -76,7 +76,7 @@ def mario_config(log: Path) -> dict:
             "dec_epochs": 2,
         },
         "ranking": {"ps": [1.0, 0.5]},
-        "bc": {"hidden_layers": 2, "hidden_size": 8, "epochs": 100, "lr": 0.03},
+        "bc": {"hidden_layers": 2, "hidden_size": 8, "epochs": 100, "lr": 0.03, "init": "scratch"},
         "evaluation": {"figures": False},
     }
 

@@ -380,6 +380,7 @@ def test_quick_config_gets_the_banner_and_the_paper_config_does_not():
         "bc.epochs",
         "bc.batch_size",  # auto: full batch on GridWorld's cells, but not the paper's setting
         "bc.stop_tol",  # early stopping
+        "bc.init",  # auto: from No Clustering where the clustering verdict doubts the styles
         "gridworld.environments",
         "pbtg.trajectories_per_style",
         "pbtg.dataset_per_style",

@@ -376,3 +376,33 @@ def test_auto_batch_keeps_small_cells_full_batch_and_gives_big_ones_the_same_ste
     assert cell_batches(rows, BCConfig(batch_size=None))[0].tolist() == [0] * 4
     b, e = cell_batches(rows, BCConfig(batch_size=64, epochs=3))
     assert b.tolist() == [64] * 4 and e.tolist() == [3] * 4
+
+
+def test_init_auto_starts_from_no_clustering_only_where_the_verdict_doubts_the_styles(toy):
+    """bc.init auto: the per-cluster agents are fine-tuned from No Clustering (100 steps, or
+    epochs if fewer) where the clustering's verdict is weak or no evidence; elsewhere (styles
+    found, confidence not measured) every agent trains from scratch, as the paper's."""
+    from pcpg_dist.stages.bc import finetune_config, train_plan
+
+    ds, te, cells = toy
+    auto = BCConfig(epochs=300, init="auto")
+    assert finetune_config(auto).epochs == 100
+    assert finetune_config(BCConfig(epochs=50, init="auto")).epochs == 50
+    assert finetune_config(BCConfig(epochs=50, init="auto", finetune_epochs=7)).epochs == 7
+
+    def same(a, b) -> bool:
+        return all(
+            all(
+                np.array_equal(x, y)
+                for x, y in zip(a.cell_params(i), b.cell_params(i), strict=True)
+            )
+            for i in range(len(cells))
+        )
+
+    scratch = train_plan(cells, BCConfig(epochs=300, init="scratch"))
+    tuned = train_plan(cells, BCConfig(epochs=300, init="no_clustering", finetune_epochs=100))
+    assert not same(scratch, tuned)  # the two starts give other agents
+    for verdict in ("weak evidence", "no evidence of 4 styles"):
+        assert same(train_plan(cells, auto, verdict), tuned), verdict
+    for verdict in ("styles found", "not measured", None):
+        assert same(train_plan(cells, auto, verdict), scratch), verdict

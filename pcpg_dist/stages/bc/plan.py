@@ -25,11 +25,31 @@ def _spec(cell: Cell | CellSpec) -> CellSpec:
     return cell.spec if isinstance(cell, Cell) else cell
 
 
-def split_for_init(cells: Sequence[C], cfg: BCConfig) -> tuple[list[C], list[C]]:
+#: the confidence verdicts (``stages.clustering.confidence``) under which ``bc.init: auto``
+#: starts the per-cluster agents from No Clustering: the clusters may not be styles
+DOUBTFUL = ("weak evidence", "no evidence")
+#: Adam steps of a fine-tuned cell under ``bc.init: auto`` (finetune_epochs unset). Measured on
+#: the zoo (docs/zoo.md): a short fine-tune keeps what the No Clustering agent knows; a full
+#: one (2000 steps) forgot it (minigrid_fourrooms 0.735 either way, against No Clustering 0.754)
+AUTO_FINETUNE_EPOCHS = 100
+
+
+def resolve_init(cfg: BCConfig, verdict: str | None = None) -> str:
+    """``scratch`` or ``no_clustering``. ``auto`` is no_clustering where the unit's clustering
+    verdict doubts its styles (weak evidence, no evidence), else scratch (the paper): styles
+    found, or no confidence measured."""
+    if cfg.init != "auto":
+        return cfg.init
+    return "no_clustering" if verdict is not None and verdict.startswith(DOUBTFUL) else "scratch"
+
+
+def split_for_init(
+    cells: Sequence[C], cfg: BCConfig, verdict: str | None = None
+) -> tuple[list[C], list[C]]:
     """(cells that start from their seeded init, cells that start from a No Clustering agent):
-    with ``bc.init: no_clustering`` the No Clustering cells train first, the others after.
-    Cells or their specs (a runner plans groups from specs)."""
-    if cfg.init == "scratch":
+    where ``bc.init`` resolves to no_clustering (:func:`resolve_init`) the No Clustering cells
+    train first, the others after. Cells or their specs (a runner plans groups from specs)."""
+    if resolve_init(cfg, verdict) == "scratch":
         return list(cells), []
     nc = [c for c in cells if _spec(c).kind == "nc"]
     return nc, [c for c in cells if _spec(c).kind != "nc"]
@@ -49,18 +69,21 @@ def init_from(cells: Sequence[Cell | CellSpec], base: TrainedCells) -> list[list
 
 
 def finetune_config(cfg: BCConfig) -> BCConfig:
-    """The settings of the cells that start from No Clustering (``finetune_epochs`` epochs)."""
-    return (
-        cfg
-        if cfg.finetune_epochs is None
-        else cfg.model_copy(update={"epochs": cfg.finetune_epochs})
-    )
+    """The settings of the cells that start from No Clustering: ``finetune_epochs`` epochs, or
+    when unset ``epochs`` (init no_clustering) or at most AUTO_FINETUNE_EPOCHS (init auto)."""
+    if cfg.finetune_epochs is not None:
+        epochs = cfg.finetune_epochs
+    elif cfg.init == "auto":
+        epochs = min(cfg.epochs, AUTO_FINETUNE_EPOCHS)
+    else:
+        return cfg
+    return cfg.model_copy(update={"epochs": epochs})
 
 
-def train_plan(cells: Sequence[Cell], cfg: BCConfig) -> TrainedCells:
-    """Train a unit's planned cells in this process, honouring ``bc.init`` (the runner does the
-    same as two rounds of Ray tasks)."""
-    first, rest = split_for_init(cells, cfg)
+def train_plan(cells: Sequence[Cell], cfg: BCConfig, verdict: str | None = None) -> TrainedCells:
+    """Train a unit's planned cells in this process, honouring ``bc.init`` (``verdict``: the
+    unit's clustering verdict, for auto; the runner does the same as two rounds of Ray tasks)."""
+    first, rest = split_for_init(cells, cfg, verdict)
     base = train_cells(first, cfg)
     if not rest:
         return base
