@@ -59,7 +59,9 @@ LONG_MODULES = (
 def pytest_xdist_auto_num_workers(config) -> int:
     """``-n auto``: one worker per CPU this process may use, at most 4 (each worker holds its own
     torch, and the multi-process tests start Ray clusters of their own)."""
-    return max(1, min(len(os.sched_getaffinity(0)), 4))
+    from pcpg_dist.common.devices import available_cpus
+
+    return min(available_cpus(), 4)
 
 
 def pytest_collection_modifyitems(config, items) -> None:

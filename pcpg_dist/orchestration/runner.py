@@ -271,8 +271,8 @@ def _train(batch: Batch, stage: Stage) -> None:
                 clustered = batch.clusters[p.ckeys[e]]
                 labels, margins = clusters_of(clustered)
                 specs = plan_unit_specs(u, labels, p.cfg, margins=margins)
-                said = verdict_of(clustered.get("metrics", {}), p.cfg.clustering.k).verdict
-                first, rest = split_for_init(specs, p.cfg.bc, said)
+                said = verdict_of(clustered.get("metrics", {}), p.cfg.clustering.k)
+                first, rest = split_for_init(specs, p.cfg.bc, said.doubts_styles)
                 plan = (p.refs[e], labels, margins, p.cfg)
                 _add_groups(p, e, first, plan, batch.cache, jobs, p.cfg.bc, [], slots=slots(p))
                 if rest:

@@ -229,8 +229,8 @@ def run_unit(
         corruption=corruption,
         margins=clustering.margins,
     )
-    said = verdict_of(clustering.metrics, cfg.clustering.k).verdict
-    trained = train_plan(cells, cfg.bc, said)
+    said = verdict_of(clustering.metrics, cfg.clustering.k)
+    trained = train_plan(cells, cfg.bc, said.doubts_styles)
     metrics = evaluate_unit(
         unit,
         clustering.labels,

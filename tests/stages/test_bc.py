@@ -383,6 +383,10 @@ def test_init_auto_starts_from_no_clustering_only_where_the_verdict_doubts_the_s
     epochs if fewer) where the clustering's verdict is weak or no evidence; elsewhere (styles
     found, confidence not measured) every agent trains from scratch, as the paper's."""
     from pcpg_dist.stages.bc import finetune_config, train_plan
+    from pcpg_dist.stages.clustering.confidence import Verdict
+
+    def doubts(verdict: str | None) -> bool:  # what the runner passes for a unit's verdict
+        return verdict is not None and Verdict(verdict, ()).doubts_styles
 
     ds, te, cells = toy
     auto = BCConfig(epochs=300, init="auto")
@@ -403,6 +407,6 @@ def test_init_auto_starts_from_no_clustering_only_where_the_verdict_doubts_the_s
     tuned = train_plan(cells, BCConfig(epochs=300, init="no_clustering", finetune_epochs=100))
     assert not same(scratch, tuned)  # the two starts give other agents
     for verdict in ("weak evidence", "no evidence of 4 styles"):
-        assert same(train_plan(cells, auto, verdict), tuned), verdict
+        assert same(train_plan(cells, auto, doubts(verdict)), tuned), verdict
     for verdict in ("styles found", "not measured", None):
-        assert same(train_plan(cells, auto, verdict), scratch), verdict
+        assert same(train_plan(cells, auto, doubts(verdict)), scratch), verdict

@@ -25,31 +25,28 @@ def _spec(cell: Cell | CellSpec) -> CellSpec:
     return cell.spec if isinstance(cell, Cell) else cell
 
 
-#: the confidence verdicts (``stages.clustering.confidence``) under which ``bc.init: auto``
-#: starts the per-cluster agents from No Clustering: the clusters may not be styles
-DOUBTFUL = ("weak evidence", "no evidence")
 #: Adam steps of a fine-tuned cell under ``bc.init: auto`` (finetune_epochs unset). Measured on
 #: the zoo (docs/zoo.md): a short fine-tune keeps what the No Clustering agent knows; a full
 #: one (2000 steps) forgot it (minigrid_fourrooms 0.735 either way, against No Clustering 0.754)
 AUTO_FINETUNE_EPOCHS = 100
 
 
-def resolve_init(cfg: BCConfig, verdict: str | None = None) -> str:
+def resolve_init(cfg: BCConfig, doubted: bool = False) -> str:
     """``scratch`` or ``no_clustering``. ``auto`` is no_clustering where the unit's clustering
-    verdict doubts its styles (weak evidence, no evidence), else scratch (the paper): styles
-    found, or no confidence measured."""
+    verdict doubts its styles (``Verdict.doubts_styles``: weak or no evidence), else scratch
+    (the paper): styles found, or no confidence measured."""
     if cfg.init != "auto":
         return cfg.init
-    return "no_clustering" if verdict is not None and verdict.startswith(DOUBTFUL) else "scratch"
+    return "no_clustering" if doubted else "scratch"
 
 
 def split_for_init(
-    cells: Sequence[C], cfg: BCConfig, verdict: str | None = None
+    cells: Sequence[C], cfg: BCConfig, doubted: bool = False
 ) -> tuple[list[C], list[C]]:
     """(cells that start from their seeded init, cells that start from a No Clustering agent):
     where ``bc.init`` resolves to no_clustering (:func:`resolve_init`) the No Clustering cells
     train first, the others after. Cells or their specs (a runner plans groups from specs)."""
-    if resolve_init(cfg, verdict) == "scratch":
+    if resolve_init(cfg, doubted) == "scratch":
         return list(cells), []
     nc = [c for c in cells if _spec(c).kind == "nc"]
     return nc, [c for c in cells if _spec(c).kind != "nc"]
@@ -80,10 +77,11 @@ def finetune_config(cfg: BCConfig) -> BCConfig:
     return cfg.model_copy(update={"epochs": epochs})
 
 
-def train_plan(cells: Sequence[Cell], cfg: BCConfig, verdict: str | None = None) -> TrainedCells:
-    """Train a unit's planned cells in this process, honouring ``bc.init`` (``verdict``: the
-    unit's clustering verdict, for auto; the runner does the same as two rounds of Ray tasks)."""
-    first, rest = split_for_init(cells, cfg, verdict)
+def train_plan(cells: Sequence[Cell], cfg: BCConfig, doubted: bool = False) -> TrainedCells:
+    """Train a unit's planned cells in this process, honouring ``bc.init`` (``doubted``: whether
+    the unit's clustering verdict doubts its styles, for auto; the runner does the same as two
+    rounds of Ray tasks)."""
+    first, rest = split_for_init(cells, cfg, doubted)
     base = train_cells(first, cfg)
     if not rest:
         return base

@@ -89,6 +89,12 @@ class Verdict:
     def line(self) -> str:
         return self.verdict + (f" ({'; '.join(self.reasons)})" if self.reasons else "")
 
+    @property
+    def doubts_styles(self) -> bool:
+        """Weak or no evidence: the clusters may not be styles (``bc.init: auto`` then starts
+        the per-cluster agents from No Clustering)."""
+        return self.verdict.startswith(("weak evidence", "no evidence"))
+
 
 def verdict_of(metrics: dict, k: int | None = None) -> Verdict:
     """The verdict from a unit's clustering metrics (``clustering/…`` keys or bare ones)."""
