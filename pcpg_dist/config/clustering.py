@@ -116,6 +116,12 @@ class ClusterConfig(StrictModel):
         "(trajectories / k) after an EM round is re-seeded with the half of the largest cluster "
         "that its policy explains worst (0 = never; docs/clustering.md).",
     )
+    policy_time: bool = Field(
+        False,
+        description="policy_mix: the policies also see log(1 + t), the step's index in its "
+        "trajectory, so styles that act by schedule (rock back first, then push) are told apart "
+        "(docs/clustering.md).",
+    )
     ceiling: bool = Field(
         True,
         description="Where the log has true styles: score the clustering against the supervised "

@@ -177,7 +177,15 @@ def print_clustering(result, console, method: str | None = None) -> None:
             "where (docs/zoo.md)"
         )
     for env, cm in result.clustering.items():
-        if method and cm.get(CHOSE):
+        if method and cm.get(TIMED):
+            console.print(
+                f"{method} clustered {env} with policy_mix seeing the time step: its clusters "
+                "came back on subsamples (stability "
+                f"{cm.get('clustering/auto_stability_policy_mix_time', float('nan')):.2f}) where "
+                "those of policies of the state alone did not "
+                f"({cm.get('clustering/auto_stability_policy_mix', float('nan')):.2f}; docs/zoo.md)"
+            )
+        elif method and cm.get(CHOSE):
             console.print(
                 f"{method} clustered {env} with policy_mix: its clusters came back on subsamples "
                 f"(stability {cm.get('clustering/auto_stability_policy_mix', float('nan')):.2f}) "
@@ -188,6 +196,7 @@ def print_clustering(result, console, method: str | None = None) -> None:
 
 FELL_BACK = "clustering/auto_fell_back"
 CHOSE = "clustering/auto_chose_policy_mix"
+TIMED = "clustering/auto_chose_policy_time"
 
 
 def method_used(method: str, clustering: dict[str, float]) -> str:
@@ -198,9 +207,12 @@ def method_used(method: str, clustering: dict[str, float]) -> str:
     fallback = CLUSTERERS[method].continuous_fallback if method in CLUSTERERS else None
     if clustering.get("clustering/auto_fell_back_to_lstm"):
         fallback = "lstm_dec"  # the log's actions said nothing (auto.fallback_for)
+    timed = " (time)" if clustering.get(TIMED) else ""  # its policies see the step (select.py)
     if clustering.get(CHOSE):
-        return f"{method} -> policy_mix"  # the more stable on discrete states (select.py)
-    return f"{method} -> {fallback}" if clustering.get(FELL_BACK) and fallback else method
+        return f"{method} -> policy_mix{timed}"  # the more stable on discrete states (select.py)
+    if clustering.get(FELL_BACK) and fallback:
+        return f"{method} -> {fallback}{timed}"
+    return method
 
 
 def stage_times(result) -> str:

@@ -181,3 +181,75 @@ def test_the_ceiling_panel_holds_the_supervised_policy_mixture(goals):
     assert torch.equal(torch.random.get_rng_state(), state)
     assert panel["policy_likelihood"] >= 0.95, panel
     assert ceiling_panel(goals, seed=0) == panel
+
+
+def schedulers(n_per_style: int, seed: int) -> Dataset:
+    """Two styles that take the same actions as often, in another order: one action for the first
+    half of the episode, the other for the second (20 % random moves). The states are fresh noise,
+    so no policy of the state alone tells them apart; the step's index does."""
+    rng = np.random.default_rng(seed)
+    trajs, styles = [], []
+    for style in range(2):
+        for _ in range(n_per_style):
+            t = int(rng.integers(20, 25))
+            first = np.arange(t - 1) < (t - 1) // 2
+            greedy = np.where(first, style, 1 - style)
+            actions = np.where(rng.random(t - 1) < 0.2, rng.integers(0, 2, t - 1), greedy)
+            trajs.append(
+                {
+                    "states": rng.normal(size=(t, 3)),
+                    "actions": actions,
+                    "valid": np.full(t, 3),
+                    "rewards": np.zeros(t - 1),
+                }
+            )
+            styles.append(style)
+    return Dataset.from_trajectories("toy", "sched", 2, trajs, styles, [True] * len(trajs))
+
+
+def test_policy_time_tells_apart_styles_that_act_by_schedule(tmp_path):
+    from pcpg_dist.stages.clustering.policy_network import policy_inputs
+
+    set_threads(1)
+    ds = schedulers(30, seed=3)
+    cfg = dict(method="policy_mix", k=2, hidden_size=16, kmeans_n_init=4)
+    markov = cluster(ds, ClusterConfig(**cfg), seed=0)
+    timed = cluster(ds, ClusterConfig(**cfg, policy_time=True), seed=0)
+    assert clustering_metrics(ds.styles, markov.labels)["accuracy"] < 0.8
+    assert clustering_metrics(ds.styles, timed.labels)["accuracy"] >= 0.95
+    # the time column: log(1 + t), t restarting at 0 in each trajectory, then normalised
+    s, a, _, _ = policy_inputs(ds, ds.states, np.zeros(4), np.full(4, 2.0), time=True)
+    assert s.shape == (len(a), 4)
+    t = np.concatenate([np.arange(n - 1) for n in np.diff(ds.offsets)])
+    np.testing.assert_allclose(s[:, 3].numpy(), np.log1p(t) / 2, rtol=1e-6)
+    # saved and read back, it keeps seeing the time; a tampered flag is one clear error
+    timed.model.save(tmp_path / "m")
+    np.testing.assert_array_equal(load_model(tmp_path / "m").predict(ds), timed.labels)
+    meta = json.loads((tmp_path / "m" / "cluster_model.json").read_text())
+    assert meta["policy_time"] is True
+    meta["policy_time"] = "yes"
+    (tmp_path / "m" / "cluster_model.json").write_text(json.dumps(meta))
+    with pytest.raises(DataError, match="policy_time 'yes'; expected true or false"):
+        load_model(tmp_path / "m")
+
+
+def test_bag_auto_keeps_the_time_step_only_where_its_fit_is_clearly_more_stable(goals):
+    # stages/clustering/select: policy_mix with the time step replaces the one without only
+    # where its clusters come back on subsamples more often, by more than MARGIN
+    from pcpg_dist.stages.clustering.confidence import verdict_of
+    from pcpg_dist.stages.clustering.select import MARGIN
+
+    set_threads(1)
+    ds = schedulers(30, seed=3)
+    chosen = cluster(ds, ClusterConfig(k=2, hidden_size=16, kmeans_n_init=4), seed=0)
+    m = chosen.metrics
+    assert m["auto_fell_back"] == 1.0 and m["auto_chose_policy_time"] == 1.0
+    assert m["auto_stability_policy_mix_time"] > m["auto_stability_policy_mix"] + MARGIN
+    assert m["stability"] == m["auto_stability_policy_mix_time"]  # its confidence
+    assert clustering_metrics(ds.styles, chosen.labels)["accuracy"] >= 0.95
+    assert chosen.model.policy.time
+    assert "bag_auto chose policy_mix with the time step" in verdict_of(m, 2).line()
+    # where the styles are Markov, whichever is kept still finds them
+    plain = cluster(goals, ClusterConfig(k=4, hidden_size=16, kmeans_n_init=4), seed=0)
+    assert clustering_metrics(goals.styles, plain.labels)["accuracy"] >= 0.95
+    assert plain.model.policy.time == bool(plain.metrics["auto_chose_policy_time"])

@@ -107,7 +107,12 @@ def verdict_of(metrics: dict, k: int | None = None) -> Verdict:
     if get("auto_fell_back"):
         to = "lstm_dec" if get("auto_fell_back_to_lstm") else "policy_mix"
         reasons.append(f"bag_auto fell back to {to} (continuous states)")
-    if get("auto_chose_policy_mix"):
+    if get("auto_chose_policy_time"):
+        t, p = get("auto_stability_policy_mix_time"), get("auto_stability_policy_mix")
+        reasons.append(
+            f"bag_auto chose policy_mix with the time step (stability {t:.2f}; without {p:.2f})"
+        )
+    elif get("auto_chose_policy_mix"):
         g, p = get("auto_stability_greedy_mix"), get("auto_stability_policy_mix")
         reasons.append(f"bag_auto chose policy_mix (stability {p:.2f}; greedy_mix {g:.2f})")
     merged = [

@@ -118,7 +118,7 @@ class ClusterModel:
                     f"policy_mix model was fitted on {self.policy.n_actions} actions, "
                     f"dataset {dataset.domain}-{dataset.env} has {dataset.n_actions}"
                 )
-            inputs = policy_inputs(dataset, states, self.mean, self.std)
+            inputs = policy_inputs(dataset, states, self.mean, self.std, self.policy.time)
             with torch.no_grad():
                 scores = trajectory_scores(self.policy, inputs, len(offsets) - 1)
             return torch.softmax(scores, 0).T.numpy().astype(np.float32)
@@ -207,6 +207,7 @@ class ClusterModel:
             meta["bag_n_actions"] = self.bag.n_actions
         if self.policy is not None:
             meta["n_actions"] = self.policy.n_actions
+            meta["policy_time"] = self.policy.time
         (directory / CONFIG_FILE).write_text(json.dumps(meta, indent=2, sort_keys=True))
         return directory
 

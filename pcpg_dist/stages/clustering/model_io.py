@@ -187,6 +187,8 @@ def _model_kind(cfg_path: Path, meta: dict) -> ModelKind:
         raise DataError(
             f"{cfg_path}: {key} {meta.get(key)!r}; a {method} model needs an integer in 1..1000000"
         )
+    if kind == "policy" and type(meta.get("policy_time", False)) is not bool:
+        raise DataError(f"{cfg_path}: policy_time {meta['policy_time']!r}; expected true or false")
     return kind
 
 
@@ -199,7 +201,8 @@ def _network_maker(kind: ModelKind, meta: dict, settings: ClusterConfig):
             d, settings.hidden_size, settings.latent_size, settings.pooling
         )
     if kind == "policy":
-        return "pm.", lambda: PolicyMixture(d, settings.hidden_size, k, meta["n_actions"])
+        time = meta.get("policy_time", False)  # models saved before it existed: False
+        return "pm.", lambda: PolicyMixture(d, settings.hidden_size, k, meta["n_actions"], time)
     return None
 
 
@@ -281,6 +284,8 @@ def _read_centres(
     """``(mean, std, centroids)``: the normaliser (std above 0) and k centroids of ``width``."""
     d, k = meta["state_dim"], meta["k"]
     feat = 1 + 2 * d if kind == "summary" else d
+    if kind == "policy" and meta.get("policy_time", False):
+        feat += 1  # the time column's normaliser
     mean = w.get("mean", (feat,)).numpy()
     std = w.get("std", (feat,)).numpy()
     if not (std > 0).all():

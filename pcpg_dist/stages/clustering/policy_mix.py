@@ -16,6 +16,7 @@ from pcpg_dist.stages.clustering.model import ClusterModel, Fitted
 from pcpg_dist.stages.clustering.policy_network import (
     PolicyMixture,
     policy_inputs,
+    policy_states,
     trajectory_scores,
 )
 from pcpg_dist.stages.clustering.states import fit_normaliser, summary_features
@@ -98,8 +99,9 @@ def _fit_policy_mix(
     when fewer than ``em_tol`` of the labels moved.
     """
     n = len(offsets) - 1
-    mean, std = fit_normaliser(states)
-    inputs = policy_inputs(dataset, states, mean, std)
+    seen = policy_states(dataset, states, cfg.policy_time)  # with policy_time, t is a counter too
+    mean, std = fit_normaliser(seen)
+    inputs = policy_inputs(dataset, states, mean, std, cfg.policy_time)
     s, a, valid, traj = inputs
     if not len(a):
         raise DataError(
@@ -108,12 +110,14 @@ def _fit_policy_mix(
         )
     if start is None:
         start = KMeans(n_clusters=cfg.k, n_init=cfg.kmeans_n_init, random_state=seed).fit_predict(
-            counter_summary(states, offsets)
+            counter_summary(seen, offsets)
         )
     labels = np.array(start, dtype=np.int64)
     device = resolve_device(cfg.device, "clustering.device")
     gen = torch.Generator().manual_seed(seed)
-    policy = PolicyMixture(states.shape[1], cfg.hidden_size, cfg.k, dataset.n_actions)
+    policy = PolicyMixture(
+        states.shape[1], cfg.hidden_size, cfg.k, dataset.n_actions, cfg.policy_time
+    )
     policy.reset_parameters(gen)  # drawn on the CPU from the local generator, then moved
     policy.to(device)
     inputs = tuple(t.to(device) for t in inputs)
@@ -182,7 +186,7 @@ def fit_policy_mix(
     n = len(offsets) - 1
     with torch.no_grad():
         margins = likelihood_margins(
-            trajectory_scores(policy, policy_inputs(dataset, states, mean, std), n)
+            trajectory_scores(policy, policy_inputs(dataset, states, mean, std, policy.time), n)
             .T.double()
             .numpy(),
             labels,

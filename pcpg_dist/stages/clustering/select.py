@@ -1,20 +1,26 @@
-"""``bag_auto`` on discrete states: greedy_mix or policy_mix, whichever the data supports better,
-chosen without labels.
+"""``bag_auto``'s choice, without labels, of the fit the data supports best.
 
-greedy_mix (one greedy action per exact state) is at the supervised ceiling on GridWorld-shaped
-logs, where states repeat and each style holds one action in each; on discrete logs where they
-do not (an egocentric view, a card game's information states) its fit wanders with the sample
-while a mixture of neural policies, which generalises across states, comes back the same. Both are
-fitted, each is refitted ``clustering.confidence_runs`` times on subsamples (the label-free
-confidence, :mod:`.confidence`), and the clustering whose refits agree with it more is kept:
-policy_mix only where its stability is higher by more than :data:`MARGIN`, greedy_mix otherwise
-(docs/zoo.md, "Choosing between greedy_mix and policy_mix"). Where greedy_mix's stability is
-``1 - MARGIN`` or more no stability can beat it, so policy_mix is not fitted (every GridWorld
-layout measured: the choice costs nothing there). With ``confidence_runs: 0`` nothing is
-refitted and greedy_mix runs alone, as before.
+On discrete states: greedy_mix (one greedy action per exact state) is at the supervised ceiling
+on GridWorld-shaped logs, where states repeat and each style holds one action in each; on
+discrete logs where they do not (an egocentric view, a card game's information states) its fit
+wanders with the sample while a mixture of neural policies, which generalises across states,
+comes back the same. On continuous states policy_mix alone runs, as its fallback.
 
-The chosen clustering's stability is its confidence (kept in its metrics, not measured again);
-having been picked as the more stable of two, it leans optimistic by the selection.
+Then policy_mix whose policies also see the time step (``policy_time``): styles that act by
+schedule (mountaincar's rocking back up the left slope for its first 15-34 steps, then pumping)
+are not Markov in the state, so policies of the state alone mix them; given log(1 + t), and
+with t among the counters of its start, they come apart (docs/zoo.md, "Policies that see the
+time step").
+
+The candidates are fitted in that order, each refitted ``clustering.confidence_runs`` times on
+subsamples (the label-free confidence, :mod:`.confidence`); a later one replaces the one kept so
+far only where its stability is higher by more than :data:`MARGIN`. Once the kept fit's stability
+is ``1 - MARGIN`` or more nothing can beat it, so no further candidate is fitted (every GridWorld
+layout, cartpole, freeway, mujoco_pendulum: the choice costs nothing there). With
+``confidence_runs: 0`` nothing is refitted and the first candidate runs alone, as before.
+
+The kept clustering's stability is its confidence (kept in its metrics, not measured again);
+having been picked as the most stable, it leans optimistic by the selection.
 """
 
 from __future__ import annotations
@@ -22,54 +28,71 @@ from __future__ import annotations
 import dataclasses
 import time
 
-from pcpg_dist.stages.clustering.auto import chooses, falls_back
+from pcpg_dist.stages.clustering.auto import chooses, fallback_for, falls_back
 from pcpg_dist.stages.clustering.confidence import stability
 from pcpg_dist.stages.clustering.step import Clustering, cluster_once
 
-#: policy_mix replaces greedy_mix only where its stability is higher by more than this: on the
-#: design logs policy_mix's exceeds greedy_mix's by at most 0.01 where greedy_mix is as good or
-#: better (GridWorld E1-E5) and by 0.28-0.32 where policy_mix is better (minigrid_empty,
-#: leduc_poker); two refits move a stability by a few hundredths
+#: a candidate replaces the fit kept so far only where its stability is higher by more than
+#: this: on the design logs policy_mix's exceeds greedy_mix's by at most 0.01 where greedy_mix is
+#: as good or better (GridWorld E1-E5) and by 0.28-0.32 where policy_mix is better
+#: (minigrid_empty, leduc_poker); two refits move a stability by a few hundredths
 MARGIN = 0.10
-CANDIDATES = ("greedy_mix", "policy_mix")
+TIMED = "policy_mix_time"  # the name of policy_mix with ``policy_time`` among the candidates
+
+
+def candidates(dataset, cfg) -> list[tuple[str, object]]:
+    """``(name, config)`` of each fit bag_auto may keep, in the order they are tried."""
+    if falls_back(dataset):  # bag_auto itself hands the data to policy_mix (and says so)
+        if fallback_for(cfg.method, dataset) != "policy_mix":
+            return []  # lstm_dec: only the states can show a style, nothing to choose
+        return [
+            ("policy_mix", cfg.model_copy(update={"policy_time": False})),
+            (TIMED, cfg.model_copy(update={"policy_time": True})),
+        ]
+    policy = cfg.model_copy(update={"method": "policy_mix"})
+    return [
+        ("greedy_mix", cfg.model_copy(update={"method": "greedy_mix"})),
+        ("policy_mix", policy.model_copy(update={"policy_time": False})),
+        (TIMED, policy.model_copy(update={"policy_time": True})),
+    ]
 
 
 def cluster(dataset, cfg, seed: int) -> Clustering:
     """Cluster ``dataset``'s trajectories into ``cfg.k`` play-styles; never reads ``dataset.styles``.
 
-    ``bag_auto`` on discrete states chooses between greedy_mix and policy_mix (module doc); every
-    other method, and bag_auto on continuous states, is one fit (:func:`.step.cluster_once`).
+    ``bag_auto`` chooses among :func:`candidates` (module doc); every other method, and
+    ``confidence_runs: 0``, is one fit (:func:`.step.cluster_once`).
     Raises :class:`DataError` for an empty dataset, non-finite states, or fewer trajectories than k.
     Call :func:`pcpg_dist.common.devices.set_threads` first: same data + seed + threads = same labels.
     """
-    if chooses(cfg) and not falls_back(dataset):
-        return most_stable(dataset, cfg, seed)
-    return cluster_once(dataset, cfg, seed)
+    tried = candidates(dataset, cfg) if chooses(cfg) else []
+    if not tried:
+        return cluster_once(dataset, cfg, seed)
+    return most_stable(dataset, cfg, seed, tried)
 
 
-def most_stable(dataset, cfg, seed: int) -> Clustering:
-    """The clustering of the candidate with the more stable fit (module doc), with both
-    stabilities and the choice in its metrics; its ``fit_seconds`` are those of both fits and
-    their refits."""
+def most_stable(dataset, cfg, seed: int, tried: list[tuple[str, object]]) -> Clustering:
+    """The clustering of the candidate kept by the module doc's rule, with every fitted
+    candidate's stability and the choice in its metrics; its ``fit_seconds`` are those of every
+    fit and refit."""
     start = time.perf_counter()
-    fits = {}
-    for method in CANDIDATES:
-        one = cfg.model_copy(update={"method": method})
+    stable, kept = {}, None
+    for name, one in tried:
+        if kept is not None and stable[kept[0]] + MARGIN >= 1.0:
+            break  # no stability can beat it by MARGIN: GridWorld
         result = cluster_once(dataset, one, seed)
         found = stability(
             dataset, one, seed, result.labels, cfg.confidence_runs, cfg.confidence_fraction
         )
-        fits[method] = (result, found)
-        if found["stability"] + MARGIN >= 1.0:  # no stability can beat it by MARGIN: GridWorld
-            break
-    stable = {m: found["stability"] for m, (_, found) in fits.items()}
-    greedy, policy = stable["greedy_mix"], stable.get("policy_mix", -1.0)
-    chosen = "policy_mix" if policy > greedy + MARGIN else "greedy_mix"
-    result, found = fits[chosen]
+        stable[name] = found["stability"]
+        if kept is None or found["stability"] > stable[kept[0]] + MARGIN:
+            kept = (name, result, found)
+    chosen, result, found = kept
     metrics = {
         **result.metrics,
         **found,
-        "auto_chose_policy_mix": float(chosen == "policy_mix"),
         **{f"auto_stability_{m}": v for m, v in stable.items()},
+        "auto_chose_policy_mix": float(chosen != "greedy_mix" and "greedy_mix" in stable),
+        "auto_chose_policy_time": float(chosen == TIMED),
     }
     return dataclasses.replace(result, metrics=metrics, fit_seconds=time.perf_counter() - start)
