@@ -15,7 +15,9 @@ trajectories and 5-fold cross-validated:
 - ``policy_likelihood``: k policies pi_c(a | s) (``policy_mix``'s network) fitted to the training
   folds' styles; a test trajectory goes to the style under whose policy its actions are most
   likely. The supervised form of ``policy_mix``: without it that label-free method beat the
-  other two by 5 points on two zoo games (cartpole, mujoco_pendulum; docs/zoo.md).
+  other two by 5 points on two zoo games (cartpole, mujoco_pendulum; docs/zoo.md);
+- ``policy_time_likelihood``: the same with the policies also seeing the time step
+  (``clustering.policy_time``), the supervised form of the policy_mix that ``bag_auto`` may keep.
 
 A single model under-reports what the labels allow on games of another shape (a linear model on
 visited states said 0.50 on a 4-d control game where boosting on profiles reaches 0.87), and a
@@ -28,6 +30,7 @@ information these features hold.
 
 from __future__ import annotations
 
+import functools
 import warnings
 
 import numpy as np
@@ -109,7 +112,7 @@ def _boosted_on_profiles(ds: Dataset, seed: int):
     return trajectory_profiles(ds), model
 
 
-def _policy_likelihood(ds: Dataset, cv, seed: int) -> float:
+def _policy_likelihood(ds: Dataset, cv, seed: int, time: bool = False) -> float:
     """Cross-validated accuracy of the policy classifier (module doc): for every fold at once
     (batched matrix products, one network a fold), :data:`POLICY_STEPS` Adam steps on minibatches
     of :data:`POLICY_BATCH` training rows, or as many as the smallest fold trains on where that is
@@ -118,7 +121,7 @@ def _policy_likelihood(ds: Dataset, cv, seed: int) -> float:
     the head with the largest summed log likelihood plus log style share."""
     import torch
 
-    from pcpg_dist.stages.clustering.policy_network import policy_inputs
+    from pcpg_dist.stages.clustering.policy_network import policy_inputs, policy_states
     from pcpg_dist.stages.clustering.states import checked_sequences, fit_normaliser
 
     states, offsets = checked_sequences(ds, "clustering/ceiling")
@@ -126,12 +129,13 @@ def _policy_likelihood(ds: Dataset, cv, seed: int) -> float:
     k, n_actions = int(y.max()) + 1, int(ds.n_actions)
     if k * n_actions > POLICY_MAX_OUTPUTS:  # its output layer, and its cost, grow with both
         return float("nan")
-    s, a, valid, traj = policy_inputs(ds, states, *fit_normaliser(states))
+    norm = fit_normaliser(policy_states(ds, states, time))
+    s, a, valid, traj = policy_inputs(ds, states, *norm, time)
     if not len(a):
         return float("nan")
     folds = list(cv.split(np.zeros(n), y))
     gen = torch.Generator().manual_seed(seed)
-    sizes = [(states.shape[1], POLICY_HIDDEN), (POLICY_HIDDEN, POLICY_HIDDEN)]
+    sizes = [(s.shape[1], POLICY_HIDDEN), (POLICY_HIDDEN, POLICY_HIDDEN)]
     sizes.append((POLICY_HIDDEN, k * n_actions))
     params = []  # per layer (weight (F, in, out), bias (F, 1, out)), PyTorch's default init
     for fan_in, fan_out in sizes:
@@ -199,6 +203,7 @@ PANEL = {
     "linear_bags": _cross_validated(_linear_on_bags),
     "boosted_profiles": _cross_validated(_boosted_on_profiles),
     "policy_likelihood": _policy_likelihood,
+    "policy_time_likelihood": functools.partial(_policy_likelihood, time=True),
 }
 
 
