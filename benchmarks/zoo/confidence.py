@@ -48,7 +48,8 @@ def confidence_row(name: str, ci: bool, runs: int) -> dict:
         found = stability(ds, cfg, 0, result.labels, runs, 0.8)
     refit = time.perf_counter() - t0
     accuracy = clustering_metrics(ds.styles, result.labels)["accuracy"]
-    ceiling = max(ceiling_panel(ds, seed=0).values())
+    panel = ceiling_panel(ds, seed=0)
+    ceiling = max(panel.values())
     metrics = {**result.metrics, **found}
     return {
         "game": name,
@@ -62,6 +63,8 @@ def confidence_row(name: str, ci: bool, runs: int) -> dict:
         "n_clusters_used": float(result.metrics.get("n_clusters_used", k)),
         "fell_back": bool(result.metrics.get("auto_fell_back", 0)),
         "chose_policy_mix": bool(result.metrics.get("auto_chose_policy_mix", 0)),
+        "chose_policy_time": bool(result.metrics.get("auto_chose_policy_time", 0)),
+        "panel": panel,
         "fit_seconds": fit,
         "confidence_seconds": refit,
     }
