@@ -4,9 +4,12 @@ never decrease within a trajectory (counters); for continuous states."""
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import torch
 from sklearn.cluster import KMeans
+from sklearn.exceptions import ConvergenceWarning
 
 from pcpg_dist.common.devices import resolve_device
 from pcpg_dist.common.errors import DataError
@@ -109,9 +112,11 @@ def _fit_policy_mix(
             "(it clusters by the actions taken)"
         )
     if start is None:
-        start = KMeans(n_clusters=cfg.k, n_init=cfg.kmeans_n_init, random_state=seed).fit_predict(
-            counter_summary(seen, offsets)
-        )
+        with warnings.catch_warnings():  # identical summaries (fixed-length logs): fewer centres
+            warnings.simplefilter("ignore", ConvergenceWarning)
+            start = KMeans(
+                n_clusters=cfg.k, n_init=cfg.kmeans_n_init, random_state=seed
+            ).fit_predict(counter_summary(seen, offsets))
     labels = np.array(start, dtype=np.int64)
     device = resolve_device(cfg.device, "clustering.device")
     gen = torch.Generator().manual_seed(seed)
