@@ -34,9 +34,11 @@ def table(evaluated: list[dict], confidence: list[dict]) -> str:
             c = conf[r["game"]]
             accs = " | ".join(f"{r['methods'][m]['accuracy']:.3f}" for m in METHODS)
             ran = "policy_mix" if c["fell_back"] or c.get("chose_policy_mix") else "greedy_mix"
+            ran += " with time" if c.get("chose_policy_time") else ""
+            ceiling = c.get("ceiling", r["ceiling"])  # the panel of the confidence run
             lines.append(
                 f"| {r['game']} | {', '.join(r['kinds'])} | {r['trajectories']} | "
-                f"{r['ceiling']:.3f} | {accs} | {c['accuracy']:.3f} ({ran}) | {c['gap']:+.3f} | "
+                f"{ceiling:.3f} | {accs} | {c['accuracy']:.3f} ({ran}) | {c['gap']:+.3f} | "
                 f"{c['stability']:.2f} | {c['verdict']} | "
                 f"{c['fit_seconds']:.0f} + {c['confidence_seconds']:.0f} |"
             )
