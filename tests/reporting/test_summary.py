@@ -54,3 +54,22 @@ def test_a_choice_of_policy_mix_on_discrete_states_is_named_with_both_stabilitie
     assert "bag_auto -> policy_mix" in rows["views"] and "policy_mix" not in rows["grid"]
     assert "bag_auto clustered views with policy_mix" in text and "(0.63;" in text
     assert "clustered grid" not in text
+
+
+def test_a_choice_of_the_time_step_is_named_with_both_stabilities():
+    timed = {
+        "clustering/accuracy": 0.97,
+        "clustering/stability": 1.0,
+        "clustering/auto_fell_back": 1.0,
+        "clustering/auto_chose_policy_time": 1.0,
+        "clustering/auto_stability_policy_mix": 0.77,
+        "clustering/auto_stability_policy_mix_time": 1.0,
+    }
+    plain = {**timed, "clustering/auto_chose_policy_time": 0.0}
+    text = _printed({"car": timed, "pole": plain}, "bag_auto")
+    rows = {line.split()[1]: line for line in text.splitlines() if line.strip().startswith("│")}
+    assert "bag_auto -> policy_mix (time)" in rows["car"]
+    assert "(time)" not in rows["pole"] and "bag_auto -> policy_mix" in rows["pole"]
+    assert "bag_auto clustered car with policy_mix seeing the time step" in text
+    assert "(stability 1.00)" in text and "(0.77;" in text
+    assert "clustered pole with policy_mix seeing" not in text
