@@ -53,6 +53,15 @@ def counter_summary(states: np.ndarray, offsets: np.ndarray) -> np.ndarray:
     return (feats - mean) / std
 
 
+def counter_start(seen: np.ndarray, offsets: np.ndarray, cfg: ClusterConfig, seed: int):
+    """policy_mix's label-free start: k-means on :func:`counter_summary` of the states the
+    policies see (with ``policy_time``, the time step is one more counter)."""
+    with warnings.catch_warnings():  # identical summaries (fixed-length logs): fewer centres
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        kmeans = KMeans(n_clusters=cfg.k, n_init=cfg.kmeans_n_init, random_state=seed)
+        return kmeans.fit_predict(counter_summary(seen, offsets))
+
+
 def reseed_small(
     labels: np.ndarray, scores: np.ndarray, steps: np.ndarray, k: int, min_share: float
 ) -> int:
@@ -93,7 +102,7 @@ def _fit_policy_mix(
 ) -> tuple[np.ndarray, PolicyMixture, np.ndarray, np.ndarray]:
     """Hard EM for a mixture of k policies over whole trajectories (call inside a forked torch RNG).
 
-    Start: k-means on :func:`counter_summary` (or the labels ``start``; the first round may train
+    Start: :func:`counter_start` (or the labels ``start``; the first round may train
     ``first_round_steps`` instead of ``policy_steps``: ``benchmarks/zoo/search.py`` uses both to
     tell a limit of the search from one of the objective). Each round refits the k policy heads (and the shared
     trunk) to the current labels by ``policy_steps`` full-batch Adam steps on the steps' log
@@ -111,13 +120,7 @@ def _fit_policy_mix(
             f"policy_mix: {dataset.domain}-{dataset.env} has no step with an action "
             "(it clusters by the actions taken)"
         )
-    if start is None:
-        with warnings.catch_warnings():  # identical summaries (fixed-length logs): fewer centres
-            warnings.simplefilter("ignore", ConvergenceWarning)
-            start = KMeans(
-                n_clusters=cfg.k, n_init=cfg.kmeans_n_init, random_state=seed
-            ).fit_predict(counter_summary(seen, offsets))
-    labels = np.array(start, dtype=np.int64)
+    labels = np.array(counter_start(seen, offsets, cfg, seed) if start is None else start, np.int64)
     device = resolve_device(cfg.device, "clustering.device")
     gen = torch.Generator().manual_seed(seed)
     policy = PolicyMixture(
