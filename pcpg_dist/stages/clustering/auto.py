@@ -33,15 +33,15 @@ def fallback_for(method: str, dataset) -> str | None:
 
 
 def chooses(cfg: ClusterConfig) -> bool:
-    """Whether ``cfg`` has ``bag_auto`` choose between greedy_mix and policy_mix on discrete states
-    by their stability (:mod:`.select`; ``clustering.confidence_runs`` refits each)."""
+    """Whether ``cfg`` has ``bag_auto`` choose its fit by stability (greedy_mix, policy_mix,
+    policy_mix seeing the time step: :mod:`.select`; ``clustering.confidence_runs`` refits each)."""
     return cfg.method == "bag_auto" and cfg.confidence_runs > 0 and cfg.k > 1
 
 
 def needs_network(cluster_cfg: ClusterConfig, dataset) -> bool:
     """Whether Step A trains a network on ``dataset`` (a unit's clustering input): a method with a
     continuous-state fallback (``bag_auto``) trains one where it falls back to a method that does,
-    or where it chooses between greedy_mix and policy_mix (``confidence_runs`` > 0)."""
+    or where it may choose policy_mix on discrete states (``confidence_runs`` > 0)."""
     spec = CLUSTERERS[cluster_cfg.method]
     if spec.continuous_fallback is not None:
         if falls_back(dataset):
