@@ -120,7 +120,8 @@ class ClusterConfig(StrictModel):
         False,
         description="policy_mix: the policies also see log(1 + t), the step's index in its "
         "trajectory, so styles that act by schedule (rock back first, then push) are told apart "
-        "(docs/clustering.md).",
+        "(docs/clustering.md). bag_auto ignores it: it fits policy_mix both ways where its first "
+        "fit is not stable and keeps the clearly more stable one.",
     )
     ceiling: bool = Field(
         True,
