@@ -31,7 +31,7 @@ def dataset_table(ds: Dataset) -> pa.Table:
     per_row = ds.row_trajectory
     cols: dict[str, pa.Array] = {
         "trajectory": pa.array(ds.trajectory_ids[per_row], pa.int64()),
-        "t": pa.array(np.arange(ds.n_rows) - ds.offsets[per_row], pa.int64()),
+        "t": pa.array(ds.row_step, pa.int64()),
         "env": pa.array([ds.env] * ds.n_rows, pa.string()),
         "style": pa.array(ds.styles[per_row], pa.int64()),
     }

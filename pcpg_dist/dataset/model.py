@@ -141,6 +141,11 @@ class Dataset:
         return np.repeat(np.arange(self.n_trajectories), self.lengths)
 
     @property
+    def row_step(self) -> np.ndarray:
+        """Index (0, 1, ...) of each row within its trajectory: the step t."""
+        return np.arange(self.n_rows) - self.offsets[self.row_trajectory]
+
+    @property
     def valid_mask(self) -> np.ndarray:
         """(rows, n_actions) bool: which actions are valid in each row's state (= ``valid``)."""
         return self.valid

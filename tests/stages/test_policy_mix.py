@@ -208,7 +208,7 @@ def schedulers(n_per_style: int, seed: int) -> Dataset:
 
 
 def test_policy_time_tells_apart_styles_that_act_by_schedule(tmp_path):
-    from pcpg_dist.stages.clustering.policy_network import policy_inputs
+    from pcpg_dist.stages.clustering.policy_network import policy_inputs, policy_states
 
     set_threads(1)
     ds = schedulers(30, seed=3)
@@ -218,7 +218,8 @@ def test_policy_time_tells_apart_styles_that_act_by_schedule(tmp_path):
     assert clustering_metrics(ds.styles, markov.labels)["accuracy"] < 0.8
     assert clustering_metrics(ds.styles, timed.labels)["accuracy"] >= 0.95
     # the time column: log(1 + t), t restarting at 0 in each trajectory, then normalised
-    s, a, _, _ = policy_inputs(ds, ds.states, np.zeros(4), np.full(4, 2.0), time=True)
+    seen = policy_states(ds, ds.states, time=True)
+    s, a, _, _ = policy_inputs(ds, seen, np.zeros(4), np.full(4, 2.0))
     assert s.shape == (len(a), 4)
     t = np.concatenate([np.arange(n - 1) for n in np.diff(ds.offsets)])
     np.testing.assert_allclose(s[:, 3].numpy(), np.log1p(t) / 2, rtol=1e-6)

@@ -129,8 +129,8 @@ def _policy_likelihood(ds: Dataset, cv, seed: int, time: bool = False) -> float:
     k, n_actions = int(y.max()) + 1, int(ds.n_actions)
     if k * n_actions > POLICY_MAX_OUTPUTS:  # its output layer, and its cost, grow with both
         return float("nan")
-    norm = fit_normaliser(policy_states(ds, states, time))
-    s, a, valid, traj = policy_inputs(ds, states, *norm, time)
+    seen = policy_states(ds, states, time)
+    s, a, valid, traj = policy_inputs(ds, seen, *fit_normaliser(seen))
     if not len(a):
         return float("nan")
     folds = list(cv.split(np.zeros(n), y))

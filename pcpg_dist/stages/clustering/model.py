@@ -24,6 +24,7 @@ from pcpg_dist.stages.clustering.features import bag_matrix
 from pcpg_dist.stages.clustering.policy_network import (
     PolicyMixture,
     policy_inputs,
+    policy_states,
     trajectory_scores,
 )
 from pcpg_dist.stages.clustering.states import (
@@ -118,7 +119,8 @@ class ClusterModel:
                     f"policy_mix model was fitted on {self.policy.n_actions} actions, "
                     f"dataset {dataset.domain}-{dataset.env} has {dataset.n_actions}"
                 )
-            inputs = policy_inputs(dataset, states, self.mean, self.std, self.policy.time)
+            seen = policy_states(dataset, states, self.policy.time)
+            inputs = policy_inputs(dataset, seen, self.mean, self.std)
             with torch.no_grad():
                 scores = trajectory_scores(self.policy, inputs, len(offsets) - 1)
             return torch.softmax(scores, 0).T.numpy().astype(np.float32)

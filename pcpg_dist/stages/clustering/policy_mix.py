@@ -113,7 +113,7 @@ def _fit_policy_mix(
     n = len(offsets) - 1
     seen = policy_states(dataset, states, cfg.policy_time)  # with policy_time, t is a counter too
     mean, std = fit_normaliser(seen)
-    inputs = policy_inputs(dataset, states, mean, std, cfg.policy_time)
+    inputs = policy_inputs(dataset, seen, mean, std)
     s, a, valid, traj = inputs
     if not len(a):
         raise DataError(
@@ -194,7 +194,11 @@ def fit_policy_mix(
     n = len(offsets) - 1
     with torch.no_grad():
         margins = likelihood_margins(
-            trajectory_scores(policy, policy_inputs(dataset, states, mean, std, policy.time), n)
+            trajectory_scores(
+                policy,
+                policy_inputs(dataset, policy_states(dataset, states, policy.time), mean, std),
+                n,
+            )
             .T.double()
             .numpy(),
             labels,

@@ -55,30 +55,18 @@ class PolicyMixture(nn.Module):
         return torch.log_softmax(logits, -1).gather(2, picked).squeeze(-1)
 
 
-def step_times(row_trajectory: np.ndarray) -> np.ndarray:
-    """Each row's step index within its trajectory (rows of a trajectory are contiguous)."""
-    n = len(row_trajectory)
-    starts = np.ones(n, bool)
-    starts[1:] = row_trajectory[1:] != row_trajectory[:-1]
-    index = np.arange(n)
-    return index - np.maximum.accumulate(np.where(starts, index, 0))
-
-
 def policy_states(dataset, states: np.ndarray, time: bool) -> np.ndarray:
     """The states a policy sees, one row per step: ``states``, with ``time`` (``clustering.
     policy_time``) and a last column log(1 + t) for the step's index t in its trajectory, so a
     policy may act by schedule. The normaliser is fitted to these columns."""
     if not time:
         return states
-    t = step_times(np.asarray(dataset.row_trajectory))
-    return np.hstack([states, np.log1p(t).astype(states.dtype)[:, None]])
+    return np.hstack([states, np.log1p(dataset.row_step).astype(states.dtype)[:, None]])
 
 
-def policy_inputs(
-    dataset, states: np.ndarray, mean: np.ndarray, std: np.ndarray, time: bool = False
-):
-    """The steps a policy mixture scores: normalised states (:func:`policy_states`), actions,
-    valid masks, trajectory index.
+def policy_inputs(dataset, seen: np.ndarray, mean: np.ndarray, std: np.ndarray):
+    """The steps a policy mixture scores: the states it sees (:func:`policy_states`) normalised,
+    actions, valid masks, trajectory index.
 
     Only rows with an action (every row but a trajectory's last); a taken action always counts as
     valid, so a log whose valid mask disagrees with its actions cannot give -inf scores.
@@ -94,7 +82,7 @@ def policy_inputs(
     valid = np.asarray(dataset.valid, bool)[rows].copy()
     valid[np.arange(rows.size), actions[rows]] = True
     traj = dataset.row_trajectory[rows]
-    norm = ((policy_states(dataset, states, time)[rows] - mean) / std).astype(np.float32)
+    norm = ((seen[rows] - mean) / std).astype(np.float32)
     return (
         torch.from_numpy(norm),
         torch.from_numpy(actions[rows]),
