@@ -100,6 +100,13 @@ class ClusterConfig(StrictModel):
     policy_steps: int = Field(
         50, ge=1, le=100_000, description="policy_mix: full-batch Adam steps per EM round."
     )
+    policy_rows: int = Field(
+        0,
+        ge=0,
+        le=100_000_000,
+        description="policy_mix: steps drawn (seeded, with replacement) for each Adam step; "
+        "0 = every step of the log (full batch). Logs with fewer steps train on all of them.",
+    )
     policy_lr: float = Field(0.01, gt=0.0, le=1.0, description="policy_mix: Adam learning rate.")
     em_tol: float = Field(
         0.005,

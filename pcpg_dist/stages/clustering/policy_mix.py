@@ -132,6 +132,11 @@ def _fit_policy_mix(
     s, a, valid, traj = inputs
     opt = torch.optim.Adam(policy.parameters(), lr=cfg.policy_lr)
     rounds, moved, reseeds = 0, 1.0, 0
+    fit_rows = torch.arange(len(a))
+    if 0 < cfg.policy_rows < len(a):
+        fit_rows = torch.randperm(len(a), generator=gen)[: cfg.policy_rows].sort().values
+    fit_rows = fit_rows.to(device)
+    fs, fa, fvalid = s[fit_rows], a[fit_rows], valid[fit_rows]
     steps = np.bincount(traj.cpu().numpy(), minlength=n).astype(np.float64)
     while rounds < cfg.em_iterations:
         rounds += 1
@@ -143,8 +148,8 @@ def _fit_policy_mix(
         if rounds == 1 and first_round_steps is not None:
             train_steps = first_round_steps
         for _ in range(train_steps):
-            lp = policy.step_log_probs(s, a, valid)
-            loss = -lp.gather(0, own[None]).mean()
+            lp = policy.step_log_probs(fs, fa, fvalid)
+            loss = -lp.gather(0, own[fit_rows][None]).mean()
             opt.zero_grad()
             loss.backward()
             opt.step()

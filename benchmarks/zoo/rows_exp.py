@@ -1,0 +1,82 @@
+"""How many steps must policy_mix's policies be fitted to? The default clustering per game with
+``clustering.policy_rows`` (a seeded sample of the log's steps that the policies are fitted to;
+every step is still scored) at each value asked, side by side in one run.
+
+    uv run python -m benchmarks.zoo.rows_exp --rows 0 16384 32768            # design games
+    uv run python -m benchmarks.zoo.rows_exp --held-out --rows 0 16384       # after the choice
+
+Each row: the default (``bag_auto`` with its label-free confidence, one thread) and its choice,
+accuracy against the true styles, stability, and wall seconds; the speed-up is the seconds of
+``policy_rows: 0`` (every step) over the seconds of the row. Held-out games take no part in the
+choice: ``--held-out`` runs only them, to report once the value is chosen.
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks.zoo.common import design_games, game_names, load_game
+
+
+def run_game(name: str, rows: list[int], ci: bool) -> list[dict]:
+    from benchmarks.zoo.check import dataset_of
+    from pcpg_dist.common.devices import set_threads
+    from pcpg_dist.config.clustering import ClusterConfig
+    from pcpg_dist.stages.clustering import cluster, clustering_metrics
+
+    set_threads(1)
+    game = load_game(name)
+    with tempfile.TemporaryDirectory() as tmp:
+        _, _, ds = dataset_of(name, ci, Path(tmp))
+    truth = np.asarray(ds.styles, np.int64)
+    out = []
+    for r in rows:
+        cfg = ClusterConfig(k=len(game.styles), policy_rows=r)
+        t0 = time.perf_counter()
+        result = cluster(ds, cfg, 0)
+        seconds = time.perf_counter() - t0
+        m = result.metrics
+        chose = "greedy_mix"
+        if m.get("auto_chose_policy_mix"):
+            chose = "policy_mix (time)" if m.get("auto_chose_policy_time") else "policy_mix"
+        if m.get("auto_fell_back"):
+            chose = "lstm_dec"
+        out.append({"game": name, "steps": int((np.asarray(ds.actions) >= 0).sum()),
+                    "rows": r, "chose": chose, "seconds": seconds,
+                    "accuracy": float(clustering_metrics(truth, result.labels)["accuracy"]),
+                    "stability": float(m.get("stability", float("nan")))})  # fmt: skip
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("games", nargs="*", help="games (default: every design game)")
+    parser.add_argument("--rows", nargs="+", type=int, default=[0, 16384])
+    parser.add_argument("--held-out", action="store_true", help="the held-out games instead")
+    parser.add_argument("--ci", action="store_true", help="the CI-size logs")
+    args = parser.parse_args()
+    if args.held_out:
+        games = args.games or [g for g in game_names() if load_game(g).held_out]
+    else:
+        games = design_games(args.games, parser.error)
+    print("| game | steps | policy_rows | default's choice | accuracy | stability | s | speed-up |")
+    print("|---|---|---|---|---|---|---|---|")
+    for g in games:
+        found = run_game(g, args.rows, args.ci)
+        full = next((r["seconds"] for r in found if r["rows"] == 0), float("nan"))
+        for r in found:
+            print(
+                f"| {r['game']} | {r['steps']} | {r['rows']} | {r['chose']} | "
+                f"{r['accuracy']:.3f} | {r['stability']:.2f} | {r['seconds']:.0f} | "
+                f"{full / r['seconds']:.1f}x |",
+                flush=True,
+            )
+
+
+if __name__ == "__main__":
+    main()
