@@ -44,7 +44,7 @@ def run_game(name: str, rows: list[int], ci: bool) -> list[dict]:
         chose = "greedy_mix"
         if m.get("auto_chose_policy_mix"):
             chose = "policy_mix (time)" if m.get("auto_chose_policy_time") else "policy_mix"
-        if m.get("auto_fell_back"):
+        if m.get("auto_fell_back_to_lstm"):
             chose = "lstm_dec"
         out.append({"game": name, "steps": int((np.asarray(ds.actions) >= 0).sum()),
                     "rows": r, "chose": chose, "seconds": seconds,

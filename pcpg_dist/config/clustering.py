@@ -98,14 +98,18 @@ class ClusterConfig(StrictModel):
         "refitted to the labels, then every trajectory moved to its most likely policy).",
     )
     policy_steps: int = Field(
-        50, ge=1, le=100_000, description="policy_mix: full-batch Adam steps per EM round."
+        50,
+        ge=1,
+        le=100_000,
+        description="policy_mix: full-batch Adam steps per EM round (on policy_rows steps).",
     )
     policy_rows: int = Field(
-        0,
+        32768,
         ge=0,
         le=100_000_000,
-        description="policy_mix: steps drawn (seeded, with replacement) for each Adam step; "
-        "0 = every step of the log (full batch). Logs with fewer steps train on all of them.",
+        description="policy_mix: on a log with more steps than max(policy_rows, 64 x "
+        "trajectories), the policies are fitted to a seeded sample of that many steps (every "
+        "step is still scored); 0 = always every step.",
     )
     policy_lr: float = Field(0.01, gt=0.0, le=1.0, description="policy_mix: Adam learning rate.")
     em_tol: float = Field(

@@ -19,12 +19,13 @@ from pcpg_dist.stages.clustering import (
     load_model,
     monotone_features,
 )
+from pcpg_dist.stages.clustering.policy_mix import fit_sample
 
 MOVES = np.array([[-1, 0], [0, 1], [1, 0], [0, -1]], float)  # up, right, down, left
 FAST = dict(method="policy_mix", k=4, hidden_size=16, kmeans_n_init=4)
 
 
-def goal_seekers(n_per_style: int, seed: int) -> Dataset:
+def goal_seekers(n_per_style: int, seed: int, lengths: tuple[int, int] = (10, 30)) -> Dataset:
     """Four styles, each heading for its own one of four goals. Every state holds the unit
     direction to each goal (8 numbers, fresh each step, as if the map changed) and a step
     counter; the actions are the moves toward the style's goal, with 20 % random moves. Lengths
@@ -33,7 +34,7 @@ def goal_seekers(n_per_style: int, seed: int) -> Dataset:
     trajs, styles = [], []
     for style in range(4):
         for _ in range(n_per_style):
-            t = int(rng.integers(10, 30))
+            t = int(rng.integers(*lengths))
             move = rng.integers(0, 4, size=(t, 4))  # the best move toward each goal, per step
             states = np.column_stack([MOVES[move].reshape(t, 8), np.arange(t) / 100])
             greedy = move[:-1, style]
@@ -254,3 +255,21 @@ def test_bag_auto_keeps_the_time_step_only_where_its_fit_is_clearly_more_stable(
     plain = cluster(goals, ClusterConfig(k=4, hidden_size=16, kmeans_n_init=4), seed=0)
     assert clustering_metrics(goals.styles, plain.labels)["accuracy"] >= 0.95
     assert plain.model.policy.time == bool(plain.metrics["auto_chose_policy_time"])
+
+
+def test_policies_fitted_to_a_sample_of_the_steps_still_separate_the_styles():
+    gen = torch.Generator().manual_seed(0)
+    assert fit_sample(100, 2, 0, gen).tolist() == list(range(100))  # 0: every step
+    assert len(fit_sample(100, 1, 32, gen)) == 64  # at least 64 steps a trajectory
+    sample = fit_sample(10_000, 10, 3000, gen)
+    assert len(sample) == 3000 and len(set(sample.tolist())) == 3000
+    assert sample.tolist() == sorted(sample.tolist())
+    long = goal_seekers(10, seed=3, lengths=(150, 250))  # 40 trajectories, ~8000 steps
+    steps = int((long.actions >= 0).sum())
+    sampled = ClusterConfig(**FAST, policy_rows=3000)
+    found = cluster(long, sampled, seed=0)
+    assert clustering_metrics(long.styles, found.labels)["accuracy"] >= 0.95
+    np.testing.assert_array_equal(cluster(long, sampled, seed=0).labels, found.labels)
+    whole = cluster(long, ClusterConfig(**FAST, policy_rows=0), seed=0)
+    same = cluster(long, ClusterConfig(**FAST, policy_rows=steps), seed=0)
+    np.testing.assert_array_equal(same.labels, whole.labels)  # a sample of every step is all
