@@ -14,6 +14,7 @@ choice: ``--held-out`` runs only them, to report once the value is chosen.
 from __future__ import annotations
 
 import argparse
+import json
 import tempfile
 import time
 from pathlib import Path
@@ -41,9 +42,9 @@ def run_game(name: str, rows: list[int], ci: bool) -> list[dict]:
         result = cluster(ds, cfg, 0)
         seconds = time.perf_counter() - t0
         m = result.metrics
-        chose = "greedy_mix"
-        if m.get("auto_chose_policy_mix"):
-            chose = "policy_mix (time)" if m.get("auto_chose_policy_time") else "policy_mix"
+        chose = "policy_mix (time)" if m.get("auto_chose_policy_time") else "policy_mix"
+        if "auto_stability_greedy_mix" in m and not m.get("auto_chose_policy_mix"):
+            chose = "greedy_mix"
         if m.get("auto_fell_back_to_lstm"):
             chose = "lstm_dec"
         out.append({"game": name, "steps": int((np.asarray(ds.actions) >= 0).sum()),
@@ -59,15 +60,18 @@ def main() -> None:
     parser.add_argument("--rows", nargs="+", type=int, default=[0, 16384])
     parser.add_argument("--held-out", action="store_true", help="the held-out games instead")
     parser.add_argument("--ci", action="store_true", help="the CI-size logs")
+    parser.add_argument("--json", type=Path, help="also write the rows here")
     args = parser.parse_args()
     if args.held_out:
         games = args.games or [g for g in game_names() if load_game(g).held_out]
     else:
         games = design_games(args.games, parser.error)
+    rows = []
     print("| game | steps | policy_rows | default's choice | accuracy | stability | s | speed-up |")
     print("|---|---|---|---|---|---|---|---|")
     for g in games:
         found = run_game(g, args.rows, args.ci)
+        rows += found
         full = next((r["seconds"] for r in found if r["rows"] == 0), float("nan"))
         for r in found:
             print(
@@ -76,6 +80,8 @@ def main() -> None:
                 f"{full / r['seconds']:.1f}x |",
                 flush=True,
             )
+        if args.json:
+            args.json.write_text(json.dumps(rows, indent=1) + "\n")
 
 
 if __name__ == "__main__":
