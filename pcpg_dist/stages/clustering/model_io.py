@@ -192,6 +192,12 @@ def _model_kind(cfg_path: Path, meta: dict) -> ModelKind:
     return kind
 
 
+def _sees_time(kind: ModelKind, meta: dict) -> bool:
+    """Whether a (checked) policy_mix model's policies see the time step; models saved before
+    ``policy_time`` existed do not."""
+    return kind == "policy" and meta.get("policy_time", False)
+
+
 def _network_maker(kind: ModelKind, meta: dict, settings: ClusterConfig):
     """``(tensor prefix, a function building the method's network)``, or None without a network:
     the network fixes the names and shapes of its tensors."""
@@ -201,7 +207,7 @@ def _network_maker(kind: ModelKind, meta: dict, settings: ClusterConfig):
             d, settings.hidden_size, settings.latent_size, settings.pooling
         )
     if kind == "policy":
-        time = meta.get("policy_time", False)  # models saved before it existed: False
+        time = _sees_time(kind, meta)
         return "pm.", lambda: PolicyMixture(d, settings.hidden_size, k, meta["n_actions"], time)
     return None
 
@@ -284,8 +290,7 @@ def _read_centres(
     """``(mean, std, centroids)``: the normaliser (std above 0) and k centroids of ``width``."""
     d, k = meta["state_dim"], meta["k"]
     feat = 1 + 2 * d if kind == "summary" else d
-    if kind == "policy" and meta.get("policy_time", False):
-        feat += 1  # the time column's normaliser
+    feat += _sees_time(kind, meta)  # the time column's normaliser
     mean = w.get("mean", (feat,)).numpy()
     std = w.get("std", (feat,)).numpy()
     if not (std > 0).all():
