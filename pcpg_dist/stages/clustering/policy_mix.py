@@ -119,9 +119,10 @@ def _fit_policy_mix(
 
     Start: :func:`counter_start` (or the labels ``start``; the first round may train
     ``first_round_steps`` instead of ``policy_steps``: ``benchmarks/zoo/search.py`` uses both to
-    tell a limit of the search from one of the objective). Each round refits the k policy heads (and the shared
-    trunk) to the current labels by ``policy_steps`` full-batch Adam steps on the steps' log
-    likelihood, then moves every trajectory to the policy under which its actions are most likely
+    tell a limit of the search from one of the objective). Each round refits the k policy heads
+    (and the shared trunk) to the current labels by ``policy_steps`` full-batch Adam steps on the
+    log likelihood of the steps :func:`fit_sample` drew (every step on all but large logs), then
+    scores every step and moves every trajectory to the policy under which its actions are most likely
     (+ log cluster share), and re-seeds the clusters that emptied (:func:`reseed_small`). Stops
     when fewer than ``em_tol`` of the labels moved.
     """
@@ -148,11 +149,11 @@ def _fit_policy_mix(
     opt = torch.optim.Adam(policy.parameters(), lr=cfg.policy_lr)
     rounds, moved, reseeds = 0, 1.0, 0
     fit_rows = fit_sample(len(a), n, cfg.policy_rows, gen).to(device)
-    fs, fa, fvalid = s[fit_rows], a[fit_rows], valid[fit_rows]
+    fs, fa, fvalid, ftraj = s[fit_rows], a[fit_rows], valid[fit_rows], traj[fit_rows]
     steps = np.bincount(traj.cpu().numpy(), minlength=n).astype(np.float64)
     while rounds < cfg.em_iterations:
         rounds += 1
-        own = torch.from_numpy(labels).to(device)[traj]
+        own = torch.from_numpy(labels).to(device)[ftraj][None]  # each fitted step's cluster
         with torch.no_grad():
             share = np.bincount(labels, minlength=cfg.k) / n
             policy.log_prior.copy_(torch.from_numpy(np.log(np.maximum(share, 1e-12))).float())
@@ -161,7 +162,7 @@ def _fit_policy_mix(
             train_steps = first_round_steps
         for _ in range(train_steps):
             lp = policy.step_log_probs(fs, fa, fvalid)
-            loss = -lp.gather(0, own[fit_rows][None]).mean()
+            loss = -lp.gather(0, own).mean()
             opt.zero_grad()
             loss.backward()
             opt.step()
