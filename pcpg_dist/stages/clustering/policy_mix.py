@@ -93,13 +93,13 @@ def reseed_small(
 ROWS_PER_TRAJECTORY = 64  # the fewest steps a trajectory gives the policies' fit, on average
 
 
-def fit_sample(steps: int, trajectories: int, rows: int, gen: torch.Generator) -> torch.Tensor:
+def fit_sample(steps: int, n_trajectories: int, rows: int, gen: torch.Generator) -> torch.Tensor:
     """The steps policy_mix fits its policies to (sorted indices): every step, or, on a log with
-    more than max(``rows``, 64 x trajectories) of them, a seeded sample of that many (``rows`` 0:
+    more than max(``rows``, 64 x ``n_trajectories``) of them, a seeded sample of that many (``rows`` 0:
     every step). Every step is still scored. The policies are small networks: on the zoo's design
     games 32768 steps fit them as well as all 65-206 thousand, 3-10x faster (docs/clustering.md);
     the per-trajectory floor keeps logs of many short trajectories whole (MiniDungeons' 780)."""
-    size = max(rows, ROWS_PER_TRAJECTORY * trajectories)
+    size = max(rows, ROWS_PER_TRAJECTORY * n_trajectories)
     if rows == 0 or size >= steps:
         return torch.arange(steps)
     return torch.randperm(steps, generator=gen)[:size].sort().values
@@ -121,17 +121,15 @@ def _fit_policy_mix(
     ``first_round_steps`` instead of ``policy_steps``: ``benchmarks/zoo/search.py`` uses both to
     tell a limit of the search from one of the objective). Each round refits the k policy heads
     (and the shared trunk) to the current labels by ``policy_steps`` full-batch Adam steps on the
-    log likelihood of the steps :func:`fit_sample` drew (every step on all but large logs), then
-    scores every step and moves every trajectory to the policy under which its actions are most likely
-    (+ log cluster share), and re-seeds the clusters that emptied (:func:`reseed_small`). Stops
-    when fewer than ``em_tol`` of the labels moved.
+    steps :func:`fit_sample` drew, scores every step, moves every trajectory to the policy under
+    which its actions are most likely (+ log cluster share), and re-seeds the clusters that
+    emptied (:func:`reseed_small`). Stops when fewer than ``em_tol`` of the labels moved.
     """
     n = len(offsets) - 1
     seen = policy_states(dataset, states, cfg.policy_time)  # with policy_time, t is a counter too
     mean, std = fit_normaliser(seen)
     inputs = policy_inputs(dataset, seen, mean, std)
-    s, a, valid, traj = inputs
-    if not len(a):
+    if not len(inputs[1]):  # the actions
         raise DataError(
             f"policy_mix: {dataset.domain}-{dataset.env} has no step with an action "
             "(it clusters by the actions taken)"
@@ -148,8 +146,8 @@ def _fit_policy_mix(
     s, a, valid, traj = inputs
     opt = torch.optim.Adam(policy.parameters(), lr=cfg.policy_lr)
     rounds, moved, reseeds = 0, 1.0, 0
-    fit_rows = fit_sample(len(a), n, cfg.policy_rows, gen).to(device)
-    fs, fa, fvalid, ftraj = s[fit_rows], a[fit_rows], valid[fit_rows], traj[fit_rows]
+    fit = fit_sample(len(a), n, cfg.policy_rows, gen).to(device)
+    fs, fa, fvalid, ftraj = (t[fit] for t in inputs)
     steps = np.bincount(traj.cpu().numpy(), minlength=n).astype(np.float64)
     while rounds < cfg.em_iterations:
         rounds += 1
