@@ -269,6 +269,7 @@ def test_policies_fitted_to_a_sample_of_the_steps_still_separate_the_styles():
     sampled = ClusterConfig(**FAST, policy_rows=3000)
     found = cluster(long, sampled, seed=0)
     assert clustering_metrics(long.styles, found.labels)["accuracy"] >= 0.95
+    assert found.metrics["policy_fit_steps"] == 3000 < steps  # the policies saw the sample only
     np.testing.assert_array_equal(cluster(long, sampled, seed=0).labels, found.labels)
     whole = cluster(long, ClusterConfig(**FAST, policy_rows=0), seed=0)
     same = cluster(long, ClusterConfig(**FAST, policy_rows=steps), seed=0)

@@ -167,10 +167,9 @@ def _fit_policy_mix(
         with torch.no_grad():
             scores = trajectory_scores(policy, inputs, n).double().cpu().numpy()
         new = scores.argmax(0).astype(np.int64)
-        reseeded = 0
-        if rounds < cfg.em_iterations:  # the last round's labels are its policies' own
-            reseeded = reseed_small(new, scores, steps, cfg.k, cfg.policy_min_share)
-            reseeds += reseeded
+        last = rounds == cfg.em_iterations  # the last round's labels are its policies' own
+        reseeded = 0 if last else reseed_small(new, scores, steps, cfg.k, cfg.policy_min_share)
+        reseeds += reseeded
         moved = float((new != labels).mean())
         labels = new
         if moved < cfg.em_tol and not reseeded:  # re-seeded labels are refitted first
@@ -182,6 +181,7 @@ def _fit_policy_mix(
             "em_last_moved": moved,
             "em_reseeds": float(reseeds),
             "policy_nll": float(loss.detach()),
+            "policy_fit_steps": float(len(fit)),  # of the log's len(a): fit_sample's
         }
     )
     return labels, policy.cpu(), mean, std
