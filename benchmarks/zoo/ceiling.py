@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -23,13 +22,12 @@ from pcpg_dist.stages.clustering.ceiling import gap_to_ceiling
 
 
 def panel_of(name: str) -> tuple[str, dict, float]:
-    from benchmarks.zoo.check import dataset_of
+    from benchmarks.zoo.check import labelled_dataset
     from pcpg_dist.common.devices import set_threads
     from pcpg_dist.stages.clustering.ceiling import ceiling_panel
 
     set_threads(1)  # one worker process per core
-    with tempfile.TemporaryDirectory() as tmp:
-        _, _, ds = dataset_of(name, False, Path(tmp))
+    ds = labelled_dataset(name, False)
     t0 = time.perf_counter()
     return name, ceiling_panel(ds, seed=0), time.perf_counter() - t0
 

@@ -28,6 +28,13 @@ def dataset_of(name: str, ci: bool, tmp: Path):
     return read_unit(name, tmp / "steps")
 
 
+def labelled_dataset(name: str, ci: bool):
+    """The game's labelled unit (:func:`dataset_of`), its step table written to a temporary
+    folder that is gone once the unit is read."""
+    with tempfile.TemporaryDirectory() as tmp:
+        return dataset_of(name, ci, Path(tmp))[2]
+
+
 def read_unit(name: str, folder: Path):
     """(game, config, unit): the step table in ``folder`` (one written by :func:`dataset_of` or
     ``benchmarks.zoo.build``) read by pcpg's own step-table reader as ``domain: trajectories``."""

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
@@ -25,7 +24,7 @@ CLOSE = 0.05  # "at the ceiling": the issue's bar for the verdict
 
 
 def confidence_row(name: str, ci: bool, runs: int) -> dict:
-    from benchmarks.zoo.check import dataset_of
+    from benchmarks.zoo.check import labelled_dataset
     from pcpg_dist.common.devices import set_threads
     from pcpg_dist.config.clustering import ClusterConfig
     from pcpg_dist.stages.clustering import cluster, clustering_metrics
@@ -34,8 +33,7 @@ def confidence_row(name: str, ci: bool, runs: int) -> dict:
 
     set_threads(1)
     game = load_game(name)
-    with tempfile.TemporaryDirectory() as tmp:
-        _, _, ds = dataset_of(name, ci, Path(tmp))
+    ds = labelled_dataset(name, ci)
     k = len(game.styles)
     cfg = ClusterConfig(k=k, confidence_runs=runs)
     t0 = time.perf_counter()

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
@@ -55,16 +54,15 @@ def score_dataset(ds, k: int, methods: tuple[str, ...], seed: int = 0) -> dict:
 
 
 def score_game(name: str, ci: bool, methods: tuple[str, ...]) -> dict:
-    from benchmarks.zoo.check import dataset_of
+    from benchmarks.zoo.check import labelled_dataset
     from pcpg_dist.common.devices import set_threads
 
     set_threads(1)  # one worker process per core: more torch threads than CPUs is ~100x slower
 
     game = load_game(name)
-    with tempfile.TemporaryDirectory() as tmp:
-        t0 = time.perf_counter()
-        _, _, ds = dataset_of(name, ci, Path(tmp))
-        built = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    ds = labelled_dataset(name, ci)
+    built = time.perf_counter() - t0
     row = score_dataset(ds, len(game.styles), methods)
     row.update(
         game=name,

@@ -15,9 +15,7 @@ take no part in design decisions.
 from __future__ import annotations
 
 import argparse
-import tempfile
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -25,7 +23,7 @@ from benchmarks.zoo.common import design_games, load_game
 
 
 def run_game(name: str, ci: bool) -> list[dict]:
-    from benchmarks.zoo.check import dataset_of
+    from benchmarks.zoo.check import labelled_dataset
     from pcpg_dist.common.devices import set_threads
     from pcpg_dist.config.clustering import ClusterConfig
     from pcpg_dist.stages.clustering import clustering_metrics
@@ -34,8 +32,7 @@ def run_game(name: str, ci: bool) -> list[dict]:
 
     set_threads(1)
     game = load_game(name)
-    with tempfile.TemporaryDirectory() as tmp:
-        _, _, ds = dataset_of(name, ci, Path(tmp))
+    ds = labelled_dataset(name, ci)
     truth = np.asarray(ds.styles, np.int64)
     rows = []
     for with_time in (False, True):

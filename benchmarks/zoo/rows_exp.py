@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import tempfile
 import time
 from pathlib import Path
 
@@ -25,15 +24,15 @@ from benchmarks.zoo.common import design_games, game_names, load_game
 
 
 def run_game(name: str, rows: list[int], ci: bool) -> list[dict]:
-    from benchmarks.zoo.check import dataset_of
+    from benchmarks.zoo.check import labelled_dataset
     from pcpg_dist.common.devices import set_threads
     from pcpg_dist.config.clustering import ClusterConfig
+    from pcpg_dist.reporting.summary import method_used
     from pcpg_dist.stages.clustering import cluster, clustering_metrics
 
     set_threads(1)
     game = load_game(name)
-    with tempfile.TemporaryDirectory() as tmp:
-        _, _, ds = dataset_of(name, ci, Path(tmp))
+    ds = labelled_dataset(name, ci)
     truth = np.asarray(ds.styles, np.int64)
     out = []
     for r in rows:
@@ -42,11 +41,7 @@ def run_game(name: str, rows: list[int], ci: bool) -> list[dict]:
         result = cluster(ds, cfg, 0)
         seconds = time.perf_counter() - t0
         m = result.metrics
-        chose = "policy_mix (time)" if m.get("auto_chose_policy_time") else "policy_mix"
-        if "auto_stability_greedy_mix" in m and not m.get("auto_chose_policy_mix"):
-            chose = "greedy_mix"
-        if m.get("auto_fell_back_to_lstm"):
-            chose = "lstm_dec"
+        chose = method_used("bag_auto", {f"clustering/{k}": v for k, v in m.items()})
         out.append({"game": name, "steps": int((np.asarray(ds.actions) >= 0).sum()),
                     "rows": r, "chose": chose, "seconds": seconds,
                     "accuracy": float(clustering_metrics(truth, result.labels)["accuracy"]),

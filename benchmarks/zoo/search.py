@@ -16,8 +16,6 @@ is the objective's. Held-out games are refused: they take no part in design deci
 from __future__ import annotations
 
 import argparse
-import tempfile
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -60,7 +58,7 @@ def partition_scores(ds, labels: np.ndarray, k: int, steps: int, seed: int = 0) 
 
 
 def search_game(name: str, ci: bool, warmup: int, steps: int) -> list[dict]:
-    from benchmarks.zoo.check import dataset_of
+    from benchmarks.zoo.check import labelled_dataset
     from pcpg_dist.common.devices import set_threads
     from pcpg_dist.config.clustering import ClusterConfig
     from pcpg_dist.stages.clustering import clustering_metrics
@@ -69,8 +67,7 @@ def search_game(name: str, ci: bool, warmup: int, steps: int) -> list[dict]:
 
     set_threads(1)
     game = load_game(name)
-    with tempfile.TemporaryDirectory() as tmp:
-        _, _, ds = dataset_of(name, ci, Path(tmp))
+    ds = labelled_dataset(name, ci)
     k = len(game.styles)
     cfg = ClusterConfig(method="policy_mix", k=k)
     states, offsets = checked_sequences(ds)

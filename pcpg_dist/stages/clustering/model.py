@@ -25,6 +25,7 @@ from pcpg_dist.stages.clustering.policy_network import (
     PolicyMixture,
     policy_inputs,
     policy_states,
+    posteriors,
     trajectory_scores,
 )
 from pcpg_dist.stages.clustering.states import (
@@ -105,6 +106,20 @@ class ClusterModel:
             )
         return states, offsets
 
+    def policy_scores(self, dataset) -> torch.Tensor:
+        """policy_mix: (k, n) log prior + summed step log-likelihood of each of ``dataset``'s
+        trajectories under each of the model's policies."""
+        states, offsets = self._checked_states(dataset)
+        if int(dataset.n_actions) != self.policy.n_actions:
+            raise DataError(
+                f"policy_mix model was fitted on {self.policy.n_actions} actions, "
+                f"dataset {dataset.domain}-{dataset.env} has {dataset.n_actions}"
+            )
+        seen = policy_states(dataset, states, self.policy.time)
+        with torch.no_grad():
+            inputs = policy_inputs(dataset, seen, self.mean, self.std)
+            return trajectory_scores(self.policy, inputs, len(offsets) - 1)
+
     def features(self, dataset) -> np.ndarray:
         """The space the centroids live in: latents (LSTM methods) or normalised summaries."""
         states, offsets = self._checked_states(dataset)
@@ -114,16 +129,7 @@ class ClusterModel:
         if self.vocabulary is not None:
             return visit_features(states, offsets, self.vocabulary)
         if self.policy is not None:
-            if int(dataset.n_actions) != self.policy.n_actions:
-                raise DataError(
-                    f"policy_mix model was fitted on {self.policy.n_actions} actions, "
-                    f"dataset {dataset.domain}-{dataset.env} has {dataset.n_actions}"
-                )
-            seen = policy_states(dataset, states, self.policy.time)
-            inputs = policy_inputs(dataset, seen, self.mean, self.std)
-            with torch.no_grad():
-                scores = trajectory_scores(self.policy, inputs, len(offsets) - 1)
-            return torch.softmax(scores, 0).T.numpy().astype(np.float32)
+            return posteriors(self.policy_scores(dataset))
         if self.autoencoder is None:
             return ((summary_features(states, offsets) - self.mean) / self.std).astype(np.float32)
         norm = (states - self.mean) / self.std

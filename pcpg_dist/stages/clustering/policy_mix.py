@@ -20,6 +20,7 @@ from pcpg_dist.stages.clustering.policy_network import (
     PolicyMixture,
     policy_inputs,
     policy_states,
+    posteriors,
     trajectory_scores,
 )
 from pcpg_dist.stages.clustering.states import fit_normaliser, summary_features
@@ -206,17 +207,7 @@ def fit_policy_mix(
         tuple(dataset.feature_names),
         policy=policy,
     )
-    latents = model.features(dataset)
-    n = len(offsets) - 1
-    with torch.no_grad():
-        margins = likelihood_margins(
-            trajectory_scores(
-                policy,
-                policy_inputs(dataset, policy_states(dataset, states, policy.time), mean, std),
-                n,
-            )
-            .T.double()
-            .numpy(),
-            labels,
-        )
+    scores = model.policy_scores(dataset)  # once, for the latents and the margins
+    margins = likelihood_margins(scores.T.double().numpy(), labels)
+    latents = posteriors(scores)
     return Fitted(labels, latents, model, margins)

@@ -99,3 +99,9 @@ def trajectory_scores(policy: PolicyMixture, inputs, n: int) -> torch.Tensor:
         torch.zeros(policy.k, n, device=lp.device).index_add_(1, traj, lp)
         + policy.log_prior[:, None]
     )
+
+
+def posteriors(scores: torch.Tensor) -> np.ndarray:
+    """(n, k) float32: each trajectory's posterior over the k policies, from
+    :func:`trajectory_scores`' (k, n) scores (the reported latents of ``policy_mix``)."""
+    return torch.softmax(scores, 0).T.numpy().astype(np.float32)
