@@ -134,6 +134,29 @@ class ClusterConfig(StrictModel):
         "(docs/clustering.md). bag_auto ignores it: it fits policy_mix both ways where its first "
         "fit is not stable and keeps the clearly more stable one.",
     )
+    policy_start: Literal["latent", "counters"] = Field(
+        "latent",
+        description="policy_mix's start: 'latent' (k-means on a per-trajectory style latent "
+        "fitted with one shared policy pi(a | s, z): what a trajectory does where others do "
+        "otherwise, not where its episode sent it) or 'counters' (k-means on the gain and mean "
+        "of the features that never decrease; the default before 2026-11-29, docs/clustering.md).",
+    )
+    latent_dims: int = Field(
+        4, ge=1, le=64, description="policy_start latent: dimensions of the style latent."
+    )
+    latent_beta: float = Field(
+        0.1,
+        gt=0.0,
+        le=100.0,
+        description="policy_start latent: weight of the latent's KL to its N(0, I) prior "
+        "(1 = the evidence lower bound; lower lets the latent carry more of each trajectory).",
+    )
+    latent_steps: int = Field(
+        1000,
+        ge=1,
+        le=100_000,
+        description="policy_start latent: Adam steps of the latent fit (4096 rows each).",
+    )
     ceiling: bool = Field(
         True,
         description="Where the log has true styles: score the clustering against the supervised "

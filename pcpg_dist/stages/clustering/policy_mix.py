@@ -1,6 +1,8 @@
 """``policy_mix``: a mixture of k neural policies pi_c(a | s) (shared trunk, k heads) fitted by
-hard EM over whole trajectories, started from k-means on the gain and mean of the features that
-never decrease within a trajectory (counters); for continuous states."""
+hard EM over whole trajectories, started from k-means on a per-trajectory style latent
+(:mod:`.latent_start`; or, with ``policy_start: counters``, on the gain and mean of the features
+that never decrease within a trajectory); for continuous states and discrete ones that rarely
+repeat."""
 
 from __future__ import annotations
 
@@ -14,6 +16,7 @@ from sklearn.exceptions import ConvergenceWarning
 from pcpg_dist.common.devices import resolve_device
 from pcpg_dist.common.errors import DataError
 from pcpg_dist.config.clustering import ClusterConfig
+from pcpg_dist.stages.clustering.latent_start import latent_start
 from pcpg_dist.stages.clustering.metrics import likelihood_margins
 from pcpg_dist.stages.clustering.model import ClusterModel, Fitted
 from pcpg_dist.stages.clustering.policy_network import (
@@ -91,6 +94,21 @@ def reseed_small(
     return done
 
 
+#: the first EM round after the latent start trains this many times ``policy_steps``: with 50
+#: steps the heads are barely fitted when EM first reassigns, and good starts drift away
+#: (docs/zoo.md, "Search or objective?")
+LATENT_FIRST_ROUND = 4
+
+
+def label_free_start(dataset, seen, offsets, inputs, cfg: ClusterConfig, seed: int):
+    """(labels, first round's Adam steps or None): policy_mix's start by ``policy_start``."""
+    n = len(offsets) - 1
+    if cfg.policy_start == "latent":  # a short first round would leave it (docs/zoo.md)
+        start = latent_start(inputs, n, cfg, dataset.n_actions, seed)
+        return start, LATENT_FIRST_ROUND * cfg.policy_steps
+    return counter_start(seen, offsets, cfg, seed), None
+
+
 ROWS_PER_TRAJECTORY = 64  # the fewest steps a trajectory gives the policies' fit, on average
 
 
@@ -106,6 +124,20 @@ def fit_sample(steps: int, n_trajectories: int, rows: int, gen: torch.Generator)
     return torch.randperm(steps, generator=gen)[:size].sort().values
 
 
+def _policy_view(dataset, states: np.ndarray, cfg: ClusterConfig):
+    """(seen, mean, std, inputs): the states the policies see (with ``policy_time``, t is a
+    counter too), their normaliser, and :func:`.policy_network.policy_inputs`."""
+    seen = policy_states(dataset, states, cfg.policy_time)
+    mean, std = fit_normaliser(seen)
+    inputs = policy_inputs(dataset, seen, mean, std)
+    if not len(inputs[1]):  # the actions
+        raise DataError(
+            f"policy_mix: {dataset.domain}-{dataset.env} has no step with an action "
+            "(it clusters by the actions taken)"
+        )
+    return seen, mean, std, inputs
+
+
 def _fit_policy_mix(
     dataset,
     states: np.ndarray,
@@ -118,24 +150,19 @@ def _fit_policy_mix(
 ) -> tuple[np.ndarray, PolicyMixture, np.ndarray, np.ndarray]:
     """Hard EM for a mixture of k policies over whole trajectories (call inside a forked torch RNG).
 
-    Start: :func:`counter_start` (or the labels ``start``; the first round may train
-    ``first_round_steps`` instead of ``policy_steps``: ``benchmarks/zoo/search.py`` uses both to
-    tell a limit of the search from one of the objective). Each round refits the k policy heads
-    (and the shared trunk) to the current labels by ``policy_steps`` full-batch Adam steps on the
-    steps :func:`fit_sample` drew, scores every step, moves every trajectory to the policy under
-    which its actions are most likely (+ log cluster share), and re-seeds the clusters that
+    Start: :func:`label_free_start`, or the labels ``start``; the first round may train
+    ``first_round_steps`` (``benchmarks/zoo/search.py``). Each round refits the k heads and the
+    trunk to the current labels by ``policy_steps`` full-batch Adam steps on the steps
+    :func:`fit_sample` drew, scores every step, moves every trajectory to its most likely policy
+    (+ log cluster share), and re-seeds the clusters that
     emptied (:func:`reseed_small`). Stops when fewer than ``em_tol`` of the labels moved.
     """
     n = len(offsets) - 1
-    seen = policy_states(dataset, states, cfg.policy_time)  # with policy_time, t is a counter too
-    mean, std = fit_normaliser(seen)
-    inputs = policy_inputs(dataset, seen, mean, std)
-    if not len(inputs[1]):  # the actions
-        raise DataError(
-            f"policy_mix: {dataset.domain}-{dataset.env} has no step with an action "
-            "(it clusters by the actions taken)"
-        )
-    labels = np.array(counter_start(seen, offsets, cfg, seed) if start is None else start, np.int64)
+    seen, mean, std, inputs = _policy_view(dataset, states, cfg)
+    if start is None:
+        start, first = label_free_start(dataset, seen, offsets, inputs, cfg, seed)
+        first_round_steps = first_round_steps or first
+    labels = np.array(start, np.int64)
     device = resolve_device(cfg.device, "clustering.device")
     gen = torch.Generator().manual_seed(seed)
     policy = PolicyMixture(
