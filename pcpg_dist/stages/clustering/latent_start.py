@@ -30,8 +30,11 @@ LATENT_ROWS = 4096
 
 
 class LatentPolicy(nn.Module):
-    """pi(a | s, z) (a tanh MLP of [s, z], its softmax head also given z) and each trajectory's
-    posterior N(mu, sigma^2) over z."""
+    """pi(a | s, z) and each trajectory's posterior N(mu, sigma^2) over z. The logits are
+    linear in [h, z] plus a bilinear term z^T M_a h (h: a tanh MLP of [s, z]): z picks which
+    features of the state count, as when styles head for different targets. Without the bilinear
+    term the latent alone was 0.57 on cartpole (0.99 with it) and, on a toy of four styles that
+    each follow their own one of four goal directions, policy_mix from it ended at 0.48 (0.99)."""
 
     def __init__(self, state_dim: int, n: int, dims: int, hidden: int, n_actions: int) -> None:
         super().__init__()
@@ -41,11 +44,15 @@ class LatentPolicy(nn.Module):
             nn.Linear(state_dim + dims, hidden), nn.Tanh(), nn.Linear(hidden, hidden), nn.Tanh()
         )
         self.head = nn.Linear(hidden + dims, n_actions)
+        self.bilinear = nn.Linear(hidden, n_actions * dims, bias=False)
+        self.dims, self.n_actions = dims, n_actions
 
     def reset_parameters(self, gen: torch.Generator) -> None:
         """PyTorch's default init and mu ~ N(0, 0.01^2), drawn from a local generator."""
         with torch.no_grad():
             self.mu.copy_(0.01 * torch.randn(self.mu.shape, generator=gen))
+            bound = 1.0 / math.sqrt(self.bilinear.in_features)
+            self.bilinear.weight.uniform_(-bound, bound, generator=gen)
             for lin in (self.trunk[0], self.trunk[2], self.head):
                 bound = 1.0 / math.sqrt(lin.in_features)
                 lin.weight.uniform_(-bound, bound, generator=gen)
@@ -55,7 +62,9 @@ class LatentPolicy(nn.Module):
         """-log pi(a_t | s_t, z) of each row, z = mu + sigma x ``noise`` of the row's trajectory."""
         z = self.mu[traj] + noise * self.log_sigma[traj].exp()
         h = self.trunk(torch.cat([s, z], 1))
-        logits = self.head(torch.cat([h, z], 1)).masked_fill(~valid, -1e9)
+        mod = self.bilinear(h).view(-1, self.n_actions, self.dims)  # z also scales the features
+        logits = self.head(torch.cat([h, z], 1)) + (mod * z[:, None, :]).sum(-1)
+        logits = logits.masked_fill(~valid, -1e9)
         return -torch.log_softmax(logits, -1).gather(1, a[:, None]).squeeze(1)
 
     def kl(self) -> torch.Tensor:
