@@ -67,10 +67,15 @@ def main() -> None:
     ap.add_argument("--betas", type=float, nargs="+", default=[0.1])
     ap.add_argument("--steps", type=int, nargs="+", default=[1000])
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
+    ap.add_argument("--rows", type=int, default=None, help="rows per latent Adam step")
     ap.add_argument("--time-step", action="store_true", help="policies see log(1 + t)")
     ap.add_argument("--em", action="store_true", help="also policy_mix's EM from each start")
     args = ap.parse_args()
     set_threads(1)
+    if args.rows:
+        from pcpg_dist.stages.clustering import latent_start
+
+        latent_start.LATENT_ROWS = args.rows
     for name in design_games(args.games, ap.error):
         game, _, ds = read_unit(name, args.root / name / "labelled")
         truth, k = np.asarray(ds.styles), len(game.styles)

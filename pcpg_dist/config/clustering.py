@@ -152,7 +152,7 @@ class ClusterConfig(StrictModel):
         "(1 = the evidence lower bound; lower lets the latent carry more of each trajectory).",
     )
     latent_steps: int = Field(
-        1000,
+        500,
         ge=1,
         le=100_000,
         description="policy_start latent: Adam steps of the latent fit (4096 rows each).",

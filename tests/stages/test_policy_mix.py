@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 import torch
+from sklearn.cluster import KMeans
 
 from pcpg_dist.common.devices import set_threads
 from pcpg_dist.common.errors import DataError
@@ -64,8 +65,6 @@ def fitted(goals):
 
 def test_separates_styles_that_only_the_actions_show(goals, fitted):
     # the label-free start (k-means on the counter) is near chance here; EM has to find the styles
-    from sklearn.cluster import KMeans
-
     summary = counter_summary(goals.states, goals.offsets)
     start = KMeans(4, n_init=4, random_state=0).fit_predict(summary)
     assert clustering_metrics(goals.styles, start)["accuracy"] < 0.45
@@ -274,3 +273,48 @@ def test_policies_fitted_to_a_sample_of_the_steps_still_separate_the_styles():
     whole = cluster(long, ClusterConfig(**FAST, policy_rows=0), seed=0)
     same = cluster(long, ClusterConfig(**FAST, policy_rows=steps), seed=0)
     np.testing.assert_array_equal(same.labels, whole.labels)  # a sample of every step is all
+
+
+def tasked_goal_seekers(n_per_style: int, seed: int, noise: float) -> Dataset:
+    """:func:`goal_seekers` where every episode also has a task (one of four, shown one-hot)
+    that sets how fast its counter runs, so k-means on counters sees the tasks, not the styles;
+    each style still heads for its own goal, with ``noise`` random moves."""
+    rng = np.random.default_rng(seed)
+    trajs, styles = [], []
+    for style in range(4):
+        for _ in range(n_per_style):
+            task, t = int(rng.integers(4)), int(rng.integers(10, 30))
+            move = rng.integers(0, 4, size=(t, 4))
+            shown = np.zeros((t, 4))
+            shown[:, task] = 1.0
+            counter = np.arange(t) * (task + 1) / 10
+            states = np.column_stack([MOVES[move].reshape(t, 8), shown, counter])
+            greedy = move[:-1, style]
+            actions = np.where(rng.random(t - 1) < noise, rng.integers(0, 4, t - 1), greedy)
+            trajs.append(
+                {"states": states, "actions": actions, "valid": np.full(t, 15),
+                 "rewards": np.zeros(t - 1)}
+            )  # fmt: skip
+            styles.append(style)
+    return Dataset.from_trajectories("toy", "tasked", 4, trajs, styles, [True] * len(trajs))
+
+
+def test_the_latent_start_finds_styles_where_counters_see_only_the_task(goals):
+    from pcpg_dist.stages.clustering.latent_start import latent_start
+    from pcpg_dist.stages.clustering.policy_mix import _policy_view
+
+    set_threads(1)
+    cfg = ClusterConfig(**FAST)
+    assert cfg.policy_start == "latent"  # the default
+    inputs = _policy_view(goals, goals.states, cfg)[3]
+    alone = latent_start(inputs, goals.n_trajectories, cfg, goals.n_actions, seed=0)
+    assert clustering_metrics(goals.styles, alone)["accuracy"] >= 0.9  # before any EM
+    again = latent_start(inputs, goals.n_trajectories, cfg, goals.n_actions, seed=0)
+    np.testing.assert_array_equal(again, alone)
+    ds = tasked_goal_seekers(40, seed=7, noise=0.5)
+    by_counters = ClusterConfig(**FAST, policy_start="counters")
+    start = KMeans(4, n_init=4, random_state=0).fit_predict(counter_summary(ds.states, ds.offsets))
+    assert clustering_metrics(ds.styles, start)["accuracy"] < 0.45  # the tasks, not the styles
+    old = clustering_metrics(ds.styles, cluster(ds, by_counters, seed=0).labels)["accuracy"]
+    new = clustering_metrics(ds.styles, cluster(ds, cfg, seed=0).labels)["accuracy"]
+    assert new >= 0.75 and new >= old + 0.1, (new, old)
