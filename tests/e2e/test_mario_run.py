@@ -45,7 +45,7 @@ def mario_cfg(tmp_path_factory):
         },
         # experiments/mario.yaml's pipeline: policy-mixture clusters, minibatch BC, per-cluster
         # agents fine-tuned from the No Clustering one
-        "clustering": {"method": "policy_mix", "k": 2},
+        "clustering": {"method": "policy_mix", "policy_start": "counters", "k": 2},
         "ranking": {"ps": [1.0, 0.5]},
         "bc": {
             "hidden_layers": 2,

@@ -61,7 +61,9 @@ def test_policy_mix_recovers_the_styles_its_start_collapsed(tmp_path):
     k = len(game.styles)
 
     def fit(share: float):
-        cfg = ClusterConfig(k=k, policy_min_share=share, confidence_runs=0)
+        cfg = ClusterConfig(  # the counters' start is the one that collapses here
+            k=k, policy_min_share=share, confidence_runs=0, policy_start="counters"
+        )
         return cluster(ds, cfg, 0)
 
     collapsed, reseeded = fit(0.0), fit(0.25)
@@ -88,12 +90,15 @@ def test_bag_auto_keeps_policy_mix_where_greedy_mix_wanders(tmp_path):
 
     game, _, ds = dataset_of("minigrid_empty", True, tmp_path)
     k = len(game.styles)
-    chosen = cluster(ds, ClusterConfig(k=k), 0)
+    # from the counters' start; from the latent start (the default) policy_mix's refits agree less
+    # here and greedy_mix is kept (docs/zoo.md, the seventh session's table)
+    counters = {"policy_start": "counters"}
+    chosen = cluster(ds, ClusterConfig(k=k, **counters), 0)
     m = chosen.metrics
     assert m["auto_chose_policy_mix"] == 1.0
     assert m["auto_stability_policy_mix"] > m["auto_stability_greedy_mix"] + MARGIN
     assert m["stability"] == m["auto_stability_policy_mix"]  # its confidence, not measured again
-    policy = cluster(ds, ClusterConfig(k=k, method="policy_mix"), 0)
+    policy = cluster(ds, ClusterConfig(k=k, method="policy_mix", **counters), 0)
     np.testing.assert_array_equal(chosen.labels, policy.labels)
     greedy = cluster(ds, ClusterConfig(k=k, method="greedy_mix"), 0)
 
