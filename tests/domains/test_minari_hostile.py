@@ -252,6 +252,7 @@ def test_metadata_json_that_is_a_link_out_or_a_fifo_is_one_line(data, tmp_path):
             ["'total_steps' is 1,000,000,000,000", "the episode files hold 6 episodes of 18 steps"],
         ),
         ({"data_format": "hdf5"}, ["'data_format' is 'hdf5'", "'arrow' or 'parquet'"]),
+        ({"data_format": []}, ["'data_format' is []", "'arrow' or 'parquet'"]),  # found by fuzzing
         ({"dataset_id": 5}, ["'dataset_id' is 5; expected a string"]),
         ({"minari_version": None}, ["'minari_version' is missing; expected a string"]),
         # without its spaces Minari would build the environment named in env_spec (import code)

@@ -90,7 +90,7 @@ def check_local_dataset(path: Path, dataset_id: str) -> dict:
         value = meta.get(key)
         if isinstance(value, bool) or not isinstance(value, int) or value < 0:
             raise DataError(f"{where} {_shown(meta, key)}; expected a whole number >= 0")
-    if meta.get("data_format") not in FORMATS:
+    if not isinstance(meta.get("data_format"), str) or meta["data_format"] not in FORMATS:
         raise DataError(
             f"{where} {_shown(meta, 'data_format')}; pcpg reads Minari datasets stored as "
             f"'arrow' or 'parquet'"
