@@ -36,6 +36,7 @@ def run_game(ds, k: int, truth: np.ndarray, args) -> list[str]:
         return clustering_metrics(truth, labels)["accuracy"]
 
     base = ClusterConfig(method="policy_mix", k=k, policy_time=args.time_step)
+    inputs = _policy_view(ds, states, base)[3]  # the settings swept do not change them
     if args.em:
         t0 = time.perf_counter()
         acc = em(base.model_copy(update={"policy_start": "counters"}))
@@ -46,7 +47,6 @@ def run_game(ds, k: int, truth: np.ndarray, args) -> list[str]:
     ):  # fmt: skip
         cfg = base.model_copy(update={"latent_dims": d, "latent_beta": beta, "latent_steps": steps})
         t0 = time.perf_counter()
-        inputs = _policy_view(ds, states, cfg)[3]
         alone = clustering_metrics(truth, latent_start(inputs, n, cfg, ds.n_actions, seed))
         line = f"d={d} beta={beta} steps={steps} seed={seed} latent {alone['accuracy']:.3f}"
         if args.em and seed == 0:

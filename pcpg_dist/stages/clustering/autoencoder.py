@@ -29,6 +29,7 @@ from torch import nn
 from torch.nn.utils.rnn import PackedSequence
 
 from pcpg_dist.common.errors import DataError
+from pcpg_dist.stages.clustering.policy_network import uniform_init
 
 
 @dataclass(frozen=True)
@@ -92,10 +93,7 @@ class SequenceAutoencoder(nn.Module):
                 bound = 1.0 / math.sqrt(module.hidden_size)
                 for p in module.parameters():
                     p.uniform_(-bound, bound, generator=generator)
-            for lin in (self.to_latent, self.to_state):
-                bound = 1.0 / math.sqrt(lin.in_features)
-                lin.weight.uniform_(-bound, bound, generator=generator)
-                lin.bias.uniform_(-bound, bound, generator=generator)
+        uniform_init((self.to_latent, self.to_state), generator)
 
     def encode(self, packed: PackedSequence, batch: PackedBatch | None = None) -> torch.Tensor:
         """Latent z per sequence: from the last hidden state, or (``last_mean``) the last hidden

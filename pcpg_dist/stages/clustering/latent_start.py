@@ -14,7 +14,6 @@ start"). The latent's fit is continuous and joint, with no hard assignment to ge
 
 from __future__ import annotations
 
-import math
 import warnings
 
 import numpy as np
@@ -22,6 +21,8 @@ import torch
 from sklearn.cluster import KMeans
 from sklearn.exceptions import ConvergenceWarning
 from torch import nn
+
+from pcpg_dist.stages.clustering.policy_network import uniform_init
 
 #: hidden units of the latent policy (as measured in benchmarks/zoo/latent_exp.py)
 LATENT_HIDDEN = 64
@@ -51,12 +52,7 @@ class LatentPolicy(nn.Module):
         """PyTorch's default init and mu ~ N(0, 0.01^2), drawn from a local generator."""
         with torch.no_grad():
             self.mu.copy_(0.01 * torch.randn(self.mu.shape, generator=gen))
-            bound = 1.0 / math.sqrt(self.bilinear.in_features)
-            self.bilinear.weight.uniform_(-bound, bound, generator=gen)
-            for lin in (self.trunk[0], self.trunk[2], self.head):
-                bound = 1.0 / math.sqrt(lin.in_features)
-                lin.weight.uniform_(-bound, bound, generator=gen)
-                lin.bias.uniform_(-bound, bound, generator=gen)
+        uniform_init((self.bilinear, self.trunk[0], self.trunk[2], self.head), gen)
 
     def step_nll(self, s, a, valid, traj, noise: torch.Tensor) -> torch.Tensor:
         """-log pi(a_t | s_t, z) of each row, z = mu + sigma x ``noise`` of the row's trajectory."""

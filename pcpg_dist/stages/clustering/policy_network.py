@@ -15,6 +15,17 @@ from torch import nn
 from pcpg_dist.common.errors import DataError
 
 
+def uniform_init(linears, generator: torch.Generator) -> None:
+    """PyTorch's default init of each ``nn.Linear`` in turn (weight, then bias where it has one:
+    uniform +-1/sqrt(in_features)), drawn from ``generator`` instead of the global RNG."""
+    with torch.no_grad():
+        for lin in linears:
+            bound = 1.0 / math.sqrt(lin.in_features)
+            lin.weight.uniform_(-bound, bound, generator=generator)
+            if lin.bias is not None:
+                lin.bias.uniform_(-bound, bound, generator=generator)
+
+
 class PolicyMixture(nn.Module):
     """k policies pi_c(a | s) over one shared tanh MLP trunk: k softmax heads of n_actions logits.
 
@@ -39,11 +50,7 @@ class PolicyMixture(nn.Module):
 
     def reset_parameters(self, generator: torch.Generator) -> None:
         """PyTorch's default init, drawn from a local generator (see SequenceAutoencoder)."""
-        with torch.no_grad():
-            for lin in (self.trunk[0], self.trunk[2], self.heads):
-                bound = 1.0 / math.sqrt(lin.in_features)
-                lin.weight.uniform_(-bound, bound, generator=generator)
-                lin.bias.uniform_(-bound, bound, generator=generator)
+        uniform_init((self.trunk[0], self.trunk[2], self.heads), generator)
 
     def step_log_probs(
         self, states: torch.Tensor, actions: torch.Tensor, valid: torch.Tensor
