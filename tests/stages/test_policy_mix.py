@@ -21,6 +21,7 @@ from pcpg_dist.stages.clustering import (
     monotone_features,
 )
 from pcpg_dist.stages.clustering.policy_mix import fit_sample
+from pcpg_dist.stages.clustering.policy_network import picked_log_probs
 
 MOVES = np.array([[-1, 0], [0, 1], [1, 0], [0, -1]], float)  # up, right, down, left
 FAST = dict(method="policy_mix", k=4, hidden_size=16, kmeans_n_init=4)
@@ -320,3 +321,27 @@ def test_the_latent_start_finds_styles_where_counters_see_only_the_task(goals):
     old = clustering_metrics(ds.styles, cluster(ds, by_counters, seed=0).labels)["accuracy"]
     new = clustering_metrics(ds.styles, cluster(ds, cfg, seed=0).labels)["accuracy"]
     assert new >= 0.75 and new >= old + 0.1, (new, old)
+
+
+@pytest.mark.parametrize("heads", [None, 3])
+def test_picked_log_probs_is_the_masked_log_softmax_of_the_taken_action(heads):
+    """Values and gradients equal log_softmax over the valid actions, then the taken one's; the
+    masked actions get no probability and no gradient."""
+    gen = torch.Generator().manual_seed(0)
+    rows, n_actions = 50, 5
+    shape = (rows, n_actions) if heads is None else (rows, heads, n_actions)
+    logits = (3 * torch.randn(shape, generator=gen)).requires_grad_()
+    actions = torch.randint(n_actions, (rows,), generator=gen)
+    valid = torch.rand(rows, n_actions, generator=gen) > 0.4
+    valid[torch.arange(rows), actions] = True
+    mask = valid if heads is None else valid[:, None, :]
+    index = actions[:, None] if heads is None else actions[:, None, None].expand(rows, heads, 1)
+    ref = torch.log_softmax(logits.masked_fill(~mask, -1e9), -1).gather(-1, index).squeeze(-1)
+    (ref_grad,) = torch.autograd.grad(ref.sum(), logits)
+    got = picked_log_probs(logits, actions, valid)
+    (grad,) = torch.autograd.grad(got.sum(), logits)
+    assert got.shape == ref.shape
+    torch.testing.assert_close(got, ref, atol=1e-5, rtol=1e-5)
+    torch.testing.assert_close(grad, ref_grad, atol=1e-5, rtol=1e-5)
+    assert (grad.masked_select(~mask.expand(shape)) == 0).all()
+    assert (got <= 0).all() and (got > -30).all()

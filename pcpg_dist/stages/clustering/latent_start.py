@@ -22,7 +22,7 @@ from sklearn.cluster import KMeans
 from sklearn.exceptions import ConvergenceWarning
 from torch import nn
 
-from pcpg_dist.stages.clustering.policy_network import uniform_init
+from pcpg_dist.stages.clustering.policy_network import picked_log_probs, uniform_init
 
 #: hidden units of the latent policy (as measured in benchmarks/zoo/latent_exp.py)
 LATENT_HIDDEN = 64
@@ -60,8 +60,7 @@ class LatentPolicy(nn.Module):
         h = self.trunk(torch.cat([s, z], 1))
         mod = self.bilinear(h).view(-1, self.n_actions, self.dims)  # z also scales the features
         logits = self.head(torch.cat([h, z], 1)) + (mod * z[:, None, :]).sum(-1)
-        logits = logits.masked_fill(~valid, -1e9)
-        return -torch.log_softmax(logits, -1).gather(1, a[:, None]).squeeze(1)
+        return -picked_log_probs(logits, a, valid)
 
     def kl(self) -> torch.Tensor:
         """KL(q(z_i) || N(0, I)) of every trajectory."""

@@ -26,6 +26,23 @@ def uniform_init(linears, generator: torch.Generator) -> None:
                 lin.bias.uniform_(-bound, bound, generator=generator)
 
 
+def picked_log_probs(logits: torch.Tensor, actions: torch.Tensor, valid: torch.Tensor):
+    """log softmax(logits)[a] of each row's taken action, the actions not ``valid`` masked out.
+
+    ``logits``: (rows, n_actions) or (rows, k, n_actions); ``actions``: (rows,); ``valid``: (rows,
+    n_actions) bool. Returns (rows,) or (rows, k). Computed as picked - max - log sum exp(logits -
+    max) over a row-wise additive mask: forward and backward on the CPU 1.6-2.1x faster than a
+    masked_fill, log_softmax and gather with 3-9 actions, within 10 % of it with 18
+    (``benchmarks/bench_log_probs.py``); policy_mix spent a third of its time in log_softmax.
+    """
+    mask = torch.zeros(valid.shape, device=logits.device).masked_fill_(~valid, -1e9)
+    shape = (len(actions),) + (1,) * (logits.dim() - 2)
+    logits = logits + mask.view(*shape, -1)
+    top = logits.detach().amax(-1, keepdim=True)
+    picked = logits.gather(-1, actions.view(*shape, 1).expand(*logits.shape[:-1], 1))
+    return (picked - top - (logits - top).exp().sum(-1, keepdim=True).log()).squeeze(-1)
+
+
 class PolicyMixture(nn.Module):
     """k policies pi_c(a | s) over one shared tanh MLP trunk: k softmax heads of n_actions logits.
 
@@ -57,9 +74,7 @@ class PolicyMixture(nn.Module):
     ) -> torch.Tensor:
         """(k, rows): log pi_c(a_t | s_t) of every step under every head, invalid actions masked."""
         logits = self.heads(self.trunk(states)).view(len(states), self.k, self.n_actions)
-        logits = logits.permute(1, 0, 2).masked_fill(~valid, -1e9)
-        picked = actions.expand(self.k, -1).unsqueeze(-1)
-        return torch.log_softmax(logits, -1).gather(2, picked).squeeze(-1)
+        return picked_log_probs(logits, actions, valid).T
 
 
 def policy_states(dataset, states: np.ndarray, time: bool) -> np.ndarray:
