@@ -259,6 +259,24 @@ def test_bag_auto_keeps_the_time_step_only_where_its_fit_is_clearly_more_stable(
     assert plain.model.policy.time == bool(plain.metrics["auto_chose_policy_time"])
 
 
+def test_a_fit_that_leaves_clusters_empty_never_wins_the_choice_by_its_stability():
+    # two refits that put every trajectory in one cluster agree perfectly (ARI 1): such a fit
+    # must not stop bag_auto's search nor beat a fit that fills all k clusters
+    from pcpg_dist.stages.clustering.select import MARGIN, better, filled
+    from pcpg_dist.stages.clustering.step import Clustering
+
+    def fit(used: int) -> Clustering:
+        return Clustering(np.zeros(8, np.int64), None, {"n_clusters_used": float(used)}, None, 0.0)
+
+    collapsed, full = fit(1), fit(4)
+    assert not filled(collapsed, 4) and filled(full, 4)
+    assert better(full, 0.05, collapsed, 1.0, 4)  # fills k: replaces a stabler collapse
+    assert not better(collapsed, 1.0, full, 0.05, 4)
+    assert better(full, 0.5 + MARGIN + 0.01, fit(4), 0.5, 4)
+    assert not better(full, 0.5 + MARGIN, fit(4), 0.5, 4)  # not by more than MARGIN
+    assert better(fit(2), 0.9, fit(1), 0.5, 4)  # neither fills k: stability decides
+
+
 def test_policies_fitted_to_a_sample_of_the_steps_still_separate_the_styles():
     gen = torch.Generator().manual_seed(0)
     assert fit_sample(100, 2, 0, gen).tolist() == list(range(100))  # 0: every step
