@@ -170,6 +170,14 @@ class ClusterConfig(StrictModel):
         description="Label-free confidence: refits of the method on random subsamples, compared "
         "with the clustering (stability; 0 = not measured). Each refit costs about one clustering.",
     )
+    restarts: int = Field(
+        1,
+        ge=1,
+        le=20,
+        description="Label-free restarts: fit each of bag_auto's candidates (or the chosen "
+        "method) this many times from different seeds and keep the most stable fit (needs "
+        "confidence_runs > 0). Each restart costs one clustering and its refits; 1 = one fit.",
+    )
     confidence_fraction: float = Field(
         0.8,
         gt=0.0,

@@ -363,3 +363,28 @@ def test_picked_log_probs_is_the_masked_log_softmax_of_the_taken_action(heads):
     torch.testing.assert_close(grad, ref_grad, atol=1e-5, rtol=1e-5)
     assert (grad.masked_select(~mask.expand(shape)) == 0).all()
     assert (got <= 0).all() and (got > -30).all()
+
+
+def test_restarts_keep_the_most_stable_of_their_fits():
+    # clustering.restarts: each restart is the fit and refits of its own seed; the kept one is
+    # the most stable, its labels and stability are that restart's, and the run is repeatable
+    from pcpg_dist.stages.clustering.confidence import stability
+    from pcpg_dist.stages.clustering.select import RESTART_SEEDS
+    from pcpg_dist.stages.clustering.step import cluster_once
+
+    set_threads(1)
+    ds = tasked_goal_seekers(8, seed=1, noise=0.6)  # noisy: the restarts' stabilities differ
+    cfg = ClusterConfig(**FAST, restarts=3, confidence_runs=1)
+    kept = cluster(ds, cfg, seed=0)
+    fits = [cluster_once(ds, cfg, RESTART_SEEDS * r) for r in range(3)]
+    stable = [stability(ds, cfg, RESTART_SEEDS * r, f.labels, 1, 0.8) for r, f in enumerate(fits)]
+    stable = [s["stability"] for s in stable]
+    assert len(set(stable)) == 3, stable  # the choice is not a tie
+    best = int(np.argmax(stable))
+    assert kept.metrics["restart_kept"] == best
+    assert kept.metrics["stability"] == pytest.approx(max(stable))
+    np.testing.assert_array_equal(kept.labels, fits[best].labels)
+    np.testing.assert_array_equal(cluster(ds, cfg, seed=0).labels, kept.labels)
+    one = cluster(ds, cfg.model_copy(update={"restarts": 1}), seed=0)  # no restarts: as before
+    np.testing.assert_array_equal(one.labels, cluster_once(ds, cfg, 0).labels)
+    assert "restart_kept" not in one.metrics

@@ -67,6 +67,8 @@ def cluster(dataset, cfg, seed: int) -> Clustering:
     Call :func:`pcpg_dist.common.devices.set_threads` first: same data + seed + threads = same labels.
     """
     tried = candidates(dataset, cfg) if chooses(cfg) else []
+    if not tried and cfg.restarts > 1 and cfg.confidence_runs > 0 and cfg.k > 1:
+        tried = [(cfg.method, cfg)]  # one method, restarted: keep its most stable fit
     if not tried:
         return cluster_once(dataset, cfg, seed)
     return most_stable(dataset, cfg, seed, tried)
@@ -77,9 +79,16 @@ def filled(result: Clustering, k: int) -> bool:
     return result.metrics.get("n_clusters_used", k) >= k
 
 
-def better(result: Clustering, stable: float, kept: Clustering, kept_stable: float, k: int) -> bool:
+def better(
+    result: Clustering,
+    stable: float,
+    kept: Clustering,
+    kept_stable: float,
+    k: int,
+    margin: float = MARGIN,
+) -> bool:
     """Whether a candidate's fit replaces the one kept so far: it fills all k clusters where the
-    kept one does not, or both fill as many and its stability is higher by more than MARGIN.
+    kept one does not, or both fill as many and its stability is higher by more than ``margin``.
 
     A fit that leaves clusters empty is no evidence of k styles, however stable: two refits that
     put every trajectory in one cluster agree perfectly (ARI 1), so on tictactoe greedy_mix's
@@ -87,7 +96,30 @@ def better(result: Clustering, stable: float, kept: Clustering, kept_stable: flo
     policy_mix (0.58), on this project's AVX-512 machine; its refits had split there before."""
     if filled(result, k) != filled(kept, k):
         return filled(result, k)
-    return stable > kept_stable + MARGIN
+    return stable > kept_stable + margin
+
+
+#: restart r of a fit uses seed + RESTART_SEEDS * r (its refits use the seeds after its own)
+RESTART_SEEDS = 1000
+
+
+def best_restart(dataset, one, cfg, seed: int) -> tuple[Clustering, dict, int]:
+    """(clustering, its stability metrics, restart index): the most stable of ``cfg.restarts``
+    fits of one candidate ``one``, each with its ``confidence_runs`` refits; the restarts stop
+    once a fit fills all k clusters with stability ``1 - MARGIN`` or more."""
+    kept = None
+    for r in range(cfg.restarts):
+        at = seed + RESTART_SEEDS * r
+        result = cluster_once(dataset, one, at)
+        found = stability(
+            dataset, one, at, result.labels, cfg.confidence_runs, cfg.confidence_fraction
+        )
+        stable = found["stability"]
+        if kept is None or better(result, stable, kept[0], kept[1]["stability"], cfg.k, 0.0):
+            kept = (result, found, r)
+        if filled(kept[0], cfg.k) and kept[1]["stability"] + MARGIN >= 1.0:
+            break
+    return kept
 
 
 def most_stable(dataset, cfg, seed: int, tried: list[tuple[str, object]]) -> Clustering:
@@ -99,17 +131,15 @@ def most_stable(dataset, cfg, seed: int, tried: list[tuple[str, object]]) -> Clu
     for name, one in tried:
         if kept is not None and filled(kept[1], cfg.k) and stable[kept[0]] + MARGIN >= 1.0:
             break  # no stability can beat it by MARGIN: GridWorld
-        result = cluster_once(dataset, one, seed)
-        found = stability(
-            dataset, one, seed, result.labels, cfg.confidence_runs, cfg.confidence_fraction
-        )
+        result, found, restart = best_restart(dataset, one, cfg, seed)
         stable[name] = found["stability"]
         if kept is None or better(result, found["stability"], kept[1], stable[kept[0]], cfg.k):
-            kept = (name, result, found)
-    chosen, result, found = kept
+            kept = (name, result, found, restart)
+    chosen, result, found, restart = kept
     metrics = {
         **result.metrics,
         **found,
+        **({"restart_kept": float(restart)} if cfg.restarts > 1 else {}),
         **{f"auto_stability_{m}": v for m, v in stable.items()},
         "auto_chose_policy_mix": float(chosen != "greedy_mix" and "greedy_mix" in stable),
         "auto_chose_policy_time": float(chosen == TIMED),
