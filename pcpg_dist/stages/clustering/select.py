@@ -29,6 +29,7 @@ from __future__ import annotations
 import dataclasses
 import time
 
+from pcpg_dist.config.clusterers import CLUSTERERS
 from pcpg_dist.stages.clustering.auto import chooses, fallback_for, falls_back
 from pcpg_dist.stages.clustering.confidence import stability
 from pcpg_dist.stages.clustering.step import Clustering, cluster_once
@@ -103,12 +104,26 @@ def better(
 RESTART_SEEDS = 1000
 
 
+def restartable(one, dataset) -> bool:
+    """Whether restarts can change candidate ``one``'s fit: a network's training depends on its
+    seed. The bag and greedy methods already search from many seeded starts within one fit
+    (greedy_mix: k-means starts of k to k + 2 clusters, then split and merge), so a restart would
+    only redraw their refits' subsamples, and keeping the highest of those stabilities is a
+    winner's curse: on leduc_poker, restarting greedy_mix too kept its 0.585 at stability 0.91
+    over policy_mix's 0.757 (docs/zoo.md, "Restarts")."""
+    method = one.method
+    if falls_back(dataset):
+        method = fallback_for(method, dataset) or method
+    return CLUSTERERS[method].trains_network
+
+
 def best_restart(dataset, one, cfg, seed: int) -> tuple[Clustering, dict, int]:
     """(clustering, its stability metrics, restart index): the most stable of ``cfg.restarts``
-    fits of one candidate ``one``, each with its ``confidence_runs`` refits; the restarts stop
-    once a fit fills all k clusters with stability ``1 - MARGIN`` or more."""
+    fits of one candidate ``one`` (one fit where it is not :func:`restartable`), each with its
+    ``confidence_runs`` refits; the restarts stop once a fit fills all k clusters with stability
+    ``1 - MARGIN`` or more."""
     kept = None
-    for r in range(cfg.restarts):
+    for r in range(cfg.restarts if restartable(one, dataset) else 1):
         at = seed + RESTART_SEEDS * r
         result = cluster_once(dataset, one, at)
         found = stability(
