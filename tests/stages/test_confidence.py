@@ -33,6 +33,15 @@ def test_one_style_cut_into_clusters_is_no_evidence():
     said = verdict_of({**result.metrics, **found})
     assert said.verdict == "no evidence of 3 styles", said
     assert "clusters hold trajectories" in said.reasons[1]
+    # bag_auto's own confidence: a fit that fills the 3 clusters may be kept for its labels
+    # (select.better), but it does not overrule greedy_mix's collapse unless its stability
+    # reads "styles found"
+    own = verdict_of(result.metrics)
+    assert own.verdict == "no evidence of 3 styles", own
+    assert "clusters hold trajectories" in own.reasons[1]
+    if result.metrics["n_clusters_used"] == 3:
+        assert result.metrics["auto_clusters_used_greedy_mix"] < 3
+        assert result.metrics["stability"] < FOUND
     # k-means must cut it into 3: where the cuts fall moves with the sample
     cut = ClusterConfig(k=3, method="summary_kmeans")
     result = cluster(ds, cut, 0)
@@ -52,3 +61,17 @@ def test_a_style_split_in_two_is_flagged_as_two_clusters_that_look_like_one():
     assert "clusters 0 and 2 look like one style" in said.reasons
     assert "bag_auto fell back to policy_mix (continuous states)" in said.reasons
     assert verdict_of({}).verdict == "not measured"
+
+
+def test_a_candidates_collapse_is_no_evidence_unless_the_kept_fit_reads_styles_found():
+    base = {"n_clusters_used": 3.0, "auto_clusters_used_greedy_mix": 1.0}
+    weak = verdict_of({**base, "stability": FOUND - 0.01}, 3)
+    assert weak.verdict == "no evidence of 3 styles", weak
+    assert weak.reasons[1] == "in greedy_mix's fit only 1 of 3 clusters hold trajectories"
+    assert verdict_of({**base, "stability": FOUND}, 3).verdict == "styles found"
+    filled = {"n_clusters_used": 3.0, "auto_clusters_used_greedy_mix": 3.0, "stability": 0.6}
+    assert verdict_of(filled, 3).verdict == "weak evidence"
+    tagged = {
+        f"clustering/{key}": v for key, v in base.items()
+    }  # as MLflow and the report hold them
+    assert verdict_of({**tagged, "clustering/stability": 0.6}, 3).verdict.startswith("no evidence")

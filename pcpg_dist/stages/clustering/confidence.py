@@ -96,6 +96,18 @@ class Verdict:
         return self.verdict.startswith(("weak evidence", "no evidence"))
 
 
+def collapsed_candidate(metrics: dict, k: int | None) -> tuple[str, float] | None:
+    """(name, clusters used) of a candidate that ``bag_auto`` fitted and did not keep because it
+    left clusters empty (``auto_clusters_used_<name>`` below k), or None. A collapse says the log
+    may hold fewer styles than k; the kept fit that fills all k overrules it only where its own
+    stability reads "styles found" (:func:`verdict_of`)."""
+    for key, v in metrics.items():
+        name = key.removeprefix("clustering/")
+        if k and name.startswith("auto_clusters_used_") and float(v) < k:
+            return name.removeprefix("auto_clusters_used_"), float(v)
+    return None
+
+
 def verdict_of(metrics: dict, k: int | None = None) -> Verdict:
     """The verdict from a unit's clustering metrics (``clustering/…`` keys or bare ones)."""
 
@@ -130,6 +142,11 @@ def verdict_of(metrics: dict, k: int | None = None) -> Verdict:
     used = get("n_clusters_used")
     if k and used is not None and used < k:  # a collapse is stable, and says fewer styles
         reasons.insert(1, f"only {used:.0f} of {k} clusters hold trajectories")
+        return Verdict(f"no evidence of {k} styles", tuple(reasons))
+    collapsed = collapsed_candidate(metrics, k)
+    if collapsed and s < FOUND:  # the kept fit does not overrule another candidate's collapse
+        name, n = collapsed
+        reasons.insert(1, f"in {name}'s fit only {n:.0f} of {k} clusters hold trajectories")
         return Verdict(f"no evidence of {k} styles", tuple(reasons))
     if s >= FOUND:
         word = "styles found"

@@ -91,10 +91,12 @@ def better(
     """Whether a candidate's fit replaces the one kept so far: it fills all k clusters where the
     kept one does not, or both fill as many and its stability is higher by more than ``margin``.
 
-    A fit that leaves clusters empty is no evidence of k styles, however stable: two refits that
-    put every trajectory in one cluster agree perfectly (ARI 1), so on tictactoe greedy_mix's
-    collapse to one cluster (0.444) read as stability 1.00 and stopped the search before
-    policy_mix (0.58), on this project's AVX-512 machine; its refits had split there before."""
+    A fit that leaves clusters empty has no measurable stability: two refits that put every
+    trajectory in one cluster agree perfectly (ARI 1), so on tictactoe greedy_mix's collapse to
+    one cluster (0.444) read as stability 1.00 and stopped the search before policy_mix (0.58),
+    on this project's AVX-512 machine; its refits had split there before. The collapse still
+    counts as evidence of fewer styles: the verdict says "no evidence of k styles" unless the
+    kept fit reads "styles found" (:func:`.confidence.collapsed_candidate`)."""
     if filled(result, k) != filled(kept, k):
         return filled(result, k)
     return stable > kept_stable + margin
@@ -142,12 +144,13 @@ def most_stable(dataset, cfg, seed: int, tried: list[tuple[str, object]]) -> Clu
     candidate's stability and the choice in its metrics; its ``fit_seconds`` are those of every
     fit and refit."""
     start = time.perf_counter()
-    stable, kept = {}, None
+    stable, used, kept = {}, {}, None
     for name, one in tried:
         if kept is not None and filled(kept[1], cfg.k) and stable[kept[0]] + MARGIN >= 1.0:
             break  # no stability can beat it by MARGIN: GridWorld
         result, found, restart = best_restart(dataset, one, cfg, seed)
         stable[name] = found["stability"]
+        used[name] = result.metrics.get("n_clusters_used", cfg.k)
         if kept is None or better(result, found["stability"], kept[1], stable[kept[0]], cfg.k):
             kept = (name, result, found, restart)
     chosen, result, found, restart = kept
@@ -156,6 +159,7 @@ def most_stable(dataset, cfg, seed: int, tried: list[tuple[str, object]]) -> Clu
         **found,
         **({"restart_kept": float(restart)} if cfg.restarts > 1 else {}),
         **{f"auto_stability_{m}": v for m, v in stable.items()},
+        **{f"auto_clusters_used_{m}": v for m, v in used.items()},
         "auto_chose_policy_mix": float(chosen != "greedy_mix" and "greedy_mix" in stable),
         "auto_chose_policy_time": float(chosen == TIMED),
     }
