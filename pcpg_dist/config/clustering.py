@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from pcpg_dist.config.clusterers import ClusterMethod
 from pcpg_dist.config.schema import StrictModel
@@ -191,3 +191,12 @@ class ClusterConfig(StrictModel):
         description="At most this many points "
         "(seeded sample) for the silhouette score, which is O(n^2).",
     )
+
+    @model_validator(mode="after")
+    def _restarts_need_refits(self) -> ClusterConfig:
+        if self.restarts > 1 and self.confidence_runs == 0:
+            raise ValueError(
+                f"restarts {self.restarts} keeps the most stable restart, and stability needs "
+                "refits: set confidence_runs >= 1, or restarts: 1"
+            )
+        return self

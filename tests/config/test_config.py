@@ -122,6 +122,12 @@ def test_a_config_anywhere_runs_the_paper_layouts_without_naming_a_folder(tmp_pa
             "bag_auto, policy_mix); lstm_dec gives none",
         ),
         ({"ranking": {"style_margin": -1}}, "key 'ranking.style_margin': value -1 is not allowed"),
+        (
+            {"clustering": {"restarts": 3, "confidence_runs": 0}},
+            "section 'clustering': restarts 3 keeps the most stable restart, and stability needs "
+            "refits: set confidence_runs >= 1, or restarts: 1",
+        ),
+        ({"clustering": {"restarts": 0}}, "key 'clustering.restarts': value 0 is not allowed"),
     ],
 )
 def test_bad_values_give_one_line(tmp_path, patch, needle):
