@@ -94,9 +94,9 @@ def better(
     A fit that leaves clusters empty has no measurable stability: two refits that put every
     trajectory in one cluster agree perfectly (ARI 1), so on tictactoe greedy_mix's collapse to
     one cluster (0.444) read as stability 1.00 and stopped the search before policy_mix (0.58),
-    on this project's AVX-512 machine; its refits had split there before. The collapse still
-    counts as evidence of fewer styles: the verdict says "no evidence of k styles" unless the
-    kept fit reads "styles found" (:func:`.confidence.collapsed_candidate`)."""
+    on the eighth session's machine (on the seventh's, same code, its refits had split). The
+    collapse still counts as evidence of fewer styles: the verdict says "no evidence of k
+    styles" unless the kept fit reads "styles found" (:func:`.confidence.collapsed_candidate`)."""
     if filled(result, k) != filled(kept, k):
         return filled(result, k)
     return stable > kept_stable + margin
