@@ -75,9 +75,20 @@ def cluster(dataset, cfg, seed: int) -> Clustering:
     return most_stable(dataset, cfg, seed, tried)
 
 
+def clusters_used(result: Clustering, k: int) -> float:
+    """How many of the k clusters hold a trajectory."""
+    return result.metrics.get("n_clusters_used", k)
+
+
 def filled(result: Clustering, k: int) -> bool:
     """Whether every one of the k clusters holds a trajectory."""
-    return result.metrics.get("n_clusters_used", k) >= k
+    return clusters_used(result, k) >= k
+
+
+def settled(result: Clustering, stable: float, k: int) -> bool:
+    """Whether no other fit can beat ``result`` (:func:`better`): it fills all k clusters and
+    its stability is ``1 - MARGIN`` or more, so no further fit is tried."""
+    return filled(result, k) and stable + MARGIN >= 1.0
 
 
 def better(
@@ -106,26 +117,26 @@ def better(
 RESTART_SEEDS = 1000
 
 
-def restartable(one, dataset) -> bool:
+def restartable(one, dataset, fell: bool) -> bool:
     """Whether restarts can change candidate ``one``'s fit: a network's training depends on its
     seed. The bag and greedy methods already search from many seeded starts within one fit
     (greedy_mix: k-means starts of k to k + 2 clusters, then split and merge), so a restart would
     only redraw their refits' subsamples, and keeping the highest of those stabilities is a
     winner's curse: on leduc_poker, restarting greedy_mix too kept its 0.585 at stability 0.91
-    over policy_mix's 0.757 (docs/zoo.md, "Restarts")."""
+    over policy_mix's 0.757 (docs/zoo.md, "Restarts"). ``fell``: :func:`.auto.falls_back`."""
     method = one.method
-    if falls_back(dataset):
+    if fell:
         method = fallback_for(method, dataset) or method
     return CLUSTERERS[method].trains_network
 
 
-def best_restart(dataset, one, cfg, seed: int) -> tuple[Clustering, dict, int]:
+def best_restart(dataset, one, cfg, seed: int, fell: bool) -> tuple[Clustering, dict, int]:
     """(clustering, its stability metrics, restart index): the most stable of ``cfg.restarts``
     fits of one candidate ``one`` (one fit where it is not :func:`restartable`), each with its
     ``confidence_runs`` refits; the restarts stop once a fit fills all k clusters with stability
     ``1 - MARGIN`` or more."""
     kept = None
-    for r in range(cfg.restarts if restartable(one, dataset) else 1):
+    for r in range(cfg.restarts if restartable(one, dataset, fell) else 1):
         at = seed + RESTART_SEEDS * r
         result = cluster_once(dataset, one, at)
         found = stability(
@@ -134,7 +145,7 @@ def best_restart(dataset, one, cfg, seed: int) -> tuple[Clustering, dict, int]:
         stable = found["stability"]
         if kept is None or better(result, stable, kept[0], kept[1]["stability"], cfg.k, 0.0):
             kept = (result, found, r)
-        if filled(kept[0], cfg.k) and kept[1]["stability"] + MARGIN >= 1.0:
+        if settled(kept[0], kept[1]["stability"], cfg.k):
             break
     return kept
 
@@ -145,12 +156,13 @@ def most_stable(dataset, cfg, seed: int, tried: list[tuple[str, object]]) -> Clu
     fit and refit."""
     start = time.perf_counter()
     stable, used, kept = {}, {}, None
+    fell = cfg.restarts > 1 and falls_back(dataset)  # restartable() reads it: computed once
     for name, one in tried:
-        if kept is not None and filled(kept[1], cfg.k) and stable[kept[0]] + MARGIN >= 1.0:
+        if kept is not None and settled(kept[1], stable[kept[0]], cfg.k):
             break  # no stability can beat it by MARGIN: GridWorld
-        result, found, restart = best_restart(dataset, one, cfg, seed)
+        result, found, restart = best_restart(dataset, one, cfg, seed, fell)
         stable[name] = found["stability"]
-        used[name] = result.metrics.get("n_clusters_used", cfg.k)
+        used[name] = clusters_used(result, cfg.k)
         if kept is None or better(result, found["stability"], kept[1], stable[kept[0]], cfg.k):
             kept = (name, result, found, restart)
     chosen, result, found, restart = kept
