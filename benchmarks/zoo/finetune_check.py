@@ -4,10 +4,9 @@ unit's per-cluster agents keep their 100-step fine-tune from the No Clustering a
 
     uv run python -m benchmarks.zoo.finetune_check [GAME ...] [--ci] [--json FILE]
 
-Each game runs through `pcpg run` as :mod:`benchmarks.zoo.agents` runs it (seed 0, p = 1, one
-rollout an agent where the game has an env: rollouts do not decide PCPG >= NC), twice in one
-work folder, so both runs share one clustering and one No Clustering agent and differ only in
-the per-cluster agents. The check
+Each game runs through `pcpg run` as :mod:`benchmarks.zoo.agents` runs it (seed 0, p = 1, no
+rollouts: they do not decide PCPG >= NC), twice in one work folder, so both runs share one
+clustering and one No Clustering agent and differ only in the per-cluster agents. The check
 matters only where the unit's verdict doubts its styles; the default games are those whose
 verdict did in the zoo's table (docs/zoo.md).
 """
@@ -44,8 +43,8 @@ def main() -> None:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for name in args.games or DOUBTED:
-            off = run_game(name, Path(tmp), args.ci, 1, ("bc.finetune_check=0",))
-            on = run_game(name, Path(tmp), args.ci, 1, ())
+            off = run_game(name, Path(tmp), args.ci, 0, ("bc.finetune_check=0",))
+            on = run_game(name, Path(tmp), args.ci, 0, ())
             row = {"game": name, "unchecked": off, "checked": on}
             rows.append(row)
             print(json.dumps(row), flush=True)

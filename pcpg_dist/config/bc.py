@@ -87,8 +87,8 @@ class BCConfig(StrictModel):
         ge=0.0,
         lt=1.0,
         description=(
-            "Under init auto: the share of each fine-tuned agent's steps held out to check the "
-            "fine-tune; an agent keeps it only where it predicts those steps better than the No "
+            "Under init auto: the share of each fine-tuned agent's rows held out to check the "
+            "fine-tune; an agent keeps it only where it predicts those rows better than the No "
             "Clustering agent it started from, else it is that agent (0: always fine-tune)."
         ),
     )

@@ -473,6 +473,4 @@ def test_a_fine_tune_is_kept_only_where_it_predicts_held_out_rows_better():
         assert kept.final_loss[i] == pytest.approx(scores(kept, i, rows)[1])
     plain = wild.model_copy(update={"init": "no_clustering"})
     assert np.array_equal(finetune_cells(styles, plain, own).params["W0"], wrecked.params["W0"])
-    assert split_rows(k0, 5 / len(k0.actions)) is None  # ~5 held-out steps: left unchecked
-    fit, held = split_rows(k0, 0.2)  # a row's count is split: its steps land on either side
-    assert fit.weights.sum() + held[3].sum() == k0.weights.sum() and 40 < held[3].sum() < 120
+    assert split_rows(k0, 5 / len(k0.actions)) is None  # 5 held-out rows: left unchecked

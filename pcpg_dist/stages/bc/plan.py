@@ -92,9 +92,9 @@ def train_plan(cells: Sequence[Cell], cfg: BCConfig, doubted: bool = False) -> T
     return TrainedCells.concat([base, tuned]).select([c.key for c in cells])
 
 
-#: Fewest held-out steps with which a cell's fine-tune is checked; a smaller cell keeps its
-#: fine-tune unchecked (a handful of steps cannot tell two agents apart).
-MIN_CHECK_STEPS = 20
+#: Fewest held-out rows with which a cell's fine-tune is checked; a smaller cell keeps its
+#: fine-tune unchecked (a handful of rows cannot tell two agents apart).
+MIN_CHECK_ROWS = 10
 
 Rows = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]  # states, valid, actions, weights
 
@@ -104,8 +104,8 @@ def finetune_cells(
 ) -> TrainedCells:
     """Fine-tune each cell from its start (``init``: the No Clustering agents). Under ``bc.init:
     auto`` a fine-tune is kept only where it helps: a share ``finetune_check`` of each cell's
-    steps is held out (:func:`split_rows`), a trial fine-tune fits the rest, and a
-    cell whose trial does not predict the held-out steps better than its start (weighted accuracy;
+    rows is held out (drawn from the cell's seed and key), a trial fine-tune fits the rest, and a
+    cell whose trial does not predict the held-out rows better than its start (weighted accuracy;
     at equal accuracy, cross-entropy) *is* its start. The other cells fine-tune on all their rows, as without the check."""
     checked = []
     if cfg.init == "auto" and cfg.finetune_check > 0:
@@ -129,25 +129,22 @@ def finetune_cells(
 
 
 def split_rows(cell: Cell, share: float) -> tuple[Cell, Rows] | None:
-    """(the cell on its fitted steps, its held-out steps): each distinct row's count is split
-    at random (binomially, from the cell's seed and key), a share ``share`` of the steps held
-    out, as if the raw steps had been split: a state that recurs (an opening, a start) lands on
-    both sides, as it recurs in test episodes. None where fewer than MIN_CHECK_STEPS steps would
-    be held out, or none fitted."""
-    counts = np.rint(cell.weights).astype(np.int64)
-    rng = np.random.default_rng([0xC4EC, cell.spec.seed, zlib.crc32(cell.spec.key.encode())])
-    held = rng.binomial(counts, share)
-    fit = counts - held
-    if held.sum() < MIN_CHECK_STEPS or not fit.any():
+    """(the cell on its fitted rows, its held-out rows), a share ``share`` held out at random from
+    the cell's seed and key; None where fewer than MIN_CHECK_ROWS rows would be held out."""
+    n = len(cell.actions)
+    held = int(round(share * n))
+    if held < MIN_CHECK_ROWS or held >= n:
         return None
+    rng = np.random.default_rng([0xC4EC, cell.spec.seed, zlib.crc32(cell.spec.key.encode())])
+    order = rng.permutation(n)
+    fit, out = np.sort(order[held:]), np.sort(order[:held])
 
-    def rows(w: np.ndarray) -> Rows:
-        on = w > 0
-        return cell.states[on], cell.valid[on], cell.actions[on], w[on].astype(np.float64)
+    def rows(idx: np.ndarray) -> Rows:
+        return cell.states[idx], cell.valid[idx], cell.actions[idx], cell.weights[idx]
 
     states, valid, actions, weights = rows(fit)
     kept = replace(cell, states=states, valid=valid, actions=actions, weights=weights)
-    return kept, rows(held)
+    return kept, rows(out)
 
 
 def starting_cells(
@@ -159,7 +156,15 @@ def starting_cells(
     params = {
         name: np.stack([np.asarray(p[j], np.float32) for p in init]) for j, name in enumerate(names)
     }
-    start = TrainedCells.of_cells(cells, sizes, cfg.activation, params, np.zeros(len(cells)))
+    start = TrainedCells(
+        tuple(c.spec for c in cells),
+        sizes,
+        cfg.activation,
+        params,
+        np.stack([c.mean for c in cells]),
+        np.stack([c.std for c in cells]),
+        np.zeros(len(cells)),
+    )
     losses = [
         scores(start, i, (c.states, c.valid, c.actions, c.weights))[1] for i, c in enumerate(cells)
     ]

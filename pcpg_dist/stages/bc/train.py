@@ -53,7 +53,15 @@ def train_cells(
     else:
         params, losses = _train_buckets(cells, data, sizes, cfg, device, starts)
     check_finite(cells, params, losses, cfg)
-    return TrainedCells.of_cells(cells, sizes, cfg.activation, params, losses)
+    return TrainedCells(
+        tuple(c.spec for c in cells),
+        sizes,
+        cfg.activation,
+        params,
+        np.stack([c.mean for c in cells]),
+        np.stack([c.std for c in cells]),
+        losses,
+    )
 
 
 def _check_group(cells: Sequence[Cell]) -> None:
