@@ -49,14 +49,13 @@ def train_task(
     """Build one group of cells (Step B for the cells of ``keys`` of the unit's plan, here and
     not in the driver) and train them in one vectorised pass; returns the trained ensemble's
     files (:meth:`~pcpg_dist.stages.bc.TrainedCells.to_files`: the driver only writes them).
-    ``init``: the cells' starting parameters (``bc.init: no_clustering``; fine-tuned by
-    :func:`~pcpg_dist.stages.bc.finetune_cells`)."""
+    ``init``: the cells' starting parameters (``bc.init: no_clustering``)."""
     from pcpg_dist.pipeline.units import plan_unit
-    from pcpg_dist.stages.bc import finetune_cells, train_cells
+    from pcpg_dist.stages.bc import train_cells
 
     set_threads(threads)
     cells = plan_unit(unit, labels, cfg, margins=margins, only=keys)
-    trained = train_cells(cells, bc_cfg) if init is None else finetune_cells(cells, bc_cfg, init)
+    trained = train_cells(cells, bc_cfg, init)
     return {"files": trained.to_files(), "cells": len(trained.specs)}
 
 

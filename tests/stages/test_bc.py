@@ -406,71 +406,7 @@ def test_init_auto_starts_from_no_clustering_only_where_the_verdict_doubts_the_s
     scratch = train_plan(cells, BCConfig(epochs=300, init="scratch"))
     tuned = train_plan(cells, BCConfig(epochs=300, init="no_clustering", finetune_epochs=100))
     assert not same(scratch, tuned)  # the two starts give other agents
-    unchecked = auto.model_copy(update={"finetune_check": 0.0})
     for verdict in ("weak evidence", "no evidence of 4 styles"):
-        assert same(train_plan(cells, unchecked, doubts(verdict)), tuned), verdict
+        assert same(train_plan(cells, auto, doubts(verdict)), tuned), verdict
     for verdict in ("styles found", "not measured", None):
         assert same(train_plan(cells, auto, doubts(verdict)), scratch), verdict
-
-
-def _style_cells(n: int = 400) -> tuple[Cell, Cell, Cell]:
-    """Two styles on 2-d states and 3 actions (style 0 acts by the first coordinate, style 1 by
-    the second), one cell each, and their union: the No Clustering cell."""
-    from pcpg_dist.stages.ranking import CellSpec
-
-    rng = np.random.default_rng(7)
-    states = rng.uniform(-1, 1, (2 * n, 2)).astype(np.float32)
-    axis = np.repeat([0, 1], n)
-    actions = np.digitize(states[np.arange(2 * n), axis], [-1 / 3, 1 / 3]).astype(np.int64)
-
-    def cell(key: str, kind: str, k: int, rows: slice) -> Cell:
-        return Cell(
-            CellSpec(key, kind, k, 1.0, 0),
-            states[rows],
-            np.ones((len(states[rows]), 3), bool),
-            actions[rows],
-            np.ones(len(states[rows])),
-            np.zeros(2, np.float32),
-            np.ones(2, np.float32),
-        )
-
-    return (
-        cell("k0", "pcpg", 0, slice(0, n)),
-        cell("k1", "pcpg", 1, slice(n, None)),
-        cell("nc", "nc", -1, slice(None)),
-    )
-
-
-def test_a_fine_tune_is_kept_only_where_it_predicts_held_out_rows_better():
-    """bc.init auto checks each fine-tune on a held-out share of its cell's rows: from a No
-    Clustering agent (both styles mixed) a style's own rows help, so the fine-tune is kept (the
-    same agent as unchecked); a fine-tune that wrecks a trained agent (Adam at lr 1) is not, and
-    the cell is its start, with the start's loss on its rows. init no_clustering is unchecked."""
-    from pcpg_dist.stages.bc import finetune_cells
-    from pcpg_dist.stages.bc.plan import scores, split_rows
-
-    k0, k1, nc = _style_cells()
-    styles = [k0, k1]
-    base = train_cells([nc], BCConfig(epochs=300)).cell_params(0)
-    auto = BCConfig(epochs=100, init="auto")
-    checked = finetune_cells(styles, auto, [base, base])
-    unchecked = train_cells(styles, auto, [base, base])
-    start = [np.asarray(x, np.float32) for x in base]
-    for i, c in enumerate(styles):
-        for x, y in zip(checked.cell_params(i), unchecked.cell_params(i), strict=True):
-            assert np.array_equal(x, y), c.spec.key
-        assert not np.array_equal(checked.cell_params(i)[0], start[0])
-    own = [train_cells([c], BCConfig(epochs=300)).cell_params(0) for c in styles]
-    wild = auto.model_copy(update={"lr": 1.0})
-    kept = finetune_cells(styles, wild, own)
-    wrecked = train_cells(styles, wild, own)
-    for i, c in enumerate(styles):
-        _, held = split_rows(c, wild.finetune_check)
-        assert scores(wrecked, i, held)[0] < scores(kept, i, held)[0]
-        for x, y in zip(kept.cell_params(i), own[i], strict=True):
-            assert np.array_equal(x, np.asarray(y, np.float32)), c.spec.key
-        rows = (c.states, c.valid, c.actions, c.weights)
-        assert kept.final_loss[i] == pytest.approx(scores(kept, i, rows)[1])
-    plain = wild.model_copy(update={"init": "no_clustering"})
-    assert np.array_equal(finetune_cells(styles, plain, own).params["W0"], wrecked.params["W0"])
-    assert split_rows(k0, 5 / len(k0.actions)) is None  # 5 held-out rows: left unchecked

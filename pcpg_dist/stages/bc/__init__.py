@@ -15,13 +15,7 @@ The package's public face; its modules, one concern each:
 
 from pcpg_dist.stages.bc.device import bc_device, runs_on_cpu_only
 from pcpg_dist.stages.bc.network import init_params, layer_sizes
-from pcpg_dist.stages.bc.plan import (
-    finetune_cells,
-    finetune_config,
-    init_from,
-    split_for_init,
-    train_plan,
-)
+from pcpg_dist.stages.bc.plan import finetune_config, init_from, split_for_init, train_plan
 from pcpg_dist.stages.bc.reference_loss import weighted_loss_and_grad
 from pcpg_dist.stages.bc.train import check_finite, train_cells
 from pcpg_dist.stages.bc.trained import TrainedCells
@@ -34,7 +28,6 @@ __all__ = [
     "bc_device",
     "check_cells",
     "check_finite",
-    "finetune_cells",
     "finetune_config",
     "init_from",
     "init_params",

@@ -7,16 +7,13 @@ Ray tasks and needs the split, the starting parameters and the fine-tuning setti
 
 from __future__ import annotations
 
-import zlib
 from collections.abc import Sequence
-from dataclasses import replace
 from typing import TypeVar
 
 import numpy as np
 
 from pcpg_dist.common.errors import DataError
 from pcpg_dist.config.stages import BCConfig
-from pcpg_dist.stages.bc.network import layer_sizes
 from pcpg_dist.stages.bc.train import train_cells
 from pcpg_dist.stages.bc.trained import TrainedCells
 from pcpg_dist.stages.ranking import Cell, CellSpec
@@ -88,97 +85,5 @@ def train_plan(cells: Sequence[Cell], cfg: BCConfig, doubted: bool = False) -> T
     base = train_cells(first, cfg)
     if not rest:
         return base
-    tuned = finetune_cells(rest, finetune_config(cfg), init_from(rest, base))
+    tuned = train_cells(rest, finetune_config(cfg), init_from(rest, base))
     return TrainedCells.concat([base, tuned]).select([c.key for c in cells])
-
-
-#: Fewest held-out rows with which a cell's fine-tune is checked; a smaller cell keeps its
-#: fine-tune unchecked (a handful of rows cannot tell two agents apart).
-MIN_CHECK_ROWS = 10
-
-Rows = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]  # states, valid, actions, weights
-
-
-def finetune_cells(
-    cells: Sequence[Cell], cfg: BCConfig, init: Sequence[list[np.ndarray]]
-) -> TrainedCells:
-    """Fine-tune each cell from its start (``init``: the No Clustering agents). Under ``bc.init:
-    auto`` a fine-tune is kept only where it helps: a share ``finetune_check`` of each cell's
-    rows is held out (drawn from the cell's seed and key), a trial fine-tune fits the rest, and a
-    cell whose trial does not predict the held-out rows better than its start (weighted accuracy;
-    at equal accuracy, cross-entropy) *is* its start. The other cells fine-tune on all their rows, as without the check."""
-    checked = []
-    if cfg.init == "auto" and cfg.finetune_check > 0:
-        for i, c in enumerate(cells):
-            split = split_rows(c, cfg.finetune_check)
-            if split is not None:
-                checked.append((i, *split))
-    start = starting_cells(cells, cfg, init)
-    keep: set[int] = set()
-    if checked:
-        trial = train_cells([fit for _, fit, _ in checked], cfg, [init[i] for i, _, _ in checked])
-        for j, (i, _, held) in enumerate(checked):
-            (acc, loss), (acc0, loss0) = scores(trial, j, held), scores(start, i, held)
-            if acc < acc0 or (acc == acc0 and loss >= loss0):
-                keep.add(i)
-    parts = [start.select([cells[i].spec.key for i in sorted(keep)])] if keep else []
-    tune = [i for i in range(len(cells)) if i not in keep]
-    if tune:
-        parts.append(train_cells([cells[i] for i in tune], cfg, [init[i] for i in tune]))
-    return TrainedCells.concat(parts).select([c.spec.key for c in cells])
-
-
-def split_rows(cell: Cell, share: float) -> tuple[Cell, Rows] | None:
-    """(the cell on its fitted rows, its held-out rows), a share ``share`` held out at random from
-    the cell's seed and key; None where fewer than MIN_CHECK_ROWS rows would be held out."""
-    n = len(cell.actions)
-    held = int(round(share * n))
-    if held < MIN_CHECK_ROWS or held >= n:
-        return None
-    rng = np.random.default_rng([0xC4EC, cell.spec.seed, zlib.crc32(cell.spec.key.encode())])
-    order = rng.permutation(n)
-    fit, out = np.sort(order[held:]), np.sort(order[:held])
-
-    def rows(idx: np.ndarray) -> Rows:
-        return cell.states[idx], cell.valid[idx], cell.actions[idx], cell.weights[idx]
-
-    states, valid, actions, weights = rows(fit)
-    kept = replace(cell, states=states, valid=valid, actions=actions, weights=weights)
-    return kept, rows(out)
-
-
-def starting_cells(
-    cells: Sequence[Cell], cfg: BCConfig, init: Sequence[list[np.ndarray]]
-) -> TrainedCells:
-    """The cells' starting parameters as an ensemble, each cell's loss its start's on its rows."""
-    sizes = layer_sizes(cells[0].state_dim, cells[0].n_actions, cfg)
-    names = [f"{w}{layer}" for layer in range(len(sizes) - 1) for w in "Wb"]
-    params = {
-        name: np.stack([np.asarray(p[j], np.float32) for p in init]) for j, name in enumerate(names)
-    }
-    start = TrainedCells(
-        tuple(c.spec for c in cells),
-        sizes,
-        cfg.activation,
-        params,
-        np.stack([c.mean for c in cells]),
-        np.stack([c.std for c in cells]),
-        np.zeros(len(cells)),
-    )
-    losses = [
-        scores(start, i, (c.states, c.valid, c.actions, c.weights))[1] for i, c in enumerate(cells)
-    ]
-    return replace(start, final_loss=np.asarray(losses))
-
-
-def scores(trained: TrainedCells, cell: int, rows: Rows) -> tuple[float, float]:
-    """(weighted accuracy of the greedy valid action, weighted mean cross-entropy in nats) of one
-    cell of ``trained`` on ``rows``."""
-    states, valid, actions, weights = rows
-    lg = trained.logits(states, cell, valid).astype(np.float64)
-    top = lg.max(axis=1, keepdims=True)
-    log_z = top[:, 0] + np.log(np.exp(lg - top).sum(axis=1))
-    picked = lg[np.arange(len(actions)), actions]
-    w = weights / weights.sum()
-    hit = np.argmax(lg, axis=1) == actions
-    return float(w @ hit), float(w @ (log_z - picked))
