@@ -82,6 +82,16 @@ class BCConfig(StrictModel):
             "no_clustering, at most 100 under init auto)."
         ),
     )
+    finetune_check: float = Field(
+        0.2,
+        ge=0.0,
+        lt=1.0,
+        description=(
+            "Under init auto: the share of each fine-tuned agent's steps held out to check the "
+            "fine-tune; an agent keeps it only where it predicts those steps better than the No "
+            "Clustering agent it started from, else it is that agent (0: always fine-tune)."
+        ),
+    )
     betas: tuple[float, float] = Field(
         (0.9, 0.999), description="Adam beta1, beta2, each in [0, 1)."
     )

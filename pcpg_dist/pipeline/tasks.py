@@ -49,14 +49,31 @@ def train_task(
     """Build one group of cells (Step B for the cells of ``keys`` of the unit's plan, here and
     not in the driver) and train them in one vectorised pass; returns the trained ensemble's
     files (:meth:`~pcpg_dist.stages.bc.TrainedCells.to_files`: the driver only writes them).
-    ``init``: the cells' starting parameters (``bc.init: no_clustering``)."""
+    ``init``: the cells' starting parameters (``bc.init: no_clustering``; fine-tuned by
+    :func:`~pcpg_dist.stages.bc.finetune_cells`, which checks a fine-tune against the No
+    Clustering cells under ``bc.init: auto``)."""
     from pcpg_dist.pipeline.units import plan_unit
-    from pcpg_dist.stages.bc import train_cells
+    from pcpg_dist.stages.bc import bases_of, finetune_cells, train_cells
 
     set_threads(threads)
-    cells = plan_unit(unit, labels, cfg, margins=margins, only=keys)
-    trained = train_cells(cells, bc_cfg, init)
+    if init is None:
+        cells = plan_unit(unit, labels, cfg, margins=margins, only=keys)
+        trained = train_cells(cells, bc_cfg)
+    else:  # fine-tuned: the No Clustering cells their starts were trained on are built too
+        every = plan_unit(
+            unit, labels, cfg, margins=margins, only=keys + nc_keys(unit, labels, cfg, margins)
+        )
+        by_key = {c.spec.key: c for c in every}
+        cells = [by_key[k] for k in keys]
+        trained = finetune_cells(cells, bc_cfg, init, bases_of(cells, every), cfg.bc)
     return {"files": trained.to_files(), "cells": len(trained.specs)}
+
+
+def nc_keys(unit: Unit, labels: np.ndarray, cfg, margins: np.ndarray | None) -> list[str]:
+    """The keys of the unit's No Clustering cells."""
+    from pcpg_dist.pipeline.units import plan_unit_specs
+
+    return [s.key for s in plan_unit_specs(unit, labels, cfg, margins=margins) if s.kind == "nc"]
 
 
 def evaluate_task(

@@ -406,7 +406,94 @@ def test_init_auto_starts_from_no_clustering_only_where_the_verdict_doubts_the_s
     scratch = train_plan(cells, BCConfig(epochs=300, init="scratch"))
     tuned = train_plan(cells, BCConfig(epochs=300, init="no_clustering", finetune_epochs=100))
     assert not same(scratch, tuned)  # the two starts give other agents
+    unchecked = auto.model_copy(update={"finetune_check": 0.0})
     for verdict in ("weak evidence", "no evidence of 4 styles"):
-        assert same(train_plan(cells, auto, doubts(verdict)), tuned), verdict
+        assert same(train_plan(cells, unchecked, doubts(verdict)), tuned), verdict
     for verdict in ("styles found", "not measured", None):
         assert same(train_plan(cells, auto, doubts(verdict)), scratch), verdict
+
+
+def _style_cells(n: int = 400) -> tuple[Cell, Cell, Cell]:
+    """Two styles on 2-d states and 3 actions (style 0 acts by the first coordinate, style 1 by
+    the second), one cell each, and their union: the No Clustering cell."""
+    from pcpg_dist.stages.ranking import CellSpec
+
+    rng = np.random.default_rng(7)
+    states = rng.uniform(-1, 1, (2 * n, 2)).astype(np.float32)
+    axis = np.repeat([0, 1], n)
+    actions = np.digitize(states[np.arange(2 * n), axis], [-1 / 3, 1 / 3]).astype(np.int64)
+
+    def cell(key: str, kind: str, k: int, rows: slice) -> Cell:
+        return Cell(
+            CellSpec(key, kind, k, 1.0, 0),
+            states[rows],
+            np.ones((len(states[rows]), 3), bool),
+            actions[rows],
+            np.ones(len(states[rows])),
+            np.zeros(2, np.float32),
+            np.ones(2, np.float32),
+        )
+
+    return (
+        cell("k0", "pcpg", 0, slice(0, n)),
+        cell("k1", "pcpg", 1, slice(n, None)),
+        cell("nc", "nc", -1, slice(None)),
+    )
+
+
+def test_a_fine_tune_is_kept_only_where_it_wins_a_fair_trial():
+    """bc.init auto checks each fine-tune in a trial: No Clustering refitted without a held-out
+    share of the cells' steps, each cell fine-tuned from it, both scored on those steps. From a
+    No Clustering agent (both styles mixed) a style's own rows help: the fine-tune is kept (the
+    same agent as unchecked). A fine-tune that wrecks its start (Adam at lr 10) is not: the cell is
+    its No Clustering agent, with that agent's loss on its rows. init no_clustering and a check
+    without the No Clustering cells are unchecked."""
+    from pcpg_dist.stages.bc import bases_of, finetune_cells
+    from pcpg_dist.stages.bc.finetune import scores
+
+    k0, k1, nc = _style_cells()
+    styles, base_cfg = [k0, k1], BCConfig(epochs=300)
+    assert [b.spec.key for b in bases_of(styles, [k0, nc])] == ["nc", "nc"]
+    base = train_cells([nc], base_cfg).cell_params(0)
+    auto = BCConfig(epochs=100, init="auto")
+    checked = finetune_cells(styles, auto, [base, base], [nc, nc], base_cfg)
+    unchecked = train_cells(styles, auto, [base, base])
+    for i, c in enumerate(styles):
+        for x, y in zip(checked.cell_params(i), unchecked.cell_params(i), strict=True):
+            assert np.array_equal(x, y), c.spec.key
+        assert not np.array_equal(checked.cell_params(i)[0], np.asarray(base[0], np.float32))
+    wild = auto.model_copy(update={"lr": 10.0})
+    kept = finetune_cells(styles, wild, [base, base], [nc, nc], base_cfg)
+    wrecked = train_cells(styles, wild, [base, base])
+    for i, c in enumerate(styles):
+        rows = (c.states, c.valid, c.actions, c.weights)
+        assert scores(wrecked, i, rows)[0] < scores(kept, i, rows)[0] - 0.1
+        for x, y in zip(kept.cell_params(i), base, strict=True):
+            assert np.array_equal(x, np.asarray(y, np.float32)), c.spec.key
+        assert kept.final_loss[i] == pytest.approx(scores(kept, i, rows)[1])
+    plain = wild.model_copy(update={"init": "no_clustering"})
+    for tuned in (
+        finetune_cells(styles, plain, [base, base], [nc, nc], base_cfg),
+        finetune_cells(styles, wild, [base, base]),
+    ):
+        assert np.array_equal(tuned.params["W0"], wrecked.params["W0"])
+
+
+def test_the_trial_no_clustering_agent_never_sees_the_held_out_steps():
+    """The held-out steps are drawn per step (a row's count split binomially, so a recurring
+    state lands on both sides) and taken out of the No Clustering rows the trial refits on."""
+    from pcpg_dist.stages.bc.finetune import row_keys, split_rows, without
+
+    k0, k1, nc = _style_cells()
+    assert split_rows(k0, 5 / len(k0.actions)) is None  # ~5 held-out steps: left unchecked
+    twice = dataclasses.replace(k0, weights=np.full(len(k0.actions), 2.0))
+    fit, held = split_rows(twice, 0.3)
+    assert fit.weights.sum() + held[3].sum() == twice.weights.sum()
+    assert set(row_keys(*held[:3])) & set(row_keys(fit.states, fit.valid, fit.actions))
+    splits = [split_rows(c, 0.2) for c in (k0, k1)]
+    rest = without(nc, [h for _, h in splits])
+    gone = sum(h[3].sum() for _, h in splits)
+    assert rest.weights.sum() == nc.weights.sum() - gone and 100 < gone < 220
+    assert not set(row_keys(rest.states, rest.valid, rest.actions)) & {
+        key for _, h in splits for key in row_keys(*h[:3])
+    }

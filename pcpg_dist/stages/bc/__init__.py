@@ -5,7 +5,8 @@ The package's public face; its modules, one concern each:
 - :mod:`~pcpg_dist.stages.bc.trained`: :class:`TrainedCells`, the trained ensemble (inference,
   joining, files); :mod:`~pcpg_dist.stages.bc.validation` checks its files.
 - :mod:`~pcpg_dist.stages.bc.train`: :func:`train_cells`, one group of cells on one engine;
-  :mod:`~pcpg_dist.stages.bc.plan`: ``bc.init`` (:func:`train_plan`, fine-tuning rounds).
+  :mod:`~pcpg_dist.stages.bc.plan`: ``bc.init`` (:func:`train_plan`, fine-tuning rounds);
+  :mod:`~pcpg_dist.stages.bc.finetune`: :func:`finetune_cells` and its fair check.
 - :mod:`~pcpg_dist.stages.bc.device`: where and with which engine training runs.
 - :mod:`~pcpg_dist.stages.bc.torch_engine` (vectorised torch, GPU or CPU),
   :mod:`~pcpg_dist.stages.bc.numba_engine` and :mod:`~pcpg_dist.stages.bc.kernel` (the compiled
@@ -14,6 +15,7 @@ The package's public face; its modules, one concern each:
 """
 
 from pcpg_dist.stages.bc.device import bc_device, runs_on_cpu_only
+from pcpg_dist.stages.bc.finetune import bases_of, finetune_cells
 from pcpg_dist.stages.bc.network import init_params, layer_sizes
 from pcpg_dist.stages.bc.plan import finetune_config, init_from, split_for_init, train_plan
 from pcpg_dist.stages.bc.reference_loss import weighted_loss_and_grad
@@ -25,9 +27,11 @@ __all__ = [
     "ACTIVATIONS",
     "CELL_KINDS",
     "TrainedCells",
+    "bases_of",
     "bc_device",
     "check_cells",
     "check_finite",
+    "finetune_cells",
     "finetune_config",
     "init_from",
     "init_params",

@@ -14,6 +14,7 @@ import numpy as np
 
 from pcpg_dist.common.errors import DataError
 from pcpg_dist.config.stages import BCConfig
+from pcpg_dist.stages.bc.finetune import bases_of, finetune_cells
 from pcpg_dist.stages.bc.train import train_cells
 from pcpg_dist.stages.bc.trained import TrainedCells
 from pcpg_dist.stages.ranking import Cell, CellSpec
@@ -85,5 +86,7 @@ def train_plan(cells: Sequence[Cell], cfg: BCConfig, doubted: bool = False) -> T
     base = train_cells(first, cfg)
     if not rest:
         return base
-    tuned = train_cells(rest, finetune_config(cfg), init_from(rest, base))
+    tuned = finetune_cells(
+        rest, finetune_config(cfg), init_from(rest, base), bases_of(rest, first), cfg
+    )
     return TrainedCells.concat([base, tuned]).select([c.key for c in cells])

@@ -53,15 +53,7 @@ def train_cells(
     else:
         params, losses = _train_buckets(cells, data, sizes, cfg, device, starts)
     check_finite(cells, params, losses, cfg)
-    return TrainedCells(
-        tuple(c.spec for c in cells),
-        sizes,
-        cfg.activation,
-        params,
-        np.stack([c.mean for c in cells]),
-        np.stack([c.std for c in cells]),
-        losses,
-    )
+    return TrainedCells.of_cells(cells, sizes, cfg.activation, params, losses)
 
 
 def _check_group(cells: Sequence[Cell]) -> None:

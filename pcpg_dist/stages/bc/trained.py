@@ -19,7 +19,7 @@ import torch
 from pcpg_dist.common.errors import ConfigError, DataError, first_line
 from pcpg_dist.domains.base import Policy
 from pcpg_dist.stages.bc.validation import check_cells, check_valid
-from pcpg_dist.stages.ranking import CellSpec
+from pcpg_dist.stages.ranking import Cell, CellSpec
 
 
 @dataclass(frozen=True, eq=False)
@@ -40,6 +40,26 @@ class TrainedCells:
 
     #: the files :meth:`save` writes for ``path`` = ``.../cells`` (what a task returns as bytes)
     FILES: ClassVar[tuple[str, str]] = ("cells.pt", "cells.json")
+
+    @classmethod
+    def of_cells(
+        cls,
+        cells: Sequence[Cell],
+        sizes: tuple[int, ...],
+        activation: str,
+        params: dict[str, np.ndarray],
+        losses: np.ndarray,
+    ) -> TrainedCells:
+        """The ensemble of ``cells`` (their specs and input scales) with these parameters."""
+        return cls(
+            tuple(c.spec for c in cells),
+            sizes,
+            activation,
+            params,
+            np.stack([c.mean for c in cells]),
+            np.stack([c.std for c in cells]),
+            np.asarray(losses),
+        )
 
     @property
     def keys(self) -> list[str]:

@@ -1,0 +1,182 @@
+"""Fine-tuning from the No Clustering agent, and under ``bc.init: auto`` its check: a cell keeps
+its fine-tune only where, in a fair trial, fine-tuning predicts held-out steps better.
+
+Why a trial with a No Clustering agent of its own: the No Clustering agent was trained on every
+training step. Compared with a fine-tune on held-out steps of a cell, it has seen them (and on a
+log whose states rarely repeat, memorised them) while the fine-tune has not: on tictactoe such a
+check kept no fine-tune (PCPG 0.430, No Clustering's, against 0.502 fine-tuned; docs/zoo.md). So
+the trial fits a No Clustering agent to its rows *without* the held-out steps, fine-tunes that
+on each cell's other steps, and scores the two on the held-out steps, which neither has seen.
+"""
+
+from __future__ import annotations
+
+import zlib
+from collections.abc import Sequence
+from dataclasses import replace
+
+import numpy as np
+
+from pcpg_dist.config.stages import BCConfig
+from pcpg_dist.stages.bc.network import layer_sizes
+from pcpg_dist.stages.bc.train import train_cells
+from pcpg_dist.stages.bc.trained import TrainedCells
+from pcpg_dist.stages.ranking import Cell
+
+#: Fewest held-out steps with which a cell's fine-tune is checked; a smaller cell keeps its
+#: fine-tune unchecked (a handful of steps cannot tell two agents apart).
+MIN_CHECK_STEPS = 20
+
+Rows = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]  # states, valid, actions, weights
+
+
+def finetune_cells(
+    cells: Sequence[Cell],
+    cfg: BCConfig,
+    init: Sequence[list[np.ndarray]],
+    bases: Sequence[Cell] | None = None,
+    base_cfg: BCConfig | None = None,
+) -> TrainedCells:
+    """Fine-tune each cell from ``init[i]`` (the No Clustering agent of its p and seed) with
+    ``cfg``. With ``bases`` (``bases[i]``: the No Clustering cell that agent was trained on, with
+    ``base_cfg``) and under ``bc.init: auto`` with ``finetune_check`` > 0, a cell whose fair
+    trial (:func:`kept_starts`) does not favour its fine-tune *is* its No Clustering agent."""
+    keep: set[int] = set()
+    if bases is not None and cfg.init == "auto" and cfg.finetune_check > 0:
+        keep = kept_starts(cells, cfg, bases, base_cfg or cfg)
+    parts = [starting_cells([cells[i] for i in sorted(keep)], cfg, [init[i] for i in sorted(keep)])]
+    tune = [i for i in range(len(cells)) if i not in keep]
+    if tune:
+        parts.append(train_cells([cells[i] for i in tune], cfg, [init[i] for i in tune]))
+    return TrainedCells.concat([p for p in parts if p is not None]).select(
+        [c.spec.key for c in cells]
+    )
+
+
+def kept_starts(
+    cells: Sequence[Cell], cfg: BCConfig, bases: Sequence[Cell], base_cfg: BCConfig
+) -> set[int]:
+    """The cells whose fine-tune does not pay in a fair trial. Per No Clustering cell: a share
+    ``finetune_check`` of each of its fine-tuned cells' steps is held out (:func:`split_rows`),
+    a trial No Clustering agent fits its rows without them (``base_cfg``), each cell fine-tunes
+    that agent on its other steps (``cfg``), and a cell is kept at its start where its trial
+    fine-tune predicts its held-out steps no better (accuracy; at equal accuracy, cross-entropy)."""
+    keep: set[int] = set()
+    by_base: dict[str, list[int]] = {}
+    for i, base in enumerate(bases):
+        by_base.setdefault(base.spec.key, []).append(i)
+    for idx in by_base.values():
+        splits = {i: split_rows(cells[i], cfg.finetune_check) for i in idx}
+        checked = [i for i in idx if splits[i] is not None]
+        base = without(bases[idx[0]], [splits[i][1] for i in checked]) if checked else None
+        if base is None:
+            continue
+        trial_base = train_cells([base], base_cfg)
+        start = trial_base.cell_params(0)
+        trial = train_cells([splits[i][0] for i in checked], cfg, [start] * len(checked))
+        for j, i in enumerate(checked):
+            held = splits[i][1]
+            (acc, loss), (acc0, loss0) = scores(trial, j, held), scores(trial_base, 0, held)
+            if acc < acc0 or (acc == acc0 and loss >= loss0):
+                keep.add(i)
+    return keep
+
+
+def split_rows(cell: Cell, share: float) -> tuple[Cell, Rows] | None:
+    """(the cell on its fitted steps, its held-out steps): each distinct row's count is split
+    at random (binomially, from the cell's seed and key), a share ``share`` of the steps held
+    out, as if the raw steps had been split: a state that recurs (an opening, a start) lands on
+    both sides, as it recurs in test episodes. None where fewer than MIN_CHECK_STEPS steps would
+    be held out, or none fitted."""
+    counts = np.rint(cell.weights).astype(np.int64)
+    rng = np.random.default_rng([0xC4EC, cell.spec.seed, zlib.crc32(cell.spec.key.encode())])
+    held = rng.binomial(counts, share)
+    fit = counts - held
+    if held.sum() < MIN_CHECK_STEPS or not fit.any():
+        return None
+
+    def rows(w: np.ndarray) -> Rows:
+        on = w > 0
+        return cell.states[on], cell.valid[on], cell.actions[on], w[on].astype(np.float64)
+
+    states, valid, actions, weights = rows(fit)
+    return replace(cell, states=states, valid=valid, actions=actions, weights=weights), rows(held)
+
+
+def without(base: Cell, held: Sequence[Rows]) -> Cell | None:
+    """``base`` less the ``held`` steps (matched to its rows by state, valid mask and action);
+    None where nothing is left."""
+    counts = base.weights.astype(np.float64).copy()
+    index: dict[bytes, list[int]] = {}
+    for i, key in enumerate(row_keys(base.states, base.valid, base.actions)):
+        index.setdefault(key, []).append(i)
+    for states, valid, actions, weights in held:
+        for key, left in zip(row_keys(states, valid, actions), weights, strict=True):
+            for i in index.get(key, ()):
+                take = min(left, counts[i])
+                counts[i] -= take
+                left -= take
+                if left <= 0:
+                    break
+    on = counts > 0
+    if not on.any():
+        return None
+    return replace(
+        base,
+        states=base.states[on],
+        valid=base.valid[on],
+        actions=base.actions[on],
+        weights=counts[on],
+    )
+
+
+def row_keys(states: np.ndarray, valid: np.ndarray, actions: np.ndarray) -> list[bytes]:
+    """Each row's (state, valid mask, action) as bytes, to match rows between cells."""
+    n = len(actions)
+    raw = np.concatenate(
+        [
+            np.ascontiguousarray(states, np.float32).view(np.uint8).reshape(n, -1),
+            np.asarray(valid, np.uint8).reshape(n, -1),
+            np.ascontiguousarray(np.asarray(actions, "<i8")[:, None]).view(np.uint8),
+        ],
+        axis=1,
+    )
+    return [r.tobytes() for r in raw]
+
+
+def starting_cells(
+    cells: Sequence[Cell], cfg: BCConfig, init: Sequence[list[np.ndarray]]
+) -> TrainedCells | None:
+    """The cells' starting parameters as an ensemble (None for no cells), each cell's loss its
+    start's on its rows."""
+    if not cells:
+        return None
+    sizes = layer_sizes(cells[0].state_dim, cells[0].n_actions, cfg)
+    names = [f"{w}{layer}" for layer in range(len(sizes) - 1) for w in "Wb"]
+    params = {
+        name: np.stack([np.asarray(p[j], np.float32) for p in init]) for j, name in enumerate(names)
+    }
+    start = TrainedCells.of_cells(cells, sizes, cfg.activation, params, np.zeros(len(cells)))
+    losses = [
+        scores(start, i, (c.states, c.valid, c.actions, c.weights))[1] for i, c in enumerate(cells)
+    ]
+    return replace(start, final_loss=np.asarray(losses))
+
+
+def scores(trained: TrainedCells, cell: int, rows: Rows) -> tuple[float, float]:
+    """(weighted accuracy of the greedy valid action, weighted mean cross-entropy in nats) of one
+    cell of ``trained`` on ``rows``."""
+    states, valid, actions, weights = rows
+    lg = trained.logits(states, cell, valid).astype(np.float64)
+    top = lg.max(axis=1, keepdims=True)
+    log_z = top[:, 0] + np.log(np.exp(lg - top).sum(axis=1))
+    picked = lg[np.arange(len(actions)), actions]
+    w = weights / weights.sum()
+    hit = np.argmax(lg, axis=1) == actions
+    return float(w @ hit), float(w @ (log_z - picked))
+
+
+def bases_of(cells: Sequence[Cell], candidates: Sequence[Cell]) -> list[Cell]:
+    """Each cell's No Clustering cell among ``candidates`` (the one of its p and seed)."""
+    table = {(c.spec.p, c.spec.seed): c for c in candidates if c.spec.kind == "nc"}
+    return [table[(c.spec.p, c.spec.seed)] for c in cells]
