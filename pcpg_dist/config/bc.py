@@ -83,7 +83,7 @@ class BCConfig(StrictModel):
         ),
     )
     finetune_check: float = Field(
-        0.2,
+        0.5,
         ge=0.0,
         lt=1.0,
         description=(

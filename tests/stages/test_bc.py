@@ -413,14 +413,15 @@ def test_init_auto_starts_from_no_clustering_only_where_the_verdict_doubts_the_s
         assert same(train_plan(cells, auto, doubts(verdict)), scratch), verdict
 
 
-def _style_cells(n: int = 400) -> tuple[Cell, Cell, Cell]:
-    """Two styles on 2-d states and 3 actions (style 0 acts by the first coordinate, style 1 by
-    the second), one cell each, and their union: the No Clustering cell."""
+def _style_cells(n: int = 400, one_style: bool = False) -> tuple[Cell, Cell, Cell]:
+    """Two clusters on 2-d states and 3 actions and their union, the No Clustering cell. The
+    clusters are two styles (style 0 acts by the first coordinate, style 1 by the second) or,
+    with ``one_style``, two halves of style 0's steps: clusters that are not styles."""
     from pcpg_dist.stages.ranking import CellSpec
 
     rng = np.random.default_rng(7)
     states = rng.uniform(-1, 1, (2 * n, 2)).astype(np.float32)
-    axis = np.repeat([0, 1], n)
+    axis = np.zeros(2 * n, int) if one_style else np.repeat([0, 1], n)
     actions = np.digitize(states[np.arange(2 * n), axis], [-1 / 3, 1 / 3]).astype(np.int64)
 
     def cell(key: str, kind: str, k: int, rows: slice) -> Cell:
@@ -445,7 +446,8 @@ def test_a_fine_tune_is_kept_only_where_it_wins_a_fair_trial():
     """bc.init auto checks each fine-tune in a trial: No Clustering refitted without a held-out
     share of the cells' steps, each cell fine-tuned from it, both scored on those steps. From a
     No Clustering agent (both styles mixed) a style's own rows help: the fine-tune is kept (the
-    same agent as unchecked). A fine-tune that wrecks its start (Adam at lr 10) is not: the cell is
+    same agent as unchecked), and a cell checks the same alone as in a group. On clusters that
+    are not styles, a fine-tune that wrecks its start (Adam at lr 10) is not kept: the cell is
     its No Clustering agent, with that agent's loss on its rows. init no_clustering and a check
     without the No Clustering cells are unchecked."""
     from pcpg_dist.stages.bc import bases_of, finetune_cells
@@ -462,10 +464,17 @@ def test_a_fine_tune_is_kept_only_where_it_wins_a_fair_trial():
         for x, y in zip(checked.cell_params(i), unchecked.cell_params(i), strict=True):
             assert np.array_equal(x, y), c.spec.key
         assert not np.array_equal(checked.cell_params(i)[0], np.asarray(base[0], np.float32))
+    alone = finetune_cells([k1], auto, [base], [nc], base_cfg)
+    assert np.array_equal(alone.params["W0"][0], checked.params["W0"][1])
+    # two halves of one style: the No Clustering agent is all there is to learn, and a fine-tune
+    # that wrecks it does not pay
+    h0, h1, one = _style_cells(one_style=True)
+    halves = [h0, h1]
+    base = train_cells([one], base_cfg).cell_params(0)
     wild = auto.model_copy(update={"lr": 10.0})
-    kept = finetune_cells(styles, wild, [base, base], [nc, nc], base_cfg)
-    wrecked = train_cells(styles, wild, [base, base])
-    for i, c in enumerate(styles):
+    kept = finetune_cells(halves, wild, [base, base], [one, one], base_cfg)
+    wrecked = train_cells(halves, wild, [base, base])
+    for i, c in enumerate(halves):
         rows = (c.states, c.valid, c.actions, c.weights)
         assert scores(wrecked, i, rows)[0] < scores(kept, i, rows)[0] - 0.1
         for x, y in zip(kept.cell_params(i), base, strict=True):
@@ -473,8 +482,8 @@ def test_a_fine_tune_is_kept_only_where_it_wins_a_fair_trial():
         assert kept.final_loss[i] == pytest.approx(scores(kept, i, rows)[1])
     plain = wild.model_copy(update={"init": "no_clustering"})
     for tuned in (
-        finetune_cells(styles, plain, [base, base], [nc, nc], base_cfg),
-        finetune_cells(styles, wild, [base, base]),
+        finetune_cells(halves, plain, [base, base], [one, one], base_cfg),
+        finetune_cells(halves, wild, [base, base]),
     ):
         assert np.array_equal(tuned.params["W0"], wrecked.params["W0"])
 
