@@ -448,8 +448,8 @@ def test_a_fine_tune_is_kept_only_where_it_wins_a_fair_trial():
     No Clustering agent (both styles mixed) a style's own rows help: the fine-tune is kept (the
     same agent as unchecked), and a cell checks the same alone as in a group. On clusters that
     are not styles, a fine-tune that wrecks its start (Adam at lr 10) is not kept: the cell is
-    its No Clustering agent, with that agent's loss on its rows. init no_clustering and a check
-    without the No Clustering cells are unchecked."""
+    its No Clustering agent, with that agent's loss on its rows. init no_clustering, a check
+    without the No Clustering cells and corrupted-label cells are unchecked."""
     from pcpg_dist.stages.bc import bases_of, finetune_cells
     from pcpg_dist.stages.bc.finetune import scores
 
@@ -481,9 +481,13 @@ def test_a_fine_tune_is_kept_only_where_it_wins_a_fair_trial():
             assert np.array_equal(x, np.asarray(y, np.float32)), c.spec.key
         assert kept.final_loss[i] == pytest.approx(scores(kept, i, rows)[1])
     plain = wild.model_copy(update={"init": "no_clustering"})
+    corrupt = [
+        dataclasses.replace(c, spec=dataclasses.replace(c.spec, kind="corrupt")) for c in halves
+    ]
     for tuned in (
         finetune_cells(halves, plain, [base, base], [one, one], base_cfg),
         finetune_cells(halves, wild, [base, base]),
+        finetune_cells(corrupt, wild, [base, base], [one, one], base_cfg),
     ):
         assert np.array_equal(tuned.params["W0"], wrecked.params["W0"])
 

@@ -60,7 +60,8 @@ def finetune_cells(
 def kept_starts(
     cells: Sequence[Cell], cfg: BCConfig, bases: Sequence[Cell], base_cfg: BCConfig
 ) -> set[int]:
-    """The cells whose fine-tune does not pay in a fair trial. Per cell: a share
+    """The per-cluster cells whose fine-tune does not pay in a fair trial (corrupted-label cells
+    are the corruption study's and keep their fine-tune). Per cell: a share
     ``finetune_check`` of its steps is held out (:func:`split_rows`), a trial No Clustering
     agent fits its No Clustering cell without them (``base_cfg``), the trial fine-tunes that
     agent on the cell's other steps (``cfg``), and the cell keeps its start where the fine-tune
@@ -68,6 +69,8 @@ def kept_starts(
     cell's trial depends on that cell alone, so a cell trains the same in any group."""
     checked, trial_bases, fits, helds = [], [], [], []
     for i, c in enumerate(cells):
+        if c.spec.kind != "pcpg":  # corrupted-label agents: the corruption study, unchecked
+            continue
         split = split_rows(c, cfg.finetune_check)
         rest = None if split is None else without(bases[i], [split[1]])
         if rest is not None:
