@@ -1,0 +1,97 @@
+"""Experiment: does the fine-tune check's trial pick the agent that does better on test steps?
+
+    uv run python -m benchmarks.zoo.finetune_trial_exp ZOO_DIR [GAME ...] [--shares 0.2 0.5]
+
+For each design game (held-out games are refused: this chose ``bc.finetune_check``), built by
+``benchmarks.zoo.build`` into ZOO_DIR: the default clustering (seed 0), the No Clustering agent
+and each cluster's fine-tune from it at p = 1, as ``bc.init: auto`` trains them for a doubted
+unit. Per cluster, and per share of held-out steps: the fair trial's verdict
+(:func:`pcpg_dist.stages.bc.finetune.kept_starts`, fine-tune or No Clustering) beside which of
+the two agents is more accurate on that cluster's test steps. Printed: each cell, and per share
+how many verdicts agree.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from benchmarks.zoo.common import design_games
+from pcpg_dist.common.devices import set_threads
+from pcpg_dist.config import parse_config
+from pcpg_dist.domains import contract
+from pcpg_dist.pipeline.units import cluster_unit, plan_unit
+from pcpg_dist.stages.bc import bases_of, finetune_config, init_from, split_for_init, train_cells
+from pcpg_dist.stages.bc.finetune import kept_starts
+
+
+def game_cells(zoo: Path, name: str):
+    """(unit, labels, No Clustering agents, fine-tuned cells, their agents, bases, config)."""
+    raw = yaml.safe_load((zoo / name / "pcpg.yaml").read_text())
+    raw["trajectories"]["path"] = str(zoo / name / "labelled")
+    raw.update(
+        seeds=[0], ranking={"ps": [1.0]}, evaluation={"corruption_levels": [], "figures": False}
+    )
+    cfg = parse_config(raw)
+    (unit,) = contract.units(cfg, contract.generate(cfg, show_progress=False))
+    labels = cluster_unit(unit, cfg.clustering, cfg.seed, ceiling=False).labels
+    cells = plan_unit(unit, labels, cfg, corruption=False)
+    first, rest = split_for_init(cells, cfg.bc, True)
+    base = train_cells(first, cfg.bc)
+    tuned = train_cells(rest, finetune_config(cfg.bc), init_from(rest, base))
+    return unit, labels, base, rest, tuned, bases_of(rest, first), cfg
+
+
+def test_accuracy(unit, labels, trained, cell: int, cluster: int) -> tuple[float, int]:
+    """(accuracy on the test steps of one cluster, their count)."""
+    test = unit.test_idx[labels[unit.test_idx] == cluster]
+    sub = unit.dataset.subset(test)
+    rows = sub.step_rows
+    hit = trained.predict(sub.states[rows], sub.valid_mask[rows], cell) == sub.actions[rows]
+    return float(hit.mean()), len(rows)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("zoo", type=Path, help="a folder from benchmarks.zoo.build")
+    ap.add_argument("games", nargs="*")
+    ap.add_argument("--shares", type=float, nargs="+", default=[0.2, 0.5])
+    args = ap.parse_args()
+    set_threads(1)
+    agree = {share: [0, 0] for share in args.shares}
+    print(
+        "| game | cell | test steps | fine-tune on test | No Clustering on test | "
+        + " | ".join(f"trial, {s:g} held out" for s in args.shares)
+        + " |"
+    )
+    print("|---|---|---|---|---|" + "---|" * len(args.shares))
+    for name in design_games(args.games, ap.error):
+        unit, labels, base, rest, tuned, bases, cfg = game_cells(args.zoo, name)
+        nc_at = [base.index(b.spec.key) for b in bases]
+        verdicts = {}
+        for share in args.shares:
+            ft_cfg = finetune_config(cfg.bc).model_copy(update={"finetune_check": share})
+            verdicts[share] = kept_starts(rest, ft_cfg, bases, cfg.bc)
+        for i, c in enumerate(rest):
+            ft, n = test_accuracy(unit, labels, tuned, i, c.spec.k)
+            nc, _ = test_accuracy(unit, labels, base, nc_at[i], c.spec.k)
+            said = []
+            for share in args.shares:
+                pick = "No Clustering" if i in verdicts[share] else "fine-tune"
+                right = (pick == "fine-tune") == (ft > nc) or np.isclose(ft, nc)
+                agree[share][0] += right
+                agree[share][1] += 1
+                said.append(f"{pick} ({'agrees' if right else 'disagrees'})")
+            print(
+                f"| {name} | {c.spec.key} | {n} | {ft:.3f} | {nc:.3f} | " + " | ".join(said) + " |",
+                flush=True,
+            )
+    for share, (right, total) in agree.items():
+        print(f"share {share:g}: the trial agrees with the test steps on {right} of {total} cells")
+
+
+if __name__ == "__main__":
+    main()
