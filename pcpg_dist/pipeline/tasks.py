@@ -54,12 +54,16 @@ def train_task(
     Clustering cells under ``bc.init: auto``)."""
     from pcpg_dist.pipeline.units import plan_unit
     from pcpg_dist.stages.bc import bases_of, finetune_cells, train_cells
+    from pcpg_dist.stages.bc.finetune import checks
 
     set_threads(threads)
     if init is None:
         cells = plan_unit(unit, labels, cfg, margins=margins, only=keys)
         trained = train_cells(cells, bc_cfg)
-    else:  # fine-tuned: the No Clustering cells their starts were trained on are built too
+    elif not checks(bc_cfg):
+        cells = plan_unit(unit, labels, cfg, margins=margins, only=keys)
+        trained = finetune_cells(cells, bc_cfg, init)
+    else:  # checked: the No Clustering cells their starts were trained on are built too
         every = plan_unit(
             unit, labels, cfg, margins=margins, only=keys + nc_keys(unit, labels, cfg, margins)
         )

@@ -46,7 +46,7 @@ def finetune_cells(
     ``base_cfg``) and under ``bc.init: auto`` with ``finetune_check`` > 0, a cell whose fair
     trial (:func:`kept_starts`) does not favour its fine-tune *is* its No Clustering agent."""
     keep: set[int] = set()
-    if bases is not None and cfg.init == "auto" and cfg.finetune_check > 0:
+    if bases is not None and checks(cfg):
         keep = kept_starts(cells, cfg, bases, base_cfg or cfg)
     parts = [starting_cells([cells[i] for i in sorted(keep)], cfg, [init[i] for i in sorted(keep)])]
     tune = [i for i in range(len(cells)) if i not in keep]
@@ -55,6 +55,11 @@ def finetune_cells(
     return TrainedCells.concat([p for p in parts if p is not None]).select(
         [c.spec.key for c in cells]
     )
+
+
+def checks(cfg: BCConfig) -> bool:
+    """Whether fine-tunes are checked: under ``bc.init: auto`` with ``finetune_check`` > 0."""
+    return cfg.init == "auto" and cfg.finetune_check > 0
 
 
 def kept_starts(
