@@ -57,19 +57,16 @@ def train_task(
     from pcpg_dist.stages.bc.finetune import checks
 
     set_threads(threads)
+    checked = init is not None and checks(bc_cfg)  # the starts' No Clustering cells too
+    extra = nc_keys(unit, labels, cfg, margins) if checked else []
+    every = plan_unit(unit, labels, cfg, margins=margins, only=keys + extra)
+    wanted = set(keys)
+    cells = [c for c in every if c.spec.key in wanted]
     if init is None:
-        cells = plan_unit(unit, labels, cfg, margins=margins, only=keys)
         trained = train_cells(cells, bc_cfg)
-    elif not checks(bc_cfg):
-        cells = plan_unit(unit, labels, cfg, margins=margins, only=keys)
-        trained = finetune_cells(cells, bc_cfg, init)
-    else:  # checked: the No Clustering cells their starts were trained on are built too
-        every = plan_unit(
-            unit, labels, cfg, margins=margins, only=keys + nc_keys(unit, labels, cfg, margins)
-        )
-        by_key = {c.spec.key: c for c in every}
-        cells = [by_key[k] for k in keys]
-        trained = finetune_cells(cells, bc_cfg, init, bases_of(cells, every), cfg.bc)
+    else:
+        bases = bases_of(cells, every) if checked else None
+        trained = finetune_cells(cells, bc_cfg, init, bases, cfg.bc)
     return {"files": trained.to_files(), "cells": len(trained.specs)}
 
 

@@ -495,7 +495,13 @@ def test_a_fine_tune_is_kept_only_where_it_wins_a_fair_trial():
 def test_the_trial_no_clustering_agent_never_sees_the_held_out_steps():
     """The held-out steps are drawn per step (a row's count split binomially, so a recurring
     state lands on both sides) and taken out of the No Clustering rows the trial refits on."""
-    from pcpg_dist.stages.bc.finetune import row_keys, split_rows, without
+    from pcpg_dist.stages.bc.finetune import split_rows, without
+
+    def row_keys(states, valid, actions) -> list[bytes]:  # a row's state, mask and action
+        return [
+            s.tobytes() + v.tobytes() + int(a).to_bytes(8, "little")
+            for s, v, a in zip(states, valid, actions, strict=True)
+        ]
 
     k0, k1, nc = _style_cells()
     assert split_rows(k0, 5 / len(k0.actions)) is None  # ~5 held-out steps: left unchecked

@@ -25,6 +25,7 @@ from pcpg_dist.config.stages import BCConfig
 from pcpg_dist.stages.bc.network import layer_sizes
 from pcpg_dist.stages.bc.train import train_cells
 from pcpg_dist.stages.bc.trained import TrainedCells
+from pcpg_dist.stages.cell_rows import dedupe_rows
 from pcpg_dist.stages.ranking import Cell
 
 #: Fewest held-out steps with which a cell's fine-tune is checked; a smaller cell keeps its
@@ -45,16 +46,15 @@ def finetune_cells(
     ``cfg``. With ``bases`` (``bases[i]``: the No Clustering cell that agent was trained on, with
     ``base_cfg``) and under ``bc.init: auto`` with ``finetune_check`` > 0, a cell whose fair
     trial (:func:`kept_starts`) does not favour its fine-tune *is* its No Clustering agent."""
-    keep: set[int] = set()
-    if bases is not None and checks(cfg):
-        keep = kept_starts(cells, cfg, bases, base_cfg or cfg)
-    parts = [starting_cells([cells[i] for i in sorted(keep)], cfg, [init[i] for i in sorted(keep)])]
-    tune = [i for i in range(len(cells)) if i not in keep]
+    kept = kept_starts(cells, cfg, bases, base_cfg or cfg) if bases and checks(cfg) else set()
+    keep = sorted(kept)
+    tune = [i for i in range(len(cells)) if i not in kept]
+    parts = []
+    if keep:
+        parts.append(starting_cells([cells[i] for i in keep], cfg, [init[i] for i in keep]))
     if tune:
         parts.append(train_cells([cells[i] for i in tune], cfg, [init[i] for i in tune]))
-    return TrainedCells.concat([p for p in parts if p is not None]).select(
-        [c.spec.key for c in cells]
-    )
+    return TrainedCells.concat(parts).select([c.spec.key for c in cells])
 
 
 def checks(cfg: BCConfig) -> bool:
@@ -119,53 +119,27 @@ def split_rows(cell: Cell, share: float) -> tuple[Cell, Rows] | None:
 
 
 def without(base: Cell, held: Sequence[Rows]) -> Cell | None:
-    """``base`` less the ``held`` steps (matched to its rows by state, valid mask and action);
-    None where nothing is left."""
-    counts = base.weights.astype(np.float64).copy()
-    index: dict[bytes, list[int]] = {}
-    for i, key in enumerate(row_keys(base.states, base.valid, base.actions)):
-        index.setdefault(key, []).append(i)
-    for states, valid, actions, weights in held:
-        for key, left in zip(row_keys(states, valid, actions), weights, strict=True):
-            for i in index.get(key, ()):
-                take = min(left, counts[i])
-                counts[i] -= take
-                left -= take
-                if left <= 0:
-                    break
-    on = counts > 0
+    """``base`` less the ``held`` steps (matched to its rows by state, valid mask and action,
+    :func:`~pcpg_dist.stages.cell_rows.dedupe_rows`); None where nothing is left."""
+    parts = [(base.states, base.valid, base.actions, base.weights), *held]
+    states, valid, actions, _, inverse = dedupe_rows(
+        *(np.concatenate([part[j] for part in parts]) for j in range(3)),
+        return_inverse=True,
+    )
+    n = len(base.actions)
+    weights = np.concatenate([part[3] for part in parts]).astype(np.float64)
+    left = np.bincount(inverse[:n], weights[:n], len(actions))
+    left -= np.bincount(inverse[n:], weights[n:], len(actions))
+    on = left > 0
     if not on.any():
         return None
-    return replace(
-        base,
-        states=base.states[on],
-        valid=base.valid[on],
-        actions=base.actions[on],
-        weights=counts[on],
-    )
-
-
-def row_keys(states: np.ndarray, valid: np.ndarray, actions: np.ndarray) -> list[bytes]:
-    """Each row's (state, valid mask, action) as bytes, to match rows between cells."""
-    n = len(actions)
-    raw = np.concatenate(
-        [
-            np.ascontiguousarray(states, np.float32).view(np.uint8).reshape(n, -1),
-            np.asarray(valid, np.uint8).reshape(n, -1),
-            np.ascontiguousarray(np.asarray(actions, "<i8")[:, None]).view(np.uint8),
-        ],
-        axis=1,
-    )
-    return [r.tobytes() for r in raw]
+    return replace(base, states=states[on], valid=valid[on], actions=actions[on], weights=left[on])
 
 
 def starting_cells(
     cells: Sequence[Cell], cfg: BCConfig, init: Sequence[list[np.ndarray]]
-) -> TrainedCells | None:
-    """The cells' starting parameters as an ensemble (None for no cells), each cell's loss its
-    start's on its rows."""
-    if not cells:
-        return None
+) -> TrainedCells:
+    """The cells' starting parameters as an ensemble, each cell's loss its start's on its rows."""
     sizes = layer_sizes(cells[0].state_dim, cells[0].n_actions, cfg)
     names = [f"{w}{layer}" for layer in range(len(sizes) - 1) for w in "Wb"]
     params = {
