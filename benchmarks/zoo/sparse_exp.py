@@ -85,6 +85,10 @@ def gap_choice(x: np.ndarray, k: int, seed: int = 0, perms: int = 5):
     return BOUNDS[int(np.argmax(gaps))], gaps
 
 
+def _accuracy(styles: np.ndarray, labels: np.ndarray) -> float:
+    return clustering_metrics(styles, labels)["accuracy"]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("zoo", type=Path, help="a folder from benchmarks.zoo.build")
@@ -99,12 +103,8 @@ def main() -> None:
         k = len(game.styles)
         prof = trajectory_profiles(ds)
         x = StandardScaler().fit_transform(prof[:, prof.std(axis=0) > 1e-12])
-
-        def acc(labels):
-            return clustering_metrics(ds.styles, labels)["accuracy"]
-
-        plain = acc(KMeans(k, n_init=10, random_state=0).fit_predict(x))
-        per = [acc(sparse_kmeans(x, k, s)[0]) for s in BOUNDS]
+        plain = _accuracy(ds.styles, KMeans(k, n_init=10, random_state=0).fit_predict(x))
+        per = [_accuracy(ds.styles, sparse_kmeans(x, k, s)[0]) for s in BOUNDS]
         s, _ = gap_choice(x, k)
         chosen = per[BOUNDS.index(s)]
         cells = " | ".join(f"{a:.3f}" for a in per)
