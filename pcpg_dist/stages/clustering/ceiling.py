@@ -121,7 +121,11 @@ def _policy_likelihood(ds: Dataset, cv, seed: int, time: bool = False) -> float:
     the head with the largest summed log likelihood plus log style share."""
     import torch
 
-    from pcpg_dist.stages.clustering.policy_network import policy_inputs, policy_states
+    from pcpg_dist.stages.clustering.policy_network import (
+        picked_log_probs,
+        policy_inputs,
+        policy_states,
+    )
     from pcpg_dist.stages.clustering.states import checked_sequences, fit_normaliser
 
     states, offsets = checked_sequences(ds, "clustering/ceiling")
@@ -150,9 +154,11 @@ def _policy_likelihood(ds: Dataset, cv, seed: int, time: bool = False) -> float:
         for i in range(0, len(params), 2):
             h = torch.baddbmm(params[i + 1][f], h, params[i][f])
             h = torch.tanh(h) if i < len(params) - 2 else h
-        logits = h.view(*h.shape[:2], k, n_actions).masked_fill(~ok[:, :, None], -1e9)
-        picked = acts[..., None, None].expand(-1, -1, k, 1)
-        return torch.log_softmax(logits, -1).gather(3, picked)[..., 0]
+        rows = h.shape[0] * h.shape[1]
+        picked = picked_log_probs(
+            h.reshape(rows, k, n_actions), acts.reshape(rows), ok.reshape(rows, n_actions)
+        )
+        return picked.view(*h.shape[:2], k)
 
     trained = [torch.from_numpy(np.isin(traj.numpy(), tr)).nonzero()[:, 0] for tr, _ in folds]
     batch = min(POLICY_BATCH, min(len(r) for r in trained))  # a small log: about its own size
