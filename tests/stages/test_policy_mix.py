@@ -79,6 +79,19 @@ def test_separates_styles_that_only_the_actions_show(goals, fitted):
     assert not {"ari", "nmi", "accuracy"} & set(fitted.metrics)
 
 
+def test_no_silhouette_is_reported_its_posteriors_read_separated_even_without_styles(goals):
+    # one style only: no play-styles to find, yet EM's posteriors over whole trajectories are
+    # near one-hot, so their silhouette would tell a user the clusters are well separated
+    from sklearn.metrics import silhouette_score
+
+    one_style = goals.subset(np.flatnonzero(np.asarray(goals.styles) == 0))
+    found = cluster(one_style, ClusterConfig(**FAST), seed=0)
+    assert silhouette_score(found.latents, found.labels) > 0.8
+    assert "silhouette" not in found.metrics and found.metrics["size_min_frac"] > 0
+    kmeans = cluster(goals, ClusterConfig(method="summary_kmeans", k=4), seed=0)
+    assert -1 <= kmeans.metrics["silhouette"] <= 1  # clusterers of a feature space still say it
+
+
 def test_same_seed_same_labels_and_global_rng_untouched(goals, fitted):
     torch.manual_seed(123)
     before = torch.rand(1)

@@ -23,13 +23,16 @@ def cluster_sizes(pred: np.ndarray, k: int) -> np.ndarray:
 def label_free_metrics(
     latents: np.ndarray, labels: np.ndarray, k: int, sample: int, seed: int
 ) -> dict[str, float]:
+    """Cluster size fractions, and the silhouette of dense ``latents`` on a seeded sample of at
+    most ``sample`` points (0: no silhouette, where the latents are not a space it means
+    anything in, :attr:`~pcpg_dist.stages.clustering.model.Fitted.silhouette`)."""
     sizes = cluster_sizes(labels, k)
     out = {
         "n_clusters_used": float((sizes > 0).sum()),
         "size_min_frac": float(sizes.min() / len(labels)),
         "size_max_frac": float(sizes.max() / len(labels)),
     }
-    if 2 <= out["n_clusters_used"] < len(labels) and not sparse.issparse(latents):
+    if sample and 2 <= out["n_clusters_used"] < len(labels) and not sparse.issparse(latents):
         out["silhouette"] = float(
             silhouette_score(
                 latents, labels, sample_size=min(sample, len(labels)), random_state=seed

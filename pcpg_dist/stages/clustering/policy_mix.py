@@ -237,4 +237,4 @@ def fit_policy_mix(
     scores = model.policy_scores(dataset)  # once, for the latents and the margins
     margins = likelihood_margins(scores.T.double().numpy(), labels)
     latents = posteriors(scores)
-    return Fitted(labels, latents, model, margins)
+    return Fitted(labels, latents, model, margins, silhouette=False)

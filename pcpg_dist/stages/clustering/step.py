@@ -101,12 +101,13 @@ def cluster_once(dataset, cfg: ClusterConfig, seed: int) -> Clustering:
     fitted: Fitted = fitting_function(cfg.method)(dataset, states, offsets, cfg, seed, metrics)
     latents = fitted.latents
     labels = fitted.labels if fitted.labels is not None else fitted.model.assign(latents)
-    if sparse.issparse(latents) and "silhouette" not in metrics:
+    if fitted.silhouette and sparse.issparse(latents) and "silhouette" not in metrics:
         idx, dist = sample_distances(latents, cfg.silhouette_sample, seed)
         s = silhouette_precomputed(dist, labels[idx])
         if s is not None:
             metrics["silhouette"] = s
-    metrics.update(label_free_metrics(latents, labels, cfg.k, cfg.silhouette_sample, seed))
+    sample = cfg.silhouette_sample if fitted.silhouette else 0
+    metrics.update(label_free_metrics(latents, labels, cfg.k, sample, seed))
     return Clustering(
         labels=labels,
         latents=latents,
