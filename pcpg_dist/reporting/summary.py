@@ -109,14 +109,21 @@ def print_summary(result, console, method: str | None = None) -> None:
         )
     console.print(t)
     print_clustering(result, console, method)
-    extra = [f"{k}={m[k]:.3f}" for k in ("cross/diagonal_mean",) if k in m]
-    extra += [
-        f"{k}={m[k]:.2f}"
+    if "cross/diagonal_mean" in m:
+        console.print(
+            "each cluster's agent on its own cluster's held-out trajectories (the cross-accuracy "
+            f"diagonal, Table 4): {m['cross/diagonal_mean']:.3f} (cross/diagonal_mean)"
+        )
+    distances = [
+        f"{k.split('/')[1]} {m[k]:.2f}"
         for k in sorted(m)
         if k.startswith("reward_distance/style") and k.count("/") == 1
     ]
-    if extra:
-        console.print("  ".join(extra))
+    if distances:
+        console.print(
+            "distance to the optimal reward under each style's R_k (Table 3, reward_distance/): "
+            + ", ".join(distances)
+        )
     console.print(stage_times(result))
 
 

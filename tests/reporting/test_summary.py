@@ -73,3 +73,25 @@ def test_a_choice_of_the_time_step_is_named_with_both_stabilities():
     assert "bag_auto clustered car with policy_mix seeing the time step" in text
     assert "(stability 1.00)" in text and "(0.77;" in text
     assert "clustered pole with policy_mix seeing" not in text
+
+
+def test_the_cross_accuracy_and_reward_distances_are_said_in_words():
+    result = RunResult(
+        out_dir=Path("."),
+        metrics={
+            "pcpg/accuracy/p1": 0.8,
+            "cross/diagonal_mean": 0.6084,
+            "reward_distance/style0": 0.125,
+            "reward_distance/style1": 1.5,
+            "random/reward_distance/style0": 3.0,  # the random agent's: not listed
+        },
+        clustering={"grid": {"clustering/accuracy": 0.9}},
+    )
+    console = Console(record=True, width=300)
+    print_summary(result, console, method=None)
+    text = console.export_text()
+    assert (
+        "own cluster's held-out trajectories (the cross-accuracy diagonal, Table 4): 0.608" in text
+    )
+    assert "(Table 3, reward_distance/): style0 0.12, style1 1.50" in text
+    assert "cross/diagonal_mean=" not in text and "3.00" not in text
