@@ -69,7 +69,7 @@ def run(args: argparse.Namespace) -> None:
         command=" ".join(["pcpg", *sys.argv[1:]]),
     )
     # results on stdout; plain print below: commands stay one copyable line
-    print_summary(result, out, method=result.method or cfg.clustering.method)
+    print_summary(result, out, method=result.method or cfg.clustering.method, bc=cfg.bc)
     if result.parent_run_id:
         _print_links(args, "MLflow parent run", result.parent_run_id)
     print(f"outputs: {result.out_dir}/summary")

@@ -79,9 +79,10 @@ def write_summary(
     return metrics
 
 
-def print_summary(result, console, method: str | None = None) -> None:
+def print_summary(result, console, method: str | None = None, bc=None) -> None:
     """The terminal summary: accuracy per p (PCPG vs No Clustering), clustering quality (with the
-    clustering ``method`` each environment was clustered with, where given), times."""
+    clustering ``method`` each environment was clustered with, where given), how the agents of
+    units whose verdict doubts their styles started (with the run's ``bc`` config), times."""
     from rich.table import Table
 
     m = result.metrics
@@ -109,6 +110,7 @@ def print_summary(result, console, method: str | None = None) -> None:
         )
     console.print(t)
     print_clustering(result, console, method)
+    _print_starts(result, console, bc)
     if "cross/diagonal_mean" in m:
         console.print(
             "each cluster's agent on its own cluster's held-out trajectories (the cross-accuracy "
@@ -125,6 +127,27 @@ def print_summary(result, console, method: str | None = None) -> None:
             + ", ".join(distances)
         )
     console.print(stage_times(result))
+
+
+def _print_starts(result, console, bc) -> None:
+    """Under ``bc.init: auto``, which environments' per-cluster agents were fine-tuned from the
+    No Clustering agent (their verdict doubts the styles) and how."""
+    if bc is None or bc.init != "auto":
+        return
+    doubted = [e for e, cm in result.clustering.items() if verdict_of(cm).doubts_styles]
+    if not doubted:
+        return
+    kept = (
+        ", each fine-tune kept only where it won a trial on held-out steps of its cluster"
+        " (bc.finetune_check)"
+        if bc.finetune_check > 0
+        else ""
+    )
+    console.print(
+        f"{', '.join(doubted)}: the verdict doubts the styles, so each per-cluster agent was "
+        f"fine-tuned from the No Clustering agent (bc.init: auto){kept}; "
+        "docs/bc_and_evaluation.md"
+    )
 
 
 def print_clustering(result, console, method: str | None = None) -> None:

@@ -95,3 +95,28 @@ def test_the_cross_accuracy_and_reward_distances_are_said_in_words():
     )
     assert "(Table 3, reward_distance/): style0 0.12, style1 1.50" in text
     assert "cross/diagonal_mean=" not in text and "3.00" not in text
+
+
+def test_the_agents_start_is_said_where_the_verdict_doubts_the_styles():
+    from pcpg_dist.config.stages import BCConfig
+
+    def said(bc) -> str:
+        result = RunResult(
+            out_dir=Path("."),
+            metrics={"pcpg/accuracy/p1": 0.8},
+            clustering={
+                "found": {"clustering/stability": 0.99},
+                "doubted": {"clustering/stability": 0.40},
+            },
+        )
+        console = Console(record=True, width=400)
+        print_summary(result, console, method=None, bc=bc)
+        return console.export_text()
+
+    checked = said(BCConfig())
+    assert "doubted: the verdict doubts the styles, so each per-cluster agent was fine-tuned" in (
+        checked
+    )
+    assert "found:" not in checked and "bc.finetune_check" in checked
+    assert "bc.finetune_check" not in said(BCConfig(finetune_check=0))
+    assert "fine-tuned" not in said(BCConfig(init="scratch")) and "fine-tuned" not in said(None)
