@@ -412,3 +412,23 @@ def test_sweep_prints_its_points_numbers_on_stdout(capsys, tmp_path):
     ), out
     row = next(line for line in out.splitlines() if line.startswith("│ 0.3") and " 4 " in line)
     assert [c.strip() for c in row.split("│")[3:8]] == ["0.940", "0.800", "0.750", "0.970", "0.500"]
+
+
+def test_a_sweep_over_k_without_labels_shows_each_points_stability(capsys, tmp_path):
+    """Without labels there is no clustering accuracy: the stability is what compares the k."""
+    from pcpg_dist.api.sweep import SweepResult
+    from pcpg_dist.cli import _print_points
+    from pcpg_dist.reporting.sweep_files import headline
+
+    metrics = {"clustering/stability": 0.91, "clustering/stability/std": 0.02}
+    metrics |= {"pcpg/accuracy/p1": 0.8, "baseline/accuracy/p1": 0.7}
+    assert headline(metrics)["clustering/stability"] == 0.91  # in summary.csv and the page
+    rows = [
+        {"clustering.k": k, "point": f"k{k}", **headline({**metrics, "clustering/stability": s})}
+        for k, s in ((3, 0.41), (4, 0.93))
+    ]
+    _print_points(SweepResult(tmp_path, {"clustering.k": [3, 4]}, rows, [], 1.0, 2))
+    out = capsys.readouterr().out
+    assert " stab. " in out and "clust. acc" not in out
+    row = next(line for line in out.splitlines() if line.startswith("│ 4 "))
+    assert "0.930" in row

@@ -121,7 +121,8 @@ def sweep(args: argparse.Namespace) -> None:
 
 def _print_points(res) -> None:
     """The sweep's points on stdout: axis values, then PCPG and No Clustering at p = 1 and at the
-    smallest p, and the clustering accuracy (every column: summary.csv and the report)."""
+    smallest p, the clustering accuracy and its label-free stability (every column: summary.csv
+    and the report)."""
     from rich.table import Table
 
     from pcpg_dist.common.progress import out as console
@@ -129,7 +130,7 @@ def _print_points(res) -> None:
 
     keys = {k for r in res.rows for k in r}
     ps = ps_of(keys)
-    shown = [("clustering/accuracy", "clust. acc")]
+    shown = [("clustering/accuracy", "clust. acc"), ("clustering/stability", "stab.")]
     for p in dict.fromkeys(ps[:1] + ps[-1:]):
         shown += [(f"pcpg/accuracy/p{p}", f"PCPG p{p}"), (f"baseline/accuracy/p{p}", f"NC p{p}")]
     shown = [(k, title) for k, title in shown if k in keys]

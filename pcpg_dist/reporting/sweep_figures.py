@@ -36,6 +36,7 @@ _METRIC_LABELS = {
     "clustering/accuracy": "clustering accuracy",
     "clustering/ceiling": "supervised ceiling",
     "clustering/gap_to_ceiling": "gap to the supervised ceiling",
+    "clustering/stability": "clustering stability (no labels)",
     "cross/diagonal_mean": "cross-accuracy diagonal (mean)",
 }
 

@@ -31,13 +31,16 @@ def ps_of(keys) -> list[str]:
 
 
 def headline_keys(metrics: dict[str, float]) -> list[str]:
-    """What a sweep compares: clustering quality, PCPG and No Clustering at every p and PCPG's lead."""
+    """What a sweep compares: clustering quality (with labels: accuracy, ceiling, gap; without:
+    the label-free stability, what a user comparing k has), PCPG and No Clustering at every p and
+    PCPG's lead."""
     keys = [
         k
         for k in (
             "clustering/accuracy",
             "clustering/ceiling",
             "clustering/gap_to_ceiling",
+            "clustering/stability",
             "cross/diagonal_mean",
         )
         if k in metrics

@@ -37,6 +37,7 @@ def sweep_metric_label(key: str) -> str:
         "clustering/accuracy": "clustering accuracy",
         "clustering/ceiling": "supervised ceiling",
         "clustering/gap_to_ceiling": "gap to the ceiling (ceiling − accuracy)",
+        "clustering/stability": "clustering stability (no labels)",
         "cross/diagonal_mean": "cross-accuracy diagonal (Table 4)",
     }
     if key in fixed:
@@ -53,7 +54,8 @@ def sweep_metric_label(key: str) -> str:
 
 def _sweep_columns(keys: list[str]) -> list[str]:
     """The metric columns in reading order: per p (largest first) PCPG, No Clustering and the lead,
-    then clustering accuracy, ceiling, gap and the cross-accuracy diagonal, then anything else."""
+    then clustering accuracy, ceiling, gap, stability and the cross-accuracy diagonal, then
+    anything else."""
     ps = sorted(
         {k.removeprefix("pcpg/accuracy/p") for k in keys if k.startswith("pcpg/accuracy/p")},
         key=lambda p: -float(p) if p.replace(".", "", 1).isdigit() else 0,
@@ -65,6 +67,7 @@ def _sweep_columns(keys: list[str]) -> list[str]:
         "clustering/accuracy",
         "clustering/ceiling",
         "clustering/gap_to_ceiling",
+        "clustering/stability",
         "cross/diagonal_mean",
     ]
     shown = [k for k in order if k in keys]
