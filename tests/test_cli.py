@@ -432,3 +432,19 @@ def test_a_sweep_over_k_without_labels_shows_each_points_stability(capsys, tmp_p
     assert " stab. " in out and "clust. acc" not in out
     row = next(line for line in out.splitlines() if line.startswith("│ 4 "))
     assert "0.930" in row
+
+
+def test_results_written_to_a_file_keep_their_table_numbers_whole():
+    """Redirected stdout has no terminal width: rich's default 80 columns cut 0.953 to "0.9…"."""
+    import os
+    import subprocess
+    import sys
+
+    code = "from pcpg_dist.common.progress import out; print(out.width)"
+    env = {k: v for k, v in os.environ.items() if k != "COLUMNS"}
+    piped = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert piped.stdout.strip() == "160"
+    asked = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env={**env, "COLUMNS": "100"}
+    )
+    assert asked.stdout.strip() == "100"  # a width the user set still wins
