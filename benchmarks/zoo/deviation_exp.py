@@ -23,7 +23,6 @@ Design games only: it refuses held-out games.
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -96,7 +95,7 @@ def main() -> None:
     ap.add_argument("zoo", type=Path, help="a folder from benchmarks.zoo.build")
     ap.add_argument("games", nargs="*")
     args = ap.parse_args()
-    names = design_games(args.games, lambda m: sys.exit(m))
+    names = design_games(args.games, ap.error)
     print("| game | mean | regions | surprise | mean + regions |")
     print("|---|---|---|---|---|")
     for name in names:

@@ -19,7 +19,6 @@ only: it refuses held-out games.
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -94,7 +93,7 @@ def main() -> None:
     ap.add_argument("zoo", type=Path, help="a folder from benchmarks.zoo.build")
     ap.add_argument("games", nargs="*")
     args = ap.parse_args()
-    names = design_games(args.games, lambda m: sys.exit(m))
+    names = design_games(args.games, ap.error)
     head = " | ".join(f"s={s:g}" for s in BOUNDS)
     print(f"| game | k-means | {head} | gap's bound | its accuracy |")
     print("|---" * (len(BOUNDS) + 4) + "|")

@@ -1,9 +1,10 @@
 """Terminal output: results on stdout, progress and logs on stderr, library noise silenced.
 
 ``out`` prints results (tables, paths, commands) on stdout with soft wrapping, so a long command
-stays one line that can be copied, and 160 columns wide where stdout is a file or a pipe; ``console`` and the progress bars (rich) write to stderr and
-degrade to a final line when stderr is not a terminal. :func:`setup_output` is called once by the
-CLI with its ``-q/--quiet`` and ``--verbose`` flags.
+stays one line that can be copied, and 160 columns wide where stdout is a file or a pipe;
+``console`` and the progress bars (rich) write to stderr and degrade to a final line when stderr
+is not a terminal. :func:`setup_output` is called once by the CLI with its ``-q/--quiet`` and
+``--verbose`` flags.
 """
 
 from __future__ import annotations

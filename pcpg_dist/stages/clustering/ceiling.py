@@ -154,9 +154,9 @@ def _policy_likelihood(ds: Dataset, cv, seed: int, time: bool = False) -> float:
         for i in range(0, len(params), 2):
             h = torch.baddbmm(params[i + 1][f], h, params[i][f])
             h = torch.tanh(h) if i < len(params) - 2 else h
-        rows = h.shape[0] * h.shape[1]
+        flat = h.shape[0] * h.shape[1]  # every fold's rows, one after the other
         picked = picked_log_probs(
-            h.reshape(rows, k, n_actions), acts.reshape(rows), ok.reshape(rows, n_actions)
+            h.reshape(flat, k, n_actions), acts.reshape(flat), ok.reshape(flat, n_actions)
         )
         return picked.view(*h.shape[:2], k)
 
