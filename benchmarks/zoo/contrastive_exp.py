@@ -45,7 +45,8 @@ BATCH_ROWS, BATCH_TRAJ = 8192, 256  # rows per step of pi_0; trajectories per In
 
 
 def population_policy(s, a, valid, gen: torch.Generator) -> torch.Tensor:
-    """(rows, n_actions) pi_0(. | s) of a small MLP fitted to every step (full batch)."""
+    """(rows, n_actions) pi_0(. | s) of a small MLP fitted to every player's steps
+    (``POP_STEPS`` Adam steps on ``BATCH_ROWS`` rows drawn each time)."""
     n_actions = valid.shape[1]
     torch.manual_seed(int(torch.randint(2**31, (1,), generator=gen)))
     net = nn.Sequential(
