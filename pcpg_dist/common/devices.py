@@ -8,6 +8,7 @@ calls :func:`set_threads` with the CPUs it was given before touching torch.
 from __future__ import annotations
 
 import os
+import sys
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
@@ -19,11 +20,7 @@ def set_threads(n: int) -> None:
     n = max(1, int(n))
     for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
         os.environ[var] = str(n)
-    # numba: the runtime setting, never NUMBA_NUM_THREADS (numba rejects a changed value once
-    # its thread pool runs, at the next compile); capped at the pool size it started with.
-    import numba
-
-    numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
+    quiet_numba_layer()
     import torch
 
     if torch.get_num_threads() != n:
@@ -33,6 +30,20 @@ def set_threads(n: int) -> None:
             torch.set_num_interop_threads(n)
     except RuntimeError:  # interop threads can only be set before first parallel use
         pass
+
+
+def quiet_numba_layer() -> None:
+    """Keep numba's OpenMP thread pool out of this process: nothing here runs numba in parallel
+    (the BC kernel runs one ``nogil`` call per Python thread). Started, that pool loads the
+    system's libgomp before torch does (torch then shares it) and turns on nested parallel
+    regions in it: every MKL call inside one of torch's parallel loops then starts new threads,
+    and training with two torch threads ran 3-4x slower (docs/scale.md, "Threads"). A user's
+    ``NUMBA_THREADING_LAYER`` still decides.
+    """
+    os.environ.setdefault("NUMBA_THREADING_LAYER", "workqueue")
+    numba = sys.modules.get("numba")
+    if numba is not None and numba.config.THREADING_LAYER == "default":
+        numba.config.THREADING_LAYER = "workqueue"
 
 
 def available_cpus() -> int:
