@@ -20,7 +20,7 @@ def set_threads(n: int) -> None:
     n = max(1, int(n))
     for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
         os.environ[var] = str(n)
-    quiet_numba_layer()
+    _quiet_numba_layer()
     import torch
 
     if torch.get_num_threads() != n:
@@ -32,7 +32,7 @@ def set_threads(n: int) -> None:
         pass
 
 
-def quiet_numba_layer() -> None:
+def _quiet_numba_layer() -> None:
     """Keep numba's OpenMP thread pool out of this process: nothing here runs numba in parallel
     (the BC kernel runs one ``nogil`` call per Python thread). Started, that pool loads the
     system's libgomp before torch does (torch then shares it) and turns on nested parallel
