@@ -135,6 +135,7 @@ def test_a_split_that_changes_the_clustering_input_gets_its_own_clustering(
         "seeds": [0],
         "clustering.em_iterations": 2,
         "clustering.policy_steps": 10,
+        "clustering.confidence_runs": 0,  # the cache key is under test, not the confidence
         "bc.epochs": 2,
         "bc.finetune_epochs": 1,
         "evaluation.corruption_levels": [],

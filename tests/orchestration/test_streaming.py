@@ -31,10 +31,15 @@ def config(path: Path, **over) -> ExperimentConfig:
     return ExperimentConfig.model_validate(raw)
 
 
+#: the module's log: blocks, parts and cells as a big log has them, small enough that a run's
+#: fixed costs (Ray Data's planning, the BC tasks' start) are most of its time
+N = 1500
+
+
 @pytest.fixture(scope="module")
 def log(tmp_path_factory) -> Path:
     path = tmp_path_factory.mktemp("streamed") / "log.parquet"
-    write_styled_log(path, 3000, d=8, seed=1)
+    write_styled_log(path, N, d=8, seed=1)
     return path
 
 
@@ -60,7 +65,7 @@ def test_a_streamed_run_finds_the_styles_and_its_agents_beat_no_clustering(strea
     assert m["pcpg/accuracy/p0.5"] >= m["baseline/accuracy/p0.5"] + 0.15
     summary = res.out_dir / "summary"
     record = json.loads((summary / "streamed.json").read_text())
-    assert record["n_trajectories"] == 3000 and record["steps"] == pq.read_metadata(log).num_rows
+    assert record["n_trajectories"] == N and record["steps"] == pq.read_metadata(log).num_rows
     assert set(record["stage_seconds"]) == {
         "features",
         "cluster",
@@ -70,7 +75,7 @@ def test_a_streamed_run_finds_the_styles_and_its_agents_beat_no_clustering(strea
         "evaluate",
     }
     labels = pq.read_table(summary / "labels_seed0.parquet").to_pandas()
-    assert sorted(labels.trajectory) == list(range(3000))
+    assert sorted(labels.trajectory) == list(range(N))
     assert labels.test.mean() == pytest.approx(0.2, abs=0.03)
     with np.load(summary / "agents_seed0.npz", allow_pickle=False) as agents:
         assert {k.split("_")[0] for k in agents.files} == {
@@ -100,11 +105,11 @@ def test_a_minari_dataset_streams_like_the_same_log_in_parquet(
     write_minari({"log": ds}, tmp_path / "minari", "pcpg/styled-v0")
     from pcpg_dist.domains.trajectories import minari_stream
 
-    monkeypatch.setattr(minari_stream, "STEPS_PER_PART", 20_000)  # several parts, as a big log
+    monkeypatch.setattr(minari_stream, "STEPS_PER_PART", 10_000)  # several parts, as a big log
     res = run(config("minari:pcpg/styled-v0"), tmp_path / "run")
     record = json.loads((res.out_dir / "summary" / "streamed.json").read_text())
     parquet = json.loads((streamed.out_dir / "summary" / "streamed.json").read_text())
-    assert (record["n_trajectories"], record["steps"]) == (3000, pq.read_metadata(log).num_rows)
+    assert (record["n_trajectories"], record["steps"]) == (N, pq.read_metadata(log).num_rows)
     (env,) = res.clustering
     (penv,) = streamed.clustering
     assert res.clustering[env]["clustering/accuracy"] == pytest.approx(
@@ -314,7 +319,7 @@ def test_classify_labels_a_log_block_by_block_with_the_runs_clustering(
     out = tmp_path / "labels.csv"
     assert main(["classify", str(model), str(log), "--out", str(out)]) == 0
     printed = capsys.readouterr().out
-    assert f"3000 trajectories -> {out}; cluster sizes [" in printed
+    assert f"{N} trajectories -> {out}; cluster sizes [" in printed
     (quality,) = streamed.clustering.values()  # the run's own score of the same labels
     assert f"against the true styles: clustering/accuracy {quality['clustering/accuracy']:.3f}" in (
         printed

@@ -23,7 +23,8 @@ E3 = {
         "environments": ["E3"],
     },
     "pbtg": {"episodes": 20000, "trajectories_per_style": 1000, "dataset_per_style": 250},
-    "clustering": {"k": 4},
+    # the ranking is under test: no supervised ceiling, no confidence refits
+    "clustering": {"k": 4, "ceiling": False, "confidence_runs": 0},
     "ranking": {"ps": [1.0, 0.1]},
     "bc": {"epochs": 1000},
     "evaluation": {"rollouts_per_policy": 10, "corruption_levels": [0.0], "figures": False},
