@@ -41,8 +41,9 @@ TINY = {
         "environments": ["E1"],
     },
     "pbtg": {"episodes": 5000, "trajectories_per_style": 60, "dataset_per_style": 30},
-    # trials score no ceiling and no confidence (objective.py); the best config's run need not
-    # either: these tests check the study, not the clustering
+    # these tests check the study, not the clustering (tests/stages does): no ceiling panel, and
+    # with no confidence refits bag_auto fits greedy_mix alone instead of choosing among refitted
+    # candidates, in every trial and in the best config's run
     "clustering": {
         "pretrain_epochs": 3,
         "dec_epochs": 2,
