@@ -5,6 +5,7 @@ held-out rows' accuracy counts."""
 from __future__ import annotations
 
 import contextlib
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -143,11 +144,12 @@ def train_cells(
     return results
 
 
-def _until_exited(workers: list[tuple[str, int]], timeout: float = 10.0) -> None:
+def _until_exited(workers: list[tuple[str, int]], timeout: float = 60.0) -> None:
     """Wait, at most ``timeout`` seconds, for the BC tasks' workers on this node to exit. Each
     exits after its task (``max_calls=1``) but holds torch and its buffers (~1 GB) a second or
     two longer, while the next step already starts workers of its own: measured, that overlap
-    was a million-trajectory run's peak memory."""
+    was a million-trajectory run's peak memory. On a loaded machine the exit took over 10 s (CI,
+    2026-11-30); a worker that is a zombie has given its memory back and counts as gone."""
     import ray
 
     here = ray.get_runtime_context().get_node_id()
@@ -156,7 +158,16 @@ def _until_exited(workers: list[tuple[str, int]], timeout: float = 10.0) -> None
         if node == here:
             with contextlib.suppress(psutil.NoSuchProcess):
                 procs.append(psutil.Process(pid))
-    psutil.wait_procs(procs, timeout=timeout)
+    deadline = time.monotonic() + timeout
+    while (procs := [p for p in procs if _running(p)]) and time.monotonic() < deadline:
+        time.sleep(0.05)
+
+
+def _running(proc: psutil.Process) -> bool:
+    try:
+        return proc.is_running() and proc.status() != psutil.STATUS_ZOMBIE
+    except psutil.NoSuchProcess:
+        return False
 
 
 def train_spec(cfg, source: StreamSource) -> TrainSpec:
