@@ -54,6 +54,17 @@ def read_unit(name: str, folder: Path):
     return game, cfg, ds
 
 
+def for_design_games(root: Path, games: list[str], error, run) -> None:
+    """Print ``run(ds, k, truth)``'s lines for each design game's labelled unit under ``root``
+    (``benchmarks.zoo.build --out``); ``error`` is called for a held-out or unknown game."""
+    from benchmarks.zoo.common import design_games
+
+    for name in design_games(games, error):
+        game, _, ds = read_unit(name, root / name / "labelled")
+        for line in run(ds, len(game.styles), np.asarray(ds.styles)):
+            print(f"{name}: {line}", flush=True)
+
+
 def supervised_profile_accuracy(ds, seed: int = 0) -> float:
     """5-fold cross-validated accuracy of gradient boosting on the trajectories' profiles."""
     from sklearn.ensemble import HistGradientBoostingClassifier

@@ -155,7 +155,17 @@ class ClusterConfig(StrictModel):
         500,
         ge=1,
         le=100_000,
-        description="policy_start latent: Adam steps of the latent fit (4096 rows each).",
+        description="policy_start latent: Adam steps of each latent fit (4096 rows each).",
+    )
+    latent_runs: int = Field(
+        1,
+        ge=1,
+        le=64,
+        description="policy_start latent, experimental: independent latent fits (side by side in "
+        "one batched pass) whose k-means partitions are joined by their consensus. 8 (with "
+        "latent_steps 250) lifted small discrete logs 5-13 points but costs 2-7x the time, lost "
+        "mujoco_pendulum, and makes the label-free stability read high on a single style cut "
+        "into clusters, so the verdict is not to be trusted with it (docs/clustering.md).",
     )
     ceiling: bool = Field(
         True,

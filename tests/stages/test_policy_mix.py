@@ -401,3 +401,67 @@ def test_restarts_keep_the_most_stable_of_their_fits():
     one = cluster(ds, cfg.model_copy(update={"restarts": 1}), seed=0)  # no restarts: as before
     np.testing.assert_array_equal(one.labels, cluster_once(ds, cfg, 0).labels)
     assert "restart_kept" not in one.metrics
+
+
+def test_the_consensus_of_noisy_partitions_finds_what_they_share(monkeypatch):
+    """Eight partitions, each the styles with 35 % of the trajectories moved at random and its
+    clusters renumbered: their consensus is the styles, also where only a sample is linked."""
+    from pcpg_dist.stages.clustering import latent_start as L
+
+    rng = np.random.default_rng(0)
+    truth = np.repeat(np.arange(4), [150, 100, 60, 90])  # unequal styles
+    parts = []
+    for _ in range(8):
+        p = truth.copy()
+        moved = rng.random(len(p)) < 0.35
+        p[moved] = rng.integers(0, 4, moved.sum())
+        parts.append(rng.permutation(4)[p])
+    parts = np.stack(parts)
+    each = [clustering_metrics(truth, p)["accuracy"] for p in parts]
+    assert max(each) < 0.8
+    joined = L.consensus(parts, 4, seed=0)
+    assert clustering_metrics(truth, joined)["accuracy"] >= 0.95
+    monkeypatch.setattr(L, "CONSENSUS_LINKED", 120)  # a "large" log: 120 linked, 280 joined
+    sampled = L.consensus(parts, 4, seed=0)
+    assert clustering_metrics(truth, sampled)["accuracy"] >= 0.95
+    np.testing.assert_array_equal(L.consensus(parts, 4, seed=0), sampled)
+
+
+def test_latent_fits_side_by_side_each_follow_their_own_loss():
+    """The batched fits share nothing: the gradient of their summed loss, in one fit's
+    parameters, is that fit's own loss's gradient (so Adam moves each as if it were alone)."""
+    from pcpg_dist.stages.clustering.latent_start import LatentPolicies
+
+    gen = torch.Generator().manual_seed(0)
+    rows, n = 64, 10
+    s = torch.randn(rows, 5, generator=gen)
+    a = torch.randint(3, (rows,), generator=gen)
+    valid = torch.ones(rows, 3, dtype=torch.bool)
+    traj = torch.randint(n, (rows,), generator=gen)
+    net = LatentPolicies(5, n, 2, 8, 3, runs=3)
+    net.reset_parameters(gen)
+    noise = torch.randn(3, rows, 2, generator=gen)
+    nll = net.step_nll(s, a, valid, traj, noise)
+    assert nll.shape == (rows, 3) and (nll > 0).all()
+    summed = torch.autograd.grad(nll.sum(), list(net.parameters()), retain_graph=True)
+    alone = torch.autograd.grad(nll[:, 1].sum(), list(net.parameters()))
+    for g_sum, g_one in zip(summed, alone, strict=True):
+        torch.testing.assert_close(g_sum[1], g_one[1])
+        assert (g_one[0] == 0).all() and (g_one[2] == 0).all()
+
+
+def test_a_consensus_of_latent_fits_finds_the_styles_and_repeats_with_its_seed(goals):
+    """``latent_runs`` (experimental): fits side by side, k-means on each, their consensus."""
+    from pcpg_dist.stages.clustering.latent_start import fit_latents, latent_start
+    from pcpg_dist.stages.clustering.policy_mix import _policy_view
+
+    set_threads(1)
+    cfg = ClusterConfig(**FAST, latent_runs=4, latent_steps=150)
+    inputs = _policy_view(goals, goals.states, cfg)[3]
+    mu = fit_latents(inputs, goals.n_trajectories, cfg, goals.n_actions, torch.Generator())
+    assert mu.shape == (4, goals.n_trajectories, cfg.latent_dims)
+    assert not np.allclose(mu[0], mu[1])  # each fit its own
+    start = latent_start(inputs, goals.n_trajectories, cfg, goals.n_actions, seed=0)
+    assert clustering_metrics(goals.styles, start)["accuracy"] >= 0.9
+    again = latent_start(inputs, goals.n_trajectories, cfg, goals.n_actions, seed=0)
+    np.testing.assert_array_equal(again, start)
