@@ -23,7 +23,7 @@ from benchmarks.zoo.common import game_names, load_game
 CLOSE = 0.05  # "at the ceiling": the bar for the verdict
 
 
-def confidence_row(name: str, ci: bool, runs: int) -> dict:
+def confidence_row(name: str, ci: bool, runs: int, over: dict | None = None) -> dict:
     from benchmarks.zoo.check import labelled_dataset
     from pcpg_dist.common.devices import set_threads
     from pcpg_dist.config.clustering import ClusterConfig
@@ -35,7 +35,7 @@ def confidence_row(name: str, ci: bool, runs: int) -> dict:
     game = load_game(name)
     ds = labelled_dataset(name, ci)
     k = len(game.styles)
-    cfg = ClusterConfig(k=k, confidence_runs=runs)
+    cfg = ClusterConfig(k=k, confidence_runs=runs, **(over or {}))  # over: --set KEY=VALUE
     t0 = time.perf_counter()
     result = cluster(ds, cfg, 0)
     fit = time.perf_counter() - t0
@@ -107,6 +107,13 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a clustering key other than its default (latent_runs=8), for a measurement",
+    )
+    ap.add_argument(
         "--reverdict", type=Path, default=None, help="re-derive a results file's verdicts"
     )
     args = ap.parse_args()
@@ -120,10 +127,12 @@ def main() -> None:
         args.reverdict.write_text(json.dumps(results, indent=1))
         print(json.dumps(results["summary"], indent=1))
         return
+    over = {k: json.loads(v) for k, v in (kv.split("=", 1) for kv in args.set)}
     rows = []
     with ProcessPoolExecutor(args.workers) as pool:
         jobs = [
-            pool.submit(confidence_row, n, args.ci, args.runs) for n in args.games or game_names()
+            pool.submit(confidence_row, n, args.ci, args.runs, over)
+            for n in args.games or game_names()
         ]
         for job in as_completed(jobs):
             r = job.result()
