@@ -164,7 +164,7 @@ class ClusterConfig(StrictModel):
         description="policy_start latent, experimental: independent latent fits (side by side in "
         "one batched pass) whose k-means partitions are joined by their consensus. 8 (with "
         "latent_steps 250) lifted small discrete logs 5-13 points but costs 2-7x the time, lost "
-        "mujoco_pendulum, and makes the label-free stability read high on a single style cut "
+        "mujoco_pendulum and held-out roundabout, and makes the label-free stability read high on a single style cut "
         "into clusters, so the verdict is not to be trusted with it (docs/clustering.md).",
     )
     ceiling: bool = Field(
