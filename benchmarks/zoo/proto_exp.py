@@ -23,40 +23,6 @@ import numpy as np
 import torch
 
 
-def _nll_given(net, s, a, valid, z):
-    """-log pi(a_t | s_t, z) of each row for the rows' own z (no posterior noise)."""
-    from pcpg_dist.stages.clustering.policy_network import picked_log_probs
-
-    h = net.trunk(torch.cat([s, z], 1))
-    mod = net.bilinear(h).view(-1, net.n_actions, net.dims)
-    logits = net.head(torch.cat([h, z], 1)) + (mod * z[:, None, :]).sum(-1)
-    return -picked_log_probs(logits, a, valid)
-
-
-def fit_latent_net(inputs, n, cfg, n_actions, gen):
-    """latent_start.fit_latents, keeping the fitted network."""
-    from pcpg_dist.stages.clustering import latent_start as L
-
-    s, a, valid, traj = inputs
-    net = L.LatentPolicy(s.shape[1], n, cfg.latent_dims, L.LATENT_HIDDEN, n_actions)
-    net.reset_parameters(gen)
-    opt = torch.optim.Adam(net.parameters(), lr=cfg.policy_lr)
-    total = len(a)
-    for _ in range(cfg.latent_steps):
-        if total > L.LATENT_ROWS:
-            rows = torch.randint(total, (L.LATENT_ROWS,), generator=gen)
-            batch, scale = (s[rows], a[rows], valid[rows], traj[rows]), total / L.LATENT_ROWS
-        else:
-            batch, scale = inputs, 1.0
-        noise = torch.randn((len(batch[1]), cfg.latent_dims), generator=gen)
-        nll = scale * net.step_nll(*batch, noise).sum()
-        loss = (nll + cfg.latent_beta * net.kl().sum()) / total
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-    return net
-
-
 def proto_em(net, inputs, n, k, start, gen, rounds: int, steps: int, min_share: float):
     """Hard EM over k prototypes of ``net`` from the labels ``start``; returns the labels."""
     from pcpg_dist.stages.clustering import latent_start as L
@@ -76,14 +42,14 @@ def proto_em(net, inputs, n, k, start, gen, rounds: int, steps: int, min_share: 
         for _ in range(steps if r else 4 * steps):
             rows = torch.randint(total, (min(total, L.LATENT_ROWS),), generator=gen)
             z = protos[own[traj[rows]]]
-            loss = _nll_given(net, s[rows], a[rows], valid[rows], z).mean()
+            loss = net.nll_given(s[rows], a[rows], valid[rows], z).mean()
             opt.zero_grad()
             loss.backward()
             opt.step()
         with torch.no_grad():
             scores = torch.zeros(k, n, dtype=torch.float64)
             for c in range(k):
-                nll = _nll_given(net, s, a, valid, protos[c].expand(total, -1))
+                nll = net.nll_given(s, a, valid, protos[c].expand(total, -1))
                 scores[c].index_add_(0, traj, -nll.double())
         share = np.maximum(np.bincount(labels, minlength=k) / n, 1e-12)
         sc = scores.numpy() + np.log(share)[:, None]
@@ -101,6 +67,7 @@ def run_game(ds, k, truth, args) -> list[str]:
 
     from pcpg_dist.config.clustering import ClusterConfig
     from pcpg_dist.stages.clustering import clustering_metrics
+    from pcpg_dist.stages.clustering.latent_start import fit_latent_network
     from pcpg_dist.stages.clustering.policy_mix import (
         LATENT_FIRST_ROUND,
         _fit_policy_mix,
@@ -125,56 +92,47 @@ def run_game(ds, k, truth, args) -> list[str]:
             )  # fmt: skip
         return acc(labels)
 
-    out = []
+    if args.consensus:
+        return [consensus(inputs, n, cfg, ds.n_actions, k, args, acc, em)]
     with torch.random.fork_rng(devices=[]):
         t0 = time.perf_counter()
         gen = torch.Generator().manual_seed(args.seed)
-        net = fit_latent_net(inputs, n, cfg, ds.n_actions, gen)
+        net = fit_latent_network(inputs, n, cfg, ds.n_actions, gen)
+        if args.readouts:
+            return [readouts(net, k, args.seed, acc)]
         km = KMeans(n_clusters=k, n_init=cfg.kmeans_n_init, random_state=args.seed)
         start = km.fit_predict(net.mu.detach().double().numpy())
         t1 = time.perf_counter()
-        protos = (
-            start
-            if args.readouts
-            else proto_em(
-                net, inputs, n, k, start, gen, args.rounds, args.steps, cfg.policy_min_share
-            )
+        protos = proto_em(
+            net, inputs, n, k, start, gen, args.rounds, args.steps, cfg.policy_min_share
         )
         t2 = time.perf_counter()
-    if args.consensus:
-        out.append(consensus(inputs, n, cfg, ds.n_actions, k, args, acc, em))
-        return out
-    if args.readouts:
-        out.append(readouts(net, k, args.seed, acc))
-        return out
-    out.append(
+    return [
         f"latent {acc(start)} -> em {em(start)} | proto {acc(protos)} -> em {em(protos)}"
         f" (latent {t1 - t0:.0f} s, proto {t2 - t1:.0f} s)"
-    )
-    return out
+    ]
 
 
 def consensus(inputs, n, cfg, n_actions, k, args, acc, em) -> str:
-    """k-means on the latents of ``args.consensus`` seeds, and the consensus of the first 2, 4,
-    ... of those partitions (co-association: how often two trajectories share a cluster; average
-    linkage), alone and as policy_mix's start."""
-    from sklearn.cluster import AgglomerativeClustering, KMeans
+    """k-means on the latents of ``args.consensus`` separate seeds, and the consensus
+    (:func:`~pcpg_dist.stages.clustering.latent_start.consensus`) of the first 2, 4, ... of
+    those partitions, alone and as policy_mix's start."""
+    from sklearn.cluster import KMeans
+
+    from pcpg_dist.stages.clustering.latent_start import consensus as joined
+    from pcpg_dist.stages.clustering.latent_start import fit_latents
 
     parts, t0 = [], time.perf_counter()
     for seed in range(args.seed, args.seed + args.consensus):
         with torch.random.fork_rng(devices=[]):
-            net = fit_latent_net(inputs, n, cfg, n_actions, torch.Generator().manual_seed(seed))
-        mu = net.mu.detach().double().numpy()
+            mu = fit_latents(inputs, n, cfg, n_actions, torch.Generator().manual_seed(seed))[0]
         parts.append(KMeans(k, n_init=10, random_state=seed).fit_predict(mu))
     each = (time.perf_counter() - t0) / args.consensus
     singles = [float(acc(p)) for p in parts]
     line = f"seeds {' '.join(f'{a:.3f}' for a in singles)} (mean {np.mean(singles):.3f}, {each:.1f} s each)"
     m = 2
     while m <= args.consensus:
-        co = np.mean([p[:, None] == p[None, :] for p in parts[:m]], axis=0)
-        avg = AgglomerativeClustering(k, metric="precomputed", linkage="average").fit_predict(
-            1 - co
-        )
+        avg = joined(np.stack(parts[:m]), k, args.seed)
         line += f" | {m}: {acc(avg)} -> em {em(avg)}"
         m *= 2
     return line

@@ -57,7 +57,10 @@ class LatentPolicy(nn.Module):
 
     def step_nll(self, s, a, valid, traj, noise: torch.Tensor) -> torch.Tensor:
         """-log pi(a_t | s_t, z) of each row, z = mu + sigma x ``noise`` of the row's trajectory."""
-        z = self.mu[traj] + noise * self.log_sigma[traj].exp()
+        return self.nll_given(s, a, valid, self.mu[traj] + noise * self.log_sigma[traj].exp())
+
+    def nll_given(self, s, a, valid, z: torch.Tensor) -> torch.Tensor:
+        """-log pi(a_t | s_t, z_t) of each row for the row's own ``z``."""
         h = self.trunk(torch.cat([s, z], 1))
         mod = self.bilinear(h).view(-1, self.n_actions, self.dims)  # z also scales the features
         logits = self.head(torch.cat([h, z], 1)) + (mod * z[:, None, :]).sum(-1)
@@ -121,13 +124,12 @@ class LatentPolicies(nn.Module):
         return 0.5 * (self.mu**2 + (2 * self.log_sigma).exp() - 2 * self.log_sigma - 1).sum()
 
 
-def fit_latents(inputs, n: int, cfg, n_actions: int, gen: torch.Generator) -> np.ndarray:
-    """(latent_runs, n, latent_dims) float64: each fit's posterior mean of every trajectory after
+def fit_latent_network(inputs, n: int, cfg, n_actions: int, gen: torch.Generator):
+    """A :class:`LatentPolicy` (or, with ``latent_runs`` above 1, :class:`LatentPolicies`) after
     ``latent_steps`` Adam steps on :data:`LATENT_ROWS` rows each (``inputs``:
-    :func:`.policy_network.policy_inputs`, on the CPU). Several fits (:class:`LatentPolicies`)
-    use the same rows every step and differ by their initial weights and posterior draws; their
-    losses are summed, and Adam's update of a parameter depends on its own gradient only, so
-    each fit follows its own loss."""
+    :func:`.policy_network.policy_inputs`, on the CPU). Several fits use the same rows every step
+    and differ by their initial weights and posterior draws; their losses are summed, and Adam's
+    update of a parameter depends on its own gradient only, so each fit follows its own loss."""
     s, a, valid, traj = inputs
     runs = cfg.latent_runs
     if runs == 1:
@@ -143,19 +145,21 @@ def fit_latents(inputs, n: int, cfg, n_actions: int, gen: torch.Generator) -> np
             batch, scale = (s[rows], a[rows], valid[rows], traj[rows]), total / LATENT_ROWS
         else:
             batch, scale = inputs, 1.0
-        shape = (
-            (len(batch[1]), cfg.latent_dims)
-            if runs == 1
-            else (runs, len(batch[1]), cfg.latent_dims)
-        )
-        noise = torch.randn(shape, generator=gen)
+        # (rows, dims) for one fit, (runs, rows, dims) side by side: mu's leading dimensions
+        noise = torch.randn((*net.mu.shape[:-2], len(batch[1]), cfg.latent_dims), generator=gen)
         nll = scale * net.step_nll(*batch, noise).sum()
         loss = (nll + cfg.latent_beta * net.kl().sum()) / total
         opt.zero_grad()
         loss.backward()
         opt.step()
-    mu = net.mu.detach().double().numpy()
-    return mu[None] if runs == 1 else mu
+    return net
+
+
+def fit_latents(inputs, n: int, cfg, n_actions: int, gen: torch.Generator) -> np.ndarray:
+    """(latent_runs, n, latent_dims) float64: each fit's posterior mean of every trajectory
+    (:func:`fit_latent_network`)."""
+    net = fit_latent_network(inputs, n, cfg, n_actions, gen)
+    return net.mu.detach().double().numpy().reshape(cfg.latent_runs, n, cfg.latent_dims)
 
 
 #: trajectories the consensus links directly (average linkage needs their n x n co-association);
