@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from pcpg_dist.config.clusterers import ClusterMethod
 from pcpg_dist.config.schema import StrictModel
@@ -155,17 +155,17 @@ class ClusterConfig(StrictModel):
         500,
         ge=1,
         le=100_000,
-        description="policy_start latent: Adam steps of each latent fit (4096 rows each).",
+        description="policy_start latent: Adam steps of a latent fit (4096 rows each; with "
+        "latent_runs auto on a small log, 8 fits of half as many steps, 1024 rows each).",
     )
-    latent_runs: int = Field(
-        1,
-        ge=1,
-        le=64,
-        description="policy_start latent, experimental: independent latent fits (side by side in "
-        "one batched pass) whose k-means partitions are joined by their consensus. 8 (with "
-        "latent_steps 250) lifted small discrete logs 5-13 points but costs 2-7x the time, lost "
-        "mujoco_pendulum and held-out roundabout, and makes the label-free stability read high on a single style cut "
-        "into clusters, so the verdict is not to be trusted with it (docs/clustering.md).",
+    latent_runs: int | Literal["auto"] = Field(
+        "auto",
+        description="policy_start latent: independent latent fits (side by side in one batched "
+        "pass) whose k-means partitions are joined by their consensus. 'auto': 8 fits sharing "
+        "one fit's budget (half latent_steps each, 1024 rows a step) on logs small enough that "
+        "each still draws every row 16 times (up to 16,000 rows at the default steps: there one "
+        "fit moves most with its seed), one fit on larger logs (docs/clustering.md). A number: "
+        "that many fits of latent_steps each (1: the default before 2026-11-30).",
     )
     ceiling: bool = Field(
         True,
@@ -201,6 +201,13 @@ class ClusterConfig(StrictModel):
         description="At most this many points "
         "(seeded sample) for the silhouette score, which is O(n^2).",
     )
+
+    @field_validator("latent_runs")
+    @classmethod
+    def _latent_runs(cls, v: int | str) -> int | str:
+        if isinstance(v, int) and not 1 <= v <= 64:
+            raise ValueError(f"latent_runs must be auto or a number of fits in [1, 64], got {v}")
+        return v
 
     @model_validator(mode="after")
     def _restarts_need_refits(self) -> ClusterConfig:

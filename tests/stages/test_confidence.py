@@ -34,14 +34,14 @@ def test_one_style_cut_into_clusters_is_no_evidence():
     assert said.verdict == "no evidence of 3 styles", said
     assert "clusters hold trajectories" in said.reasons[1]
     # bag_auto's own confidence: a fit that fills the 3 clusters may be kept for its labels
-    # (select.better), but it does not overrule greedy_mix's collapse unless its stability
-    # reads "styles found"
+    # (select.better), but it does not overrule greedy_mix's collapse, however stable: the
+    # consensus start cuts this one style by how noisy each trajectory is, the same way on
+    # every subsample (stability 0.93 here)
     own = verdict_of(result.metrics)
     assert own.verdict == "no evidence of 3 styles", own
     assert "clusters hold trajectories" in own.reasons[1]
     if result.metrics["n_clusters_used"] == 3:
         assert result.metrics["auto_clusters_used_greedy_mix"] < 3
-        assert result.metrics["stability"] < FOUND
     # k-means must cut it into 3: where the cuts fall moves with the sample
     cut = ClusterConfig(k=3, method="summary_kmeans")
     result = cluster(ds, cut, 0)
@@ -63,12 +63,12 @@ def test_a_style_split_in_two_is_flagged_as_two_clusters_that_look_like_one():
     assert verdict_of({}).verdict == "not measured"
 
 
-def test_a_candidates_collapse_is_no_evidence_unless_the_kept_fit_reads_styles_found():
+def test_a_candidates_collapse_is_no_evidence_however_stable_the_kept_fit():
     base = {"n_clusters_used": 3.0, "auto_clusters_used_greedy_mix": 1.0}
-    weak = verdict_of({**base, "stability": FOUND - 0.01}, 3)
-    assert weak.verdict == "no evidence of 3 styles", weak
-    assert weak.reasons[1] == "in greedy_mix's fit only 1 of 3 clusters hold trajectories"
-    assert verdict_of({**base, "stability": FOUND}, 3).verdict == "styles found"
+    for s in (FOUND - 0.01, FOUND, 1.0):
+        said = verdict_of({**base, "stability": s}, 3)
+        assert said.verdict == "no evidence of 3 styles", said
+        assert said.reasons[1] == "in greedy_mix's fit only 1 of 3 clusters hold trajectories"
     filled = {"n_clusters_used": 3.0, "auto_clusters_used_greedy_mix": 3.0, "stability": 0.6}
     assert verdict_of(filled, 3).verdict == "weak evidence"
     tagged = {

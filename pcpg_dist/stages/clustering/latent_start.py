@@ -29,6 +29,28 @@ from pcpg_dist.stages.clustering.policy_network import picked_log_probs, uniform
 LATENT_HIDDEN = 64
 #: rows per Adam step of the latent fit (a seeded draw with replacement; every row on smaller logs)
 LATENT_ROWS = 4096
+#: ``latent_runs: auto``: on a small log, this many fits share one fit's budget (each half the
+#: steps, :data:`CONSENSUS_ROWS` rows a step) and are joined by their :func:`consensus`
+CONSENSUS_RUNS = 8
+CONSENSUS_ROWS = 1024
+#: ... where each of them still draws every row of the log this many times on average
+#: (``latent_steps`` / 2 x :data:`CONSENSUS_ROWS` / rows): one fit of 500 steps draws each of
+#: mujoco_pendulum's 116,340 rows 17.6 times and finds its styles, fits drawing them 2-9 times
+#: did not (docs/zoo-notebook.md, "A consensus of latent fits")
+CONSENSUS_VISITS = 16
+
+
+def latent_plan(cfg, rows: int) -> tuple[int, int, int]:
+    """(fits, Adam steps each, rows a step) of the latent start on a log of ``rows`` rows.
+    ``latent_runs: auto``: :data:`CONSENSUS_RUNS` fits of half ``latent_steps`` where each
+    still draws every row :data:`CONSENSUS_VISITS` times (logs of up to 16,000 rows at the
+    default 500 steps), one fit otherwise; a number: that many fits of ``latent_steps``."""
+    if cfg.latent_runs != "auto":
+        return cfg.latent_runs, cfg.latent_steps, LATENT_ROWS
+    steps = max(1, cfg.latent_steps // 2)
+    if steps * min(rows, CONSENSUS_ROWS) >= CONSENSUS_VISITS * rows:
+        return CONSENSUS_RUNS, steps, CONSENSUS_ROWS
+    return 1, cfg.latent_steps, LATENT_ROWS
 
 
 class LatentPolicy(nn.Module):
@@ -125,24 +147,24 @@ class LatentPolicies(nn.Module):
 
 
 def fit_latent_network(inputs, n: int, cfg, n_actions: int, gen: torch.Generator):
-    """A :class:`LatentPolicy` (or, with ``latent_runs`` above 1, :class:`LatentPolicies`) after
-    ``latent_steps`` Adam steps on :data:`LATENT_ROWS` rows each (``inputs``:
+    """A :class:`LatentPolicy` (or, for several fits, :class:`LatentPolicies`) after the Adam
+    steps of :func:`latent_plan` (``inputs``:
     :func:`.policy_network.policy_inputs`, on the CPU). Several fits use the same rows every step
     and differ by their initial weights and posterior draws; their losses are summed, and Adam's
     update of a parameter depends on its own gradient only, so each fit follows its own loss."""
     s, a, valid, traj = inputs
-    runs = cfg.latent_runs
+    total = len(a)
+    runs, steps, rows_per_step = latent_plan(cfg, total)
     if runs == 1:
         net = LatentPolicy(s.shape[1], n, cfg.latent_dims, LATENT_HIDDEN, n_actions)
     else:
         net = LatentPolicies(s.shape[1], n, cfg.latent_dims, LATENT_HIDDEN, n_actions, runs)
     net.reset_parameters(gen)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.policy_lr)
-    total = len(a)
-    for _ in range(cfg.latent_steps):
-        if total > LATENT_ROWS:
-            rows = torch.randint(total, (LATENT_ROWS,), generator=gen)
-            batch, scale = (s[rows], a[rows], valid[rows], traj[rows]), total / LATENT_ROWS
+    for _ in range(steps):
+        if total > rows_per_step:
+            rows = torch.randint(total, (rows_per_step,), generator=gen)
+            batch, scale = (s[rows], a[rows], valid[rows], traj[rows]), total / rows_per_step
         else:
             batch, scale = inputs, 1.0
         # (rows, dims) for one fit, (runs, rows, dims) side by side: mu's leading dimensions
@@ -156,10 +178,10 @@ def fit_latent_network(inputs, n: int, cfg, n_actions: int, gen: torch.Generator
 
 
 def fit_latents(inputs, n: int, cfg, n_actions: int, gen: torch.Generator) -> np.ndarray:
-    """(latent_runs, n, latent_dims) float64: each fit's posterior mean of every trajectory
-    (:func:`fit_latent_network`)."""
+    """(fits, n, latent_dims) float64: each fit's posterior mean of every trajectory
+    (:func:`fit_latent_network`; the fits of :func:`latent_plan`)."""
     net = fit_latent_network(inputs, n, cfg, n_actions, gen)
-    return net.mu.detach().double().numpy().reshape(cfg.latent_runs, n, cfg.latent_dims)
+    return net.mu.detach().double().numpy().reshape(-1, n, cfg.latent_dims)
 
 
 #: trajectories the consensus links directly (average linkage needs their n x n co-association);

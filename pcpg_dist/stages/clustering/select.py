@@ -107,7 +107,7 @@ def better(
     one cluster (0.444) read as stability 1.00 and stopped the search before policy_mix (0.58),
     on the eighth session's machine (on the seventh's, same code, its refits had split). The
     collapse still counts as evidence of fewer styles: the verdict says "no evidence of k
-    styles" unless the kept fit reads "styles found" (:func:`.confidence.collapsed_candidate`)."""
+    styles", however stable the kept fit (:func:`.confidence.collapsed_candidate`)."""
     if filled(result, k) != filled(kept, k):
         return filled(result, k)
     return stable > kept_stable + margin
