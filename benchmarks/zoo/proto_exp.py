@@ -77,7 +77,9 @@ def run_game(ds, k, truth, args) -> list[str]:
 
     states, offsets = checked_sequences(ds)
     n = len(offsets) - 1
-    cfg = ClusterConfig(method="policy_mix", k=k, policy_time=args.time_step)
+    # one latent fit of latent_steps, as when these figures were measured (latent_runs auto
+    # would fit eight on these small logs)
+    cfg = ClusterConfig(method="policy_mix", k=k, policy_time=args.time_step, latent_runs=1)
     inputs = tuple(t.cpu() for t in _policy_view(ds, states, cfg)[3])
 
     def acc(labels) -> str:

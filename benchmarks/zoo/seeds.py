@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.zoo.common import ZOO, design_games, game_names, load_game
+from benchmarks.zoo.common import ZOO, design_games, game_names
 
 
 def fit(ds, k: int, seed: int, over: dict) -> dict:
