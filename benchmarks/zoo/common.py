@@ -11,6 +11,7 @@ reward, style`` with ``action = -1`` on each trajectory's closing row.
 from __future__ import annotations
 
 import importlib
+import json
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -105,6 +106,11 @@ def design_games(asked: list[str], error: Callable[[str], object]) -> list[str]:
         if g not in design:
             error(f"{g}: not a design game of the zoo (held-out games are not searched)")
     return list(asked) or design
+
+
+def overrides(pairs: list[str]) -> dict:
+    """``--set KEY=VALUE`` arguments as clustering keys, each value read as JSON (8, "auto")."""
+    return {k: json.loads(v) for k, v in (kv.split("=", 1) for kv in pairs)}
 
 
 def episodes(game: Game, ci: bool = False, seed: int = 0) -> list[tuple[int, Episode]]:

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.zoo.common import game_names, load_game
+from benchmarks.zoo.common import game_names, load_game, overrides
 
 CLOSE = 0.05  # "at the ceiling": the bar for the verdict
 
@@ -127,7 +127,7 @@ def main() -> None:
         args.reverdict.write_text(json.dumps(results, indent=1))
         print(json.dumps(results["summary"], indent=1))
         return
-    over = {k: json.loads(v) for k, v in (kv.split("=", 1) for kv in args.set)}
+    over = overrides(args.set)
     rows = []
     with ProcessPoolExecutor(args.workers) as pool:
         jobs = [

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.zoo.common import ZOO, design_games, game_names
+from benchmarks.zoo.common import ZOO, design_games, game_names, overrides
 
 
 def fit(ds, k: int, seed: int, over: dict) -> dict:
@@ -50,7 +50,7 @@ def main() -> None:
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--held-out", action="store_true", help="also read held-out games")
     args = ap.parse_args()
-    over = {k: json.loads(v) for k, v in (kv.split("=", 1) for kv in args.set)}
+    over = overrides(args.set)
     if args.held_out:
         unknown = [g for g in args.games if g not in game_names()]
         if unknown:

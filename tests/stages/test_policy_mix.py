@@ -451,7 +451,7 @@ def test_latent_fits_side_by_side_each_follow_their_own_loss():
 
 
 def test_a_consensus_of_latent_fits_finds_the_styles_and_repeats_with_its_seed(goals):
-    """``latent_runs`` (experimental): fits side by side, k-means on each, their consensus."""
+    """``latent_runs``: fits side by side, k-means on each, their consensus."""
     from pcpg_dist.stages.clustering.latent_start import fit_latents, latent_start
     from pcpg_dist.stages.clustering.policy_mix import _policy_view
 

@@ -213,10 +213,10 @@ def consensus(parts: np.ndarray, k: int, seed: int) -> np.ndarray:
 
 def latent_start(inputs, n: int, cfg, n_actions: int, seed: int) -> np.ndarray:
     """policy_mix's start: k-means (``kmeans_n_init`` starts) on each of :func:`fit_latents`'
-    ``latent_runs`` fits, and their :func:`consensus`. One fit's partition moves with its seed on
-    small logs (tictactoe 0.44-0.60 over eight seeds); the consensus of eight read 0.69 there and
-    was at or above the seeds' mean on every design game of the zoo (docs/zoo.md, "A consensus
-    of latent fits")."""
+    fits (:func:`latent_plan`), and their :func:`consensus` where there are several. One fit's
+    partition moves with its seed on small logs (tictactoe 0.44-0.60 over eight seeds); with the
+    consensus of eight, ``bag_auto`` rose on every seed of the five small design games of the zoo
+    (docs/zoo-notebook.md, "A consensus of latent fits on small logs")."""
     gen = torch.Generator().manual_seed(seed)
     mu = fit_latents(tuple(t.cpu() for t in inputs), n, cfg, n_actions, gen)
     parts = []
