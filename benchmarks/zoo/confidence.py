@@ -23,34 +23,45 @@ from benchmarks.zoo.common import game_names, load_game, overrides
 CLOSE = 0.05  # "at the ceiling": the issue's bar for the verdict
 
 
-def confidence_row(name: str, ci: bool, runs: int, over: dict | None = None) -> dict:
+def confidence_rows(
+    name: str, ci: bool, runs: int, over: dict | None = None, seeds: tuple[int, ...] = (0,)
+) -> list[dict]:
+    """:func:`confidence_row` of ``name`` at each of ``seeds``; the ceiling's panel is the data's,
+    cross-validated once (seed 0), and every seed's gap is measured against it."""
     from benchmarks.zoo.check import labelled_dataset
     from pcpg_dist.common.devices import set_threads
-    from pcpg_dist.config.clustering import ClusterConfig
-    from pcpg_dist.stages.clustering import cluster, clustering_metrics
     from pcpg_dist.stages.clustering.ceiling import ceiling_panel
-    from pcpg_dist.stages.clustering.confidence import stability, verdict_of
 
     set_threads(1)
-    game = load_game(name)
     ds = labelled_dataset(name, ci)
+    panel = ceiling_panel(ds, seed=0)
+    return [confidence_row(name, ds, runs, over, seed, panel) for seed in seeds]
+
+
+def confidence_row(name: str, ds, runs: int, over: dict | None, seed: int, panel: dict) -> dict:
+    """The default's accuracy, gap to the ceiling of ``panel``, stability and verdict at ``seed``."""
+    from pcpg_dist.config.clustering import ClusterConfig
+    from pcpg_dist.stages.clustering import cluster, clustering_metrics
+    from pcpg_dist.stages.clustering.confidence import stability, verdict_of
+
+    game = load_game(name)
     k = len(game.styles)
     cfg = ClusterConfig(k=k, confidence_runs=runs, **(over or {}))  # over: --set KEY=VALUE
     t0 = time.perf_counter()
-    result = cluster(ds, cfg, 0)
+    result = cluster(ds, cfg, seed)
     fit = time.perf_counter() - t0
     t0 = time.perf_counter()
     if "stability" in result.metrics:  # bag_auto chose its method by it (select.py)
         found = {k: v for k, v in result.metrics.items() if k.startswith(("stability", "merged"))}
     else:
-        found = stability(ds, cfg, 0, result.labels, runs, 0.8)
+        found = stability(ds, cfg, seed, result.labels, runs, 0.8)
     refit = time.perf_counter() - t0
     accuracy = clustering_metrics(ds.styles, result.labels)["accuracy"]
-    panel = ceiling_panel(ds, seed=0)
     ceiling = max(panel.values())
     metrics = {**result.metrics, **found}
     return {
         "game": name,
+        "seed": seed,
         "held_out": game.held_out,
         "n": ds.n_trajectories,
         "ceiling": ceiling,
@@ -70,7 +81,8 @@ def confidence_row(name: str, ci: bool, runs: int, over: dict | None = None) -> 
 
 def summary(rows: list[dict]) -> dict:
     """Spearman rank correlation of stability with -gap, and the verdict's agreement with
-    "gap <= CLOSE" ("styles found" is the verdict that claims it)."""
+    "gap <= CLOSE" ("styles found" is the verdict that claims it), over every (game, seed) row;
+    with several seeds also the games' mean gaps and how many are within 3 points on average."""
     from scipy.stats import spearmanr
 
     out = {}
@@ -80,7 +92,16 @@ def summary(rows: list[dict]) -> dict:
             continue
         rho = spearmanr([r["stability"] for r in mine], [-r["gap"] for r in mine]).statistic
         agree = [(r["verdict"] == "styles found") == (r["gap"] <= CLOSE) for r in mine]
-        out[part] = {"games": len(mine), "spearman": float(rho), "agreement": float(np.mean(agree))}
+        games = sorted({r["game"] for r in mine})
+        gaps = [np.mean([r["gap"] for r in mine if r["game"] == g]) for g in games]
+        out[part] = {
+            "games": len(games),
+            "rows": len(mine),
+            "spearman": float(rho),
+            "agreement": float(np.mean(agree)),
+            "mean_gap": float(np.mean(gaps)),
+            "within_3_points": int(sum(g <= 0.03 + 1e-9 for g in gaps)),
+        }
     return out
 
 
@@ -104,6 +125,7 @@ def main() -> None:
     ap.add_argument("games", nargs="*")
     ap.add_argument("--ci", action="store_true")
     ap.add_argument("--runs", type=int, default=2)
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0], help="clustering seeds")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument(
@@ -131,17 +153,18 @@ def main() -> None:
     rows = []
     with ProcessPoolExecutor(args.workers) as pool:
         jobs = [
-            pool.submit(confidence_row, n, args.ci, args.runs, over)
+            pool.submit(confidence_rows, n, args.ci, args.runs, over, tuple(args.seeds))
             for n in args.games or game_names()
         ]
         for job in as_completed(jobs):
-            r = job.result()
-            rows.append(r)
-            print(
-                f"{r['game']:<20} gap {r['gap']:+.3f} stability {r['stability']:.2f} "
-                f"-> {r['verdict']:<24} ({r['fit_seconds']:.0f} s + {r['confidence_seconds']:.0f} s)",
-                flush=True,
-            )
+            for r in job.result():
+                rows.append(r)
+                print(
+                    f"{r['game']:<20} seed {r['seed']} gap {r['gap']:+.3f} stability "
+                    f"{r['stability']:.2f} -> {r['verdict']:<24} "
+                    f"({r['fit_seconds']:.0f} s + {r['confidence_seconds']:.0f} s)",
+                    flush=True,
+                )
             if args.out:
                 args.out.write_text(json.dumps({"rows": rows, "summary": summary(rows)}, indent=1))
     print(json.dumps(summary(rows), indent=1))

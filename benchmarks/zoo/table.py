@@ -18,8 +18,33 @@ import numpy as np
 from benchmarks.zoo.evaluate import METHODS
 
 
+def per_game(confidence: list[dict]) -> dict[str, dict]:
+    """Each game's confidence rows joined over their seeds: the mean accuracy, gap, stability and
+    seconds, the range of the accuracy, and the verdicts seed by seed."""
+    out = {}
+    for game in {r["game"] for r in confidence}:
+        mine = sorted((r for r in confidence if r["game"] == game), key=lambda r: r.get("seed", 0))
+        joined = dict(mine[0])
+        for key in ("accuracy", "gap", "stability", "fit_seconds", "confidence_seconds"):
+            joined[key] = float(np.mean([r[key] for r in mine]))
+        joined["seeds"] = len(mine)
+        joined["low"], joined["high"] = (
+            min(r["accuracy"] for r in mine),
+            max(r["accuracy"] for r in mine),
+        )
+        verdicts = [r["verdict"] for r in mine]
+        joined["verdict"] = ", ".join(
+            v + (f" ({verdicts.count(v)} of {len(mine)})" if len(mine) > 1 else "")
+            for v in dict.fromkeys(verdicts)  # in the seeds' order
+        )
+        for key in ("fell_back", "chose_policy_mix", "chose_policy_time"):  # the seeds' majority
+            joined[key] = 2 * sum(bool(r.get(key)) for r in mine) > len(mine)
+        out[game] = joined
+    return out
+
+
 def table(evaluated: list[dict], confidence: list[dict]) -> str:
-    conf = {r["game"]: r for r in confidence}
+    conf = per_game(confidence)
     head = (
         "| game | kinds | n | ceiling | "
         + " | ".join(f"`{m}`" for m in METHODS)
@@ -38,7 +63,7 @@ def table(evaluated: list[dict], confidence: list[dict]) -> str:
             ceiling = c.get("ceiling", r["ceiling"])  # the panel of the confidence run
             lines.append(
                 f"| {r['game']} | {', '.join(r['kinds'])} | {r['trajectories']} | "
-                f"{ceiling:.3f} | {accs} | {c['accuracy']:.3f} ({ran}) | {c['gap']:+.3f} | "
+                f"{ceiling:.3f} | {accs} | {c['accuracy']:.3f} ({spread(c)}{ran}) | {c['gap']:+.3f} | "
                 f"{c['stability']:.2f} | {c['verdict']} | "
                 f"{c['fit_seconds']:.0f} + {c['confidence_seconds']:.0f} |"
             )
@@ -49,6 +74,11 @@ def table(evaluated: list[dict], confidence: list[dict]) -> str:
             f"of the ceiling: {within} of {len(gaps)})\n\n{head}\n" + "\n".join(lines) + "\n"
         )
     return "\n".join(parts)
+
+
+def spread(row: dict) -> str:
+    """The accuracy's range over a game's seeds ("low-high, "), or nothing for one seed."""
+    return f"{row['low']:.3f}-{row['high']:.3f}, " if row["seeds"] > 1 else ""
 
 
 def main() -> None:
