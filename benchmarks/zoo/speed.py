@@ -1,0 +1,71 @@
+"""How long a zoo game's default clustering takes with one torch thread and with two, side by side.
+
+    uv run python -m benchmarks.zoo.speed [GAME ...] [--threads 1 2]
+
+Each (game, threads) runs in a fresh process, one after another: the game's full-size labelled
+log, then ``cluster`` with the default settings (``bag_auto``, k = its styles, seed 0, the
+confidence refits included), timed from the first call to the labels. The one table
+(``benchmarks.zoo.confidence``) times one thread, as a worker of a parallel sweep has; a single
+`pcpg run` on a 2-core laptop gives its one unit's clustering both CPUs
+(``runner.cpus_per_task``), which is what the issue's "≤ 60 s on 2 cores" asks about. By default
+the three slowest games of the one table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+
+CHILD = r"""
+import json, sys, time
+name, threads = sys.argv[1], int(sys.argv[2])
+from pcpg_dist.common.devices import set_threads
+set_threads(threads)
+from benchmarks.zoo.check import labelled_dataset
+from benchmarks.zoo.common import load_game
+from pcpg_dist.config.clustering import ClusterConfig
+from pcpg_dist.stages.clustering import cluster, clustering_metrics
+ds = labelled_dataset(name, False)
+cfg = ClusterConfig(k=len(load_game(name).styles))
+t0 = time.perf_counter()
+result = cluster(ds, cfg, 0)
+seconds = time.perf_counter() - t0
+accuracy = clustering_metrics(ds.styles, result.labels)["accuracy"]
+print(json.dumps({"seconds": seconds, "accuracy": float(accuracy)}))
+"""
+
+SLOWEST = ("pong", "mountaincar", "mujoco_reacher")
+
+
+def timed(name: str, threads: int) -> dict:
+    done = subprocess.run(
+        [sys.executable, "-c", CHILD, name, str(threads)],
+        capture_output=True,
+        text=True,
+        check=True,
+        env={**os.environ, "RAY_ENABLE_UV_RUN_RUNTIME_ENV": "0"},
+    )
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("games", nargs="*", default=list(SLOWEST))
+    ap.add_argument("--threads", type=int, nargs="+", default=[1, 2])
+    args = ap.parse_args()
+    for name in args.games:
+        runs = {n: timed(name, n) for n in args.threads}
+        first = runs[args.threads[0]]["seconds"]
+        cells = "  ".join(
+            f"{n} thread{'s' * (n > 1)} {r['seconds']:5.1f} s ({first / r['seconds']:.2f}x)"
+            for n, r in runs.items()
+        )
+        same = len({round(r["accuracy"], 6) for r in runs.values()}) == 1
+        print(f"{name:<18} {cells}  accuracy {'the same' if same else runs}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
