@@ -113,6 +113,22 @@ def overrides(pairs: list[str]) -> dict:
     return {k: json.loads(v) for k, v in (kv.split("=", 1) for kv in pairs)}
 
 
+def policy_mix_from(ds, states, offsets, cfg, seed: int, start) -> np.ndarray:
+    """policy_mix's EM labels from the labels ``start`` (its first round 4x longer, as after the
+    default latent start), under a torch RNG forked and seeded with ``seed``."""
+    import torch
+
+    from pcpg_dist.stages.clustering.policy_mix import LATENT_FIRST_ROUND, _fit_policy_mix
+
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        labels, *_ = _fit_policy_mix(
+            ds, states, offsets, cfg, seed, {}, start=start,
+            first_round_steps=LATENT_FIRST_ROUND * cfg.policy_steps,
+        )  # fmt: skip
+    return labels
+
+
 def episodes(game: Game, ci: bool = False, seed: int = 0) -> list[tuple[int, Episode]]:
     """Every (style, episode) of the game, each episode seeded from (seed, style, index) alone."""
     counts = game.ci_counts if ci else game.counts

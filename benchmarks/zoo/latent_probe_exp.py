@@ -57,18 +57,14 @@ def residuals(mu: np.ndarray, s0: np.ndarray | None, seed: int) -> tuple[np.ndar
 
 def run_game(ds, k: int, truth: np.ndarray, seed: int, over: dict) -> list[str]:
     import torch
-    from sklearn.cluster import KMeans
     from sklearn.linear_model import LogisticRegression
     from sklearn.model_selection import cross_val_score
 
+    from benchmarks.zoo.common import policy_mix_from
     from pcpg_dist.config.clustering import ClusterConfig
     from pcpg_dist.stages.clustering import clustering_metrics
-    from pcpg_dist.stages.clustering.latent_start import consensus, fit_latents
-    from pcpg_dist.stages.clustering.policy_mix import (
-        LATENT_FIRST_ROUND,
-        _fit_policy_mix,
-        _policy_view,
-    )
+    from pcpg_dist.stages.clustering.latent_start import fit_latents, joined, kmeans_each
+    from pcpg_dist.stages.clustering.policy_mix import _policy_view
     from pcpg_dist.stages.clustering.states import checked_sequences
 
     states, offsets = checked_sequences(ds)
@@ -80,33 +76,23 @@ def run_game(ds, k: int, truth: np.ndarray, seed: int, over: dict) -> list[str]:
         return clustering_metrics(truth, labels)["accuracy"]
 
     def em(start) -> float:
-        with torch.random.fork_rng(devices=[]):
-            torch.manual_seed(seed)
-            labels, *_ = _fit_policy_mix(
-                ds, states, offsets, cfg, seed, {}, start=start,
-                first_round_steps=LATENT_FIRST_ROUND * cfg.policy_steps,
-            )  # fmt: skip
-        return acc(labels)
+        return acc(policy_mix_from(ds, states, offsets, cfg, seed, start))
 
     with torch.random.fork_rng(devices=[]):
         mus = fit_latents(inputs, n, cfg, ds.n_actions, torch.Generator().manual_seed(seed))
     s0 = first_states(states, offsets)
-    plain, resid, explained, probe, probe_resid = [], [], [], [], []
-    for r, mu in enumerate(mus):
-        rest, share = residuals(mu, s0, seed)
-        explained.append(share)
-        plain.append(KMeans(k, n_init=10, random_state=seed + r).fit_predict(mu))
-        resid.append(KMeans(k, n_init=10, random_state=seed + r).fit_predict(rest))
-        lr = LogisticRegression(max_iter=2000)
-        probe.append(cross_val_score(lr, mu, truth, cv=5).mean())
-        probe_resid.append(cross_val_score(lr, rest, truth, cv=5).mean())
-    joined = [consensus(np.stack(p), k, seed) if len(p) > 1 else p[0] for p in (plain, resid)]
+    rests, explained = zip(*(residuals(mu, s0, seed) for mu in mus), strict=True)
+    plain, resid = (kmeans_each(np.stack(m), k, cfg.kmeans_n_init, seed) for m in (mus, rests))
+    lr = LogisticRegression(max_iter=2000)
+    probe = [cross_val_score(lr, m, truth, cv=5).mean() for m in mus]
+    probe_resid = [cross_val_score(lr, m, truth, cv=5).mean() for m in rests]
+    start, start_resid = joined(plain, k, seed), joined(resid, k, seed)
     return [
         f"fits {len(mus)}, task R2 {np.mean(explained):+.2f}, probe {np.mean(probe):.3f} "
         f"(residuals {np.mean(probe_resid):.3f}); k-means each "
         f"{np.mean([acc(p) for p in plain]):.3f} (residuals {np.mean([acc(p) for p in resid]):.3f})"
-        f", consensus {acc(joined[0]):.3f} ({acc(joined[1]):.3f}), "
-        f"EM from it {em(joined[0]):.3f} ({em(joined[1]):.3f})"
+        f", consensus {acc(start):.3f} ({acc(start_resid):.3f}), "
+        f"EM from it {em(start):.3f} ({em(start_resid):.3f})"
     ]
 
 

@@ -20,7 +20,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from sklearn.cluster import KMeans
 from sklearn.mixture import GaussianMixture
 
 
@@ -51,7 +50,7 @@ def modality(mu: np.ndarray, labels: np.ndarray, k: int) -> float:
 def run_game(ds, k: int, truth: np.ndarray, args) -> list[str]:
     from pcpg_dist.config.clustering import ClusterConfig
     from pcpg_dist.stages.clustering import clustering_metrics
-    from pcpg_dist.stages.clustering.latent_start import consensus, fit_latents
+    from pcpg_dist.stages.clustering.latent_start import consensus, fit_latents, kmeans_each
     from pcpg_dist.stages.clustering.policy_mix import _policy_view
     from pcpg_dist.stages.clustering.states import checked_sequences
 
@@ -65,15 +64,13 @@ def run_game(ds, k: int, truth: np.ndarray, args) -> list[str]:
 
     for seed in args.seeds:
         mus = fit_latents(inputs, n, cfg, ds.n_actions, torch.Generator().manual_seed(seed))
-        parts = [
-            KMeans(k, n_init=10, random_state=seed + r).fit_predict(m) for r, m in enumerate(mus)
-        ]
+        parts = kmeans_each(mus, k, cfg.kmeans_n_init, seed)
         mods = [modality(m, p, k) for m, p in zip(mus, parts, strict=True)]
         truth_mod = np.mean([modality(m, truth, k) for m in mus])
         line = "fits " + " ".join(f"{acc(p):.3f}/{m:.2f}" for p, m in zip(parts, mods, strict=True))
         line += f"; true styles' modality {truth_mod:.2f}"
         if len(parts) > 1:
-            joint = consensus(np.stack(parts), k, seed)
+            joint = consensus(parts, k, seed)
             line += (
                 f"; consensus {acc(joint):.3f}/{np.mean([modality(m, joint, k) for m in mus]):.2f}"
                 f"; kept by modality {acc(parts[int(np.argmax(mods))]):.3f}"

@@ -65,14 +65,11 @@ def proto_em(net, inputs, n, k, start, gen, rounds: int, steps: int, min_share: 
 def run_game(ds, k, truth, args) -> list[str]:
     from sklearn.cluster import KMeans
 
+    from benchmarks.zoo.common import policy_mix_from
     from pcpg_dist.config.clustering import ClusterConfig
     from pcpg_dist.stages.clustering import clustering_metrics
     from pcpg_dist.stages.clustering.latent_start import fit_latent_network
-    from pcpg_dist.stages.clustering.policy_mix import (
-        LATENT_FIRST_ROUND,
-        _fit_policy_mix,
-        _policy_view,
-    )
+    from pcpg_dist.stages.clustering.policy_mix import _policy_view
     from pcpg_dist.stages.clustering.states import checked_sequences
 
     states, offsets = checked_sequences(ds)
@@ -86,13 +83,7 @@ def run_game(ds, k, truth, args) -> list[str]:
         return f"{clustering_metrics(truth, labels)['accuracy']:.3f}"
 
     def em(start) -> str:
-        with torch.random.fork_rng(devices=[]):
-            torch.manual_seed(args.seed)
-            labels, *_ = _fit_policy_mix(
-                ds, states, offsets, cfg, args.seed, {}, start=start,
-                first_round_steps=LATENT_FIRST_ROUND * cfg.policy_steps,
-            )  # fmt: skip
-        return acc(labels)
+        return acc(policy_mix_from(ds, states, offsets, cfg, args.seed, start))
 
     if args.consensus:
         return [consensus(inputs, n, cfg, ds.n_actions, k, args, acc, em)]

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.zoo.confidence import WITHIN
 from benchmarks.zoo.evaluate import METHODS
 
 
@@ -68,7 +69,7 @@ def table(evaluated: list[dict], confidence: list[dict]) -> str:
                 f"{c['fit_seconds']:.0f} + {c['confidence_seconds']:.0f} |"
             )
         gaps = [conf[r["game"]]["gap"] for r in rows]
-        within = sum(g <= 0.03 + 1e-9 for g in gaps)
+        within = sum(g <= WITHIN for g in gaps)
         parts.append(
             f"**{title}** (mean gap {np.mean(gaps):+.3f}, largest {max(gaps):+.3f}; within 3 points "
             f"of the ceiling: {within} of {len(gaps)})\n\n{head}\n" + "\n".join(lines) + "\n"

@@ -211,20 +211,30 @@ def consensus(parts: np.ndarray, k: int, seed: int) -> np.ndarray:
     return out.astype(np.int64)
 
 
-def latent_start(inputs, n: int, cfg, n_actions: int, seed: int) -> np.ndarray:
-    """policy_mix's start: k-means (``kmeans_n_init`` starts) on each of :func:`fit_latents`'
-    fits (:func:`latent_plan`), and their :func:`consensus` where there are several. One fit's
-    partition moves with its seed on small logs (tictactoe 0.44-0.60 over eight seeds); with the
-    consensus of eight, ``bag_auto`` rose on every seed of the five small design games of the zoo
-    (docs/zoo-notebook.md, "A consensus of latent fits on small logs")."""
-    gen = torch.Generator().manual_seed(seed)
-    mu = fit_latents(tuple(t.cpu() for t in inputs), n, cfg, n_actions, gen)
-    parts = []
+def kmeans_each(mu: np.ndarray, k: int, n_init: int, seed: int) -> np.ndarray:
+    """(fits, n): k-means (``n_init`` starts, seeded ``seed`` + the fit's index) on each fit's
+    latents ``mu`` (fits, n, dims)."""
     with warnings.catch_warnings():  # identical latents (every trajectory alike): fewer centres
         warnings.simplefilter("ignore", ConvergenceWarning)
-        for r, run in enumerate(mu):
-            kmeans = KMeans(n_clusters=cfg.k, n_init=cfg.kmeans_n_init, random_state=seed + r)
-            parts.append(kmeans.fit_predict(run))
-    if len(parts) == 1:
-        return parts[0]
-    return consensus(np.stack(parts), cfg.k, seed)
+        return np.stack(
+            [
+                KMeans(n_clusters=k, n_init=n_init, random_state=seed + r).fit_predict(run)
+                for r, run in enumerate(mu)
+            ]
+        )
+
+
+def joined(parts: np.ndarray, k: int, seed: int) -> np.ndarray:
+    """One partition of ``parts`` (fits, n): the only one, or their :func:`consensus`."""
+    return parts[0] if len(parts) == 1 else consensus(parts, k, seed)
+
+
+def latent_start(inputs, n: int, cfg, n_actions: int, seed: int) -> np.ndarray:
+    """policy_mix's start: :func:`kmeans_each` of :func:`fit_latents`' fits
+    (:func:`latent_plan`), :func:`joined`. One fit's partition moves with its seed on small logs
+    (tictactoe 0.44-0.60 over eight seeds); with the consensus of eight, ``bag_auto`` rose on
+    every seed of the five small design games of the zoo (docs/zoo-notebook.md, "A consensus of
+    latent fits on small logs")."""
+    gen = torch.Generator().manual_seed(seed)
+    mu = fit_latents(tuple(t.cpu() for t in inputs), n, cfg, n_actions, gen)
+    return joined(kmeans_each(mu, cfg.k, cfg.kmeans_n_init, seed), cfg.k, seed)
