@@ -6,6 +6,8 @@ raw traceback always means a bug in pcpg-dist, never a mistake in the user's inp
 
 from __future__ import annotations
 
+import contextlib
+
 
 def first_line(error: BaseException, limit: int = 200) -> str:
     """An exception's text for a one-line message: its first line, control characters escaped
@@ -62,6 +64,8 @@ class ServiceError(PcpgError):
 
 
 sigterm_received = False  # set by catch_sigterm's handler
+_holding = 0  # how many signals_held blocks are open in the main thread
+_held: int | None = None  # the signal that arrived inside one, raised when the last one ends
 
 
 class Terminated(KeyboardInterrupt):
@@ -69,21 +73,54 @@ class Terminated(KeyboardInterrupt):
     an interrupt runs (MLflow run marked KILLED, locks released) runs for it too."""
 
 
+def _interrupt(signum: int) -> KeyboardInterrupt:
+    import signal
+
+    return Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+
+
 def catch_sigterm() -> None:
-    """Turn SIGTERM into :class:`Terminated` in the main thread. Called again after ``ray.init``,
-    whose core worker installs a handler that aborts with a C++ stack dump (exit 134)."""
+    """Turn SIGTERM into :class:`Terminated` in the main thread, and let :func:`signals_held` hold it
+    and Ctrl-C back. Called again after ``ray.init``, whose core worker installs a handler that
+    aborts with a C++ stack dump (exit 134). Ctrl-C keeps Python's own handler's meaning, and is
+    left alone where it was not Python's (ignored in a background job, say)."""
     import signal
     import threading
 
-    def on_sigterm(signum, frame):
-        global sigterm_received
-        sigterm_received = (
-            True  # Ray turns an exception raised in its calls into a plain KeyboardInterrupt
-        )
-        raise Terminated()
+    def on_signal(signum, frame):
+        global sigterm_received, _held
+        if signum == signal.SIGTERM:  # Ray turns an exception raised in its calls into a plain
+            sigterm_received = True  # KeyboardInterrupt: the flag keeps which signal it was
+        if _holding:
+            _held = _held or signum
+            return
+        raise _interrupt(signum)
 
     if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGTERM, on_sigterm)
+        signal.signal(signal.SIGTERM, on_signal)
+        if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+            signal.signal(signal.SIGINT, on_signal)
+
+
+@contextlib.contextmanager
+def signals_held():
+    """Hold SIGTERM and Ctrl-C until the block ends, then raise them. For a write to a database: one
+    interrupted inside its commit keeps the database's write lock in this process, so the cleanup
+    that marks the run KILLED then waits on that lock and fails ("database is locked")."""
+    global _holding, _held
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():  # signals reach the main thread
+        yield
+        return
+    _holding += 1
+    try:
+        yield
+    finally:
+        _holding -= 1
+        if not _holding and _held is not None:
+            signum, _held = _held, None
+            raise _interrupt(signum)
 
 
 def pcpg_error_in(e: BaseException) -> PcpgError | None:

@@ -15,7 +15,7 @@ import urllib.request
 from pathlib import Path
 
 from pcpg_dist.common.disk import disk_full, is_disk_full
-from pcpg_dist.common.errors import ServiceError, first_line
+from pcpg_dist.common.errors import ServiceError, first_line, signals_held
 from pcpg_dist.tracking.store import _sqlite_path
 
 HEALTH_TIMEOUT = 8.0  # s an MLflow server's /health may take before pcpg calls it hung
@@ -199,9 +199,12 @@ def _retry(fn, *args, attempts: int = 5, **kwargs):
     """
     from mlflow.exceptions import MlflowException
 
+    uri = getattr(getattr(fn, "__self__", None), "tracking_uri", None)
+    shown = uri or "(unknown URI)"
     for i in range(attempts):
         try:
-            return fn(*args, **kwargs)
+            with writing_to(uri):
+                return fn(*args, **kwargs)
         except (MlflowException, OSError) as e:
             if getattr(e, "error_code", "") in (
                 "INVALID_PARAMETER_VALUE",
@@ -209,19 +212,33 @@ def _retry(fn, *args, attempts: int = 5, **kwargs):
             ):
                 raise
             if is_disk_full(e):  # retrying cannot help: one line, the local results are kept
-                uri = getattr(getattr(fn, "__self__", None), "tracking_uri", "(unknown URI)")
-                raise disk_full(_store_path(uri), what="the MLflow store") from None
-            uri = getattr(getattr(fn, "__self__", None), "tracking_uri", "(unknown URI)")
-            hung = _hangs(uri)
+                raise disk_full(_store_path(shown), what="the MLflow store") from None
+            hung = _hangs(shown)
             if i == attempts - 1 or hung:
                 first = _reason(e)
                 what = "accepts connections but does not answer" if hung else "failed"
                 raise ServiceError(
-                    f"MLflow tracking server {_shown(uri)} {what} ({first}); local results are kept: "
+                    f"MLflow tracking server {_shown(shown)} {what} ({first}); local results are kept: "
                     f"rerun the same command once it is reachable to log them"
                 ) from None
             time.sleep(min(2**i, 10))
     return None
+
+
+def writing_to(uri: str | None):
+    """A block that writes to the tracking store at ``uri``: for a database (not a server), Ctrl-C
+    and SIGTERM wait until it ends, so an interrupted commit leaves no write lock behind."""
+    return contextlib.nullcontext() if _served(uri) else signals_held()
+
+
+def _served(uri: str | None) -> bool:
+    """Whether the tracking store is behind a server (whose own process commits): an interrupt in
+    the call is then safe, and a hung server must not make the command deaf to one."""
+    if uri is None:
+        import mlflow
+
+        uri = mlflow.get_tracking_uri()
+    return str(uri).lower().startswith(("http://", "https://", "databricks"))
 
 
 def _reason(e: BaseException) -> str:

@@ -12,7 +12,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from pcpg_dist.common.point_labels import point_label, short_keys
-from pcpg_dist.tracking.connection import _client, _retry, check_tracking_uri, end_quietly
+from pcpg_dist.tracking.connection import (
+    _client,
+    _retry,
+    check_tracking_uri,
+    end_quietly,
+    writing_to,
+)
 from pcpg_dist.tracking.datasets import DataInput, data_inputs, log_data_inputs
 from pcpg_dist.tracking.logged import (
     _digest,
@@ -222,7 +228,11 @@ class Tracker:
             before = os.environ.get("MLFLOW_UV_AUTO_DETECT")
             os.environ["MLFLOW_UV_AUTO_DETECT"] = "false"
             try:
-                with quiet_logging(), mlflow.start_run(run_id=self.parent_id):
+                with (
+                    writing_to(self.uri),
+                    quiet_logging(),
+                    mlflow.start_run(run_id=self.parent_id),
+                ):
                     mlflow.pyfunc.log_model(
                         name="agents",
                         python_model=agent_model.__file__,
