@@ -1,13 +1,10 @@
-"""How long a zoo game's default clustering takes on one CPU and on two, side by side.
+"""How long a zoo game's default clustering takes with one torch thread and with two, side by side.
 
     uv run python -m benchmarks.zoo.speed [GAME ...] [--threads 1 2]
 
 Each (game, threads) runs in a fresh process, one after another: the game's full-size labelled
 log, then ``cluster`` with the default settings (``bag_auto``, k = its styles, seed 0, the
-confidence refits included), timed from the first call to the labels. With more than one thread
-it runs twice: as today, each fit and its refits side by side, one torch thread each
-(:func:`pcpg_dist.common.devices.side_by_side`), and as before (the fits one after another, each
-with all the threads: ``seq``). The one table
+confidence refits included), timed from the first call to the labels. The one table
 (``benchmarks.zoo.confidence``) times one thread, as a worker of a parallel sweep has; a single
 `pcpg run` on a 2-core laptop gives its one unit's clustering both CPUs
 (``runner.cpus_per_task``), which is what the issue's "≤ 60 s on 2 cores" asks about. By default
@@ -24,12 +21,9 @@ import sys
 
 CHILD = r"""
 import json, sys, time
-name, threads, mode = sys.argv[1], int(sys.argv[2]), sys.argv[3]
+name, threads = sys.argv[1], int(sys.argv[2])
 from pcpg_dist.common.devices import set_threads
 set_threads(threads)
-if mode == "seq":  # as before side_by_side: the fits one after another, all threads each
-    import pcpg_dist.stages.clustering.confidence as confidence
-    confidence.side_by_side = lambda jobs: [job() for job in jobs]
 from benchmarks.zoo.check import labelled_dataset
 from benchmarks.zoo.common import load_game
 from pcpg_dist.config.clustering import ClusterConfig
@@ -46,9 +40,9 @@ print(json.dumps({"seconds": seconds, "accuracy": float(accuracy)}))
 SLOWEST = ("pong", "mountaincar", "mujoco_reacher")
 
 
-def timed(name: str, threads: int, mode: str = "") -> dict:
+def timed(name: str, threads: int) -> dict:
     done = subprocess.run(
-        [sys.executable, "-c", CHILD, name, str(threads), mode],
+        [sys.executable, "-c", CHILD, name, str(threads)],
         capture_output=True,
         text=True,
         check=True,
@@ -63,15 +57,11 @@ def main() -> None:
     ap.add_argument("--threads", type=int, nargs="+", default=[1, 2])
     args = ap.parse_args()
     for name in args.games:
-        runs = {}
-        for n in args.threads:
-            runs[f"{n} thread{'s' * (n > 1)}"] = timed(name, n)
-            if n > 1:
-                runs[f"{n} seq"] = timed(name, n, "seq")
-        first = next(iter(runs.values()))["seconds"]
+        runs = {n: timed(name, n) for n in args.threads}
+        first = runs[args.threads[0]]["seconds"]
         cells = "  ".join(
-            f"{label} {r['seconds']:5.1f} s ({first / r['seconds']:.2f}x)"
-            for label, r in runs.items()
+            f"{n} thread{'s' * (n > 1)} {r['seconds']:5.1f} s ({first / r['seconds']:.2f}x)"
+            for n, r in runs.items()
         )
         same = len({round(r["accuracy"], 6) for r in runs.values()}) == 1
         print(f"{name:<18} {cells}  accuracy {'the same' if same else runs}", flush=True)

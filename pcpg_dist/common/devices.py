@@ -9,14 +9,10 @@ from __future__ import annotations
 
 import os
 import sys
-from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
-from typing import TYPE_CHECKING, TypeVar
+from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     import torch
-
-T = TypeVar("T")
 
 
 def set_threads(n: int) -> None:
@@ -97,45 +93,3 @@ def stage_gpus(device: str, gpus_per_task: float, node_gpus: float, key: str) ->
             f"Ray node has {node_gpus:g}; set it to at most {node_gpus:g}"
         )
     return float(gpus_per_task)
-
-
-def side_by_side(jobs: Sequence[Callable[[], T]]) -> list[T]:
-    """Each job's result, in order: the jobs run side by side on the CPUs torch was given
-    (:func:`set_threads`), each in its own thread with one torch thread, one OpenMP thread and one
-    BLAS thread, so no more threads run than CPUs (oversubscribed torch on 2 cores was measured
-    ~100x slower). Torch releases the GIL in its kernels: three clustering fits of pong ran 1.6x
-    faster on two threads than one after another, with the same labels (docs/zoo.md, "Speed").
-    One CPU, or one job: they run one after another here, as before.
-
-    A job's labels depend on its own seeded generators only, so they are those of the same job run
-    alone with one torch thread; torch's global RNG (which a fit may fork and seed) is left as it
-    was. Ctrl-C or SIGTERM: the jobs not started are dropped, and the call returns at once.
-    """
-    import torch
-
-    workers = min(len(jobs), torch.get_num_threads())
-    if workers <= 1:
-        return [job() for job in jobs]
-    from threadpoolctl import threadpool_limits
-
-    state = torch.get_rng_state()
-    pool = ThreadPoolExecutor(workers, thread_name_prefix="pcpg-fit")
-    try:
-        with threadpool_limits(1, user_api="blas"):
-            results = list(pool.map(_one_thread, jobs))
-    except BaseException:
-        pool.shutdown(wait=False, cancel_futures=True)
-        raise
-    finally:
-        torch.set_rng_state(state)
-    pool.shutdown()
-    return results
-
-
-def _one_thread(job: Callable[[], T]) -> T:
-    """``job()`` with one torch (and OpenMP) thread in the calling thread: OpenMP's thread count
-    is per thread, so the caller's own is untouched."""
-    import torch
-
-    torch.set_num_threads(1)
-    return job()

@@ -66,21 +66,23 @@ def cluster_unit(
     true styles when they exist (and, with ``ceiling``, against what a classifier given those
     styles reaches)."""
     from pcpg_dist.stages.clustering import cluster, clustering_metrics
-    from pcpg_dist.stages.clustering.confidence import fit_with_stability
-    from pcpg_dist.stages.clustering.select import choices
+    from pcpg_dist.stages.clustering.confidence import stability
 
-    runs, found = cluster_cfg.confidence_runs, {}
-    # one fit (bag_auto's choice measures its own): its refits run beside it
-    if confidence and runs > 0 and cluster_cfg.k > 1 and not choices(unit.clustered, cluster_cfg):
-        fraction = cluster_cfg.confidence_fraction
-        result, found = fit_with_stability(unit.clustered, cluster_cfg, seed, runs, fraction)
-    else:
-        result = cluster(unit.clustered, cluster_cfg, seed)
+    result = cluster(unit.clustered, cluster_cfg, seed)
     metrics = {
-        f"clustering/{k}": float(v)
-        for k, v in {**result.metrics, **found}.items()
-        if isinstance(v, int | float)
+        f"clustering/{k}": float(v) for k, v in result.metrics.items() if isinstance(v, int | float)
     }
+    measured = "clustering/stability" in metrics  # bag_auto chose by it (stages/clustering/select)
+    if confidence and not measured and cluster_cfg.confidence_runs > 0 and cluster_cfg.k > 1:
+        found = stability(
+            unit.clustered,
+            cluster_cfg,
+            seed,
+            result.labels,
+            cluster_cfg.confidence_runs,
+            cluster_cfg.confidence_fraction,
+        )
+        metrics.update({f"clustering/{k}": v for k, v in found.items()})
     if has_styles(unit):
         from pcpg_dist.stages.clustering.ceiling import ceiling_panel, gap_to_ceiling
 

@@ -5,7 +5,6 @@ evidence; a style split in two is flagged as two clusters that look like one sty
 from __future__ import annotations
 
 import numpy as np
-import pytest
 from bc_toy import make_dataset
 
 from pcpg_dist.config.clustering import ClusterConfig
@@ -76,34 +75,3 @@ def test_a_candidates_collapse_is_no_evidence_however_stable_the_kept_fit():
         f"clustering/{key}": v for key, v in base.items()
     }  # as MLflow and the report hold them
     assert verdict_of({**tagged, "clustering/stability": 0.6}, 3).verdict.startswith("no evidence")
-
-
-def test_fits_and_refits_side_by_side_give_the_numbers_of_one_thread():
-    """With two CPUs the fit and its refits run side by side (common/devices.side_by_side), each
-    with one torch thread: the labels and the confidence are those of one fit after another on
-    one thread, and torch's global RNG is left as it was."""
-    import torch
-
-    from pcpg_dist.common.devices import set_threads, side_by_side
-    from pcpg_dist.stages.clustering.confidence import fit_with_stability
-
-    ds = make_dataset(n_per_style=40, styles=2)
-    cfg = ClusterConfig(k=2, method="policy_mix", hidden_size=16, kmeans_n_init=4)
-    runs = {}
-    try:
-        for threads in (1, 2):
-            set_threads(threads)
-            torch.manual_seed(5)
-            expected = torch.rand(3)
-            torch.manual_seed(5)
-            result, found = fit_with_stability(ds, cfg, 0, runs=2, fraction=0.8)
-            assert torch.equal(torch.rand(3), expected)
-            assert torch.get_num_threads() == threads  # the caller's own count, untouched
-            runs[threads] = (result.labels, found)
-            assert side_by_side([lambda i=i: i * i for i in range(5)]) == [0, 1, 4, 9, 16]
-            with pytest.raises(ValueError, match="job 3"):
-                side_by_side([lambda: 0, lambda: (_ for _ in ()).throw(ValueError("job 3"))])
-    finally:
-        set_threads(1)
-    np.testing.assert_array_equal(runs[1][0], runs[2][0])
-    assert runs[1][1] == runs[2][1] and runs[1][1]["stability"] >= FOUND

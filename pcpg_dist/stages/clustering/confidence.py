@@ -32,8 +32,6 @@ from dataclasses import dataclass
 import numpy as np
 from sklearn.metrics import adjusted_rand_score
 
-from pcpg_dist.common.devices import side_by_side
-
 #: stability at or above which the verdict is "styles found"; at or above WEAK, "weak evidence"
 FOUND = 0.85
 WEAK = 0.50
@@ -42,51 +40,20 @@ MERGED = 0.5  # overlap of two clusters' refit distributions above which they lo
 
 def stability(dataset, cfg, seed: int, labels: np.ndarray, runs: int, fraction: float) -> dict:
     """Refit ``cfg``'s method ``runs`` times on seeded subsamples; the metrics of the module doc."""
-    samples = refit_samples(len(labels), cfg.k, seed, runs, fraction)
-    return agreement(labels, samples, side_by_side(refits(dataset, cfg, seed, samples)), cfg.k)
+    from pcpg_dist.stages.clustering.step import cluster_once as cluster
 
-
-def fit_with_stability(dataset, cfg, seed: int, runs: int, fraction: float):
-    """(clustering, its :func:`stability`): the fit on all of ``dataset`` and its refits, side by
-    side on the CPUs this process was given (:func:`~pcpg_dist.common.devices.side_by_side`)."""
-    from pcpg_dist.stages.clustering.step import cluster_once
-
-    samples = refit_samples(dataset.n_trajectories, cfg.k, seed, runs, fraction)
-    jobs = [lambda: cluster_once(dataset, cfg, seed), *refits(dataset, cfg, seed, samples)]
-    result, *refitted = side_by_side(jobs)
-    return result, agreement(result.labels, samples, refitted, cfg.k)
-
-
-def refit_samples(n: int, k: int, seed: int, runs: int, fraction: float) -> list[np.ndarray]:
-    """The trajectories each of the ``runs`` refits sees: seeded subsamples of ``fraction`` of n."""
+    labels = np.asarray(labels)
+    n, k = len(labels), cfg.k
+    cfg = cfg.model_copy(update={"confidence_runs": 0})  # a refit is one fit, never a choice
     rng = np.random.default_rng([seed, 7919])
     size = max(k, int(round(fraction * n)))
-    return [np.sort(rng.choice(n, size=size, replace=False)) for _ in range(runs)]
-
-
-def refits(dataset, cfg, seed: int, samples: list[np.ndarray]) -> list:
-    """One job per subsample: refit r fits ``cfg``'s method (one fit, never a choice) with seed
-    ``seed + 1 + r`` and returns its labels."""
-    from pcpg_dist.stages.clustering.step import cluster_once
-
-    one = cfg.model_copy(update={"confidence_runs": 0})
-
-    def refit(r: int, idx: np.ndarray):
-        return lambda: np.asarray(cluster_once(dataset.subset(idx), one, seed + 1 + r).labels)
-
-    return [refit(r, idx) for r, idx in enumerate(samples)]
-
-
-def agreement(labels, samples: list[np.ndarray], refitted: list[np.ndarray], k: int) -> dict:
-    """The metrics of the module doc: the clustering ``labels`` against each refit's labels on the
-    trajectories of its subsample."""
-    labels = np.asarray(labels)
     aris, overlaps = [], np.zeros((k, k))
-    for idx, refit in zip(samples, refitted, strict=True):
+    for r in range(runs):
+        idx = np.sort(rng.choice(n, size=size, replace=False))
+        refit = np.asarray(cluster(dataset.subset(idx), cfg, seed + 1 + r).labels)
         ref = labels[idx]
         aris.append(adjusted_rand_score(ref, refit))
         overlaps += _overlap(ref, refit, k)
-    runs = len(samples)
     overlaps /= max(runs, 1)
     merged = [(a, b) for a in range(k) for b in range(a + 1, k) if overlaps[a, b] > MERGED]
     return {

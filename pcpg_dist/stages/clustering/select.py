@@ -31,7 +31,7 @@ import time
 
 from pcpg_dist.config.clusterers import CLUSTERERS
 from pcpg_dist.stages.clustering.auto import chooses, fallback_for, falls_back
-from pcpg_dist.stages.clustering.confidence import fit_with_stability
+from pcpg_dist.stages.clustering.confidence import stability
 from pcpg_dist.stages.clustering.step import Clustering, cluster_once
 
 #: a candidate replaces the fit kept so far only where its stability is higher by more than
@@ -67,19 +67,12 @@ def cluster(dataset, cfg, seed: int) -> Clustering:
     Raises :class:`DataError` for an empty dataset, non-finite states, or fewer trajectories than k.
     Call :func:`pcpg_dist.common.devices.set_threads` first: same data + seed + threads = same labels.
     """
-    tried = choices(dataset, cfg)
-    if not tried:
-        return cluster_once(dataset, cfg, seed)
-    return most_stable(dataset, cfg, seed, tried)
-
-
-def choices(dataset, cfg) -> list[tuple[str, object]]:
-    """The fits :func:`cluster` chooses among by stability (each with its refits); none where it
-    is one fit (:func:`.step.cluster_once`), whose confidence the caller measures if it wants."""
     tried = candidates(dataset, cfg) if chooses(cfg) else []
     if not tried and cfg.restarts > 1 and cfg.confidence_runs > 0 and cfg.k > 1:
         tried = [(cfg.method, cfg)]  # one method, restarted: keep its most stable fit
-    return tried
+    if not tried:
+        return cluster_once(dataset, cfg, seed)
+    return most_stable(dataset, cfg, seed, tried)
 
 
 def clusters_used(result: Clustering, k: int) -> float:
@@ -145,8 +138,9 @@ def best_restart(dataset, one, cfg, seed: int, fell: bool) -> tuple[Clustering, 
     kept = None
     for r in range(cfg.restarts if restartable(one, dataset, fell) else 1):
         at = seed + RESTART_SEEDS * r
-        result, found = fit_with_stability(
-            dataset, one, at, cfg.confidence_runs, cfg.confidence_fraction
+        result = cluster_once(dataset, one, at)
+        found = stability(
+            dataset, one, at, result.labels, cfg.confidence_runs, cfg.confidence_fraction
         )
         stable = found["stability"]
         if kept is None or better(result, stable, kept[0], kept[1]["stability"], cfg.k, 0.0):
