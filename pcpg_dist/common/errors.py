@@ -91,9 +91,10 @@ def catch_sigterm() -> None:
         global sigterm_received, _held
         if signum == signal.SIGTERM:  # Ray turns an exception raised in its calls into a plain
             sigterm_received = True  # KeyboardInterrupt: the flag keeps which signal it was
-        if _holding:
-            _held = _held or signum
+        if _holding and _held is None:  # a second signal is not held: a hung database
+            _held = signum  # must not make the command deaf to Ctrl-C
             return
+        _held = None
         raise _interrupt(signum)
 
     if threading.current_thread() is threading.main_thread():
@@ -104,9 +105,10 @@ def catch_sigterm() -> None:
 
 @contextlib.contextmanager
 def signals_held():
-    """Hold SIGTERM and Ctrl-C until the block ends, then raise them. For a write to a database: one
-    interrupted inside its commit keeps the database's write lock in this process, so the cleanup
-    that marks the run KILLED then waits on that lock and fails ("database is locked")."""
+    """Hold SIGTERM and Ctrl-C until the block ends, then raise them; a second one while one is held
+    is raised at once. For a write to a database: one interrupted inside its commit keeps the
+    database's write lock in this process, so the cleanup that marks the run KILLED then waits on
+    that lock and fails ("database is locked")."""
     global _holding, _held
     import threading
 

@@ -48,6 +48,21 @@ def test_a_signal_inside_signals_held_is_raised_when_the_block_ends(handlers, si
         os.kill(os.getpid(), signum)
 
 
+def test_a_second_signal_while_one_is_held_is_raised_at_once(handlers):
+    """A database that hangs (PostgreSQL behind a dropped network) must not make the command deaf:
+    the second Ctrl-C stops it inside the held block."""
+    done = []
+    with pytest.raises(KeyboardInterrupt), signals_held():
+        os.kill(os.getpid(), signal.SIGINT)
+        done.append("held")
+        os.kill(os.getpid(), signal.SIGINT)
+        done.append("not reached")
+    assert done == ["held"]
+    with signals_held():  # nothing left over from the first
+        done.append("clean")
+    assert done == ["held", "clean"]
+
+
 def test_sigterm_inside_a_store_commit_lets_it_finish_and_the_run_is_marked_killed(
     handlers, tmp_path, capfd
 ):
