@@ -290,6 +290,40 @@ def test_a_fit_that_leaves_clusters_empty_never_wins_the_choice_by_its_stability
     assert better(fit(2), 0.9, fit(1), 0.5, 4)  # neither fills k: stability decides
 
 
+def test_the_time_step_fit_gives_way_to_the_plain_one_where_it_is_not_confident():
+    # select.stand_in: policy_mix with the time step, kept for a stability that still reads below
+    # "styles found", is a winner's curse; policy_mix without it, if it fills k, is used instead
+    from pcpg_dist.stages.clustering.confidence import FOUND, verdict_of
+    from pcpg_dist.stages.clustering.select import TIMED, stand_in
+    from pcpg_dist.stages.clustering.step import Clustering
+
+    def fit(used: int, stable: float) -> tuple:
+        labels = np.zeros(8, np.int64)
+        return (
+            Clustering(labels, None, {"n_clusters_used": float(used)}, None, 0.0),
+            {"stability": stable},
+            0,
+        )
+
+    low, high = FOUND - 0.1, FOUND + 0.05
+    assert stand_in(TIMED, {"policy_mix": fit(4, 0.4), TIMED: fit(4, low)}, 4) == "policy_mix"
+    assert stand_in(TIMED, {"policy_mix": fit(4, 0.4), TIMED: fit(4, high)}, 4) == TIMED
+    assert stand_in(TIMED, {"policy_mix": fit(3, 0.4), TIMED: fit(4, low)}, 4) == TIMED  # empty
+    assert stand_in("greedy_mix", {"greedy_mix": fit(4, 0.6), TIMED: fit(4, 0.3)}, 4) == (
+        "greedy_mix"
+    )
+    said = verdict_of(
+        {
+            "stability": 0.40,
+            "auto_time_set_aside": 1.0,
+            "auto_stability_policy_mix": 0.40,
+            "auto_stability_policy_mix_time": low,
+        },
+        4,
+    )
+    assert "kept policy_mix without the time step (stability 0.40)" in said.line()
+
+
 def test_policies_fitted_to_a_sample_of_the_steps_still_separate_the_styles():
     gen = torch.Generator().manual_seed(0)
     assert fit_sample(100, 2, 0, gen).tolist() == list(range(100))  # 0: every step

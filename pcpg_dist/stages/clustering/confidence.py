@@ -127,6 +127,12 @@ def verdict_of(metrics: dict, k: int | None = None) -> Verdict:
         reasons.append(
             f"bag_auto chose policy_mix with the time step (stability {t:.2f}; without {p:.2f})"
         )
+    elif get("auto_time_set_aside"):
+        t, p = get("auto_stability_policy_mix_time"), get("auto_stability_policy_mix")
+        reasons.append(
+            f"bag_auto kept policy_mix without the time step (stability {p:.2f}): with it, "
+            f"{t:.2f}, more stable but below {FOUND:.2f}"
+        )
     elif get("auto_chose_policy_mix"):
         g, p = get("auto_stability_greedy_mix"), get("auto_stability_policy_mix")
         reasons.append(f"bag_auto chose policy_mix (stability {p:.2f}; greedy_mix {g:.2f})")
