@@ -173,15 +173,15 @@ def most_stable(dataset, cfg, seed: int, tried: list[tuple[str, object]]) -> Clu
     candidate's stability and the choice in its metrics; its ``fit_seconds`` are those of every
     fit and refit."""
     start = time.perf_counter()
-    stable, used, fits, kept = {}, {}, {}, None
+    fits, kept = {}, None  # name -> (clustering, its stability metrics, restart index)
     fell = cfg.restarts > 1 and falls_back(dataset)  # restartable() reads it: computed once
     for name, one in tried:
-        if kept is not None and settled(fits[kept][0], stable[kept], cfg.k):
+        if kept is not None and settled(fits[kept][0], fits[kept][1]["stability"], cfg.k):
             break  # no stability can beat it by MARGIN: GridWorld
-        fits[name] = result, found, restart = best_restart(dataset, one, cfg, seed, fell)
-        stable[name] = found["stability"]
-        used[name] = clusters_used(result, cfg.k)
-        if kept is None or better(result, found["stability"], fits[kept][0], stable[kept], cfg.k):
+        fits[name] = result, found, _ = best_restart(dataset, one, cfg, seed, fell)
+        if kept is None or better(
+            result, found["stability"], fits[kept][0], fits[kept][1]["stability"], cfg.k
+        ):
             kept = name
     chosen = stand_in(kept, fits, cfg.k)
     result, found, restart = fits[chosen]
@@ -189,9 +189,9 @@ def most_stable(dataset, cfg, seed: int, tried: list[tuple[str, object]]) -> Clu
         **result.metrics,
         **found,
         **({"restart_kept": float(restart)} if cfg.restarts > 1 else {}),
-        **{f"auto_stability_{m}": v for m, v in stable.items()},
-        **{f"auto_clusters_used_{m}": v for m, v in used.items()},
-        "auto_chose_policy_mix": float(chosen != "greedy_mix" and "greedy_mix" in stable),
+        **{f"auto_stability_{m}": f[1]["stability"] for m, f in fits.items()},
+        **{f"auto_clusters_used_{m}": clusters_used(f[0], cfg.k) for m, f in fits.items()},
+        "auto_chose_policy_mix": float(chosen != "greedy_mix" and "greedy_mix" in fits),
         "auto_chose_policy_time": float(chosen == TIMED),
         "auto_time_set_aside": float(chosen != kept),
     }
