@@ -21,7 +21,7 @@ from pcpg_dist.stages.clustering import (
     monotone_features,
 )
 from pcpg_dist.stages.clustering.policy_mix import fit_sample
-from pcpg_dist.stages.clustering.policy_network import picked_log_probs
+from pcpg_dist.stages.clustering.policy_network import PolicyMixture, picked_log_probs, tanh
 
 MOVES = np.array([[-1, 0], [0, 1], [1, 0], [0, -1]], float)  # up, right, down, left
 FAST = dict(method="policy_mix", k=4, hidden_size=16, kmeans_n_init=4)
@@ -410,6 +410,26 @@ def test_picked_log_probs_is_the_masked_log_softmax_of_the_taken_action(heads):
     torch.testing.assert_close(grad, ref_grad, atol=1e-5, rtol=1e-5)
     assert (grad.masked_select(~mask.expand(shape)) == 0).all()
     assert (got <= 0).all() and (got > -30).all()
+
+
+def test_the_clusterers_tanh_is_torchs_in_value_and_gradient():
+    """2 sigmoid(2x) - 1 with tanh's own backward: within float32 rounding of torch.tanh over
+    the whole range (saturated ends included, never NaN), and the policy trunk has no parameter
+    of its own, so saved models keep their keys."""
+    x = torch.cat([torch.linspace(-60, 60, 20001), torch.tensor([0.0, 1e-30, -1e-30])])
+    x = x.requires_grad_()
+    got, ref = tanh(x), torch.tanh(x)
+    torch.testing.assert_close(got, ref, atol=3e-7, rtol=0)
+    weights = torch.linspace(-1, 1, len(x))
+    (grad,) = torch.autograd.grad((got * weights).sum(), x)
+    (ref_grad,) = torch.autograd.grad((ref * weights).sum(), x)
+    torch.testing.assert_close(grad, ref_grad, atol=1e-6, rtol=0)
+    assert torch.isfinite(grad).all() and got.abs().max() <= 1.0
+    keys = set(PolicyMixture(3, 8, 2, 4).state_dict())
+    assert keys == {
+        "trunk.0.weight", "trunk.0.bias", "trunk.2.weight", "trunk.2.bias",
+        "heads.weight", "heads.bias", "log_prior",
+    }  # fmt: skip
 
 
 def test_restarts_keep_the_most_stable_of_their_fits():

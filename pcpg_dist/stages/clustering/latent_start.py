@@ -23,7 +23,7 @@ from sklearn.cluster import AgglomerativeClustering, KMeans
 from sklearn.exceptions import ConvergenceWarning
 from torch import nn
 
-from pcpg_dist.stages.clustering.policy_network import picked_log_probs, uniform_init
+from pcpg_dist.stages.clustering.policy_network import Tanh, picked_log_probs, tanh, uniform_init
 
 #: hidden units of the latent policy (as measured in benchmarks/zoo/latent_exp.py)
 LATENT_HIDDEN = 64
@@ -65,7 +65,7 @@ class LatentPolicy(nn.Module):
         self.mu = nn.Parameter(torch.zeros(n, dims))
         self.log_sigma = nn.Parameter(torch.full((n, dims), -1.0))
         self.trunk = nn.Sequential(
-            nn.Linear(state_dim + dims, hidden), nn.Tanh(), nn.Linear(hidden, hidden), nn.Tanh()
+            nn.Linear(state_dim + dims, hidden), Tanh(), nn.Linear(hidden, hidden), Tanh()
         )
         self.head = nn.Linear(hidden + dims, n_actions)
         self.bilinear = nn.Linear(hidden, n_actions * dims, bias=False)
@@ -134,8 +134,8 @@ class LatentPolicies(nn.Module):
         *_, n_actions, dims, runs = self.sizes
         z = self.mu[:, traj] + noise * self.log_sigma[:, traj].exp()
         x = torch.cat([s.expand(runs, -1, -1), z], 2)
-        h = torch.tanh(torch.baddbmm(self.b1, x, self.w1))
-        h = torch.tanh(torch.baddbmm(self.b2, h, self.w2))
+        h = tanh(torch.baddbmm(self.b1, x, self.w1))
+        h = tanh(torch.baddbmm(self.b2, h, self.w2))
         mod = torch.bmm(h, self.wb).view(runs, len(a), n_actions, dims)  # z scales the features
         logits = torch.baddbmm(self.bh, torch.cat([h, z], 2), self.wh)
         logits = logits + (mod * z[:, :, None]).sum(-1)
