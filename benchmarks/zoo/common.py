@@ -73,7 +73,8 @@ class Game:
     (start, layout, opponent) come from ``seed`` alone. ``counts`` is how many episodes each style
     plays (unequal on purpose in some games); ``ci_counts`` the smaller numbers CI builds.
     ``kinds`` says which of the zoo's required shapes the game covers. ``held_out`` games take no
-    part in any design decision of the clusterers and are reported apart (docs/zoo.md)."""
+    part in any design decision of the clusterers and are reported apart (docs/zoo.md); ``blind``
+    ones were also written after every design choice, and read once with the default as it stood."""
 
     name: str
     package: str
@@ -86,6 +87,7 @@ class Game:
     gymnasium_env: str | None = None
     gymnasium_kwargs: dict = field(default_factory=dict)
     held_out: bool = False
+    blind: bool = False  # held out and written after every design choice, read once
 
 
 def load_game(name: str) -> Game:

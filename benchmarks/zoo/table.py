@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.zoo.common import load_game
 from benchmarks.zoo.confidence import WITHIN
 from benchmarks.zoo.evaluate import METHODS
 
@@ -62,8 +63,9 @@ def table(evaluated: list[dict], confidence: list[dict]) -> str:
             ran = "policy_mix" if c["fell_back"] or c.get("chose_policy_mix") else "greedy_mix"
             ran += " with time" if c.get("chose_policy_time") else ""
             ceiling = c.get("ceiling", r["ceiling"])  # the panel of the confidence run
+            name = r["game"] + (" (blind)" if load_game(r["game"]).blind else "")
             lines.append(
-                f"| {r['game']} | {', '.join(r['kinds'])} | {r['trajectories']} | "
+                f"| {name} | {', '.join(r['kinds'])} | {r['trajectories']} | "
                 f"{ceiling:.3f} | {accs} | {c['accuracy']:.3f} ({spread(c)}{ran}) | {c['gap']:+.3f} | "
                 f"{c['stability']:.2f} | {c['verdict']} | "
                 f"{c['fit_seconds']:.0f} + {c['confidence_seconds']:.0f} |"

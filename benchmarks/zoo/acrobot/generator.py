@@ -77,4 +77,5 @@ GAME = Game(
     play=play,
     gymnasium_env="Acrobot-v1",
     held_out=True,
+    blind=True,
 )

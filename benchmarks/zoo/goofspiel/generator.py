@@ -97,4 +97,5 @@ GAME = Game(
     n_actions=CARDS,
     play=play,
     held_out=True,
+    blind=True,
 )
