@@ -5,7 +5,9 @@ torch thread, on the shapes policy_mix fits (32,768 rows, k = 4 heads, 64 hidden
 
     uv run python -m benchmarks.bench_log_probs [--rows 32768] [--repeats 30]
 
-Prints milliseconds per forward + backward and the ratio old / new for each action count.
+Prints milliseconds per forward + backward and the ratio old / new for each action count; then,
+with every action valid (most logs), the additive mask added anyway (as until the eighteenth
+session) against ``picked_log_probs``, which skips an all-zero mask.
 """
 
 from __future__ import annotations
@@ -27,6 +29,15 @@ def old_log_probs(logits: torch.Tensor, actions: torch.Tensor, valid: torch.Tens
 
 def new_log_probs(logits: torch.Tensor, actions: torch.Tensor, valid: torch.Tensor):
     return picked_log_probs(logits, actions, valid).T
+
+
+def masked_anyway(logits: torch.Tensor, actions: torch.Tensor, valid: torch.Tensor):
+    """picked_log_probs as until the eighteenth session: the mask added even when all-zero."""
+    mask = torch.zeros(valid.shape).masked_fill_(~valid, -1e9)
+    logits = logits + mask.view(len(actions), 1, -1)
+    top = logits.detach().amax(-1, keepdim=True)
+    picked = logits.gather(-1, actions.view(-1, 1, 1).expand(*logits.shape[:-1], 1))
+    return (picked - top - (logits - top).exp().sum(-1, keepdim=True).log()).squeeze(-1).T
 
 
 def timed(fn, features, weight, actions, valid, k: int, n_actions: int, repeats: int) -> float:
@@ -65,6 +76,17 @@ def main() -> None:
             for fn in (old_log_probs, new_log_probs)
         )
         print(f"{n_actions:>7} {old:>8.2f} {new:>8.2f} {old / new:>8.2f}")
+    print(f"\nevery action valid\n{'actions':>7} {'masked':>8} {'skipped':>8} {'ratio':>8}")
+    for n_actions in (3, 6, 18):
+        features = torch.randn(args.rows, hidden, generator=gen)
+        weight = torch.randn(hidden, k * n_actions, generator=gen).requires_grad_()
+        actions = torch.randint(n_actions, (args.rows,), generator=gen)
+        valid = torch.ones(args.rows, n_actions, dtype=torch.bool)
+        anyway, skipped = (
+            timed(fn, features, weight, actions, valid, k, n_actions, args.repeats)
+            for fn in (masked_anyway, new_log_probs)
+        )
+        print(f"{n_actions:>7} {anyway:>8.2f} {skipped:>8.2f} {anyway / skipped:>8.2f}")
 
 
 if __name__ == "__main__":

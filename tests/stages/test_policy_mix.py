@@ -410,6 +410,9 @@ def test_picked_log_probs_is_the_masked_log_softmax_of_the_taken_action(heads):
     torch.testing.assert_close(grad, ref_grad, atol=1e-5, rtol=1e-5)
     assert (grad.masked_select(~mask.expand(shape)) == 0).all()
     assert (got <= 0).all() and (got > -30).all()
+    every = torch.ones_like(valid)  # no action masked (the mask is skipped): plain log_softmax
+    plain = torch.log_softmax(logits, -1).gather(-1, index).squeeze(-1)
+    torch.testing.assert_close(picked_log_probs(logits, actions, every), plain, atol=1e-5, rtol=0)
 
 
 def test_the_clusterers_tanh_is_torchs_in_value_and_gradient():

@@ -35,9 +35,10 @@ def picked_log_probs(logits: torch.Tensor, actions: torch.Tensor, valid: torch.T
     masked_fill, log_softmax and gather with 3-9 actions, within 10 % of it with 18
     (``benchmarks/bench_log_probs.py``); policy_mix spent a third of its time in log_softmax.
     """
-    mask = torch.zeros(valid.shape, device=logits.device).masked_fill_(~valid, -1e9)
     shape = (len(actions),) + (1,) * (logits.dim() - 2)
-    logits = logits + mask.view(*shape, -1)
+    if not bool(valid.all()):  # adding an all-zero mask changes no value: skipped
+        mask = torch.zeros(valid.shape, device=logits.device).masked_fill_(~valid, -1e9)
+        logits = logits + mask.view(*shape, -1)
     top = logits.detach().amax(-1, keepdim=True)
     picked = logits.gather(-1, actions.view(*shape, 1).expand(*logits.shape[:-1], 1))
     return (picked - top - (logits - top).exp().sum(-1, keepdim=True).log()).squeeze(-1)
