@@ -23,10 +23,14 @@ import torch
 from benchmarks.zoo.common import design_games, load_game
 
 
-def partition_scores(ds, labels: np.ndarray, k: int, steps: int, seed: int = 0) -> dict:
+def partition_scores(
+    ds, labels: np.ndarray, k: int, steps: int, seed: int = 0, rows: int = 0
+) -> dict:
     """A fresh policy mixture fitted to ``labels`` for ``steps`` Adam steps: the mean
     log-likelihood a step of each trajectory's actions under its own cluster's policy, in-sample
-    (``fit``) and on trajectories left out of the fit (``held_out``, 2-fold)."""
+    (``fit``) and on trajectories left out of the fit (``held_out``, 2-fold). ``rows``: fit each
+    network to a seeded sample of at most that many of its steps (0: every step); every step is
+    still scored."""
     from pcpg_dist.stages.clustering.policy_network import PolicyMixture, policy_inputs
     from pcpg_dist.stages.clustering.states import checked_sequences, fit_normaliser
 
@@ -38,13 +42,17 @@ def partition_scores(ds, labels: np.ndarray, k: int, steps: int, seed: int = 0) 
     fold = torch.from_numpy(np.random.default_rng(seed).integers(0, 2, n))[traj]
     out = {"held_out": 0.0}
     for part in ("fit", 0, 1):
-        rows = torch.ones(len(a), dtype=torch.bool) if part == "fit" else fold == part
+        mask = torch.ones(len(a), dtype=torch.bool) if part == "fit" else fold == part
+        gen = torch.Generator().manual_seed(seed)
+        fit = torch.nonzero(mask).flatten()
+        if rows and len(fit) > rows:
+            fit = fit[torch.randperm(len(fit), generator=gen)[:rows]]
         policy = PolicyMixture(states.shape[1], 32, k, int(ds.n_actions))
-        policy.reset_parameters(torch.Generator().manual_seed(seed))
+        policy.reset_parameters(gen)
         opt = torch.optim.Adam(policy.parameters(), lr=0.01)
         for _ in range(steps):
-            lp = policy.step_log_probs(s[rows], a[rows], valid[rows])
-            loss = -lp.gather(0, own[rows][None]).mean()
+            lp = policy.step_log_probs(s[fit], a[fit], valid[fit])
+            loss = -lp.gather(0, own[fit][None]).mean()
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -53,7 +61,7 @@ def partition_scores(ds, labels: np.ndarray, k: int, steps: int, seed: int = 0) 
         if part == "fit":
             out["fit"] = float(lp.mean())
         else:
-            out["held_out"] += float(lp[~rows].sum()) / len(a)
+            out["held_out"] += float(lp[~mask].sum()) / len(a)
     return out
 
 

@@ -187,6 +187,21 @@ def test_em_started_from_given_labels_keeps_their_names(goals):
     assert np.mean(labels == start) >= 0.95
 
 
+def test_a_partitions_fair_score_prefers_the_styles_to_a_shuffle_of_them(goals):
+    # benchmarks/zoo/objective.py reads from these scores whose limit a gap is (search, objective)
+    from benchmarks.zoo.search import partition_scores
+
+    styles = np.asarray(goals.styles)
+    shuffled = np.random.default_rng(0).permutation(styles)
+    for rows in (0, 500):  # every step, or a sample of 500 of them a fit
+        mine = partition_scores(goals, styles, 4, 150, rows=rows)
+        other = partition_scores(goals, shuffled, 4, 150, rows=rows)
+        assert mine["fit"] > other["fit"] + 0.1, (rows, mine, other)
+        assert mine["held_out"] > other["held_out"] + 0.1, (rows, mine, other)
+    again = partition_scores(goals, styles, 4, 20, seed=3, rows=500)
+    assert again == partition_scores(goals, styles, 4, 20, seed=3, rows=500)
+
+
 def test_the_ceiling_panel_holds_the_supervised_policy_mixture(goals):
     # given the styles, k policies classify what only the actions show; seeded, the global RNG kept
     from pcpg_dist.stages.clustering.ceiling import ceiling_panel
