@@ -1,6 +1,8 @@
 """Which partition does a mixture of policies prefer, the true styles or the default's? Every game.
 
     uv run python -m benchmarks.zoo.objective [GAME ...] [--seed 0] [--workers 2] [--out F]
+    uv run python -m benchmarks.zoo.objective --extend F   # add EM from the styles to F's rows
+    uv run python -m benchmarks.zoo.objective --read F     # print F's table again
 
 For each game: the default clustering (``bag_auto``, k = its styles, its confidence refits
 included, one torch thread) at ``--seed``, and the true styles. Each partition is scored as
@@ -167,7 +169,8 @@ def versus(row: dict, against: str) -> str:
 
 
 def print_rows(rows: list[dict], panels: dict[str, dict]) -> None:
-    """The markdown table of docs/zoo.md, "Why the gap remains"; sets each row's reading."""
+    """The markdown table of the notebook's nineteenth session (each row's reading derived here,
+    not stored: it follows the file's scores and the panels)."""
     print(
         "| game | ceiling | k policies given the styles | default | gap: model class + "
         "label-free | styles less default: fit / held out | EM from the styles: accuracy; "
@@ -177,7 +180,6 @@ def print_rows(rows: list[dict], panels: dict[str, dict]) -> None:
     for row in sorted(rows, key=lambda r: (r["held_out"], r["game"])):
         split = split_gap(row, panels.get(row["game"]))
         gap = None if split is None else split[0] - row["accuracy"]
-        row["reading"] = reading(row, gap)
         name = row["game"] + (" (held out)" if row["held_out"] else "")
         parts = ["", "", f"{row['accuracy']:.3f}", ""]
         if split is not None:
@@ -193,7 +195,7 @@ def print_rows(rows: list[dict], panels: dict[str, dict]) -> None:
         em = ""
         if "from_styles" in row:
             em = f"{row['from_styles_accuracy']:.3f}; {versus(row, 'from_styles')}"
-        print(f"| {name} | {' | '.join([*parts, em])} | {row['reading']} |", flush=True)
+        print(f"| {name} | {' | '.join([*parts, em])} | {reading(row, gap)} |", flush=True)
 
 
 def extend(path: Path, args: argparse.Namespace) -> None:
