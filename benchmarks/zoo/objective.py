@@ -43,11 +43,21 @@ import numpy as np
 from benchmarks.zoo.common import game_names, load_game
 from benchmarks.zoo.confidence import WITHIN
 
+MEASURES = ("fit", "held_out")
+
+
+def scored(ds, partition: np.ndarray, k: int, steps: int, rows: int, score_seeds: int) -> dict:
+    """``partition``'s :func:`.search.partition_scores` at scoring seeds 0..``score_seeds`` - 1:
+    {measure: [score at each seed]}."""
+    from benchmarks.zoo.search import partition_scores
+
+    runs = [partition_scores(ds, partition, k, steps, s, rows) for s in range(score_seeds)]
+    return {key: [r[key] for r in runs] for key in MEASURES}
+
 
 def objective_row(name: str, seed: int, steps: int, rows: int, score_seeds: int) -> dict:
     """The default's partition of ``name`` at ``seed`` and the styles, each scored."""
     from benchmarks.zoo.check import labelled_dataset
-    from benchmarks.zoo.search import partition_scores
     from pcpg_dist.common.devices import set_threads
     from pcpg_dist.config.clustering import ClusterConfig
     from pcpg_dist.stages.clustering import cluster, clustering_metrics
@@ -60,13 +70,8 @@ def objective_row(name: str, seed: int, steps: int, rows: int, score_seeds: int)
     labels = cluster(ds, ClusterConfig(k=k), seed).labels
     fit_seconds = time.perf_counter() - t0
     truth = np.asarray(ds.styles, np.int64)
-
-    def scored(partition: np.ndarray) -> dict:
-        runs = [partition_scores(ds, partition, k, steps, s, rows) for s in range(score_seeds)]
-        return {key: [r[key] for r in runs] for key in MEASURES}
-
     t0 = time.perf_counter()
-    default, styles = scored(labels), scored(truth)
+    default, styles = (scored(ds, x, k, steps, rows, score_seeds) for x in (labels, truth))
     return {
         "game": name,
         "held_out": game.held_out,
@@ -81,9 +86,6 @@ def objective_row(name: str, seed: int, steps: int, rows: int, score_seeds: int)
     }
 
 
-MEASURES = ("fit", "held_out")
-
-
 def from_styles_row(name: str, seed: int, steps: int, rows: int, score_seeds: int) -> dict:
     """policy_mix's EM started from the true styles (:func:`.common.policy_mix_from`) at
     ``seed``: where it ends, how far that is from the styles, and its scores. Its partition and
@@ -92,7 +94,6 @@ def from_styles_row(name: str, seed: int, steps: int, rows: int, score_seeds: in
     themselves."""
     from benchmarks.zoo.check import labelled_dataset
     from benchmarks.zoo.common import policy_mix_from
-    from benchmarks.zoo.search import partition_scores
     from pcpg_dist.common.devices import set_threads
     from pcpg_dist.config.clustering import ClusterConfig
     from pcpg_dist.stages.clustering import clustering_metrics
@@ -105,10 +106,9 @@ def from_styles_row(name: str, seed: int, steps: int, rows: int, score_seeds: in
     states, offsets = checked_sequences(ds)
     cfg = ClusterConfig(k=k, method="policy_mix")
     labels = policy_mix_from(ds, states, offsets, cfg, seed, truth)
-    runs = [partition_scores(ds, labels, k, steps, s, rows) for s in range(score_seeds)]
     return {
         "game": name,
-        "from_styles": {key: [r[key] for r in runs] for key in MEASURES},
+        "from_styles": scored(ds, labels, k, steps, rows, score_seeds),
         "from_styles_accuracy": float(clustering_metrics(truth, labels)["accuracy"]),
     }
 
@@ -159,6 +159,12 @@ def split_gap(row: dict, panel: dict | None) -> tuple[float, float, float] | Non
     return ceiling, policy, ceiling - policy
 
 
+def gap_of(row: dict, panel: dict | None) -> float | None:
+    """The row's gap to its ceiling (:func:`split_gap`), None without a panel."""
+    split = split_gap(row, panel)
+    return None if split is None else split[0] - row["accuracy"]
+
+
 def versus(row: dict, against: str) -> str:
     """The two measures' paired differences of ``against`` less the default, as a table cell."""
     cells = []
@@ -179,7 +185,7 @@ def print_rows(rows: list[dict], panels: dict[str, dict]) -> None:
     print("|---|---|---|---|---|---|---|---|")
     for row in sorted(rows, key=lambda r: (r["held_out"], r["game"])):
         split = split_gap(row, panels.get(row["game"]))
-        gap = None if split is None else split[0] - row["accuracy"]
+        gap = gap_of(row, panels.get(row["game"]))
         name = row["game"] + (" (held out)" if row["held_out"] else "")
         parts = ["", "", f"{row['accuracy']:.3f}", ""]
         if split is not None:
@@ -198,25 +204,27 @@ def print_rows(rows: list[dict], panels: dict[str, dict]) -> None:
         print(f"| {name} | {' | '.join([*parts, em])} | {reading(row, gap)} |", flush=True)
 
 
-def extend(path: Path, args: argparse.Namespace) -> None:
+def extend(path: Path, args: argparse.Namespace) -> dict:
     """Add EM from the styles (:func:`from_styles_row`) to every row of the results file
-    ``path`` whose game is not at its ceiling (by the panels of ``args.panels``), in place."""
+    ``path`` whose game is not at its ceiling (by the panels of ``args.panels``), in place;
+    returns the file's contents."""
     saved = json.loads(path.read_text())
     seed, steps, rows, score_seeds = (
         saved["args"][key] for key in ("seed", "steps", "rows", "score_seeds")
     )
-    gaps = panels(args.panels, seed)
-    todo = [
-        r["game"]
-        for r in saved["rows"]
-        if r["game"] in gaps and max(gaps[r["game"]].values()) - r["accuracy"] > WITHIN
-    ]
+    known = panels(args.panels, seed)
+    todo = []
+    for r in saved["rows"]:
+        gap = gap_of(r, known.get(r["game"]))
+        if gap is not None and gap > WITHIN:
+            todo.append(r["game"])
     with ProcessPoolExecutor(args.workers) as pool:
         jobs = [pool.submit(from_styles_row, n, seed, steps, rows, score_seeds) for n in todo]
-        found = {job.result()["game"]: job.result() for job in as_completed(jobs)}
+        found = {row["game"]: row for row in (job.result() for job in as_completed(jobs))}
     for r in saved["rows"]:
         r.update(found.get(r["game"], {}))
     path.write_text(json.dumps(saved, indent=1))
+    return saved
 
 
 def main() -> None:
@@ -243,11 +251,8 @@ def main() -> None:
         "(with the file's own seed and scoring settings)",
     )
     args = ap.parse_args()
-    if args.extend:
-        extend(args.extend, args)
-        args.read = args.extend
-    if args.read:
-        saved = json.loads(args.read.read_text())
+    if args.extend or args.read:
+        saved = extend(args.extend, args) if args.extend else json.loads(args.read.read_text())
         print_rows(saved["rows"], panels(args.panels, saved["args"]["seed"]))
         return
     names = args.games or game_names()

@@ -50,9 +50,10 @@ def partition_scores(
         policy = PolicyMixture(states.shape[1], 32, k, int(ds.n_actions))
         policy.reset_parameters(gen)
         opt = torch.optim.Adam(policy.parameters(), lr=0.01)
+        fs, fa, fvalid, fown = s[fit], a[fit], valid[fit], own[fit][None]  # once, not every step
         for _ in range(steps):
-            lp = policy.step_log_probs(s[fit], a[fit], valid[fit])
-            loss = -lp.gather(0, own[fit][None]).mean()
+            lp = policy.step_log_probs(fs, fa, fvalid)
+            loss = -lp.gather(0, fown).mean()
             opt.zero_grad()
             loss.backward()
             opt.step()
