@@ -10,6 +10,11 @@ import pytest
 os.environ.setdefault("RAY_ENABLE_UV_RUN_RUNTIME_ENV", "0")
 os.environ.setdefault("RAY_AUTH_MODE", "disabled")
 os.environ.setdefault("MLFLOW_ENABLE_ASYNC_LOGGING", "false")
+# The suite's two xdist workers share two cores, and each gives some tasks two CPUs (two torch
+# threads): torch's OpenMP threads spinning at the end of each parallel region on a core the other
+# worker holds took the stored-reference run from 40 s to 600 s. Sleeping at once changes no value
+# (docs/scale.md, "Threads on a shared machine"); the tests' subprocesses and Ray workers inherit it.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 
 @pytest.fixture

@@ -30,6 +30,18 @@ os.environ.setdefault("RAY_ENABLE_UV_RUN_RUNTIME_ENV", "0")
 os.environ.setdefault("RAY_raylet_start_wait_time_s", "120")
 
 THREAD_ENV = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "TOKENIZERS_PARALLELISM": "false"}
+#: OpenMP's wait policy, where the driver's environment sets it, reaches every worker too (on a
+#: cluster, where workers do not inherit the driver's environment): on a machine that other work
+#: shares, ``OMP_WAIT_POLICY=PASSIVE`` keeps a task's two torch threads from spinning on a busy
+#: core (docs/scale.md, "Threads on a shared machine")
+FORWARDED_ENV = ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT")
+
+
+def worker_env() -> dict[str, str]:
+    """The environment every Ray worker of a run gets: :data:`THREAD_ENV`, and the driver's
+    :data:`FORWARDED_ENV` where set."""
+    return {**THREAD_ENV, **{k: os.environ[k] for k in FORWARDED_ENV if k in os.environ}}
+
 
 # A private Ray's object store, and its spill and restore workers (Ray's default is up to four
 # of each): every process that touches the store keeps its pages in its RSS, and each I/O
@@ -84,7 +96,7 @@ def package_runtime_env() -> dict[str, Any]:
 
     return {
         "py_modules": [str(Path(pcpg_dist.__file__).parent)],
-        "env_vars": dict(THREAD_ENV),
+        "env_vars": worker_env(),
         "excludes": ["__pycache__", "*.pyc"],
     }
 
@@ -121,7 +133,7 @@ def init_ray(address: str | None = None, num_cpus: int | None = None) -> None:
                             include_dashboard=False,
                             object_store_memory=PRIVATE_STORE_BYTES,
                             log_to_driver=False,
-                            runtime_env={"env_vars": dict(THREAD_ENV)},
+                            runtime_env={"env_vars": worker_env()},
                             _system_config={}
                             if "RAY_max_io_workers" in os.environ
                             else {"max_io_workers": PRIVATE_IO_WORKERS},

@@ -326,6 +326,31 @@ def test_ray_job_submit(cluster, tmp_path):
     assert m["clustering/accuracy"] > 0.6
 
 
+def test_the_drivers_openmp_wait_policy_reaches_the_clusters_workers(cluster, tmp_path):
+    """A `ray start` node's workers do not inherit the driver's environment (this cluster's nodes
+    were started with the suite's PASSIVE): the OpenMP wait policy a user sets for a run reaches
+    its tasks on the cluster all the same, beside the one-thread defaults."""
+    keys = ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT", "OMP_NUM_THREADS")
+    probe = (
+        "import json, os, ray\n"
+        "from pcpg_dist.orchestration.ray_pool import init_ray\n"
+        f"init_ray({cluster['address']!r})\n"
+        f"env = ray.remote(lambda: {{k: os.environ.get(k) for k in {keys!r}}})\n"
+        "print(json.dumps(ray.get(env.remote())))\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", probe],
+        cwd=tmp_path,
+        env=clean_env(OMP_WAIT_POLICY="ACTIVE", GOMP_SPINCOUNT="12345"),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert out.returncode == 0, out.stderr[-2000:]
+    seen = json.loads(out.stdout.strip().splitlines()[-1])
+    assert seen == {"OMP_WAIT_POLICY": "ACTIVE", "GOMP_SPINCOUNT": "12345", "OMP_NUM_THREADS": "1"}
+
+
 def test_private_ray_listens_on_loopback_only(cluster, tmp_path):
     """The embedded Ray (no address) is reachable from this machine only."""
     probe = (
