@@ -49,3 +49,18 @@ def test_no_openmp_runtime_nests_parallel_regions_after_set_threads():
     assert seen["torch_threads"] == 2 and seen["runtimes"], seen
     nesting = {path: v for path, v in seen["runtimes"].items() if v[0] and v[1] > 1}
     assert not nesting, f"nested parallel regions on in {nesting}"
+
+
+def test_a_drivers_openmp_wait_policy_goes_to_every_ray_worker(monkeypatch):
+    """Where the driver's environment sets OpenMP's wait policy, every Ray worker's environment has
+    it beside the one-thread defaults (on a cluster the workers do not inherit the driver's; the
+    two-node test in tests/ops/test_ray_cluster.py runs it for real); where unset, nothing is added."""
+    from pcpg_dist.orchestration import ray_pool
+
+    monkeypatch.setenv("OMP_WAIT_POLICY", "ACTIVE")
+    monkeypatch.delenv("GOMP_SPINCOUNT", raising=False)
+    env = ray_pool.worker_env()
+    assert env == {**ray_pool.THREAD_ENV, "OMP_WAIT_POLICY": "ACTIVE"}
+    assert ray_pool.package_runtime_env()["env_vars"] == env
+    monkeypatch.delenv("OMP_WAIT_POLICY")
+    assert ray_pool.worker_env() == ray_pool.THREAD_ENV
