@@ -15,6 +15,21 @@ if TYPE_CHECKING:
     import torch
 
 
+#: every Ray worker starts at one thread; a task then takes the CPUs it was given (set_threads)
+THREAD_ENV = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "TOKENIZERS_PARALLELISM": "false"}
+#: OpenMP's wait policy, where the driver's environment sets it, reaches every worker too (on a
+#: cluster, where workers do not inherit the driver's environment): on a machine that other work
+#: shares, ``OMP_WAIT_POLICY=PASSIVE`` keeps a task's two torch threads from spinning on a busy
+#: core (docs/scale.md, "Threads on a shared machine")
+FORWARDED_ENV = ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT")
+
+
+def worker_env() -> dict[str, str]:
+    """The environment every Ray worker of a run gets: :data:`THREAD_ENV`, and the driver's
+    :data:`FORWARDED_ENV` where set."""
+    return {**THREAD_ENV, **{k: os.environ[k] for k in FORWARDED_ENV if k in os.environ}}
+
+
 def set_threads(n: int) -> None:
     """Limit torch (and BLAS via env vars for subprocesses) to ``n`` threads in this process."""
     n = max(1, int(n))

@@ -19,7 +19,7 @@ from typing import Any
 
 from pcpg_dist.common import errors
 from pcpg_dist.common.commands import command
-from pcpg_dist.common.devices import available_cpus
+from pcpg_dist.common.devices import available_cpus, worker_env
 from pcpg_dist.common.errors import ConfigError, ServiceError, catch_sigterm, first_line
 from pcpg_dist.orchestration.nodes import node_capacities
 
@@ -28,19 +28,6 @@ from pcpg_dist.orchestration.nodes import node_capacities
 os.environ.setdefault("RAY_ENABLE_UV_RUN_RUNTIME_ENV", "0")
 # A raylet waits this long for its node's agents; Ray's default fails nodes on a busy laptop.
 os.environ.setdefault("RAY_raylet_start_wait_time_s", "120")
-
-THREAD_ENV = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "TOKENIZERS_PARALLELISM": "false"}
-#: OpenMP's wait policy, where the driver's environment sets it, reaches every worker too (on a
-#: cluster, where workers do not inherit the driver's environment): on a machine that other work
-#: shares, ``OMP_WAIT_POLICY=PASSIVE`` keeps a task's two torch threads from spinning on a busy
-#: core (docs/scale.md, "Threads on a shared machine")
-FORWARDED_ENV = ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT")
-
-
-def worker_env() -> dict[str, str]:
-    """The environment every Ray worker of a run gets: :data:`THREAD_ENV`, and the driver's
-    :data:`FORWARDED_ENV` where set."""
-    return {**THREAD_ENV, **{k: os.environ[k] for k in FORWARDED_ENV if k in os.environ}}
 
 
 # A private Ray's object store, and its spill and restore workers (Ray's default is up to four

@@ -55,12 +55,13 @@ def test_a_drivers_openmp_wait_policy_goes_to_every_ray_worker(monkeypatch):
     """Where the driver's environment sets OpenMP's wait policy, every Ray worker's environment has
     it beside the one-thread defaults (on a cluster the workers do not inherit the driver's; the
     two-node test in tests/ops/test_ray_cluster.py runs it for real); where unset, nothing is added."""
-    from pcpg_dist.orchestration import ray_pool
+    from pcpg_dist.common.devices import THREAD_ENV, worker_env
+    from pcpg_dist.orchestration.ray_pool import package_runtime_env
 
     monkeypatch.setenv("OMP_WAIT_POLICY", "ACTIVE")
     monkeypatch.delenv("GOMP_SPINCOUNT", raising=False)
-    env = ray_pool.worker_env()
-    assert env == {**ray_pool.THREAD_ENV, "OMP_WAIT_POLICY": "ACTIVE"}
-    assert ray_pool.package_runtime_env()["env_vars"] == env
+    env = worker_env()
+    assert env == {**THREAD_ENV, "OMP_WAIT_POLICY": "ACTIVE"}
+    assert package_runtime_env()["env_vars"] == env
     monkeypatch.delenv("OMP_WAIT_POLICY")
-    assert ray_pool.worker_env() == ray_pool.THREAD_ENV
+    assert worker_env() == THREAD_ENV
