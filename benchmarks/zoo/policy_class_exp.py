@@ -13,6 +13,10 @@ seed 0, one torch thread):
 - ``inputs``: the policies also see the trajectory's history, the previous action (one-hot) and
   the share of each action so far: styles that are not Markov in the state (a route taken
   once decided) show in them.
+
+``label_free``: the default clustering (``bag_auto``, seed 0, its confidence refits) of the log
+whose states also hold the previous action, beside the one table's seed 0 without it
+(``benchmarks/zoo/confidence_results.json``): what a user who adds that column gets.
 """
 
 from __future__ import annotations
@@ -65,6 +69,24 @@ def classifier(ds, steps: int = 300, hidden: int = 32) -> float:
         ceiling.POLICY_STEPS, ceiling.POLICY_HIDDEN = saved
 
 
+def label_free(name: str, ds) -> str:
+    """The default's accuracy on ``ds`` with the previous action among its states, beside the one
+    table's seed 0 without it."""
+    import json
+    from pathlib import Path
+
+    from benchmarks.zoo.common import load_game
+    from pcpg_dist.config.clustering import ClusterConfig
+    from pcpg_dist.stages.clustering import cluster, clustering_metrics
+
+    k = len(load_game(name).styles)
+    labels = cluster(with_history(ds, False), ClusterConfig(k=k), 0).labels
+    got = clustering_metrics(ds.styles, labels)["accuracy"]
+    rows = json.loads(Path("benchmarks/zoo/confidence_results.json").read_text())["rows"]
+    was = next(r["accuracy"] for r in rows if r["game"] == name and r["seed"] == 0)
+    return f"default {was:.3f} -> {got:.3f} with the previous action"
+
+
 def main() -> None:
     from benchmarks.zoo.check import labelled_dataset
     from pcpg_dist.common.devices import set_threads
@@ -76,14 +98,19 @@ def main() -> None:
     set_threads(1)
     for name in design_games(args.games, ap.error):
         ds = labelled_dataset(name, False)
-        row = {"as in the panel": classifier(ds)}
+        row = {}
+        if {"inputs", "budget"} & set(args.variants):
+            row["as in the panel"] = classifier(ds)
         if "inputs" in args.variants:
             row["+ previous action"] = classifier(with_history(ds, False))
             row["+ previous action, action shares"] = classifier(with_history(ds, True))
         if "budget" in args.variants:
             row["1200 steps"] = classifier(ds, 1200)
             row["1200 steps, 128 units"] = classifier(ds, 1200, 128)
-        print(name + ": " + ", ".join(f"{k} {v:.3f}" for k, v in row.items()), flush=True)
+        if row:
+            print(name + ": " + ", ".join(f"{k} {v:.3f}" for k, v in row.items()), flush=True)
+        if "label_free" in args.variants:
+            print(f"{name}: {label_free(name, ds)}", flush=True)
 
 
 if __name__ == "__main__":
