@@ -11,7 +11,8 @@ queues for the other, and every small parallel region costs a scheduler time sli
 ``OMP_WAIT_POLICY=PASSIVE``) and a number (spin that many times, ``GOMP_SPINCOUNT``). Each run is a
 fresh process (the policy is read when torch loads its OpenMP runtime) that starts at one thread,
 as a Ray worker does, then takes two: the loop policy_mix and the latent start fit (an MLP over
-4,096 rows, full batch, Adam), and one policy_mix fit of the zoo's cartpole. Idle, then with one
+4,096 rows, full batch, Adam), and one policy_mix fit of the zoo's cartpole (or, given a zoo
+game's name, its default clustering, as ``benchmarks.zoo.speed`` times it). Idle, then with one
 core held by a busy loop; the best of ``--repeats``. The policy changes no value: the losses and
 labels are printed to show it.
 """
@@ -43,14 +44,21 @@ if work == "mlp":
         loss.backward()
         opt.step()
     value = float(loss)
-else:
+else:  # policy_mix: one fit of cartpole; a zoo game's name: its default clustering (zoo.speed's)
     import hashlib
     from benchmarks.zoo.check import labelled_dataset
+    from benchmarks.zoo.common import load_game
     from pcpg_dist.config.clustering import ClusterConfig
+    from pcpg_dist.stages.clustering import cluster
     from pcpg_dist.stages.clustering.step import cluster_once
-    ds = labelled_dataset("cartpole", False)
+    game = "cartpole" if work == "policy_mix" else work
+    ds = labelled_dataset(game, False)
+    k = len(load_game(game).styles)
     t = time.perf_counter()
-    labels = cluster_once(ds, ClusterConfig(method="policy_mix", k=3), 0).labels
+    if work == "policy_mix":
+        labels = cluster_once(ds, ClusterConfig(method="policy_mix", k=k), 0).labels
+    else:
+        labels = cluster(ds, ClusterConfig(k=k), 0).labels
     value = hashlib.sha256(labels.tobytes()).hexdigest()[:12]
 print(json.dumps({"seconds": time.perf_counter() - t, "value": value}))
 """
@@ -80,7 +88,9 @@ def timed(work: str, policy: str) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--policies", nargs="+", default=["default", "passive", "10000"])
-    ap.add_argument("--work", nargs="+", default=["mlp", "policy_mix"])
+    ap.add_argument(
+        "--work", nargs="+", default=["mlp", "policy_mix"], help="mlp, policy_mix or a zoo game"
+    )
     ap.add_argument("--repeats", type=int, default=3)
     args = ap.parse_args()
     print("| work | machine | " + " | ".join(args.policies) + " | value (same in every column) |")
