@@ -17,6 +17,22 @@ import os
 import subprocess
 import sys
 
+#: the loop policy_mix and the latent start fit: an MLP over 4,096 rows, full batch, Adam, ``steps``
+#: of them (a child's code; ``benchmarks.bench_wait_policy`` runs it too)
+MLP_LOOP = r"""
+import torch
+torch.manual_seed(0)
+net = torch.nn.Sequential(torch.nn.Linear(64, 64), torch.nn.Tanh(), torch.nn.Linear(64, 5))
+opt = torch.optim.Adam(net.parameters())
+x = torch.randn(4096, 64)
+t = time.perf_counter()
+for _ in range(steps):
+    loss = net(x).logsumexp(1).mean()
+    opt.zero_grad()
+    loss.backward()
+    opt.step()
+"""
+
 CHILD = r"""
 import json, os, sys, time
 threads, steps, variant = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3]
@@ -33,19 +49,8 @@ else:
     from pcpg_dist.common.devices import set_threads
 set_threads(1)  # a Ray worker's start (THREAD_ENV, the tests' one thread), then the task's own
 set_threads(threads)
-import torch
-torch.manual_seed(0)
-net = torch.nn.Sequential(torch.nn.Linear(64, 64), torch.nn.Tanh(), torch.nn.Linear(64, 5))
-opt = torch.optim.Adam(net.parameters())
-x = torch.randn(4096, 64)
-t = time.perf_counter()
-for _ in range(steps):
-    loss = net(x).logsumexp(1).mean()
-    opt.zero_grad()
-    loss.backward()
-    opt.step()
-print(json.dumps({"seconds": time.perf_counter() - t, "loss": float(loss)}))
 """
+CHILD += MLP_LOOP + 'print(json.dumps({"seconds": time.perf_counter() - t, "loss": float(loss)}))\n'
 
 
 def run(variant: str, threads: int, steps: int) -> dict:

@@ -24,26 +24,22 @@ import json
 import os
 import subprocess
 import sys
+import textwrap
 
-CHILD = r"""
+from benchmarks.bench_threads import MLP_LOOP
+
+CHILD = (
+    r"""
 import json, sys, time
 work = sys.argv[1]
 from pcpg_dist.common.devices import set_threads
 set_threads(1)
 set_threads(2)
-import torch
 if work == "mlp":
-    torch.manual_seed(0)
-    net = torch.nn.Sequential(torch.nn.Linear(64, 64), torch.nn.Tanh(), torch.nn.Linear(64, 5))
-    opt = torch.optim.Adam(net.parameters())
-    x = torch.randn(4096, 64)
-    t = time.perf_counter()
-    for _ in range(600):
-        loss = net(x).logsumexp(1).mean()
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-    value = float(loss)
+    steps = 600
+"""
+    + textwrap.indent(MLP_LOOP + "value = float(loss)\n", "    ")
+    + r"""
 else:  # policy_mix: one fit of cartpole; a zoo game's name: its default clustering (zoo.speed's)
     import hashlib
     from benchmarks.zoo.check import labelled_dataset
@@ -62,6 +58,7 @@ else:  # policy_mix: one fit of cartpole; a zoo game's name: its default cluster
     value = hashlib.sha256(labels.tobytes()).hexdigest()[:12]
 print(json.dumps({"seconds": time.perf_counter() - t, "value": value}))
 """
+)
 
 
 def policy_env(policy: str) -> dict[str, str]:

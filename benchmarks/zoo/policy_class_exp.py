@@ -23,6 +23,8 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
+from pathlib import Path
 
 import numpy as np
 
@@ -54,27 +56,20 @@ def with_history(ds, shares: bool):
     return dataclasses.replace(ds, states=states, feature_names=names)
 
 
-def classifier(ds, steps: int = 300, hidden: int = 32) -> float:
-    """The panel's policy classifier's cross-validated accuracy on ``ds``, at this budget."""
+def classifier(ds, steps: int = 0, hidden: int = 0) -> float:
+    """The panel's policy classifier's cross-validated accuracy on ``ds``, at this budget (0:
+    the panel's own)."""
     from sklearn.model_selection import StratifiedKFold
 
-    import pcpg_dist.stages.clustering.ceiling as ceiling
+    from pcpg_dist.stages.clustering.ceiling import _policy_likelihood
 
-    saved = ceiling.POLICY_STEPS, ceiling.POLICY_HIDDEN
-    ceiling.POLICY_STEPS, ceiling.POLICY_HIDDEN = steps, hidden
-    try:
-        cv = StratifiedKFold(n_splits=5, shuffle=True, random_state=0)
-        return ceiling._policy_likelihood(ds, cv, 0)
-    finally:
-        ceiling.POLICY_STEPS, ceiling.POLICY_HIDDEN = saved
+    cv = StratifiedKFold(n_splits=5, shuffle=True, random_state=0)
+    return _policy_likelihood(ds, cv, 0, steps=steps, hidden=hidden)
 
 
-def label_free(name: str, ds) -> str:
-    """The default's accuracy on ``ds`` with the previous action among its states, beside the one
-    table's seed 0 without it."""
-    import json
-    from pathlib import Path
-
+def label_free(name: str, ds, was: float) -> str:
+    """The default's accuracy on ``ds`` with the previous action among its states, beside
+    ``was``, the one table's seed 0 without it."""
     from benchmarks.zoo.common import load_game
     from pcpg_dist.config.clustering import ClusterConfig
     from pcpg_dist.stages.clustering import cluster, clustering_metrics
@@ -82,8 +77,6 @@ def label_free(name: str, ds) -> str:
     k = len(load_game(name).styles)
     labels = cluster(with_history(ds, False), ClusterConfig(k=k), 0).labels
     got = clustering_metrics(ds.styles, labels)["accuracy"]
-    rows = json.loads(Path("benchmarks/zoo/confidence_results.json").read_text())["rows"]
-    was = next(r["accuracy"] for r in rows if r["game"] == name and r["seed"] == 0)
     return f"default {was:.3f} -> {got:.3f} with the previous action"
 
 
@@ -96,6 +89,8 @@ def main() -> None:
     ap.add_argument("--variants", nargs="+", default=["inputs", "budget"])
     args = ap.parse_args()
     set_threads(1)
+    rows = json.loads(Path("benchmarks/zoo/confidence_results.json").read_text())["rows"]
+    table = {r["game"]: r["accuracy"] for r in rows if r["seed"] == 0}  # the one table's seed 0
     for name in design_games(args.games, ap.error):
         ds = labelled_dataset(name, False)
         row = {}
@@ -110,7 +105,7 @@ def main() -> None:
         if row:
             print(name + ": " + ", ".join(f"{k} {v:.3f}" for k, v in row.items()), flush=True)
         if "label_free" in args.variants:
-            print(f"{name}: {label_free(name, ds)}", flush=True)
+            print(f"{name}: {label_free(name, ds, table[name])}", flush=True)
 
 
 if __name__ == "__main__":

@@ -112,13 +112,17 @@ def _boosted_on_profiles(ds: Dataset, seed: int):
     return trajectory_profiles(ds), model
 
 
-def _policy_likelihood(ds: Dataset, cv, seed: int, time: bool = False) -> float:
+def _policy_likelihood(
+    ds: Dataset, cv, seed: int, time: bool = False, steps: int = 0, hidden: int = 0
+) -> float:
     """Cross-validated accuracy of the policy classifier (module doc): for every fold at once
     (batched matrix products, one network a fold), :data:`POLICY_STEPS` Adam steps on minibatches
     of :data:`POLICY_BATCH` training rows, or as many as the smallest fold trains on where that is
     fewer (a cost bounded whatever the log's size, and small for a small log), of the log
     likelihood of each row's action under its style's head; then each test trajectory goes to
-    the head with the largest summed log likelihood plus log style share."""
+    the head with the largest summed log likelihood plus log style share. ``steps`` and
+    ``hidden`` (0: :data:`POLICY_STEPS`, :data:`POLICY_HIDDEN`) vary its budget
+    (``benchmarks/zoo/policy_class_exp.py``)."""
     import torch
 
     from pcpg_dist.stages.clustering.policy_network import (
@@ -139,8 +143,8 @@ def _policy_likelihood(ds: Dataset, cv, seed: int, time: bool = False) -> float:
         return float("nan")
     folds = list(cv.split(np.zeros(n), y))
     gen = torch.Generator().manual_seed(seed)
-    sizes = [(s.shape[1], POLICY_HIDDEN), (POLICY_HIDDEN, POLICY_HIDDEN)]
-    sizes.append((POLICY_HIDDEN, k * n_actions))
+    steps, hidden = steps or POLICY_STEPS, hidden or POLICY_HIDDEN
+    sizes = [(s.shape[1], hidden), (hidden, hidden), (hidden, k * n_actions)]
     params = []  # per layer (weight (F, in, out), bias (F, 1, out)), PyTorch's default init
     for fan_in, fan_out in sizes:
         bound = 1.0 / np.sqrt(fan_in)
@@ -164,7 +168,7 @@ def _policy_likelihood(ds: Dataset, cv, seed: int, time: bool = False) -> float:
     batch = min(POLICY_BATCH, min(len(r) for r in trained))  # a small log: about its own size
     own = torch.from_numpy(y)[traj]
     opt = torch.optim.Adam(params, lr=0.01)
-    for _ in range(POLICY_STEPS):
+    for _ in range(steps):
         rows = torch.stack([r[torch.randint(0, len(r), (batch,), generator=gen)] for r in trained])
         lp = log_probs(s[rows], a[rows], valid[rows]).gather(2, own[rows][..., None])[..., 0]
         loss = -lp.mean(dim=1).sum()
