@@ -24,11 +24,13 @@ ZOO = Path(__file__).resolve().parent
 
 @dataclass
 class Episode:
-    """One episode: ``states`` (T + 1, d) floats, ``actions`` (T,) ints in 0..n-1, ``rewards`` (T,)."""
+    """One episode: ``states`` (T + 1, d) floats, ``actions`` (T,) ints in 0..n-1, ``rewards`` (T,);
+    ``valid`` (T, n) bools where the game logs which actions were legal (the table's ``valid``)."""
 
     states: np.ndarray
     actions: np.ndarray
     rewards: np.ndarray
+    valid: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.states = np.asarray(self.states, np.float32)
@@ -40,6 +42,10 @@ class Episode:
                 f"an episode needs states (T + 1, d), actions (T,), rewards (T,) with T >= 1; got "
                 f"{self.states.shape}, {self.actions.shape}, {self.rewards.shape}"
             )
+        if self.valid is not None:
+            self.valid = np.asarray(self.valid, bool)
+            if self.valid.shape[0] != t or not self.valid[np.arange(t), self.actions].all():
+                raise ValueError("an episode's valid masks need one row per action, allowing it")
 
 
 def record(
@@ -152,6 +158,9 @@ def step_table(played: list[tuple[int, Episode]], labelled: bool = True) -> pd.D
         frame.insert(0, "trajectory", traj)
         frame["action"] = np.append(ep.actions, -1)
         frame["reward"] = np.append(ep.rewards, 0.0)
+        if ep.valid is not None:  # the closing row (no action) allows every action
+            closing = np.ones((1, ep.valid.shape[1]), bool)
+            frame["valid"] = list(np.vstack([ep.valid, closing]))
         frame["style"] = style if labelled else -1
         frames.append(frame)
     return pd.concat(frames, ignore_index=True)

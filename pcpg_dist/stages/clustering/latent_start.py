@@ -23,6 +23,7 @@ from sklearn.cluster import AgglomerativeClustering, KMeans
 from sklearn.exceptions import ConvergenceWarning
 from torch import nn
 
+from pcpg_dist.stages.clustering.legal_actions import Legal, as_legal, linear_at, pair_log_probs
 from pcpg_dist.stages.clustering.policy_network import Tanh, picked_log_probs, tanh, uniform_init
 
 #: hidden units of the latent policy (as measured in benchmarks/zoo/latent_exp.py)
@@ -84,6 +85,12 @@ class LatentPolicy(nn.Module):
     def nll_given(self, s, a, valid, z: torch.Tensor) -> torch.Tensor:
         """-log pi(a_t | s_t, z_t) of each row for the row's own ``z``."""
         h = self.trunk(torch.cat([s, z], 1))
+        valid = as_legal(valid, a)
+        if isinstance(valid, Legal):  # the legal pairs only (legal_actions)
+            bilinear = self.bilinear.weight.view(self.n_actions, self.dims, -1).transpose(0, 1)
+            mod = linear_at(h, bilinear, None, valid) * z.T.index_select(1, valid.row)
+            logits = linear_at(torch.cat([h, z], 1), self.head.weight, self.head.bias, valid)
+            return -pair_log_probs(logits + mod.sum(0), valid)
         mod = self.bilinear(h).view(-1, self.n_actions, self.dims)  # z also scales the features
         logits = self.head(torch.cat([h, z], 1)) + (mod * z[:, None, :]).sum(-1)
         return -picked_log_probs(logits, a, valid)
@@ -136,6 +143,15 @@ class LatentPolicies(nn.Module):
         x = torch.cat([s.expand(runs, -1, -1), z], 2)
         h = tanh(torch.baddbmm(self.b1, x, self.w1))
         h = tanh(torch.baddbmm(self.b2, h, self.w2))
+        valid = as_legal(valid, a)
+        if isinstance(valid, Legal):  # the legal pairs only (legal_actions)
+            hidden = h.shape[-1]
+            bilinear = self.wb.view(runs, hidden, n_actions, dims).permute(0, 3, 2, 1)
+            mod = linear_at(h[:, None], bilinear, None, valid)  # (runs, dims, P)
+            mod = (mod * z.transpose(1, 2).index_select(2, valid.row)).sum(1)
+            head = self.wh.transpose(1, 2)
+            logits = linear_at(torch.cat([h, z], 2), head, self.bh[:, 0], valid) + mod
+            return -pair_log_probs(logits, valid).T
         mod = torch.bmm(h, self.wb).view(runs, len(a), n_actions, dims)  # z scales the features
         logits = torch.baddbmm(self.bh, torch.cat([h, z], 2), self.wh)
         logits = logits + (mod * z[:, :, None]).sum(-1)

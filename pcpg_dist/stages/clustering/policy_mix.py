@@ -17,6 +17,7 @@ from pcpg_dist.common.devices import resolve_device
 from pcpg_dist.common.errors import DataError
 from pcpg_dist.config.clustering import ClusterConfig
 from pcpg_dist.stages.clustering.latent_start import latent_start
+from pcpg_dist.stages.clustering.legal_actions import as_legal
 from pcpg_dist.stages.clustering.metrics import likelihood_margins
 from pcpg_dist.stages.clustering.model import ClusterModel, Fitted
 from pcpg_dist.stages.clustering.policy_network import (
@@ -176,6 +177,7 @@ def _fit_policy_mix(
     rounds, moved, reseeds = 0, 1.0, 0
     fit = fit_sample(len(a), n, cfg.policy_rows, gen).to(device)
     fs, fa, fvalid, ftraj = (t[fit] for t in inputs)
+    fvalid = as_legal(fvalid, fa)  # a few legal actions of many: only those are scored
     steps = np.bincount(traj.cpu().numpy(), minlength=n).astype(np.float64)
     while rounds < cfg.em_iterations:
         rounds += 1

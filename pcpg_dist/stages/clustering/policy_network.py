@@ -13,6 +13,7 @@ import torch
 from torch import nn
 
 from pcpg_dist.common.errors import DataError
+from pcpg_dist.stages.clustering.legal_actions import Legal, as_legal, linear_at, pair_log_probs
 
 
 def uniform_init(linears, generator: torch.Generator) -> None:
@@ -100,10 +101,16 @@ class PolicyMixture(nn.Module):
         uniform_init((self.trunk[0], self.trunk[2], self.heads), generator)
 
     def step_log_probs(
-        self, states: torch.Tensor, actions: torch.Tensor, valid: torch.Tensor
+        self, states: torch.Tensor, actions: torch.Tensor, valid: torch.Tensor | Legal
     ) -> torch.Tensor:
-        """(k, rows): log pi_c(a_t | s_t) of every step under every head, invalid actions masked."""
-        logits = self.heads(self.trunk(states)).view(len(states), self.k, self.n_actions)
+        """(k, rows): log pi_c(a_t | s_t) of every step under every head, invalid actions masked
+        (``valid`` (rows, n_actions) bool, or :class:`.legal_actions.Legal` pairs)."""
+        h = self.trunk(states)
+        if isinstance(valid, Legal):
+            weight = self.heads.weight.view(self.k, self.n_actions, -1)
+            bias = self.heads.bias.view(self.k, self.n_actions)
+            return pair_log_probs(linear_at(h, weight, bias, valid), valid)
+        logits = self.heads(h).view(len(states), self.k, self.n_actions)
         return picked_log_probs(logits, actions, valid).T
 
 
@@ -146,7 +153,7 @@ def policy_inputs(dataset, seen: np.ndarray, mean: np.ndarray, std: np.ndarray):
 def trajectory_scores(policy: PolicyMixture, inputs, n: int) -> torch.Tensor:
     """(k, n): log prior + summed step log-likelihood of each trajectory under each policy."""
     s, a, valid, traj = inputs
-    lp = policy.step_log_probs(s, a, valid)
+    lp = policy.step_log_probs(s, a, as_legal(valid, a))
     return (
         torch.zeros(policy.k, n, device=lp.device).index_add_(1, traj, lp)
         + policy.log_prior[:, None]

@@ -11,7 +11,9 @@ Per trajectory, with ``d`` state features and ``n`` actions:
 
 State features with one value throughout the data carry nothing and are left out first; with
 many features (RAM bytes) only the ``MAX_FEATURES`` with the largest spread across trajectories
-are kept, so the profile stays a few hundred columns.
+are kept, and with many actions (chess's 4,672 move ids) only the ``MAX_ACTIONS`` taken most
+often over the log have their own frequency and means (the others share one frequency column),
+so the profile stays a few thousand columns at most.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import numpy as np
 from pcpg_dist.dataset import Dataset
 
 MAX_FEATURES = 48  # state features kept for the quantiles and the per-action means
+MAX_ACTIONS = 64  # actions with their own columns (the most taken); every built-in domain has fewer
 QUANTILES = (0.1, 0.5, 0.9)
 
 
@@ -42,16 +45,30 @@ def _kept_features(ds: Dataset) -> np.ndarray:
     return np.sort(varying[order])
 
 
+def _kept_actions(actions: np.ndarray, steps: np.ndarray, n_actions: int):
+    """(actions, columns): every action its own column, or, with more than ``MAX_ACTIONS``, the
+    ``MAX_ACTIONS`` taken most often renumbered 0.. in that order and every other one pooled as
+    ``MAX_ACTIONS`` (columns ``MAX_ACTIONS + 1``)."""
+    if n_actions <= MAX_ACTIONS:
+        return actions, n_actions
+    counts = np.bincount(actions[steps], minlength=n_actions)
+    order = np.argsort(-counts, kind="stable")
+    column = np.full(n_actions, MAX_ACTIONS, np.int64)
+    column[order[:MAX_ACTIONS]] = np.arange(MAX_ACTIONS)
+    return np.where(steps, column[np.maximum(actions, 0)], actions), MAX_ACTIONS + 1
+
+
 def trajectory_profiles(ds: Dataset) -> np.ndarray:
     """(trajectories, features) float64: every trajectory's profile (see the module doc)."""
-    n_traj, n_act = ds.n_trajectories, ds.n_actions
+    n_traj = ds.n_trajectories
     keep = _kept_features(ds)
     states = ds.states[:, keep].astype(np.float64)
     d = len(keep)
     steps = ds.actions >= 0
     traj = ds.row_trajectory
+    actions, n_act = _kept_actions(ds.actions, steps, ds.n_actions)
     act_counts = np.zeros((n_traj, n_act))
-    np.add.at(act_counts, (traj[steps], ds.actions[steps]), 1.0)
+    np.add.at(act_counts, (traj[steps], actions[steps]), 1.0)
     n_steps = np.maximum(act_counts.sum(axis=1, keepdims=True), 1.0)
     freq = act_counts / n_steps
     switches = np.zeros(n_traj)
@@ -65,9 +82,11 @@ def trajectory_profiles(ds: Dataset) -> np.ndarray:
         rows = states[ds.offsets[i] : ds.offsets[i + 1]]
         quant[i] = np.quantile(rows, QUANTILES, axis=0).reshape(-1) if d else quant[i]
         mean_state[i] = rows.mean(axis=0) if d else mean_state[i]
-    given = np.zeros((n_traj, n_act, d))
-    np.add.at(given, (traj[steps], ds.actions[steps]), states[steps])
-    taken = act_counts[:, :, None]
+    n_own = min(n_act, MAX_ACTIONS)  # the pooled column, where there is one, has no means
+    own = steps & (actions < n_own)
+    given = np.zeros((n_traj, n_own, d))
+    np.add.at(given, (traj[own], actions[own]), states[own])
+    taken = act_counts[:, :n_own, None]
     given = np.where(taken > 0, given / np.maximum(taken, 1.0), mean_state[:, None, :])
     lengths = np.log1p(ds.lengths.astype(np.float64))
     returns = ds.returns.astype(np.float64)
