@@ -110,3 +110,21 @@ def test_bag_auto_keeps_policy_mix_where_greedy_mix_wanders(tmp_path):
     alone = cluster(ds, ClusterConfig(k=k, confidence_runs=0), 0)
     np.testing.assert_array_equal(alone.labels, greedy.labels)
     assert "auto_chose_policy_mix" not in alone.metrics
+
+
+def test_a_zoo_game_with_an_action_mask_logs_it_and_pcpg_reads_it_back(tmp_path):
+    # chess: 4,672 move ids, 20-40 legal a position; its episodes carry the env's action mask
+    from benchmarks.zoo.check import read_unit
+    from benchmarks.zoo.chess.generator import N_ACTIONS, play
+    from benchmarks.zoo.common import step_table
+
+    played = [(style, play(style, seed)) for style, seed in ((0, 11), (3, 12))]
+    (tmp_path / "steps").mkdir()
+    step_table(played).to_parquet(tmp_path / "steps" / "steps.parquet", index=False)
+    _, _, ds = read_unit("chess", tmp_path / "steps")
+    assert ds.n_actions == N_ACTIONS and ds.valid.shape == (ds.n_rows, N_ACTIONS)
+    moves = ds.actions >= 0
+    assert ds.valid[np.flatnonzero(moves), ds.actions[moves]].all()  # every move made was legal
+    legal = ds.valid[moves].sum(1)
+    assert 1 <= legal.min() and legal.max() <= 120 and np.median(legal) < 60  # a few of 4,672
+    np.testing.assert_array_equal(ds.valid[moves], np.vstack([ep.valid for _, ep in played]))

@@ -28,7 +28,14 @@ from pettingzoo.classic.chess import chess_utils
 from benchmarks.zoo.common import Episode, Game
 
 STYLES = ("materialist", "attacker", "pawn stormer", "developer")
-VALUE = {chess.PAWN: 1, chess.KNIGHT: 3, chess.BISHOP: 3, chess.ROOK: 5, chess.QUEEN: 9, chess.KING: 0}
+VALUE = {
+    chess.PAWN: 1,
+    chess.KNIGHT: 3,
+    chess.BISHOP: 3,
+    chess.ROOK: 5,
+    chess.QUEEN: 9,
+    chess.KING: 0,
+}
 CENTRE = chess.SquareSet([chess.D4, chess.E4, chess.D5, chess.E5])
 MOVES = 60
 N_ACTIONS = 8 * 8 * 73
@@ -56,7 +63,9 @@ def features(board: chess.Board, move: chess.Move, moved_so_far: int) -> np.ndar
     me = board.turn
     board.push(move)
     hanging = 0.0
-    if board.is_attacked_by(not me, move.to_square) and not board.is_attacked_by(me, move.to_square):
+    if board.is_attacked_by(not me, move.to_square) and not board.is_attacked_by(
+        me, move.to_square
+    ):
         hanging = VALUE[piece.piece_type]
     king = board.king(not me)
     near = 0
@@ -65,9 +74,16 @@ def features(board: chess.Board, move: chess.Move, moved_so_far: int) -> np.ndar
         near = sum(1 for sq in board.attacks(move.to_square) if sq in ring)
     board.pop()
     pawn = piece.piece_type == chess.PAWN
-    advance = chess.square_rank(move.to_square) if me == chess.WHITE else 7 - chess.square_rank(move.to_square)
+    advance = (
+        chess.square_rank(move.to_square)
+        if me == chess.WHITE
+        else 7 - chess.square_rank(move.to_square)
+    )
     back = 0 if me == chess.WHITE else 7
-    develops = piece.piece_type in (chess.KNIGHT, chess.BISHOP) and chess.square_rank(move.from_square) == back
+    develops = (
+        piece.piece_type in (chess.KNIGHT, chess.BISHOP)
+        and chess.square_rank(move.from_square) == back
+    )
     early_queen = piece.piece_type == chess.QUEEN and moved_so_far < 10
     return np.array(
         [
@@ -116,7 +132,9 @@ def _rival(rng: np.random.Generator):
     def policy(board: chess.Board, moves: dict[int, chess.Move], moved: int) -> int:
         ids = list(moves)
         if capturer:
-            gains = [VALUE[p.piece_type] if (p := board.piece_at(moves[a].to_square)) else 0 for a in ids]
+            gains = [
+                VALUE[p.piece_type] if (p := board.piece_at(moves[a].to_square)) else 0 for a in ids
+            ]
             if max(gains) > 0:
                 return ids[int(np.argmax(gains))]
         return int(rng.choice(ids))

@@ -1,0 +1,78 @@
+"""Many actions, few legal: the policies' dense softmax against scoring the legal pairs only
+(:mod:`pcpg_dist.stages.clustering.legal_actions`), side by side in one run, on chess's shapes
+(4,672 move ids, 30 legal a row, 774 state features).
+
+    uv run python -m benchmarks.bench_legal_actions [--threads 2] [--repeats 5]
+
+For each network, milliseconds per forward + backward step of its fit, dense / legal pairs, and
+the ratio: policy_mix's ``PolicyMixture`` (k = 4 heads, 32 hidden units) on 14,000 rows (the
+whole blind chess log), and the latent start's ``LatentPolicies`` (eight fits side by side, 64
+units, a 4-d latent) on 1,024 rows (one step of the consensus). The two paths give the same
+values (``tests/stages/test_legal_actions.py``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import torch
+
+from pcpg_dist.common.devices import set_threads
+from pcpg_dist.stages.clustering import legal_actions
+from pcpg_dist.stages.clustering.latent_start import LatentPolicies
+from pcpg_dist.stages.clustering.policy_network import PolicyMixture
+
+N_ACTIONS, LEGAL, STATE = 4672, 30, 774
+
+
+def rows_of(rows: int, gen: torch.Generator):
+    """(states, valid, actions): LEGAL random legal actions a row, the first of them taken."""
+    order = torch.rand(rows, N_ACTIONS, generator=gen).argsort(1)[:, :LEGAL]
+    valid = torch.zeros(rows, N_ACTIONS, dtype=torch.bool).scatter_(1, order, True)
+    return torch.randn(rows, STATE, generator=gen), valid, order[:, 0]
+
+
+def step_of(name: str, gen: torch.Generator):
+    """A function running one forward + backward of ``name``'s fit."""
+    if name == "policy_mix":
+        s, valid, a = rows_of(14000, gen)
+        net = PolicyMixture(STATE, 32, 4, N_ACTIONS)
+        net.reset_parameters(gen)
+        return lambda: net.step_log_probs(s, a, legal_actions.as_legal(valid, a)).sum().backward()
+    s, valid, a = rows_of(1024, gen)
+    net = LatentPolicies(STATE, 400, 4, 64, N_ACTIONS, runs=8)
+    net.reset_parameters(gen)
+    traj, noise = torch.arange(1024) % 400, torch.randn(8, 1024, 4, generator=gen)
+    return lambda: net.step_nll(s, a, valid, traj, noise).sum().backward()
+
+
+def timed(step, repeats: int) -> float:
+    step()  # the kernels compiled, the allocator warm
+    t0 = time.perf_counter()
+    for _ in range(repeats):
+        step()
+    return (time.perf_counter() - t0) / repeats * 1e3
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--repeats", type=int, default=5)
+    args = ap.parse_args()
+    set_threads(args.threads)
+    print(f"{'network':<22} {'dense ms':>9} {'legal pairs ms':>15} {'dense / pairs':>14}")
+    for name in ("policy_mix", "latent_start"):
+        step = step_of(name, torch.Generator().manual_seed(0))
+        pairs = timed(step, args.repeats)
+        saved = legal_actions.SPARSE_MIN_ACTIONS
+        legal_actions.SPARSE_MIN_ACTIONS = 10**9  # every mask dense, as before
+        try:
+            dense = timed(step, args.repeats)
+        finally:
+            legal_actions.SPARSE_MIN_ACTIONS = saved
+        print(f"{name:<22} {dense:9.1f} {pairs:15.1f} {dense / pairs:13.2f}x", flush=True)
+
+
+if __name__ == "__main__":
+    main()
