@@ -9,8 +9,13 @@ import torch
 
 from pcpg_dist.common.devices import set_threads
 from pcpg_dist.dataset import Dataset
-from pcpg_dist.stages.clustering import ClusterConfig, cluster, clustering_metrics, load_model
-from pcpg_dist.stages.clustering import legal_actions
+from pcpg_dist.stages.clustering import (
+    ClusterConfig,
+    cluster,
+    clustering_metrics,
+    legal_actions,
+    load_model,
+)
 from pcpg_dist.stages.clustering.latent_start import LatentPolicies, LatentPolicy
 from pcpg_dist.stages.clustering.legal_actions import Legal, legal_pairs, sparse_pays
 from pcpg_dist.stages.clustering.policy_network import PolicyMixture
