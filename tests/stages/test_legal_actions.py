@@ -42,6 +42,7 @@ def test_only_many_actions_with_few_legal_take_the_sparse_path():
     assert not sparse_pays(torch.ones(50, N_ACTIONS, dtype=torch.bool))  # every action legal
     assert not sparse_pays(valid[:, :39])  # Mario's 39 actions: dense, as before
     assert not sparse_pays(torch.zeros(0, N_ACTIONS, dtype=torch.bool))
+    assert not sparse_pays(valid.to("meta"))  # off the CPU (a GPU): dense, the kernel is numba's
 
 
 def test_legal_pairs_point_at_each_rows_taken_action():

@@ -5,8 +5,9 @@ A board or card game may have thousands of action ids of which a position allows
 every id's logit for every row and every head, almost all of them masked out; here only the
 legal (row, action) pairs are computed and normalised. The same log-probabilities (to float
 rounding; ``tests/stages/test_legal_actions.py``), 10-60x faster a step on chess's shapes
-(``benchmarks/bench_legal_actions.py``). Used where :func:`sparse_pays` says so: many actions, few of them legal on the average row. Every zoo game
-and built-in domain has at most 39 actions, so they keep the dense path.
+(``benchmarks/bench_legal_actions.py``). Used where :func:`sparse_pays` says so: many actions,
+few of them legal on the average row, on the CPU. Every zoo game but chess and every built-in
+domain has at most 39 actions, so they keep the dense path.
 """
 
 from __future__ import annotations
@@ -37,9 +38,10 @@ class Legal(NamedTuple):
 
 
 def sparse_pays(valid: torch.Tensor) -> bool:
-    """Whether ``valid`` (rows, n_actions) is worth :class:`Legal` pairs (module doc)."""
+    """Whether ``valid`` (rows, n_actions) is worth :class:`Legal` pairs (module doc). On the
+    CPU only: the pairs' kernel is numba's; a GPU keeps the dense softmax."""
     n_actions = valid.shape[-1]
-    if n_actions < SPARSE_MIN_ACTIONS or not valid.numel():
+    if n_actions < SPARSE_MIN_ACTIONS or not valid.numel() or valid.device.type != "cpu":
         return False
     return int(valid.sum()) <= SPARSE_MAX_SHARE * valid.numel()
 
