@@ -130,7 +130,7 @@ def movers(n_per_style: int, seed: int) -> Dataset:
 def test_policy_mix_finds_styles_told_apart_by_their_moves_among_many(tmp_path):
     set_threads(1)
     ds = movers(25, seed=3)
-    cfg = ClusterConfig(method="policy_mix", k=3, hidden_size=16, kmeans_n_init=4)
+    cfg = ClusterConfig(method="policy_mix", k=3, hidden_size=16, kmeans_n_init=4, latent_steps=100)
     found = cluster(ds, cfg, seed=0)
     assert clustering_metrics(ds.styles, found.labels)["accuracy"] >= 0.9
     np.testing.assert_array_equal(cluster(ds, cfg, seed=0).labels, found.labels)
