@@ -49,7 +49,7 @@ def test_legal_pairs_point_at_each_rows_taken_action():
     gen = torch.Generator().manual_seed(1)
     valid, actions = sparse_rows(30, gen)
     pairs = legal_pairs(valid, actions)
-    assert len(pairs.row) == 30 * LEGAL and pairs.rows == 30
+    assert len(pairs.row) == 30 * LEGAL and len(pairs.picked) == 30
     torch.testing.assert_close(pairs.row[pairs.picked], torch.arange(30))
     torch.testing.assert_close(pairs.action[pairs.picked], actions)
     assert bool(valid[pairs.row, pairs.action].all())

@@ -31,7 +31,6 @@ class Legal(NamedTuple):
     row: torch.Tensor  # (P,) ascending
     action: torch.Tensor  # (P,)
     picked: torch.Tensor  # (rows,): index into the pairs of each row's taken action
-    rows: int
     row_start: np.ndarray  # (rows + 1,): row r's pairs are row_start[r]:row_start[r + 1]
     by_action: np.ndarray  # (P,): the pairs ordered by action (stably)
     action_start: np.ndarray  # (n_actions + 1,): action a's run of by_action
@@ -53,13 +52,11 @@ def legal_pairs(valid: torch.Tensor, actions: torch.Tensor) -> Legal:
     rows, n_actions = valid.shape
     key = row * n_actions + action  # ascending: nonzero walks row by row
     wanted = torch.arange(rows, device=valid.device) * n_actions + actions
-    row_np, action_np = row.cpu().numpy(), action.cpu().numpy()
+    row_np, action_np = row.numpy(), action.numpy()  # on the CPU (sparse_pays)
     row_start = np.searchsorted(row_np, np.arange(rows + 1))
     by_action = np.argsort(action_np, kind="stable")
     action_start = np.searchsorted(action_np[by_action], np.arange(n_actions + 1))
-    return Legal(
-        row, action, torch.searchsorted(key, wanted), rows, row_start, by_action, action_start
-    )
+    return Legal(row, action, torch.searchsorted(key, wanted), row_start, by_action, action_start)
 
 
 def as_legal(valid: torch.Tensor, actions: torch.Tensor) -> torch.Tensor | Legal:
@@ -70,12 +67,12 @@ def as_legal(valid: torch.Tensor, actions: torch.Tensor) -> torch.Tensor | Legal
 def pair_log_probs(logits: torch.Tensor, legal: Legal) -> torch.Tensor:
     """(..., rows): log softmax over each row's legal actions of the taken one, from the pairs'
     ``logits`` (..., P)."""
-    lead = logits.shape[:-1]
+    lead, rows = logits.shape[:-1], len(legal.picked)
     row = legal.row.expand(*lead, -1)
-    top = torch.full((*lead, legal.rows), -torch.inf, device=logits.device)
+    top = torch.full((*lead, rows), -torch.inf, device=logits.device)
     top = top.scatter_reduce(-1, row, logits.detach(), "amax")
     shifted = (logits - top.gather(-1, row)).exp()
-    total = torch.zeros((*lead, legal.rows), device=logits.device).scatter_add(-1, row, shifted)
+    total = torch.zeros((*lead, rows), device=logits.device).scatter_add(-1, row, shifted)
     return logits.index_select(-1, legal.picked) - top - total.log()
 
 
