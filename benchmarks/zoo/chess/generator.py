@@ -25,6 +25,7 @@ import numpy as np
 from pettingzoo.classic import chess_v6
 from pettingzoo.classic.chess import chess_utils
 
+from benchmarks.zoo.board_games import play_two_player
 from benchmarks.zoo.common import Episode, Game
 
 STYLES = ("materialist", "attacker", "pawn stormer", "developer")
@@ -142,6 +143,18 @@ def _rival(rng: np.random.Generator):
     return policy
 
 
+def _moving(policy):
+    """A board-game :data:`~benchmarks.zoo.board_games.Player` from a chess policy of (board,
+    {move id: chess.Move}, the side's moves so far): PettingZoo's ids read for the side to move."""
+
+    def player(board: chess.Board, legal: list[int]) -> int:
+        side = int(board.turn == chess.BLACK)  # PettingZoo mirrors black's ids
+        moves = {a: chess_utils.action_to_move(board, a, side) for a in legal}
+        return policy(board, moves, board.fullmove_number - 1)
+
+    return player
+
+
 def _state(obs: np.ndarray) -> np.ndarray:
     """PettingZoo's (8, 8, 111) observation as 774 numbers: six rule planes as one number each
     (castling rights, side, no-capture clock), then the current position's twelve piece planes."""
@@ -153,31 +166,17 @@ def _state(obs: np.ndarray) -> np.ndarray:
 def play(style: int, seed: int) -> Episode:
     rng = np.random.default_rng(seed)
     env = chess_v6.env()
-    env.reset(seed=seed)
-    me = env.agents[int(rng.integers(2))]
-    policies = {me: _styled(style, rng)}
-    policies.update({a: _rival(rng) for a in env.agents if a != me})
-    board = env.unwrapped.board
-    states, actions, valid = [], [], []
-    while not any(env.terminations.values()) and not any(env.truncations.values()):
-        agent = env.agent_selection
-        if agent == me and len(actions) == MOVES:
-            break
-        obs = env.observe(agent)
-        player = env.agents.index(agent)
-        legal = np.flatnonzero(obs["action_mask"])
-        moves = {int(a): chess_utils.action_to_move(board, int(a), player) for a in legal}
-        action = policies[agent](board, moves, len(actions))
-        if agent == me:
-            states.append(_state(obs["observation"]))
-            actions.append(action)
-            valid.append(obs["action_mask"].astype(bool))
-        env.step(action)
-    states.append(_state(env.observe(me)["observation"]))
-    rewards = np.zeros(len(actions))
-    rewards[-1] = env.rewards[me]
-    env.close()
-    return Episode(np.array(states), np.array(actions), rewards, np.array(valid))
+    return play_two_player(
+        env,
+        seed,
+        rng,
+        lambda r: _moving(_styled(style, r)),
+        lambda r: _moving(_rival(r)),
+        lambda planes: env.unwrapped.board,
+        _state,
+        max_moves=MOVES,
+        masks=True,
+    )
 
 
 GAME = Game(

@@ -110,7 +110,7 @@ def play(style: int, seed: int) -> Episode:
         rng,
         lambda r: _styled(style, r),
         lambda r: opponent(r, _completing),
-        lambda b: b,
+        lambda p: p[:, :, 0] + 2 * p[:, :, 1],
     )
 
 
