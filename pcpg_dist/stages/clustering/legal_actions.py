@@ -59,9 +59,11 @@ def legal_pairs(valid: torch.Tensor, actions: torch.Tensor) -> Legal:
     return Legal(row, action, torch.searchsorted(key, wanted), row_start, by_action, action_start)
 
 
-def as_legal(valid: torch.Tensor, actions: torch.Tensor) -> torch.Tensor | Legal:
-    """``valid`` as :class:`Legal` pairs where :func:`sparse_pays`, else as it is."""
-    return legal_pairs(valid, actions) if sparse_pays(valid) else valid
+def as_legal(valid: torch.Tensor | Legal, actions: torch.Tensor) -> torch.Tensor | Legal:
+    """``valid`` as :class:`Legal` pairs where :func:`sparse_pays`, else as it is (pairs too)."""
+    if isinstance(valid, Legal) or not sparse_pays(valid):
+        return valid
+    return legal_pairs(valid, actions)
 
 
 def pair_log_probs(logits: torch.Tensor, legal: Legal) -> torch.Tensor:

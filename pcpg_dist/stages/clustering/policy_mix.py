@@ -178,6 +178,7 @@ def _fit_policy_mix(
     fit = fit_sample(len(a), n, cfg.policy_rows, gen).to(device)
     fs, fa, fvalid, ftraj = (t[fit] for t in inputs)
     fvalid = as_legal(fvalid, fa)  # a few legal actions of many: only those are scored
+    inputs = (s, a, as_legal(valid, a), traj)  # every round scores every step: found once
     steps = np.bincount(traj.cpu().numpy(), minlength=n).astype(np.float64)
     while rounds < cfg.em_iterations:
         rounds += 1
