@@ -190,7 +190,7 @@ def _policy_likelihood(
 POLICY_STEPS = 300  # Adam steps of the policy classifier (all folds at once)
 POLICY_HIDDEN = 32  # its two tanh layers, as policy_mix's network
 #: left out above this many styles x actions (a 1,000-action log took minutes; the zoo's largest
-#: is 4 x 9 = 36)
+#: below it is 4 x 9 = 36, and chess's 4 x 4,672 is left out)
 POLICY_MAX_OUTPUTS = 512
 POLICY_BATCH = 4096  # training rows a fold and step (sampled with replacement, seeded)
 
