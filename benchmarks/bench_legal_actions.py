@@ -19,6 +19,7 @@ import time
 import torch
 
 from pcpg_dist.common.devices import set_threads
+from pcpg_dist.stages import legal_share
 from pcpg_dist.stages.clustering import legal_actions
 from pcpg_dist.stages.clustering.latent_start import LatentPolicies
 from pcpg_dist.stages.clustering.policy_network import PolicyMixture
@@ -53,9 +54,9 @@ def step_of(name: str, gen: torch.Generator):
 
 def timed(step, dense: bool, repeats: int) -> float:
     """Milliseconds a step, the dense softmax (every mask kept as it is) or the legal pairs."""
-    saved = legal_actions.SPARSE_MIN_ACTIONS
+    saved = legal_share.SPARSE_MIN_ACTIONS
     if dense:
-        legal_actions.SPARSE_MIN_ACTIONS = 10**9
+        legal_share.SPARSE_MIN_ACTIONS = 10**9
     try:
         step(dense)  # the kernels compiled, the allocator warm
         t0 = time.perf_counter()
@@ -63,7 +64,7 @@ def timed(step, dense: bool, repeats: int) -> float:
             step(dense)
         return (time.perf_counter() - t0) / repeats * 1e3
     finally:
-        legal_actions.SPARSE_MIN_ACTIONS = saved
+        legal_share.SPARSE_MIN_ACTIONS = saved
 
 
 def main() -> None:

@@ -35,7 +35,7 @@ def dedupe_rows(
     key = np.concatenate(
         [
             states.view(np.int32).astype(np.int64),
-            valid.astype(np.int64),
+            _mask_key(valid),
             actions[:, None].astype(np.int64),
         ],
         axis=1,
@@ -49,6 +49,15 @@ def dedupe_rows(
         np.bincount(inverse, weights=weights, minlength=len(uniq)),
     )
     return (*out, inverse) if return_inverse else out
+
+
+def _mask_key(valid: np.ndarray) -> np.ndarray:
+    """The valid masks (n, A) as int64 key columns, 32 actions a column: big-endian bits in
+    big-endian words sort as the bits themselves do, so the distinct rows come out in the same
+    order as with a column per action (4,672 actions: 146 columns instead of 4,672)."""
+    packed = np.packbits(np.asarray(valid, bool), axis=1)
+    packed = np.pad(packed, ((0, 0), (0, -packed.shape[1] % 4)))
+    return packed.view(">u4").astype(np.int64)
 
 
 class SubsetRows:

@@ -9,6 +9,7 @@ import torch
 
 from pcpg_dist.common.devices import set_threads
 from pcpg_dist.dataset import Dataset
+from pcpg_dist.stages import legal_share
 from pcpg_dist.stages.clustering import (
     ClusterConfig,
     cluster,
@@ -32,7 +33,7 @@ def sparse_rows(rows: int, gen: torch.Generator):
 
 def dense(monkeypatch):
     """The dense softmax whatever the mask (the path every small action space takes)."""
-    monkeypatch.setattr(legal_actions, "SPARSE_MIN_ACTIONS", 10**9)
+    monkeypatch.setattr(legal_share, "SPARSE_MIN_ACTIONS", 10**9)
 
 
 def test_only_many_actions_with_few_legal_take_the_sparse_path():

@@ -16,6 +16,7 @@ import torch
 
 from pcpg_dist.config.stages import BCConfig
 from pcpg_dist.stages.bc.network import INVALID_LOGIT
+from pcpg_dist.stages.legal_share import few_legal
 from pcpg_dist.stages.ranking import Cell
 
 
@@ -62,6 +63,29 @@ def cell_batches(rows: Sequence[int], cfg: BCConfig) -> tuple[np.ndarray, np.nda
     return batch.astype(np.int64), passes.astype(np.int64)
 
 
+def output_masks(
+    valid: np.ndarray, acts: np.ndarray, pairs: bool | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The kernel's view of the valid masks (R, A): (neg (A, R), pair_off, pair_act).
+
+    Dense: neg is 0 or INVALID_LOGIT per action and row, no pairs. Legal pairs (``pairs``, or
+    where few_legal when None): neg is (0, R) and row r's legal actions are
+    pair_act[pair_off[r]:pair_off[r + 1]]; a taken action always counts as legal (a log whose
+    mask disagrees with its actions then trains as if the mask allowed it)."""
+    rows, n_actions = valid.shape
+    if pairs is None:
+        pairs = few_legal(n_actions, int(valid.sum()), rows)
+    if not pairs:
+        neg = np.where(valid.T, np.float32(0.0), np.float32(INVALID_LOGIT))
+        none = np.zeros(0, np.int64)
+        return np.ascontiguousarray(neg, np.float32), none, none
+    allowed = valid.copy()
+    allowed[np.arange(rows), acts] = True
+    row, action = np.nonzero(allowed)  # row by row, actions ascending
+    pair_off = np.searchsorted(row, np.arange(rows + 1)).astype(np.int64)
+    return np.zeros((0, rows), np.float32), pair_off, action.astype(np.int64)
+
+
 def _shuffled(rows: tuple[np.ndarray, ...], seed: int) -> tuple[np.ndarray, ...]:
     """A minibatched cell's rows in one fixed order drawn from its seed: its blocks."""
     order = np.random.default_rng([seed, 1]).permutation(len(rows[2]))
@@ -74,10 +98,12 @@ def train_numba(
     sizes: tuple[int, ...],
     cfg: BCConfig,
     starts: list[np.ndarray],
+    pairs: bool | None = None,
 ) -> tuple[dict, np.ndarray, np.ndarray]:
     """Train every cell with the compiled kernel on this process's threads; (parameters by
     name, final loss per cell, Adam steps per cell), as
-    :func:`~pcpg_dist.stages.bc.torch_engine.train_group`."""
+    :func:`~pcpg_dist.stages.bc.torch_engine.train_group`. ``pairs``: compute the output layer
+    at the legal pairs only (None: where :func:`~pcpg_dist.stages.legal_share.few_legal`)."""
     from pcpg_dist.stages.bc.kernel import train_kernel
 
     batch, epochs = cell_batches([len(x[2]) for x in data], cfg)
@@ -88,10 +114,8 @@ def train_numba(
     rows = [len(x[2]) for x in data]
     row_off = np.r_[0, np.cumsum(rows)].astype(np.int64)
     xt = np.concatenate([(s - c.mean) / c.std for c, (s, _, _, _) in zip(cells, data, strict=True)])
-    neg = np.concatenate([np.where(v, 0.0, INVALID_LOGIT) for _, v, _, _ in data]).astype(
-        np.float32
-    )
     acts = np.concatenate([a for _, _, a, _ in data]).astype(np.int64)
+    neg, pair_off, pair_act = output_masks(np.concatenate([v for _, v, _, _ in data]), acts, pairs)
     wn = np.concatenate([w / w.sum() for _, _, _, w in data]).astype(np.float32)
     theta = np.stack(starts).astype(np.float32)
     numel = [x for a, b in zip(sizes[:-1], sizes[1:], strict=True) for x in (a * b, b)]
@@ -105,7 +129,7 @@ def train_numba(
     losses, steps = np.zeros(len(cells)), np.zeros(len(cells), np.int64)
     args = (
         np.ascontiguousarray(xt.T, np.float32),
-        np.ascontiguousarray(neg.T),
+        neg,
         acts,
         wn,
         row_off,
@@ -120,7 +144,14 @@ def train_numba(
         cfg.eps,
         cfg.activation == "relu",
     )
-    tail = (batch, cfg.stop_window if cfg.stop_tol > 0 else 0, cfg.stop_tol, steps)
+    tail = (
+        batch,
+        cfg.stop_window if cfg.stop_tol > 0 else 0,
+        cfg.stop_tol,
+        steps,
+        pair_off,
+        pair_act,
+    )
     shares = [schedule[a:b] for a, b in itertools.pairwise(sched_off)]
     with ThreadPoolExecutor(slots) as pool:  # the kernel releases the GIL: a thread per share
         list(pool.map(lambda share: train_kernel(*args, share, losses, *tail), shares))

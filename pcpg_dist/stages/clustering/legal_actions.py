@@ -6,8 +6,7 @@ every id's logit for every row and every head, almost all of them masked out; he
 legal (row, action) pairs are computed and normalised. The same log-probabilities (to float
 rounding; ``tests/stages/test_legal_actions.py``), 10-60x faster a step on chess's shapes
 (``benchmarks/bench_legal_actions.py``). Used where :func:`sparse_pays` says so: many actions,
-few of them legal on the average row, on the CPU. Every zoo game but chess and every built-in
-domain has at most 39 actions, so they keep the dense path.
+few of them legal on the average row (:mod:`pcpg_dist.stages.legal_share`), on the CPU.
 """
 
 from __future__ import annotations
@@ -18,10 +17,7 @@ import numba
 import numpy as np
 import torch
 
-#: the sparse path is taken from this many actions ...
-SPARSE_MIN_ACTIONS = 64
-#: ... where at most this share of them is legal on the average row
-SPARSE_MAX_SHARE = 0.125
+from pcpg_dist.stages.legal_share import few_legal
 
 
 class Legal(NamedTuple):
@@ -39,10 +35,9 @@ class Legal(NamedTuple):
 def sparse_pays(valid: torch.Tensor) -> bool:
     """Whether ``valid`` (rows, n_actions) is worth :class:`Legal` pairs (module doc). On the
     CPU only: the pairs' kernel is numba's; a GPU keeps the dense softmax."""
-    n_actions = valid.shape[-1]
-    if n_actions < SPARSE_MIN_ACTIONS or not valid.numel() or valid.device.type != "cpu":
+    if valid.device.type != "cpu" or valid.ndim != 2:
         return False
-    return int(valid.sum()) <= SPARSE_MAX_SHARE * valid.numel()
+    return few_legal(valid.shape[1], int(valid.sum()), valid.shape[0])
 
 
 def legal_pairs(valid: torch.Tensor, actions: torch.Tensor) -> Legal:
