@@ -56,6 +56,24 @@ def test_legal_pairs_point_at_each_rows_taken_action():
     assert bool(valid[pairs.row, pairs.action].all())
 
 
+def test_the_latent_start_sees_only_the_ids_legal_somewhere_in_the_log():
+    from pcpg_dist.stages.clustering.legal_actions import on_legal_ids
+
+    gen = torch.Generator().manual_seed(2)
+    valid, actions = sparse_rows(200, gen)
+    valid[:, 90:] = False  # six ids never legal
+    actions = torch.where(actions >= 90, torch.zeros_like(actions), actions)
+    valid[torch.arange(200), actions] = True
+    a, v, n = on_legal_ids(actions, valid, N_ACTIONS)
+    kept = valid.any(0).nonzero().squeeze(1)
+    assert n == len(kept) <= 90 and v.shape == (200, n)
+    # every row keeps its legal moves, renumbered in order, and its taken one among them
+    assert torch.equal(kept[v.nonzero()[:, 1]], valid.nonzero()[:, 1])
+    assert torch.equal(kept[a], actions)
+    dense = torch.ones(20, 5, dtype=torch.bool), torch.arange(20) % 5
+    assert on_legal_ids(dense[1], dense[0], 5)[2] == 5  # a small action space: as it is
+
+
 @pytest.mark.parametrize("net", ["mixture", "latent", "latents"])
 def test_the_sparse_path_gives_the_dense_log_probs_and_gradients(monkeypatch, net):
     gen = torch.Generator().manual_seed(2)

@@ -23,7 +23,13 @@ from sklearn.cluster import AgglomerativeClustering, KMeans
 from sklearn.exceptions import ConvergenceWarning
 from torch import nn
 
-from pcpg_dist.stages.clustering.legal_actions import Legal, as_legal, linear_at, pair_log_probs
+from pcpg_dist.stages.clustering.legal_actions import (
+    Legal,
+    as_legal,
+    linear_at,
+    on_legal_ids,
+    pair_log_probs,
+)
 from pcpg_dist.stages.clustering.policy_network import Tanh, picked_log_probs, tanh, uniform_init
 
 #: hidden units of the latent policy (as measured in benchmarks/zoo/latent_exp.py)
@@ -122,8 +128,33 @@ class LatentPolicies(nn.Module):
             "wb": (hidden, (hidden, n_actions * dims)),  # the bilinear term
         }
         self.fan_in = {name: fan for name, (fan, _) in shapes.items()}
-        for name, (_, shape) in shapes.items():
-            setattr(self, name, nn.Parameter(torch.empty(runs, *shape)))
+        self.drawn = {name: (runs, *shape) for name, (_, shape) in shapes.items()}
+        for name in shapes:
+            stored = self.by_action(name, torch.empty(self.drawn[name]))
+            setattr(self, name, nn.Parameter(torch.empty(stored.shape)))
+
+    def by_action(self, name: str, drawn: torch.Tensor) -> torch.Tensor:
+        """How a weight drawn in its layer's shape is stored: the head's and the bilinear term's
+        action by action, (runs, actions, hidden + dims) and (runs, dims, actions, hidden), so
+        the legal pairs read them in place (a copy of them each step took a fifth of chess's
+        step); the other weights as drawn. The draws, and so every fit's numbers, are those of
+        the layers' own shapes."""
+        runs, hidden = drawn.shape[0], self.sizes[1]
+        n_actions, dims = self.sizes[3], self.sizes[4]
+        if name == "wh":
+            return drawn.transpose(1, 2)
+        if name == "wb":
+            return drawn.view(runs, hidden, n_actions, dims).permute(0, 3, 2, 1)
+        return drawn
+
+    def as_drawn(self, name: str) -> torch.Tensor:
+        """A weight in its layer's shape (contiguous: the dense path's matrix products run on
+        the same layout, and so give the same numbers, as before it was stored by action)."""
+        weight = getattr(self, name)
+        if name == "wh":
+            return weight.transpose(1, 2).contiguous()
+        runs, dims, n_actions, hidden = weight.shape
+        return weight.permute(0, 3, 2, 1).reshape(runs, hidden, n_actions * dims)
 
     def reset_parameters(self, gen: torch.Generator) -> None:
         """PyTorch's default init of every layer (uniform +-1/sqrt(fan in), each fit its own
@@ -131,9 +162,9 @@ class LatentPolicies(nn.Module):
         with torch.no_grad():
             self.mu.copy_(0.01 * torch.randn(self.mu.shape, generator=gen))
             for name, fan in self.fan_in.items():
-                weight = getattr(self, name)
                 bound = 1.0 / math.sqrt(fan)
-                weight.copy_((torch.rand(weight.shape, generator=gen) * 2 - 1) * bound)
+                drawn = (torch.rand(self.drawn[name], generator=gen) * 2 - 1) * bound
+                getattr(self, name).copy_(self.by_action(name, drawn))
 
     def step_nll(self, s, a, valid, traj, noise: torch.Tensor) -> torch.Tensor:
         """(rows, runs): -log pi(a_t | s_t, z) of each row under each fit, z = mu + sigma x
@@ -145,16 +176,13 @@ class LatentPolicies(nn.Module):
         h = tanh(torch.baddbmm(self.b2, h, self.w2))
         valid = as_legal(valid, a)
         if isinstance(valid, Legal):  # the legal pairs only (legal_actions)
-            hidden = h.shape[-1]
-            bilinear = self.wb.view(runs, hidden, n_actions, dims).permute(0, 3, 2, 1)
-            mod = linear_at(h[:, None], bilinear, None, valid)  # (runs, dims, P)
+            mod = linear_at(h[:, None], self.wb, None, valid)  # (runs, dims, P)
             mod = (mod * z.transpose(1, 2).index_select(2, valid.row)).sum(1)
-            head = self.wh.transpose(1, 2)
-            logits = linear_at(torch.cat([h, z], 2), head, self.bh[:, 0], valid) + mod
+            logits = linear_at(torch.cat([h, z], 2), self.wh, self.bh[:, 0], valid) + mod
             return -pair_log_probs(logits, valid).T
-        mod = torch.bmm(h, self.wb).view(runs, len(a), n_actions, dims)  # z scales the features
-        logits = torch.baddbmm(self.bh, torch.cat([h, z], 2), self.wh)
-        logits = logits + (mod * z[:, :, None]).sum(-1)
+        mod = torch.bmm(h, self.as_drawn("wb")).view(runs, len(a), n_actions, dims)
+        logits = torch.baddbmm(self.bh, torch.cat([h, z], 2), self.as_drawn("wh"))
+        logits = logits + (mod * z[:, :, None]).sum(-1)  # z also scales the features
         return -picked_log_probs(logits.transpose(0, 1), a, valid)
 
     def kl(self) -> torch.Tensor:
@@ -250,7 +278,10 @@ def latent_start(inputs, n: int, cfg, n_actions: int, seed: int) -> np.ndarray:
     (:func:`latent_plan`), :func:`joined`. One fit's partition moves with its seed on small logs
     (tictactoe 0.44-0.60 over eight seeds); with the consensus of eight, ``bag_auto`` rose on
     every seed of the five small design games of the zoo (docs/zoo-notebook.md, "A consensus of
-    latent fits on small logs")."""
+    latent fits on small logs"). On a log of many action ids and few legal, the fits see the ids
+    legal somewhere in it only (:func:`.legal_actions.on_legal_ids`)."""
     gen = torch.Generator().manual_seed(seed)
-    mu = fit_latents(tuple(t.cpu() for t in inputs), n, cfg, n_actions, gen)
+    s, a, valid, traj = (t.cpu() for t in inputs)
+    a, valid, n_actions = on_legal_ids(a, valid, n_actions)
+    mu = fit_latents((s, a, valid, traj), n, cfg, n_actions, gen)
     return joined(kmeans_each(mu, cfg.k, cfg.kmeans_n_init, seed), cfg.k, seed)

@@ -61,6 +61,22 @@ def as_legal(valid: torch.Tensor | Legal, actions: torch.Tensor) -> torch.Tensor
     return legal_pairs(valid, actions)
 
 
+def on_legal_ids(
+    actions: torch.Tensor, valid: torch.Tensor, n_actions: int
+) -> tuple[torch.Tensor, torch.Tensor, int]:
+    """(actions, valid, n_actions) renumbered over the ids legal somewhere in ``valid`` (or
+    taken), where :func:`sparse_pays`; as they are otherwise. An id never legal in the log is
+    never scored at the legal pairs, so its weights only cost memory and Adam's time: chess's
+    80-game log allows 1,745 of its 4,672 ids. Used by the latent start, whose networks live for
+    one fit; the saved policies keep the log's own ids."""
+    if not sparse_pays(valid):
+        return actions, valid, n_actions
+    used = valid.any(0)
+    used[actions] = True
+    new_id = torch.cumsum(used, 0) - 1
+    return new_id[actions], valid[:, used], int(used.sum())
+
+
 def pair_log_probs(logits: torch.Tensor, legal: Legal) -> torch.Tensor:
     """(..., rows): log softmax over each row's legal actions of the taken one, from the pairs'
     ``logits`` (..., P)."""
