@@ -106,3 +106,30 @@ def test_the_legal_pairs_give_the_same_numbers_on_one_or_two_threads():
         out.append(train_cells(cells, cfg))
     set_threads(1)
     np.testing.assert_array_equal(out[0].final_loss, out[1].final_loss)
+
+
+@pytest.mark.parametrize("n_actions", [1, 5, 31, 33, 96])
+def test_the_packed_mask_key_finds_the_same_distinct_rows_in_the_same_order(n_actions):
+    """dedupe_rows packs the valid masks 32 actions a key column: its rows, order, counts and
+    inverse are those of a key with one column per action (ties of state broken by the mask)."""
+    from pcpg_dist.stages.cell_rows import dedupe_rows
+
+    rng = np.random.default_rng(n_actions)
+    rows = 600
+    states = rng.integers(0, 3, (rows, 2)).astype(np.float32)  # few states: many ties
+    valid = rng.random((rows, n_actions)) < 0.5
+    valid[:, 0] = True
+    actions = rng.integers(0, n_actions, rows)
+    again = rng.integers(0, rows, 200)  # and some rows twice
+    states, valid, actions = (np.concatenate([x, x[again]]) for x in (states, valid, actions))
+    rows += 200
+    got = dedupe_rows(states, valid, actions, return_inverse=True)
+    key = np.concatenate(
+        [states.view(np.int32).astype(np.int64), valid.astype(np.int64), actions[:, None]], 1
+    )
+    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    assert len(first) < rows  # some rows repeat
+    for mine, want in zip(got[:3], (states[first], valid[first], actions[first]), strict=True):
+        np.testing.assert_array_equal(mine, want)
+    np.testing.assert_array_equal(got[3], np.bincount(inverse.reshape(-1)))
+    np.testing.assert_array_equal(got[4], inverse.reshape(-1))
