@@ -264,7 +264,7 @@ def _block(
     with their gradient)."""
     n_layers = len(sizes) - 1
     n_actions = sizes[n_layers]
-    dense = len(sp[0]) == 0  # else the output layer is the legal pairs' (each call site once)
+    dense = len(sp[0]) == 0  # no pairs given: the dense softmax
     _forward(h, th, negb, sizes, w_off, b_off, rows, relu, n_layers if dense else n_layers - 1)
     if dense:
         lg = h[n_layers]

@@ -129,9 +129,9 @@ class LatentPolicies(nn.Module):
         }
         self.fan_in = {name: fan for name, (fan, _) in shapes.items()}
         self.drawn = {name: (runs, *shape) for name, (_, shape) in shapes.items()}
-        for name in shapes:
-            stored = self.by_action(name, torch.empty(self.drawn[name]))
-            setattr(self, name, nn.Parameter(torch.empty(stored.shape)))
+        for name, shape in self.drawn.items():  # the stored shape, read off a storage-free view
+            stored = self.by_action(name, torch.empty(shape, device="meta")).shape
+            setattr(self, name, nn.Parameter(torch.empty(stored)))
 
     def by_action(self, name: str, drawn: torch.Tensor) -> torch.Tensor:
         """How a weight drawn in its layer's shape is stored: the head's and the bilinear term's
