@@ -12,7 +12,9 @@ compile where they run.
 
 It runs the public entry points on a tiny problem built as a log is (never hand-typed dummies:
 the argument types, and so the compiled specialisations, are exactly those of a run): greedy_mix
-on a few random walks over one-hot states, one BC step on them.
+on a few random walks over one-hot states, one BC step on them, and policy_mix on walks of many
+action ids with a few legal a step (the legal pairs' kernels, :mod:`..stages.clustering.
+legal_actions`, which a board game's log of thousands of move ids runs on).
 
     python -m pcpg_dist.cli.warm_kernels
 """
@@ -29,6 +31,9 @@ PACKAGE = Path(__file__).resolve().parents[1]
 #: (module folder under the package, the cache index's name prefix) of each kernel warmed here
 KERNELS = (
     ("stages/clustering", "greedy_likelihood._ascend-"),
+    ("stages/clustering", "legal_actions._forward-"),
+    ("stages/clustering", "legal_actions._grad_x-"),
+    ("stages/clustering", "legal_actions._grad_w-"),
     ("stages/bc", "kernel.train_kernel-"),
 )
 
@@ -91,6 +96,34 @@ def warm() -> None:
     cluster(ds, ClusterConfig(method="greedy_mix", k=2, confidence_runs=0), 0)
     units = plan_cells(ds, ds.styles, np.arange(8), RankConfig(ps=(1.0,)), [0])
     train_cells(units[:1], BCConfig(epochs=1))
+    many = many_action_walks(rng)
+    cluster(many, ClusterConfig(method="policy_mix", k=2, confidence_runs=0, latent_steps=2), 0)
+
+
+def many_action_walks(rng, n_actions: int = 64, legal: int = 4):
+    """Eight walks over one-hot states whose steps allow ``legal`` of ``n_actions`` ids (the
+    first taken): few enough that the clusterers score the legal pairs only
+    (:mod:`pcpg_dist.stages.legal_share`)."""
+    import numpy as np
+
+    from pcpg_dist.dataset import Dataset
+
+    walks = []
+    for _ in range(8):
+        allowed = np.stack([rng.permutation(n_actions)[:legal] for _ in range(9)])
+        valid = np.zeros((9, n_actions), bool)
+        np.put_along_axis(valid, allowed, True, axis=1)
+        walks.append(
+            {
+                "states": np.eye(5, dtype=np.float32)[rng.integers(0, 5, 9)],
+                "actions": allowed[:8, 0],
+                "valid": valid,
+                "rewards": np.ones(8),
+            }
+        )
+    return Dataset.from_trajectories(
+        "warmup", "moves", n_actions, walks, np.arange(8) % 2, np.ones(8, bool)
+    )
 
 
 if __name__ == "__main__":
