@@ -1,6 +1,7 @@
 """Experiment: does the fine-tune check's trial pick the agent that does better on test steps?
 
     uv run python -m benchmarks.zoo.finetune_trial_exp ZOO_DIR [GAME ...] [--shares 0.2 0.5]
+        [--held-out] [--threads 1]
 
 For each design game (held-out games are refused: this chose ``bc.finetune_check``), built by
 ``benchmarks.zoo.build`` into ZOO_DIR: the default clustering (seed 0), the No Clustering agent
@@ -8,7 +9,10 @@ and each cluster's fine-tune from it at p = 1, as ``bc.init: auto`` trains them 
 unit. Per cluster, and per share of held-out steps: the fair trial's verdict
 (:func:`pcpg_dist.stages.bc.finetune.kept_starts`, fine-tune or No Clustering) beside which of
 the two agents is more accurate on that cluster's test steps. Printed: each cell, and per share
-how many verdicts agree.
+how many verdicts agree; then, at the largest share, each trial's margins: the fine-tune's
+accuracy less No Clustering's on the held-out steps, the paired difference's standard error, and
+both agents' cross-entropy there (what a stricter rule would read). ``--held-out``: also the
+held-out games, read after a decision (never to choose one).
 """
 
 from __future__ import annotations
@@ -25,7 +29,7 @@ from pcpg_dist.config import parse_config
 from pcpg_dist.domains import contract
 from pcpg_dist.pipeline.units import cluster_unit, plan_unit
 from pcpg_dist.stages.bc import bases_of, finetune_config, init_from, split_for_init, train_cells
-from pcpg_dist.stages.bc.finetune import kept_starts
+from pcpg_dist.stages.bc.finetune import kept_starts, scores, trial
 
 
 def game_cells(zoo: Path, name: str):
@@ -59,8 +63,10 @@ def main() -> None:
     ap.add_argument("zoo", type=Path, help="a folder from benchmarks.zoo.build")
     ap.add_argument("games", nargs="*")
     ap.add_argument("--shares", type=float, nargs="+", default=[0.2, 0.5])
+    ap.add_argument("--held-out", action="store_true", help="held-out games too, read after")
+    ap.add_argument("--threads", type=int, default=1, help="torch threads (pcpg run's: its CPUs)")
     args = ap.parse_args()
-    set_threads(1)
+    set_threads(args.threads)
     agree = {share: [0, 0] for share in args.shares}
     print(
         "| game | cell | test steps | fine-tune on test | No Clustering on test | "
@@ -68,7 +74,9 @@ def main() -> None:
         + " |"
     )
     print("|---|---|---|---|---|" + "---|" * len(args.shares))
-    for name in design_games(args.games, ap.error):
+    games = args.games if args.held_out and args.games else design_games(args.games, ap.error)
+    margins = []
+    for name in games:
         unit, labels, base, rest, tuned, bases, cfg = game_cells(args.zoo, name)
         nc_at = [base.index(b.spec.key) for b in bases]
         verdicts = {}
@@ -89,8 +97,36 @@ def main() -> None:
                 f"| {name} | {c.spec.key} | {n} | {ft:.3f} | {nc:.3f} | " + " | ".join(said) + " |",
                 flush=True,
             )
+        ft_cfg = finetune_config(cfg.bc).model_copy(update={"finetune_check": max(args.shares)})
+        margins += [
+            (name, rest[i].spec.key, *m) for i, m in trial_margins(rest, ft_cfg, bases, cfg)
+        ]
     for share, (right, total) in agree.items():
         print(f"share {share:g}: the trial agrees with the test steps on {right} of {total} cells")
+    print(
+        f"\n| game | cell | held-out steps ({max(args.shares):g}) | fine-tune - NC accuracy | "
+        "its standard error | fine-tune cross-entropy | NC cross-entropy |"
+    )
+    print("|---|---|---|---|---|---|---|")
+    for name, key, n, diff, se, loss, loss0 in margins:
+        print(f"| {name} | {key} | {n:.0f} | {diff:+.4f} | {se:.4f} | {loss:.3f} | {loss0:.3f} |")
+
+
+def trial_margins(rest, ft_cfg, bases, cfg):
+    """[(cell index, (held-out steps, accuracy difference, its standard error over the paired
+    steps, the fine-tune's cross-entropy, No Clustering's))] of each checked cell's trial."""
+    checked, trial_bases, tuned, helds = trial(rest, ft_cfg, bases, cfg.bc)
+    out = []
+    for j, i in enumerate(checked):
+        states, valid, actions, w = helds[j]
+        d = (tuned.predict(states, valid, j) == actions).astype(float)
+        d -= trial_bases.predict(states, valid, j) == actions
+        total = w.sum()
+        diff = float(w @ d / total)
+        se = float(np.sqrt(w @ (d - diff) ** 2 / (total * (total - 1))))
+        loss, loss0 = scores(tuned, j, helds[j])[1], scores(trial_bases, j, helds[j])[1]
+        out.append((i, (total, diff, se, loss, loss0)))
+    return out
 
 
 if __name__ == "__main__":
