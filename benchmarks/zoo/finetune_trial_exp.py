@@ -6,8 +6,8 @@
 For each design game (held-out games are refused: this chose ``bc.finetune_check``), built by
 ``benchmarks.zoo.build`` into ZOO_DIR: the default clustering (seed 0), the No Clustering agent
 and each cluster's fine-tune from it at p = 1, as ``bc.init: auto`` trains them for a doubted
-unit. Per cluster, and per share of held-out steps: the fair trial's verdict
-(:func:`pcpg_dist.stages.bc.finetune.kept_starts`, fine-tune or No Clustering) beside which of
+unit. Per cluster, and per share of held-out steps: the fair trial's verdict (the rule of
+:func:`pcpg_dist.stages.bc.finetune.kept_starts`, fine-tune or No Clustering) beside which of
 the two agents is more accurate on that cluster's test steps. Printed: each cell, and per share
 how many verdicts agree; then, at the largest share, each trial's margins: the fine-tune's
 accuracy less No Clustering's on the held-out steps, the paired difference's standard error, and
@@ -29,7 +29,7 @@ from pcpg_dist.config import parse_config
 from pcpg_dist.domains import contract
 from pcpg_dist.pipeline.units import cluster_unit, plan_unit
 from pcpg_dist.stages.bc import bases_of, finetune_config, init_from, split_for_init, train_cells
-from pcpg_dist.stages.bc.finetune import kept_starts, scores, trial
+from pcpg_dist.stages.bc.finetune import kept_of, scores, trial
 
 
 def game_cells(zoo: Path, name: str):
@@ -79,10 +79,11 @@ def main() -> None:
     for name in games:
         unit, labels, base, rest, tuned, bases, cfg = game_cells(args.zoo, name)
         nc_at = [base.index(b.spec.key) for b in bases]
-        verdicts = {}
+        trials = {}  # share -> one trial's outcome: its verdicts, and its margins at the largest
         for share in args.shares:
             ft_cfg = finetune_config(cfg.bc).model_copy(update={"finetune_check": share})
-            verdicts[share] = kept_starts(rest, ft_cfg, bases, cfg.bc)
+            trials[share] = trial(rest, ft_cfg, bases, cfg.bc)
+        verdicts = {share: kept_of(*outcome) for share, outcome in trials.items()}
         for i, c in enumerate(rest):
             ft, n = test_accuracy(unit, labels, tuned, i, c.spec.k)
             nc, _ = test_accuracy(unit, labels, base, nc_at[i], c.spec.k)
@@ -97,9 +98,8 @@ def main() -> None:
                 f"| {name} | {c.spec.key} | {n} | {ft:.3f} | {nc:.3f} | " + " | ".join(said) + " |",
                 flush=True,
             )
-        ft_cfg = finetune_config(cfg.bc).model_copy(update={"finetune_check": max(args.shares)})
         margins += [
-            (name, rest[i].spec.key, *m) for i, m in trial_margins(rest, ft_cfg, bases, cfg)
+            (name, rest[i].spec.key, *m) for i, m in trial_margins(trials[max(args.shares)])
         ]
     for share, (right, total) in agree.items():
         print(f"share {share:g}: the trial agrees with the test steps on {right} of {total} cells")
@@ -112,10 +112,11 @@ def main() -> None:
         print(f"| {name} | {key} | {n:.0f} | {diff:+.4f} | {se:.4f} | {loss:.3f} | {loss0:.3f} |")
 
 
-def trial_margins(rest, ft_cfg, bases, cfg):
+def trial_margins(outcome):
     """[(cell index, (held-out steps, accuracy difference, its standard error over the paired
-    steps, the fine-tune's cross-entropy, No Clustering's))] of each checked cell's trial."""
-    checked, trial_bases, tuned, helds = trial(rest, ft_cfg, bases, cfg.bc)
+    steps, the fine-tune's cross-entropy, No Clustering's))] of each checked cell of one
+    :func:`~pcpg_dist.stages.bc.finetune.trial`'s ``outcome``."""
+    checked, trial_bases, tuned, helds = outcome
     out = []
     for j, i in enumerate(checked):
         states, valid, actions, w = helds[j]

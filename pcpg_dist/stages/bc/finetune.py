@@ -70,7 +70,11 @@ def kept_starts(
     trial's fine-tune predicts the held-out steps no better (accuracy; at equal accuracy,
     cross-entropy). Stricter rules were read on the zoo's design games and agreed less often
     with the test steps (docs/zoo-notebook.md, "The fine-tune check's margins")."""
-    checked, trained_bases, tuned, helds = trial(cells, cfg, bases, base_cfg)
+    return kept_of(*trial(cells, cfg, bases, base_cfg))
+
+
+def kept_of(checked, trained_bases, tuned, helds) -> set[int]:
+    """:func:`kept_starts`' rule applied to one :func:`trial`'s outcome."""
     keep = set()
     for j, i in enumerate(checked):
         (acc, loss), (acc0, loss0) = scores(tuned, j, helds[j]), scores(trained_bases, j, helds[j])
