@@ -4,9 +4,10 @@ different numbers, and always say what to fix.
 
 Every sweep here is a real ``pcpg run`` in its own process (with its own in-process Ray), so it
 can be killed. Each starts its own session; the test kills what it started, by pid, and checks
-that no Ray process of a killed driver is left behind. The data unit of the reference run is
-copied into the other sweeps' caches (the cache reuses it), so only the determinism test pays for
-generating data twice.
+that no Ray process of a killed driver is left behind. The reference runs on 1 Ray CPU and every
+other sweep on 2, so each comparison with it is also one of determinism across CPU counts; the
+killed-worker sweep generates its data afresh (bit-identical Parquet files), the others copy the
+reference's data unit into their caches (the cache reuses it).
 """
 
 from __future__ import annotations
@@ -216,20 +217,26 @@ def cfg_path(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def reference(cfg_path, tmp_path_factory) -> dict:
-    """An undisturbed sweep from scratch with 2 Ray CPUs: the numbers every fault must reproduce."""
+    """An undisturbed sweep from scratch on 1 Ray CPU: the numbers every fault must reproduce,
+    on 2 CPUs."""
     base = tmp_path_factory.mktemp("reference")
     work = base / "runs"
-    finished(run_argv(cfg_path, work, None, cpus=2), base, base / "out.log")
+    finished(run_argv(cfg_path, work, None, cpus=1), base, base / "out.log")
     manifest = json.loads(
         next((work / NAME / "cache" / "data").glob("*/manifest.json")).read_text()
     )
     metrics = summary_metrics(work)
     # Real numbers, not placeholders: the agents imitate their styles far above chance.
     assert metrics["pcpg/accuracy/p1"] > metrics["random/accuracy"] + 0.2, metrics
+    assert {k: v for k, v in run_info(work)["computed"].items() if k != "data"} == {
+        "clustering": 1,
+        "train_groups": 1,  # one CPU: one training group
+        "evaluations": 1,
+    }
     return {"work": work, "metrics": metrics, "manifest": manifest}
 
 
-# --------------------------------------------------------------------------- 4. determinism
+# ------------------------------------------------ 4. determinism: the reference (1 CPU) against 2 CPUs
 def parquet_hashes(work: Path) -> dict[str, str]:
     """The manifest's sha256 per file, after checking each against the bytes on disk."""
     folder = next((work / NAME / "cache" / "data").glob("*/manifest.json")).parent
@@ -239,26 +246,12 @@ def parquet_hashes(work: Path) -> dict[str, str]:
     return {name: entry["sha256"] for name, entry in files.items()}
 
 
-@pytest.mark.slow
-def test_same_seed_same_bits_with_1_or_2_ray_cpus(reference, cfg_path, tmp_path):
-    """A fresh sweep on 1 Ray CPU: bit-identical Parquet files and identical metrics to 2 CPUs."""
-    work = tmp_path / "runs"
-    finished(run_argv(cfg_path, work, None, cpus=1), tmp_path, tmp_path / "out.log")
-    assert parquet_hashes(work) == parquet_hashes(reference["work"])
-    assert results_only(summary_metrics(work)) == results_only(reference["metrics"])
-    assert {k: v for k, v in run_info(work)["computed"].items() if k != "data"} == {
-        "clustering": 1,
-        "train_groups": 1,  # one CPU: one training group
-        "evaluations": 1,
-    }
-
-
 # --------------------------------------------------------------------------- 1. a worker dies
 @pytest.mark.slow
 def test_killed_ray_worker_is_retried_with_identical_results(reference, cfg_path, tmp_path):
-    """SIGKILL the worker running the clustering task: Ray retries it, the numbers do not change."""
+    """SIGKILL the worker running the clustering task: Ray retries it, the numbers do not change.
+    The sweep makes its data itself, on 2 CPUs: the same bits as the reference's on 1."""
     work = tmp_path / "runs"
-    seed_data_cache(reference, work)
     with sweep(run_argv(cfg_path, work, None), tmp_path, tmp_path / "out.log") as s:
 
         def clustering_worker():
@@ -288,6 +281,7 @@ def test_killed_ray_worker_is_retried_with_identical_results(reference, cfg_path
         assert retry.pid != victim.pid
         code = s.wait()
         assert code == 0, s.output()[-4000:]
+    assert parquet_hashes(work) == parquet_hashes(reference["work"])
     assert results_only(summary_metrics(work)) == results_only(reference["metrics"])
     assert {k: v for k, v in run_info(work)["computed"].items() if k != "data"} == {
         "clustering": 1,

@@ -396,7 +396,7 @@ def test_a_streamed_log_runs_over_both_nodes_with_no_shared_disk(cluster):
 
     drv = cluster["drv"]
     # PCPG_NODES_TRAJECTORIES=1000000 makes this the million-trajectory run of docs/scale.md
-    n = int(os.environ.get("PCPG_NODES_TRAJECTORIES", "1500"))
+    n = int(os.environ.get("PCPG_NODES_TRAJECTORIES", "600"))
     write_styled_log(drv / "big.parquet", n, d=8 if n <= 10_000 else 32, seed=2)
     cfg = {
         "name": "streamed",

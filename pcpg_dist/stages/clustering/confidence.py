@@ -30,7 +30,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from sklearn.metrics import adjusted_rand_score
 
 #: stability at or above which the verdict is "styles found"; at or above WEAK, "weak evidence"
 FOUND = 0.85
@@ -40,6 +39,8 @@ MERGED = 0.5  # overlap of two clusters' refit distributions above which they lo
 
 def stability(dataset, cfg, seed: int, labels: np.ndarray, runs: int, fraction: float) -> dict:
     """Refit ``cfg``'s method ``runs`` times on seeded subsamples; the metrics of the module doc."""
+    from sklearn.metrics import adjusted_rand_score  # here: a run's driver reads verdicts only
+
     from pcpg_dist.stages.clustering.step import cluster_once as cluster
 
     labels = np.asarray(labels)
