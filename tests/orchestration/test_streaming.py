@@ -52,7 +52,7 @@ def run(cfg, out: Path):
 
 @pytest.fixture(scope="module")
 def streamed(ray_session, log, tmp_path_factory):
-    """One streamed run of the module's log (two tests read it)."""
+    """One streamed run of the module's log (several tests read it)."""
     return run(config(log), tmp_path_factory.mktemp("streamed-run"))
 
 
@@ -122,16 +122,14 @@ def test_a_minari_dataset_streams_like_the_same_log_in_parquet(
     assert m["pcpg/accuracy/p1"] >= m["baseline/accuracy/p1"] + 0.15
 
 
-@pytest.mark.slow  # two streamed runs besides the module's
+@pytest.mark.slow  # a streamed run besides the module's
 def test_the_same_seed_gives_the_same_numbers_however_the_log_is_cut(
     streamed, log, tmp_path, monkeypatch
 ):
+    """(The same log in one file gives the same numbers twice: the MLflow test's run.)"""
     from pcpg_dist.domains.trajectories import stream_meta
 
     first = streamed  # the module's run of the same config, in a folder of its own
-    again = run(config(log), tmp_path / "b")
-    assert first.metrics == again.metrics
-    assert first.clustering == again.clustering
     # the same trajectories as a folder of 3 files, read in 7 blocks: the same clusters
     folder = tmp_path / "parts"
     folder.mkdir()
@@ -203,20 +201,23 @@ def test_a_named_score_column_needs_the_in_memory_pipeline(log):
         stream_source(config(log, trajectories={"score": "skill"}))
 
 
-def test_a_streamed_run_is_one_mlflow_run_with_its_log_as_input(ray_session, log, tmp_path):
+def test_a_streamed_run_is_one_mlflow_run_with_its_log_as_input(streamed, log, tmp_path):
+    """The module's config again, tracked, in another folder: one MLflow run, and the same
+    numbers as the module's run (the same seed, run twice)."""
     from mlflow.tracking import MlflowClient
 
     from pcpg_dist.api.run import run_experiment
 
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     res = run_experiment(
-        config(log, ranking={"ps": [1.0]}),
+        config(log),
         workdir=tmp_path / "runs",
         tracking_uri=uri,
         track=True,
         show_progress=False,
         command="pcpg run streamed.yaml",
     )
+    assert res.metrics == streamed.metrics and res.clustering == streamed.clustering
     run = MlflowClient(uri).get_run(res.parent_run_id)
     m = run.data.metrics
     assert m["pcpg/accuracy/p1"] == pytest.approx(res.metrics["pcpg/accuracy/p1"])
