@@ -196,6 +196,11 @@ def run_info(work: Path) -> dict:
     return json.loads((work / NAME / "summary" / "run.json").read_text())
 
 
+def units_computed(info: dict) -> dict[str, int]:
+    """What a sweep's ``run.json`` says it computed, but the data (copied in by some tests)."""
+    return {k: v for k, v in info["computed"].items() if k != "data"}
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -222,18 +227,15 @@ def reference(cfg_path, tmp_path_factory) -> dict:
     base = tmp_path_factory.mktemp("reference")
     work = base / "runs"
     finished(run_argv(cfg_path, work, None, cpus=1), base, base / "out.log")
-    manifest = json.loads(
-        next((work / NAME / "cache" / "data").glob("*/manifest.json")).read_text()
-    )
     metrics = summary_metrics(work)
     # Real numbers, not placeholders: the agents imitate their styles far above chance.
     assert metrics["pcpg/accuracy/p1"] > metrics["random/accuracy"] + 0.2, metrics
-    assert {k: v for k, v in run_info(work)["computed"].items() if k != "data"} == {
+    assert units_computed(run_info(work)) == {
         "clustering": 1,
         "train_groups": 1,  # one CPU: one training group
         "evaluations": 1,
     }
-    return {"work": work, "metrics": metrics, "manifest": manifest}
+    return {"work": work, "metrics": metrics}
 
 
 # ------------------------------------------------ 4. determinism: the reference (1 CPU) against 2 CPUs
@@ -283,7 +285,7 @@ def test_killed_ray_worker_is_retried_with_identical_results(reference, cfg_path
         assert code == 0, s.output()[-4000:]
     assert parquet_hashes(work) == parquet_hashes(reference["work"])
     assert results_only(summary_metrics(work)) == results_only(reference["metrics"])
-    assert {k: v for k, v in run_info(work)["computed"].items() if k != "data"} == {
+    assert units_computed(run_info(work)) == {
         "clustering": 1,
         "train_groups": 2,  # one training group per CPU slot
         "evaluations": 1,
@@ -464,7 +466,7 @@ def test_server_lost_mid_sweep_keeps_results_and_rerun_uploads_them(reference, c
         assert "Traceback" not in out
         # Everything local is there and right: units done, summary tables, the same numbers.
         first = run_info(work)
-        assert {k: v for k, v in first["computed"].items() if k != "data"} == {
+        assert units_computed(first) == {
             "clustering": 1,
             "train_groups": 2,  # one training group per CPU slot
             "evaluations": 1,
