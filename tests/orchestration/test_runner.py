@@ -423,3 +423,26 @@ def test_a_few_clustering_jobs_share_every_cpu(cpus, smallest, jobs, floor, want
     point = SimpleNamespace(cfg=SimpleNamespace(runner=SimpleNamespace(cpus_per_task=floor)))
     batch = Batch([point], cache=None, executor=_Cluster(cpus, smallest), show_progress=False)
     assert batch.spread(jobs) == want
+
+
+def test_the_driver_plans_training_without_torch():
+    """A run's driver imports the runner, asks where BC trains and splits a unit's cells for
+    ``bc.init`` without importing torch or an engine (torch alone was ~2 s of every run's CPU)."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys; import pcpg_dist.orchestration.runner; "
+        "from pcpg_dist.config.stages import BCConfig; "
+        "from pcpg_dist.orchestration.resources import bc_gpus; "
+        "from pcpg_dist.stages.bc import TrainedCells, finetune_config, split_for_init; "
+        "from pcpg_dist.stages.ranking import CellSpec; "
+        "specs = [CellSpec('nc', 'nc', -1, 1.0, 0), CellSpec('c0', 'pcpg', 0, 1.0, 0)]; "
+        "first, rest = split_for_init(specs, BCConfig(init='no_clustering')); "
+        "assert [s.key for s in first] == ['nc'] and [s.key for s in rest] == ['c0']; "
+        "assert finetune_config(BCConfig(init='auto', epochs=500)).epochs < 500; "
+        "assert TrainedCells.FILES == ('cells.pt', 'cells.json'); "
+        "print(sorted(m for m in ('torch', 'numba', 'pcpg_dist.stages.bc.train') if m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]", out.stdout + out.stderr

@@ -12,33 +12,48 @@ The package's public face; its modules, one concern each:
   :mod:`~pcpg_dist.stages.bc.numba_engine` and :mod:`~pcpg_dist.stages.bc.kernel` (the compiled
   CPU kernel); :mod:`~pcpg_dist.stages.bc.network` holds what both engines share.
 - :mod:`~pcpg_dist.stages.bc.reference_loss`: the autograd loss the tests check the engines with.
+
+Every name is imported when first used (as :mod:`pcpg_dist` does), so a run's driver that only
+plans the cells (:func:`split_for_init`, :data:`TrainedCells.FILES`, :func:`runs_on_cpu_only`)
+does not import torch or an engine: torch alone costs every ``pcpg run`` about 2 s of CPU.
 """
 
-from pcpg_dist.stages.bc.device import bc_device, runs_on_cpu_only
-from pcpg_dist.stages.bc.finetune import bases_of, finetune_cells
-from pcpg_dist.stages.bc.network import init_params, layer_sizes
-from pcpg_dist.stages.bc.plan import finetune_config, init_from, split_for_init, train_plan
-from pcpg_dist.stages.bc.reference_loss import weighted_loss_and_grad
-from pcpg_dist.stages.bc.train import check_finite, train_cells
-from pcpg_dist.stages.bc.trained import TrainedCells
-from pcpg_dist.stages.bc.validation import ACTIVATIONS, CELL_KINDS, check_cells
+from __future__ import annotations
 
-__all__ = [
-    "ACTIVATIONS",
-    "CELL_KINDS",
-    "TrainedCells",
-    "bases_of",
-    "bc_device",
-    "check_cells",
-    "check_finite",
-    "finetune_cells",
-    "finetune_config",
-    "init_from",
-    "init_params",
-    "layer_sizes",
-    "runs_on_cpu_only",
-    "split_for_init",
-    "train_cells",
-    "train_plan",
-    "weighted_loss_and_grad",
-]
+import importlib
+from typing import Any
+
+#: public name -> the module that defines it
+_MODULES = {
+    "bc_device": "device",
+    "runs_on_cpu_only": "device",
+    "bases_of": "finetune",
+    "finetune_cells": "finetune",
+    "init_params": "network",
+    "layer_sizes": "network",
+    "finetune_config": "plan",
+    "init_from": "plan",
+    "split_for_init": "plan",
+    "train_plan": "plan",
+    "weighted_loss_and_grad": "reference_loss",
+    "check_finite": "train",
+    "train_cells": "train",
+    "TrainedCells": "trained",
+    "ACTIVATIONS": "validation",
+    "CELL_KINDS": "validation",
+    "check_cells": "validation",
+}
+__all__ = sorted(_MODULES)
+
+
+def __getattr__(name: str) -> Any:
+    module = _MODULES.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
+    globals()[name] = value  # imported once
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__)

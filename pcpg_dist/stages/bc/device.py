@@ -6,11 +6,14 @@ tasks on CPUs or a GPU), without importing either engine.
 
 from __future__ import annotations
 
-import torch
+from typing import TYPE_CHECKING
 
 from pcpg_dist.common.devices import resolve_device
 from pcpg_dist.common.errors import ConfigError
 from pcpg_dist.config.stages import BCConfig
+
+if TYPE_CHECKING:  # torch is imported where a device is made: the runner's driver never does
+    import torch
 
 
 def runs_on_cpu_only(cfg: BCConfig) -> bool:
@@ -21,6 +24,8 @@ def runs_on_cpu_only(cfg: BCConfig) -> bool:
 
 def bc_device(cfg: BCConfig) -> torch.device:
     """Where ``cfg`` trains: ``bc.device``, with ``auto`` on the CPU for CPU-only settings."""
+    import torch
+
     if cfg.device == "auto" and runs_on_cpu_only(cfg):
         return torch.device("cpu")
     return resolve_device(cfg.device, "bc.device")

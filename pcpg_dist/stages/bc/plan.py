@@ -2,7 +2,8 @@
 the No Clustering agent of the same p and seed).
 
 Why apart from :mod:`~pcpg_dist.stages.bc.train`: the runner runs the two rounds as separate
-Ray tasks and needs the split, the starting parameters and the fine-tuning settings on their own.
+Ray tasks and needs the split, the starting parameters and the fine-tuning settings on their own,
+in its driver, without torch or an engine.
 """
 
 from __future__ import annotations
@@ -14,8 +15,6 @@ import numpy as np
 
 from pcpg_dist.common.errors import DataError
 from pcpg_dist.config.stages import BCConfig
-from pcpg_dist.stages.bc.finetune import bases_of, finetune_cells
-from pcpg_dist.stages.bc.train import train_cells
 from pcpg_dist.stages.bc.trained import TrainedCells
 from pcpg_dist.stages.ranking import Cell, CellSpec
 
@@ -82,6 +81,10 @@ def train_plan(cells: Sequence[Cell], cfg: BCConfig, doubted: bool = False) -> T
     """Train a unit's planned cells in this process, honouring ``bc.init`` (``doubted``: whether
     the unit's clustering verdict doubts its styles, for auto; the runner does the same as two
     rounds of Ray tasks)."""
+    # here, not at the top: the runner's driver plans with this module and never trains
+    from pcpg_dist.stages.bc.finetune import bases_of, finetune_cells
+    from pcpg_dist.stages.bc.train import train_cells
+
     first, rest = split_for_init(cells, cfg, doubted)
     base = train_cells(first, cfg)
     if not rest:

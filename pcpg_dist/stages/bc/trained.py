@@ -14,7 +14,6 @@ from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
-import torch
 
 from pcpg_dist.common.errors import ConfigError, DataError, first_line
 from pcpg_dist.domains.base import Policy
@@ -183,6 +182,8 @@ class TrainedCells:
     # ------------------------------------------------------------------ files
     def save(self, path: str | Path) -> Path:
         """``path.pt`` (a tensor state dict, loadable with ``weights_only=True``) + ``path.json``."""
+        import torch  # here: the runner's driver reads FILES and joins agents without torch
+
         path = Path(path).with_suffix("")
         path.parent.mkdir(parents=True, exist_ok=True)
         # copies: arrays a Ray task returned are read-only views of the object store
