@@ -19,7 +19,7 @@ import contextlib
 import functools
 import json
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -253,7 +253,7 @@ def _train(batch: Batch, stage: Stage) -> None:
     no_clustering (auto: by the unit's clustering verdict) a second round trains the other
     cells, each from the first round's No Clustering agent."""
     from pcpg_dist.pipeline.units import plan_unit_specs
-    from pcpg_dist.stages.bc import TrainedCells, finetune_config, split_for_init
+    from pcpg_dist.stages.bc import finetune_config, split_for_init
     from pcpg_dist.stages.clustering.confidence import verdict_of
 
     later: list[tuple[Point, str, list, tuple, list[str]]] = []
@@ -289,12 +289,9 @@ def _train(batch: Batch, stage: Stage) -> None:
     if later:
         jobs = {}
         for p, e, rest, plan, base_keys in later:
-            # read only when some group of this unit is not cached yet
-            base = functools.cache(
-                lambda keys=tuple(base_keys): TrainedCells.concat(
-                    [TrainedCells.load(batch.cache.path("train", k) / "cells") for k in keys]
-                )
-            )
+            # the No Clustering agents' files, read only when some group of this unit is not
+            # cached yet; each task reads them itself (the driver loads no tensors, no torch)
+            base = functools.cache(lambda keys=tuple(base_keys): trained_files(batch.cache, keys))
             bc_cfg = finetune_config(p.cfg.bc)
             _add_groups(p, e, rest, plan, batch.cache, jobs, bc_cfg, base_keys, base, slots(p))
         batch.computed[stage.counter] += batch.run_jobs(
@@ -319,9 +316,7 @@ def _add_groups(
     one unit's training uses every CPU; each group is a content-keyed training job (unless
     cached) that builds its cells from ``plan`` (the unit, its labels and margins, the config).
     A cell trains the same in any group (tests/stages/test_bc.py::test_batched_equals_alone).
-    With ``base`` (returns the No Clustering agents) each cell starts from its own."""
-    from pcpg_dist.stages.bc import init_from
-
+    With ``base`` (returns the No Clustering agents' files) each cell starts from its own."""
     cfg = p.cfg
     size = max(1, min(cfg.runner.group_size, -(-len(cells) // max(1, slots))))
     for g in range(0, len(cells), size):
@@ -334,27 +329,31 @@ def _add_groups(
                 [c.key for c in chunk],
                 bc_cfg,
                 cfg.runner.cpus_per_task,
-                None if base is None else init_from(chunk, base()),
+                None if base is None else base(),
             )
+
+
+def trained_files(cache: Cache, keys: Sequence[str]) -> list[dict[str, bytes]]:
+    """The files of each trained group of ``keys``, as bytes: what a task reads them from (the
+    driver parsed every environment's tensors itself, ~8 ms each of its serial work, and
+    imported torch to)."""
+    from pcpg_dist.stages.bc import TrainedCells
+
+    return [
+        {n: (cache.path("train", k) / n).read_bytes() for n in TrainedCells.FILES} for k in keys
+    ]
 
 
 # --------------------------------------------------------------------------- evaluation
 def _evaluate(batch: Batch, stage: Stage) -> None:
     """One evaluation per environment (MLflow child runs are the hooks', after the summary)."""
-    from pcpg_dist.stages.bc import TrainedCells
-
     jobs: dict[str, tuple] = {}
     for p in batch.points:
         for e in p.units:
             tkeys = p.train_keys(e)
             p.ekeys[e] = k = declared.evaluate_key(tkeys, p.cfg)
             if k not in jobs and batch.cache.done("evaluate", k) is None:
-                # the trained files as bytes: the task reads them (the driver parsed every
-                # environment's tensors here, ~8 ms each of its serial work)
-                trained = [
-                    {n: (batch.cache.path("train", t) / n).read_bytes() for n in TrainedCells.FILES}
-                    for t in tkeys
-                ]
+                trained = trained_files(batch.cache, tkeys)
                 labels, margins = clusters_of(batch.clusters[p.ckeys[e]])
                 model = batch.cache.path("cluster", p.ckeys[e]) / "model"
                 jobs[k] = (

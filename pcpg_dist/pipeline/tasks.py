@@ -44,27 +44,29 @@ def train_task(
     keys: list[str],
     bc_cfg,
     threads: int,
-    init: list | None = None,
+    base: list[dict[str, bytes]] | None = None,
 ) -> dict:
     """Build one group of cells (Step B for the cells of ``keys`` of the unit's plan, here and
     not in the driver) and train them in one vectorised pass; returns the trained ensemble's
     files (:meth:`~pcpg_dist.stages.bc.TrainedCells.to_files`: the driver only writes them).
-    ``init``: the cells' starting parameters (``bc.init: no_clustering``; fine-tuned by
-    :func:`~pcpg_dist.stages.bc.finetune_cells`, which checks a fine-tune against the No
-    Clustering cells under ``bc.init: auto``)."""
+    ``base``: the files of the unit's No Clustering agents (``bc.init: no_clustering``): each
+    cell starts from the one of its p and seed (:func:`~pcpg_dist.stages.bc.init_from`) and is
+    fine-tuned by :func:`~pcpg_dist.stages.bc.finetune_cells`, which checks a fine-tune against
+    the No Clustering cells under ``bc.init: auto``. Read here, so the driver needs no torch."""
     from pcpg_dist.pipeline.units import plan_unit
-    from pcpg_dist.stages.bc import bases_of, finetune_cells, train_cells
+    from pcpg_dist.stages.bc import TrainedCells, bases_of, finetune_cells, init_from, train_cells
     from pcpg_dist.stages.bc.finetune import checks
 
     set_threads(threads)
-    checked = init is not None and checks(bc_cfg)  # the starts' No Clustering cells too
+    checked = base is not None and checks(bc_cfg)  # the starts' No Clustering cells too
     extra = nc_keys(unit, labels, cfg, margins) if checked else []
     every = plan_unit(unit, labels, cfg, margins=margins, only=keys + extra)
     wanted = set(keys)
     cells = [c for c in every if c.spec.key in wanted]
-    if init is None:
+    if base is None:
         trained = train_cells(cells, bc_cfg)
     else:
+        init = init_from(cells, TrainedCells.from_files(base))
         bases = bases_of(cells, every) if checked else None
         trained = finetune_cells(cells, bc_cfg, init, bases, cfg.bc)
     return {"files": trained.to_files(), "cells": len(trained.specs)}
