@@ -36,7 +36,7 @@ def confidence_rows(
     set_threads(1)
     game = load_game(name)
     ds = labelled_dataset(name, ci)
-    panel = ceiling_panel(ds, seed=0)
+    panel = ceiling_panel(ds, seed=0, move_features=(over or {}).get("move_features"))
     return [confidence_row(name, game, ds, runs, over, seed, panel) for seed in seeds]
 
 

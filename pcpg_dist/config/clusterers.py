@@ -14,8 +14,9 @@ from typing import Literal
 
 #: what a saved cluster model holds beside mean, std and centroids (it fixes how it is read back):
 #: an LSTM autoencoder, normalised summaries, a visited-state vocabulary, a visitation bag, a bag
-#: plus a mixture of greedy policies, or a mixture of neural policies
-ModelKind = Literal["autoencoder", "summary", "visits", "bag", "greedy", "policy"]
+#: plus a mixture of greedy policies, a mixture of neural policies, or a mixture of choice models
+#: over the game's move features
+ModelKind = Literal["autoencoder", "summary", "visits", "bag", "greedy", "policy", "choice"]
 
 
 @dataclass(frozen=True)
@@ -54,6 +55,9 @@ CLUSTERERS: dict[str, Clusterer] = {
         "policy",
         likelihood=True,
         trains_network=True,
+    ),
+    "choice_mix": Clusterer(
+        "pcpg_dist.stages.clustering.move_features:fit_choice", "choice", likelihood=True
     ),
 }
 

@@ -28,7 +28,17 @@ class ClusterConfig(StrictModel):
         "uniform noise level, refined from bag_kmeans (discrete states); bag_auto: greedy_mix, "
         "or policy_mix where states are continuous (lstm_dec where one action is logged throughout); "
         "policy_mix: a mixture of k neural policies (hard EM) started from k-means on the "
-        "monotone features' gain and mean, for continuous states (docs/clustering.md).",
+        "monotone features' gain and mean, for continuous states; choice_mix: a mixture of k "
+        "choice models over what each legal move does (clustering.move_features; bag_auto uses "
+        "it whenever that is set) (docs/clustering.md).",
+    )
+    move_features: str | None = Field(
+        None,
+        pattern=r"^[A-Za-z_][\w.]*:[A-Za-z_]\w*$",
+        description="'package.module:function' of your own: function(state, legal_ids) -> "
+        "(len(legal_ids), F) numbers saying what each legal move does (a capture, a check, ...), "
+        "for games whose move ids do not say it; clusters with choice_mix "
+        "(docs/clustering.md, 'What a move does').",
     )
     k: int = Field(4, ge=1, le=1000, description="Number of clusters (play-styles).")
     hidden_size: int = Field(

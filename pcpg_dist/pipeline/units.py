@@ -91,7 +91,11 @@ def cluster_unit(
             {f"clustering/{k}": float(v) for k, v in sup.items() if isinstance(v, int | float)}
         )
         # what a classifier given the true styles reaches: the best of a panel (ceiling.py)
-        panel = ceiling_panel(unit.dataset, seed=seed) if ceiling and cluster_cfg.ceiling else {}
+        panel = (
+            ceiling_panel(unit.dataset, seed=seed, move_features=cluster_cfg.move_features)
+            if ceiling and cluster_cfg.ceiling
+            else {}
+        )
         if panel:
             top = max(panel.values())
             metrics.update({f"clustering/ceiling_{name}": v for name, v in panel.items()})

@@ -35,7 +35,14 @@ def fallback_for(method: str, dataset) -> str | None:
 def chooses(cfg: ClusterConfig) -> bool:
     """Whether ``cfg`` has ``bag_auto`` choose its fit by stability (greedy_mix, policy_mix,
     policy_mix seeing the time step: :mod:`.select`; ``clustering.confidence_runs`` refits each)."""
+    if cfg.move_features is not None:
+        return False  # choice_mix is the fit (by_moves)
     return cfg.method == "bag_auto" and cfg.confidence_runs > 0 and cfg.k > 1
+
+
+def by_moves(cfg: ClusterConfig) -> bool:
+    """Whether ``bag_auto`` hands the log to ``choice_mix``: the user gave its move features."""
+    return cfg.method == "bag_auto" and cfg.move_features is not None
 
 
 def needs_network(cluster_cfg: ClusterConfig, dataset) -> bool:
@@ -43,6 +50,8 @@ def needs_network(cluster_cfg: ClusterConfig, dataset) -> bool:
     continuous-state fallback (``bag_auto``) trains one where it falls back to a method that does,
     or where it may choose policy_mix on discrete states (``confidence_runs`` > 0)."""
     spec = CLUSTERERS[cluster_cfg.method]
+    if by_moves(cluster_cfg):
+        return False
     if spec.continuous_fallback is not None:
         if falls_back(dataset):
             return CLUSTERERS[fallback_for(cluster_cfg.method, dataset)].trains_network
@@ -55,6 +64,9 @@ def resolve_method(cfg: ClusterConfig, dataset, states, metrics: dict[str, float
     """``cfg`` with the method that runs on ``states``: refused where the method needs discrete
     states and they are continuous, switched to its fallback where it has one (noted in
     ``metrics``)."""
+    if by_moves(cfg):
+        metrics["auto_chose_choice_mix"] = 1.0
+        return cfg.model_copy(update={"method": "choice_mix"})
     spec = CLUSTERERS[cfg.method]
     if spec.discrete_states_only and mostly_distinct_states(states):
         raise DataError(

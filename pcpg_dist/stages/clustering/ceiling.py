@@ -236,8 +236,13 @@ def _labelled_sample(ds: Dataset, seed: int) -> Dataset | None:
     return ds.subset(np.sort(keep))
 
 
-def ceiling_panel(ds: Dataset, seed: int = 0, folds: int = 5) -> dict[str, float]:
-    """Each panel model's cross-validated accuracy given the true styles ({} without them)."""
+def ceiling_panel(
+    ds: Dataset, seed: int = 0, folds: int = 5, move_features: str | None = None
+) -> dict[str, float]:
+    """Each panel model's cross-validated accuracy given the true styles ({} without them).
+    With ``move_features`` (``clustering.move_features``) the panel also has
+    ``choice_likelihood``, the supervised form of ``choice_mix``: one choice model per style over
+    what each legal move does."""
     from sklearn.model_selection import StratifiedKFold
     from threadpoolctl import threadpool_limits
 
@@ -257,6 +262,12 @@ def ceiling_panel(ds: Dataset, seed: int = 0, folds: int = 5) -> dict[str, float
             score = member(ds, cv, seed)
             if np.isfinite(score):
                 scores[name] = score
+        if move_features is not None:
+            from pcpg_dist.stages.clustering.choice_mix import supervised_accuracy
+            from pcpg_dist.stages.clustering.move_features import load_move_features, pairs_of
+
+            pairs = pairs_of(ds, load_move_features(move_features), move_features)
+            scores["choice_likelihood"] = supervised_accuracy(pairs, ds.styles, cv)
     return scores
 
 

@@ -67,6 +67,7 @@ class ClusterModel:
         bag=None,
         policy: PolicyMixture | None = None,
         greedy: tuple[np.ndarray, np.ndarray, float] | None = None,
+        choice: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> None:
         self.method = method
         self.config = dict(config)
@@ -90,6 +91,14 @@ class ClusterModel:
                 np.asarray(greedy[1], np.float64),
                 float(greedy[2]),
             )
+        )
+
+        # choice_mix: (preferences (k, F), log shares (k,)); mean and std standardise the F move
+        # features of clustering.move_features; features = posteriors, centroids = I_k
+        self.choice = (
+            None
+            if choice is None
+            else (np.asarray(choice[0], np.float64), np.asarray(choice[1], np.float64))
         )
 
     @property
@@ -120,8 +129,30 @@ class ClusterModel:
             inputs = policy_inputs(dataset, seen, self.mean, self.std)
             return trajectory_scores(self.policy, inputs, len(offsets) - 1)
 
+    def choice_scores(self, dataset) -> np.ndarray:
+        """choice_mix: (n, k) log share + log-likelihood of each trajectory's moves."""
+        from pcpg_dist.stages.clustering.choice_mix import ChoiceFit
+        from pcpg_dist.stages.clustering.move_features import load_move_features, pairs_of
+
+        self._checked_states(dataset)
+        spec = self.config["move_features"]
+        pairs = pairs_of(dataset, load_move_features(spec), spec)
+        if pairs.phi.shape[1] != len(self.mean):
+            raise DataError(
+                f"choice_mix model was fitted on {len(self.mean)} move features, {spec} "
+                f"gives {pairs.phi.shape[1]}"
+            )
+        w, log_share = self.choice
+        fit = ChoiceFit(w, log_share, self.mean.astype(np.float64), self.std.astype(np.float64),
+                        None, None, 0.0)  # fmt: skip
+        return fit.scores(pairs)
+
     def features(self, dataset) -> np.ndarray:
         """The space the centroids live in: latents (LSTM methods) or normalised summaries."""
+        if self.choice is not None:
+            scores = self.choice_scores(dataset)
+            p = np.exp(scores - scores.max(axis=1, keepdims=True))
+            return (p / p.sum(axis=1, keepdims=True)).astype(np.float32)
         states, offsets = self._checked_states(dataset)
         if self.bag is not None:
             actions = np.asarray(dataset.actions, np.int64)
@@ -202,6 +233,9 @@ class ClusterModel:
             tensors["greedy_votes"] = torch.from_numpy(self.greedy[0])
             tensors["greedy_log_share"] = torch.from_numpy(self.greedy[1])
             tensors["greedy_noise"] = torch.tensor([self.greedy[2]], dtype=torch.float64)
+        if self.choice is not None:
+            tensors["choice_w"] = torch.from_numpy(self.choice[0])
+            tensors["choice_log_share"] = torch.from_numpy(self.choice[1])
         torch.save(tensors, directory / WEIGHTS_FILE)
         meta = {
             "format_version": FORMAT_VERSION,
@@ -216,6 +250,8 @@ class ClusterModel:
         if self.policy is not None:
             meta["n_actions"] = self.policy.n_actions
             meta["policy_time"] = self.policy.time
+        if self.choice is not None:
+            meta["move_width"] = int(self.choice[0].shape[1])
         (directory / CONFIG_FILE).write_text(json.dumps(meta, indent=2, sort_keys=True))
         return directory
 

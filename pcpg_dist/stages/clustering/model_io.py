@@ -118,7 +118,12 @@ def _shapes(make) -> dict[str, tuple[int, ...]]:
 
 
 #: the JSON key of a saved model's action count, by what the model holds
-_ACTION_KEYS = {"policy": "n_actions", "bag": "bag_n_actions", "greedy": "bag_n_actions"}
+_ACTION_KEYS = {
+    "policy": "n_actions",
+    "bag": "bag_n_actions",
+    "greedy": "bag_n_actions",
+    "choice": "move_width",  # not actions: the move features' width
+}
 _BAG_TENSORS = {"bag_states", "bag_sa_keys"}
 _GREEDY_TENSORS = {"greedy_votes", "greedy_log_share", "greedy_noise"}
 
@@ -132,6 +137,7 @@ class _Parts:
     vocabulary: np.ndarray | None = None
     bag: BagVocabulary | None = None
     greedy: tuple[np.ndarray, np.ndarray, float] | None = None
+    choice: tuple[np.ndarray, np.ndarray] | None = None
 
 
 def _read_meta(cfg_path: Path) -> tuple[dict, ClusterConfig]:
@@ -218,6 +224,7 @@ def _refuse_foreign(w: _Weights, kind: ModelKind, network) -> None:
         "visits": {"vocabulary"},
         "bag": _BAG_TENSORS,
         "greedy": _BAG_TENSORS | _GREEDY_TENSORS,
+        "choice": {"choice_w", "choice_log_share"},
     }
     allowed = set(extra.get(kind, set()))
     if network is not None:
@@ -280,6 +287,9 @@ def _read_parts(w: _Weights, kind: ModelKind, meta: dict, settings: ClusterConfi
         bag = _read_bag(w, d, meta["bag_n_actions"])
         greedy = _read_greedy(w, k, bag) if kind == "greedy" else None
         return _Parts(bag.width, bag=bag, greedy=greedy)
+    if kind == "choice":
+        cw = w.get("choice_w", (k, meta["move_width"]))
+        return _Parts(k, choice=(cw.numpy(), w.get("choice_log_share", (k,)).numpy()))
     widths = {"summary": 1 + 2 * d, "autoencoder": settings.latent_size, "policy": k}
     return _Parts(widths[kind])
 
@@ -289,7 +299,7 @@ def _read_centres(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(mean, std, centroids)``: the normaliser (std above 0) and k centroids of ``width``."""
     d, k = meta["state_dim"], meta["k"]
-    feat = 1 + 2 * d if kind == "summary" else d
+    feat = {"summary": 1 + 2 * d, "choice": meta.get("move_width")}.get(kind, d)
     feat += _sees_time(kind, meta)  # the time column's normaliser
     mean = w.get("mean", (feat,)).numpy()
     std = w.get("std", (feat,)).numpy()
@@ -299,8 +309,8 @@ def _read_centres(
     if c is not None and c.ndim == 2 and c.shape[0] != k:
         raise DataError(f"{cfg_path}: k {k}, but {WEIGHTS_FILE} holds {c.shape[0]} centroids")
     centroids = w.get("centroids", (k, width)).numpy()
-    if kind == "policy" and not np.array_equal(centroids, np.eye(k)):
-        raise w.fail("centroids of a policy_mix model are the k x k identity")
+    if kind in ("policy", "choice") and not np.array_equal(centroids, np.eye(k)):
+        raise w.fail(f"centroids of a {w.method} model are the k x k identity")
     return mean, std, centroids
 
 
@@ -353,4 +363,5 @@ def load_model(directory: str | Path) -> ClusterModel:
         parts.bag,
         module if kind == "policy" else None,
         parts.greedy,
+        parts.choice,
     )

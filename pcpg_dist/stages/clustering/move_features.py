@@ -1,0 +1,105 @@
+"""A game's own move features (``clustering.move_features``) and the ``choice_mix`` clusterer.
+
+Where a log's move ids do not say what a move does (chess: 4,672 ids, each a from-square and a
+direction), the user names a function of their own, ``"package.module:function"``, that says it:
+``function(state, legal_ids) -> (len(legal_ids), F)`` numbers for the legal moves of one state
+(the state as the log's row, the ids as ints, ascending). pcpg calls it once per decision step,
+in the clustering task, and fits :mod:`.choice_mix` to the result. ``bag_auto`` uses it whenever
+the setting is given (docs/clustering.md, "What a move does").
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+
+import numpy as np
+
+from pcpg_dist.common.errors import DataError
+from pcpg_dist.stages.clustering.choice_mix import ChoicePairs, fit_choice_mix
+
+KEY = "clustering.move_features"
+
+MoveFeatures = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+def load_move_features(spec: str) -> MoveFeatures:
+    """The function ``spec`` ("module:function") names, or one line saying why it cannot be had."""
+    module, _, name = spec.partition(":")
+    try:
+        found = getattr(importlib.import_module(module), name)
+    except (ImportError, AttributeError) as exc:
+        raise DataError(
+            f"{KEY}: cannot import {spec!r} ({type(exc).__name__}: {exc}); give "
+            "'package.module:function' importable where pcpg runs"
+        ) from None
+    if not callable(found):
+        raise DataError(f"{KEY}: {spec!r} is a {type(found).__name__}, not a function")
+    return found
+
+
+def pairs_of(dataset, features: MoveFeatures, spec: str) -> ChoicePairs:
+    """Every decision step's legal moves (``valid``; the taken move counts as legal) and their
+    features from ``features``, checked: one line naming the step for a wrong shape, a width that
+    changes, a non-number or a NaN."""
+    offsets = np.asarray(dataset.offsets, np.int64)
+    actions = np.asarray(dataset.actions, np.int64)
+    phis, starts, chosen, steps_of, width = [], [0], [], [0], None
+    for i in range(len(offsets) - 1):
+        for row in range(offsets[i], offsets[i + 1]):
+            if actions[row] < 0:
+                continue
+            legal = np.nonzero(dataset.valid[row])[0]
+            if not dataset.valid[row, actions[row]]:
+                legal = np.sort(np.append(legal, actions[row]))
+            try:
+                phi = np.asarray(features(dataset.states[row], legal), dtype=np.float64)
+            except (TypeError, ValueError) as exc:
+                raise DataError(
+                    f"{KEY}: {spec} at trajectory {i} (row {row}) gave no numbers: {exc}"
+                ) from None
+            width = phi.shape[1] if width is None and phi.ndim == 2 else width
+            where = f"{KEY}: {spec} at trajectory {i} (row {row})"
+            if phi.shape != (len(legal), width):
+                raise DataError(
+                    f"{where} returned shape {phi.shape}; it must return ({len(legal)} legal "
+                    f"moves, {width} features) numbers, as many features at every step"
+                )
+            if not np.isfinite(phi).all():
+                raise DataError(f"{where} returned NaN or infinite values; all must be finite")
+            phis.append(phi)
+            chosen.append(starts[-1] + int(np.searchsorted(legal, actions[row])))
+            starts.append(starts[-1] + len(legal))
+        steps_of.append(len(chosen))
+    if not chosen:
+        raise DataError(f"{KEY}: the log has no decision steps to describe")
+    return ChoicePairs(np.concatenate(phis), np.array(starts), np.array(chosen), np.array(steps_of))
+
+
+def fit_choice(dataset, states, offsets, cfg, seed: int, metrics: dict[str, float]):
+    """``choice_mix``'s fitting function (:data:`pcpg_dist.config.clusterers.CLUSTERERS`): the
+    mixture over the move features of ``cfg.move_features``; its model assigns by likelihood."""
+    from pcpg_dist.stages.clustering.model import ClusterModel, Fitted
+
+    if cfg.move_features is None:
+        raise DataError(
+            f"clustering.method choice_mix needs {KEY}: 'package.module:function' that gives "
+            "the legal moves' features of a state"
+        )
+    pairs = pairs_of(dataset, load_move_features(cfg.move_features), cfg.move_features)
+    fit = fit_choice_mix(pairs, cfg.k, seed)
+    scores = fit.scores(pairs)
+    metrics["choice_loglik_per_move"] = fit.loglik
+    model = ClusterModel(
+        "choice_mix",
+        cfg.model_dump(mode="json"),
+        states.shape[1],
+        fit.mean,
+        fit.std,
+        np.eye(cfg.k),
+        None,
+        choice=(fit.w, fit.log_share),
+    )
+    posterior = np.exp(scores - scores.max(axis=1, keepdims=True))
+    posterior /= posterior.sum(axis=1, keepdims=True)
+    return Fitted(fit.labels, posterior.astype(np.float32), model, fit.margins, silhouette=False)

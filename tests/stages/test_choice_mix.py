@@ -1,0 +1,86 @@
+"""choice_mix: clustering by what each legal move does (``clustering.move_features``)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from move_toy import players
+
+from pcpg_dist.common.devices import set_threads
+from pcpg_dist.common.errors import DataError
+from pcpg_dist.config import parse_config
+from pcpg_dist.stages.clustering import ClusterConfig, cluster, clustering_metrics, load_model
+
+MOVES = "move_toy:features"
+
+
+@pytest.fixture(scope="module")
+def log():
+    set_threads(1)
+    return players(30, seed=3)
+
+
+@pytest.fixture(scope="module")
+def fitted(log):
+    return cluster(log, ClusterConfig(k=3, move_features=MOVES, confidence_runs=0), seed=0)
+
+
+def test_the_default_uses_the_move_features_and_finds_the_styles(log, fitted):
+    assert fitted.metrics["auto_chose_choice_mix"] == 1.0
+    assert fitted.model.method == "choice_mix"
+    assert clustering_metrics(log.styles, fitted.labels)["accuracy"] >= 0.95
+    assert fitted.margins is not None and (fitted.margins >= 0).all()
+    # the ids alone say nothing: a mixture of policies over ids and states is far below
+    ids_only = cluster(log, ClusterConfig(k=3, method="visits_kmeans"), seed=0)
+    assert clustering_metrics(log.styles, ids_only.labels)["accuracy"] < 0.7
+
+
+def test_same_seed_same_labels(log, fitted):
+    again = cluster(log, ClusterConfig(k=3, move_features=MOVES, confidence_runs=0), seed=0)
+    np.testing.assert_array_equal(again.labels, fitted.labels)
+    np.testing.assert_array_equal(again.margins, fitted.margins)
+
+
+def test_saved_model_predicts_the_same_and_unseen_trajectories(tmp_path, log, fitted):
+    fitted.model.save(tmp_path / "m")
+    model = load_model(tmp_path / "m")
+    np.testing.assert_array_equal(model.predict(log), fitted.labels)
+    fresh = players(10, seed=99)
+    assert clustering_metrics(fresh.styles, model.predict(fresh))["accuracy"] >= 0.9
+
+
+def test_a_confidence_is_measured(log):
+    got = cluster(log, ClusterConfig(k=3, move_features=MOVES, confidence_runs=2), seed=0)
+    assert got.model.method == "choice_mix"
+    assert clustering_metrics(log.styles, got.labels)["accuracy"] >= 0.95
+
+
+@pytest.mark.parametrize(
+    "spec, says",
+    [
+        ("move_toy:nothing_here", "cannot import 'move_toy:nothing_here'"),
+        ("no_such_module_xyz:f", "cannot import 'no_such_module_xyz:f'"),
+        ("move_toy:NOT_A_FUNCTION", "is a int, not a function"),
+        ("move_toy:wrong_width", "returned shape (12, 3)"),
+        ("move_toy:with_nan", "NaN or infinite values"),
+    ],
+)
+def test_a_bad_move_feature_function_is_one_line(log, spec, says):
+    with pytest.raises(DataError, match="clustering.move_features") as got:
+        cluster(log, ClusterConfig(k=3, move_features=spec, confidence_runs=0), seed=0)
+    assert says in str(got.value) and "\n" not in str(got.value)
+
+
+def test_the_setting_must_name_a_function():
+    with pytest.raises(Exception, match="move_features"):
+        parse_config({"name": "x", "clustering": {"move_features": "../evil.py"}})
+
+
+def test_the_ceiling_has_the_choice_models_given_the_styles(log):
+    from pcpg_dist.stages.clustering.ceiling import ceiling_panel
+
+    panel = ceiling_panel(log, seed=0, move_features=MOVES)
+    assert panel["choice_likelihood"] >= 0.95
+    # the panel's other views read ids, which say nothing here
+    assert max(v for n, v in panel.items() if n != "choice_likelihood") < 0.8, panel
+    assert "choice_likelihood" not in ceiling_panel(log, seed=0)
