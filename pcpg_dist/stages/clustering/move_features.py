@@ -22,6 +22,11 @@ KEY = "clustering.move_features"
 
 MoveFeatures = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
+#: the features each (function, state, legal ids) got, so the confidence's refits on subsamples,
+#: the ceiling and the model's assignments of the same log call the user's function once a step
+_SEEN: dict[tuple[str, bytes, bytes], np.ndarray] = {}
+MAX_SEEN = 500_000  # steps remembered; past it the memory starts again
+
 
 def load_move_features(spec: str) -> MoveFeatures:
     """The function ``spec`` ("module:function") names, or one line saying why it cannot be had."""
@@ -52,14 +57,12 @@ def pairs_of(dataset, features: MoveFeatures, spec: str) -> ChoicePairs:
             legal = np.nonzero(dataset.valid[row])[0]
             if not dataset.valid[row, actions[row]]:
                 legal = np.sort(np.append(legal, actions[row]))
-            try:
-                phi = np.asarray(features(dataset.states[row], legal), dtype=np.float64)
-            except (TypeError, ValueError) as exc:
-                raise DataError(
-                    f"{KEY}: {spec} at trajectory {i} (row {row}) gave no numbers: {exc}"
-                ) from None
-            width = phi.shape[1] if width is None and phi.ndim == 2 else width
             where = f"{KEY}: {spec} at trajectory {i} (row {row})"
+            key = (spec, dataset.states[row].tobytes(), legal.tobytes())
+            phi = _SEEN.get(key)
+            if phi is None:
+                phi = _described(features, dataset.states[row], legal, where)
+            width = phi.shape[1] if width is None and phi.ndim == 2 else width
             if phi.shape != (len(legal), width):
                 raise DataError(
                     f"{where} returned shape {phi.shape}; it must return ({len(legal)} legal "
@@ -67,6 +70,9 @@ def pairs_of(dataset, features: MoveFeatures, spec: str) -> ChoicePairs:
                 )
             if not np.isfinite(phi).all():
                 raise DataError(f"{where} returned NaN or infinite values; all must be finite")
+            if len(_SEEN) >= MAX_SEEN:
+                _SEEN.clear()
+            _SEEN[key] = phi
             phis.append(phi)
             chosen.append(starts[-1] + int(np.searchsorted(legal, actions[row])))
             starts.append(starts[-1] + len(legal))
@@ -74,6 +80,13 @@ def pairs_of(dataset, features: MoveFeatures, spec: str) -> ChoicePairs:
     if not chosen:
         raise DataError(f"{KEY}: the log has no decision steps to describe")
     return ChoicePairs(np.concatenate(phis), np.array(starts), np.array(chosen), np.array(steps_of))
+
+
+def _described(features: MoveFeatures, state: np.ndarray, legal: np.ndarray, where: str):
+    try:
+        return np.asarray(features(state, legal), dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise DataError(f"{where} gave no numbers: {exc}") from None
 
 
 def fit_choice(dataset, states, offsets, cfg, seed: int, metrics: dict[str, float]):
