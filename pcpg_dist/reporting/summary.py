@@ -227,6 +227,7 @@ def print_clustering(result, console, method: str | None = None) -> None:
 FELL_BACK = "clustering/auto_fell_back"
 CHOSE = "clustering/auto_chose_policy_mix"
 TIMED = "clustering/auto_chose_policy_time"
+BY_MOVES = "clustering/auto_chose_choice_mix"
 
 
 def method_used(method: str, clustering: dict[str, float]) -> str:
@@ -238,6 +239,8 @@ def method_used(method: str, clustering: dict[str, float]) -> str:
     if clustering.get("clustering/auto_fell_back_to_lstm"):
         fallback = "lstm_dec"  # the log's actions said nothing (auto.fallback_for)
     timed = " (time)" if clustering.get(TIMED) else ""  # its policies see the step (select.py)
+    if clustering.get(BY_MOVES):
+        return f"{method} -> choice_mix"  # the user gave the moves' features (auto.by_moves)
     if clustering.get(CHOSE):
         return f"{method} -> policy_mix{timed}"  # the more stable on discrete states (select.py)
     if clustering.get(FELL_BACK) and fallback:

@@ -37,6 +37,8 @@ def step_table(n_per_style: int, seed: int) -> pd.DataFrame:
 @pytest.mark.slow
 def test_own_game_with_move_features_end_to_end(ray_session, tmp_path) -> None:
     from pcpg_dist.api.run import run_experiment
+    from pcpg_dist.reporting.summary import method_used
+    from pcpg_dist.stages.clustering.confidence import verdict_of
 
     path = tmp_path / "moves.parquet"
     step_table(25, seed=11).to_parquet(path, index=False)
@@ -55,6 +57,9 @@ def test_own_game_with_move_features_end_to_end(ray_session, tmp_path) -> None:
     result = run_experiment(cfg, workdir=tmp_path / "runs", track=False, show_progress=False)
     m = result.metrics
     assert m["clustering/auto_chose_choice_mix"] == 1.0
+    # the terminal's method column and the verdict's reasons say so
+    assert method_used("bag_auto", m) == "bag_auto -> choice_mix"
+    assert "choice_mix" in " ".join(verdict_of(m, 3).reasons)
     assert m["clustering/accuracy"] >= 0.95
     # the panel has the supervised choice models; the default is within 3 points of them
     assert m["clustering/ceiling_choice_likelihood"] >= 0.95

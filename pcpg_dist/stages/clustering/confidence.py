@@ -120,6 +120,8 @@ def verdict_of(metrics: dict, k: int | None = None) -> Verdict:
         return None if v is None else float(v)
 
     reasons = []
+    if get("auto_chose_choice_mix"):
+        reasons.append("bag_auto clustered by the moves' features (choice_mix)")
     if get("auto_fell_back"):
         to = "lstm_dec" if get("auto_fell_back_to_lstm") else "policy_mix"
         reasons.append(f"bag_auto fell back to {to} (continuous states)")
