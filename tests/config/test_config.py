@@ -119,7 +119,7 @@ def test_a_config_anywhere_runs_the_paper_layouts_without_naming_a_folder(tmp_pa
         (
             {"ranking": {"style_margin": 1.0}, "clustering": {"method": "lstm_dec"}},
             "exp.yaml: ranking.style_margin needs a clusterer with a likelihood (clustering.method greedy_mix, "
-            "bag_auto, policy_mix); lstm_dec gives none",
+            "bag_auto, policy_mix, choice_mix); lstm_dec gives none",
         ),
         ({"ranking": {"style_margin": -1}}, "key 'ranking.style_margin': value -1 is not allowed"),
         (

@@ -264,7 +264,7 @@ def ceiling_panel(
                 scores[name] = score
         if move_features is not None:
             from pcpg_dist.stages.clustering.choice_mix import supervised_accuracy
-            from pcpg_dist.stages.clustering.move_features import load_move_features, pairs_of
+            from pcpg_dist.stages.clustering.move_pairs import load_move_features, pairs_of
 
             pairs = pairs_of(ds, load_move_features(move_features), move_features)
             scores["choice_likelihood"] = supervised_accuracy(pairs, ds.styles, cv)

@@ -132,7 +132,7 @@ class ClusterModel:
     def choice_scores(self, dataset) -> np.ndarray:
         """choice_mix: (n, k) log share + log-likelihood of each trajectory's moves."""
         from pcpg_dist.stages.clustering.choice_mix import ChoiceFit
-        from pcpg_dist.stages.clustering.move_features import load_move_features, pairs_of
+        from pcpg_dist.stages.clustering.move_pairs import load_move_features, pairs_of
 
         self._checked_states(dataset)
         spec = self.config["move_features"]

@@ -1,92 +1,14 @@
-"""A game's own move features (``clustering.move_features``) and the ``choice_mix`` clusterer.
-
-Where a log's move ids do not say what a move does (chess: 4,672 ids, each a from-square and a
-direction), the user names a function of their own, ``"package.module:function"``, that says it:
-``function(state, legal_ids) -> (len(legal_ids), F)`` numbers for the legal moves of one state
-(the state as the log's row, the ids as ints, ascending). pcpg calls it once per decision step,
-in the clustering task, and fits :mod:`.choice_mix` to the result. ``bag_auto`` uses it whenever
-the setting is given (docs/clustering.md, "What a move does").
-"""
+"""The ``choice_mix`` clusterer: a mixture of choice models over a game's own move features
+(``clustering.move_features``; the features: :mod:`.move_pairs`, the model: :mod:`.choice_mix`).
+``bag_auto`` uses it whenever the setting is given (docs/clustering.md, "What a move does")."""
 
 from __future__ import annotations
-
-import importlib
-from collections.abc import Callable
 
 import numpy as np
 
 from pcpg_dist.common.errors import DataError
-from pcpg_dist.stages.clustering.choice_mix import ChoicePairs, fit_choice_mix
-
-KEY = "clustering.move_features"
-
-MoveFeatures = Callable[[np.ndarray, np.ndarray], np.ndarray]
-
-#: the features each (function, state, legal ids) got, so the confidence's refits on subsamples,
-#: the ceiling and the model's assignments of the same log call the user's function once a step
-_SEEN: dict[tuple[str, bytes, bytes], np.ndarray] = {}
-MAX_SEEN = 500_000  # steps remembered; past it the memory starts again
-
-
-def load_move_features(spec: str) -> MoveFeatures:
-    """The function ``spec`` ("module:function") names, or one line saying why it cannot be had."""
-    module, _, name = spec.partition(":")
-    try:
-        found = getattr(importlib.import_module(module), name)
-    except (ImportError, AttributeError) as exc:
-        raise DataError(
-            f"{KEY}: cannot import {spec!r} ({type(exc).__name__}: {exc}); give "
-            "'package.module:function' importable where pcpg runs"
-        ) from None
-    if not callable(found):
-        raise DataError(f"{KEY}: {spec!r} is a {type(found).__name__}, not a function")
-    return found
-
-
-def pairs_of(dataset, features: MoveFeatures, spec: str) -> ChoicePairs:
-    """Every decision step's legal moves (``valid``; the taken move counts as legal) and their
-    features from ``features``, checked: one line naming the step for a wrong shape, a width that
-    changes, a non-number or a NaN."""
-    offsets = np.asarray(dataset.offsets, np.int64)
-    actions = np.asarray(dataset.actions, np.int64)
-    phis, starts, chosen, steps_of, width = [], [0], [], [0], None
-    for i in range(len(offsets) - 1):
-        for row in range(offsets[i], offsets[i + 1]):
-            if actions[row] < 0:
-                continue
-            legal = np.nonzero(dataset.valid[row])[0]
-            if not dataset.valid[row, actions[row]]:
-                legal = np.sort(np.append(legal, actions[row]))
-            where = f"{KEY}: {spec} at trajectory {i} (row {row})"
-            key = (spec, dataset.states[row].tobytes(), legal.tobytes())
-            phi = _SEEN.get(key)
-            if phi is None:
-                phi = _described(features, dataset.states[row], legal, where)
-            width = phi.shape[1] if width is None and phi.ndim == 2 else width
-            if phi.shape != (len(legal), width):
-                raise DataError(
-                    f"{where} returned shape {phi.shape}; it must return ({len(legal)} legal "
-                    f"moves, {width} features) numbers, as many features at every step"
-                )
-            if not np.isfinite(phi).all():
-                raise DataError(f"{where} returned NaN or infinite values; all must be finite")
-            if len(_SEEN) >= MAX_SEEN:
-                _SEEN.clear()
-            _SEEN[key] = phi
-            phis.append(phi)
-            chosen.append(starts[-1] + int(np.searchsorted(legal, actions[row])))
-            starts.append(starts[-1] + len(legal))
-        steps_of.append(len(chosen))
-    if not chosen:
-        raise DataError(f"{KEY}: the log has no decision steps to describe")
-    return ChoicePairs(np.concatenate(phis), np.array(starts), np.array(chosen), np.array(steps_of))
-
-
-def _described(features: MoveFeatures, state: np.ndarray, legal: np.ndarray, where: str):
-    try:
-        return np.asarray(features(state, legal), dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise DataError(f"{where} gave no numbers: {exc}") from None
+from pcpg_dist.stages.clustering.choice_mix import fit_choice_mix
+from pcpg_dist.stages.clustering.move_pairs import KEY, load_move_features, pairs_of
 
 
 def fit_choice(dataset, states, offsets, cfg, seed: int, metrics: dict[str, float]):
