@@ -162,6 +162,13 @@ def test_auto_streams_only_logs_above_the_size(log):
     )
 
 
+def test_move_features_on_a_streamed_log_are_refused_in_one_line(log):
+    streamed = config(log, clustering={"k": 4, "move_features": "tests.move_toy:features"})
+    with pytest.raises(DataError, match="clustering.move_features: .* streams") as got:
+        stream_source(streamed)
+    assert "trajectories.stream: off" in str(got.value) and "\n" not in str(got.value)
+
+
 def test_a_bad_row_inside_a_block_is_one_line_naming_its_column(ray_session, log, tmp_path):
     table = pq.read_table(log)
     action = table.column("action").to_numpy().copy()

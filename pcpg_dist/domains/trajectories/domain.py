@@ -95,10 +95,20 @@ class TrajectoriesDomain(Domain):
         if s.path.startswith("minari:"):
             from pcpg_dist.domains.trajectories.minari_stream import minari_stream_source
 
-            return minari_stream_source(s, cfg.name)
-        from pcpg_dist.domains.trajectories.stream_meta import stream_source
+            found = minari_stream_source(s, cfg.name)
+        else:
+            from pcpg_dist.domains.trajectories.stream_meta import stream_source
 
-        return stream_source(s, cfg.name)
+            found = stream_source(s, cfg.name)
+        if found is not None and cfg.clustering.move_features is not None:
+            from pcpg_dist.common.errors import DataError
+
+            raise DataError(
+                f"clustering.move_features: {s.path} streams ({found.steps} steps; "
+                f"trajectories.stream {s.stream!r}), and a streamed run clusters by k-means on "
+                "summaries; give trajectories.stream: off to cluster by the moves' features"
+            )
+        return found
 
     def generate(self, cfg, show_progress: bool = True, fan_out: FanOut = in_process):
         from pcpg_dist.domains.trajectories.table import datasets_from_table
