@@ -111,7 +111,13 @@ def sweep(
     )
 
 
-def classify(model: str | Path, dataset: str | Path | Any, *, out: str | Path | None = None) -> Any:
+def classify(
+    model: str | Path,
+    dataset: str | Path | Any,
+    *,
+    out: str | Path | None = None,
+    move_features: str | None = None,
+) -> Any:
     """`pcpg classify` from Python: each trajectory's style under a fitted clustering model
     (``pcpg cluster``'s ``model.json``), as a pandas table (``trajectory``, ``predicted_style``);
     ``dataset``: a dataset folder or a :class:`~pcpg_dist.dataset.Dataset`. With ``out`` the table
@@ -123,7 +129,9 @@ def classify(model: str | Path, dataset: str | Path | Any, *, out: str | Path | 
 
     With a streamed run's clustering (``RUN/summary/model_seed<S>``) ``dataset`` is a Parquet log
     of any size, labelled block by block into ``out`` (required), and the table holds the cluster
-    sizes (:func:`pcpg_dist.api.streamed.classify_streamed`)."""
+    sizes (:func:`pcpg_dist.api.streamed.classify_streamed`). A ``choice_mix`` model (a run with
+    ``clustering.move_features``) needs that same ``move_features``: a model file never names the
+    code pcpg runs."""
     import pandas as pd
 
     from pcpg_dist.common.files import atomic_write_bytes
@@ -142,7 +150,7 @@ def classify(model: str | Path, dataset: str | Path | Any, *, out: str | Path | 
         from pcpg_dist.api.streamed import classify_streamed
 
         return classify_streamed(Path(model), Path(dataset), None if out is None else Path(out))
-    fitted = load_model(Path(model))
+    fitted = load_model(Path(model), move_features=move_features)
     ds = dataset if isinstance(dataset, Dataset) else load_dataset(Path(dataset))
     pred = fitted.predict(ds)
     # the logs' own ids where they were not integers (pcpg numbers those in sorted order)

@@ -155,6 +155,13 @@ def _add_step_commands(sub) -> None:
         help="CSV of (trajectory, predicted_style) "
         "(default: ./DATASET_STEM.styles.csv in the current folder)",
     )
+    p.add_argument(
+        "--move-features",
+        default=None,
+        metavar="MODULE:FUNCTION",
+        help="a choice_mix model's move-feature function (the run's clustering.move_features); "
+        "pcpg never runs code a model file names",
+    )
     p.set_defaults(func=reading.classify)
 
 

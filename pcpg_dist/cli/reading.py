@@ -45,7 +45,7 @@ def classify(args: argparse.Namespace) -> None:
 
     # by default into the current folder: the dataset's folder may be a signed `pcpg generate` output
     out = Path(args.out) if args.out else Path(Path(args.dataset).stem + ".styles.csv")
-    table = classify_dataset(args.model, args.dataset, out=out)
+    table = classify_dataset(args.model, args.dataset, out=out, move_features=args.move_features)
     if table.attrs.get("streamed"):  # a streamed run's clustering: the labels are in `out`
         n, sizes = table.attrs["trajectories"], table["trajectories"].tolist()
     else:

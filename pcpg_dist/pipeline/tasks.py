@@ -102,7 +102,7 @@ def evaluate_task(
     if model_files:
         with tempfile.TemporaryDirectory() as tmp:
             write_files(Path(tmp), model_files)
-            model = load_model(tmp)
+            model = load_model(tmp, move_features=cfg.clustering.move_features)
     cells = TrainedCells.from_files(trained)
     with tempfile.TemporaryDirectory() as tmp:
         metrics = evaluate_unit(unit, labels, cells, cfg, tmp, margins=margins, model=model)

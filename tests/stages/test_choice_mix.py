@@ -43,10 +43,29 @@ def test_same_seed_same_labels(log, fitted):
 
 def test_saved_model_predicts_the_same_and_unseen_trajectories(tmp_path, log, fitted):
     fitted.model.save(tmp_path / "m")
-    model = load_model(tmp_path / "m")
+    model = load_model(tmp_path / "m", move_features=MOVES)
     np.testing.assert_array_equal(model.predict(log), fitted.labels)
     fresh = players(10, seed=99)
     assert clustering_metrics(fresh.styles, model.predict(fresh))["accuracy"] >= 0.9
+    # pcpg classify from Python, given the same function
+    from pcpg_dist.api.calls import classify
+
+    table = classify(tmp_path / "m", fresh, move_features=MOVES)
+    np.testing.assert_array_equal(table.predicted_style.to_numpy(), model.predict(fresh))
+
+
+@pytest.mark.parametrize(
+    "given, says",
+    [
+        (None, "pcpg runs no code a model file names: give it yourself"),
+        ("move_toy:with_nan", "fitted with move features 'move_toy:features'; given"),
+    ],
+)
+def test_a_model_file_never_chooses_the_code_pcpg_runs(tmp_path, fitted, given, says):
+    fitted.model.save(tmp_path / "m")
+    with pytest.raises(DataError, match="cluster_model.json") as got:
+        load_model(tmp_path / "m", move_features=given)
+    assert says in str(got.value) and "\n" not in str(got.value)
 
 
 def test_a_confidence_is_measured(log):

@@ -68,6 +68,7 @@ class ClusterModel:
         policy: PolicyMixture | None = None,
         greedy: tuple[np.ndarray, np.ndarray, float] | None = None,
         choice: tuple[np.ndarray, np.ndarray] | None = None,
+        move_features: str | None = None,
     ) -> None:
         self.method = method
         self.config = dict(config)
@@ -93,6 +94,9 @@ class ClusterModel:
             )
         )
 
+        # choice_mix: the move-feature function it calls, as its fit or its reader was given it
+        # (never read from a model file: model_io.load_model)
+        self.move_features = move_features
         # choice_mix: (preferences (k, F), log shares (k,)); mean and std standardise the F move
         # features of clustering.move_features; features = posteriors, centroids = I_k
         self.choice = (
@@ -135,7 +139,9 @@ class ClusterModel:
         from pcpg_dist.stages.clustering.move_pairs import load_move_features, pairs_of
 
         self._checked_states(dataset)
-        spec = self.config["move_features"]
+        spec = self.move_features
+        if spec is None:
+            raise DataError("a choice_mix model needs its move-feature function (load_model)")
         pairs = pairs_of(dataset, load_move_features(spec), spec)
         if pairs.phi.shape[1] != len(self.mean):
             raise DataError(

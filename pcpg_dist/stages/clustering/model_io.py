@@ -321,14 +321,32 @@ _NETWORK_SIZES = {
 }
 
 
-def load_model(directory: str | Path) -> ClusterModel:
+def _choice_features(cfg_path: Path, meta: dict, given: str | None) -> str:
+    """The move-feature function a choice_mix model calls: the one its reader gives, which must be
+    the one it was fitted with. A model file never chooses code to run (it would be a pickle)."""
+    saved = meta["config"].get("move_features")
+    if given is None:
+        raise DataError(
+            f"{cfg_path}: a choice_mix model calls the move-feature function it was fitted with "
+            f"({saved!r}); pcpg runs no code a model file names: give it yourself "
+            f"(pcpg classify --move-features {saved})"
+        )
+    if given != saved:
+        raise DataError(
+            f"{cfg_path}: the model was fitted with move features {saved!r}; given {given!r}"
+        )
+    return given
+
+
+def load_model(directory: str | Path, move_features: str | None = None) -> ClusterModel:
     """Read a model written by :meth:`ClusterModel.save` (tensors only: ``weights_only=True``).
 
     Every tensor is checked against ``cluster_model.json`` before anything is built: the method's
     tensors and no others, their dtypes, shapes (k centroids of the method's feature width),
     finite values and ranges (std > 0, state-action keys within the bag), so a tampered or
     mismatched file is a one-line :class:`DataError` naming the file and field, never a traceback
-    or a model that silently gives other labels.
+    or a model that silently gives other labels. A ``choice_mix`` model needs ``move_features``,
+    the function it was fitted with (``clustering.move_features``), from its reader.
     """
     directory = Path(directory)
     cfg_path, w_path = directory / CONFIG_FILE, directory / WEIGHTS_FILE
@@ -341,6 +359,7 @@ def load_model(directory: str | Path) -> ClusterModel:
         )
     meta, settings = _read_meta(cfg_path)
     kind = _model_kind(cfg_path, meta)
+    spec = _choice_features(cfg_path, meta, move_features) if kind == "choice" else None
     w = _Weights(w_path, meta["method"], read_tensors(w_path))
     network = _network_maker(kind, meta, settings)
     _refuse_foreign(w, kind, network)
@@ -364,4 +383,5 @@ def load_model(directory: str | Path) -> ClusterModel:
         module if kind == "policy" else None,
         parts.greedy,
         parts.choice,
+        spec,
     )

@@ -34,6 +34,7 @@ def fit_choice(dataset, states, offsets, cfg, seed: int, metrics: dict[str, floa
         np.eye(cfg.k),
         None,
         choice=(fit.w, fit.log_share),
+        move_features=cfg.move_features,
     )
     posterior = np.exp(scores - scores.max(axis=1, keepdims=True))
     posterior /= posterior.sum(axis=1, keepdims=True)
