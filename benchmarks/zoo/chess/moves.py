@@ -55,9 +55,9 @@ def _features(board: chess.Board, move: chess.Move) -> list[float]:
     kind = piece.piece_type if piece else chess.PAWN
     captured = board.piece_at(move.to_square)
     takes = VALUE[captured.piece_type] if captured else float(board.is_en_passant(move))
-    check = board.gives_check(move)
     castles = board.is_castling(move)
     board.push(move)
+    check = board.is_check()  # gives_check, without its own push and pop
     attacked = board.is_attacked_by(chess.BLACK, move.to_square)
     defended = board.is_attacked_by(chess.WHITE, move.to_square)
     king = board.king(chess.BLACK)
@@ -83,7 +83,8 @@ def _features(board: chess.Board, move: chess.Move) -> list[float]:
 def move_features(state: np.ndarray, ids: np.ndarray) -> np.ndarray:
     """(len(ids), 17) the features of each move id in ``ids``, legal in ``state``."""
     board = board_of(state)
-    chess_utils.legal_moves(board)  # fills PettingZoo's id <-> move tables for this position
+    if not all(int(a) in chess_utils.actions_to_moves for a in ids):
+        chess_utils.legal_moves(board)  # fills PettingZoo's id <-> move tables for this position
     return np.array(
         [_features(board, chess_utils.action_to_move(board, int(a), 0)) for a in ids],
         dtype=np.float64,
