@@ -25,27 +25,14 @@ from pathlib import Path
 
 import numpy as np
 
+SPEC = "benchmarks.zoo.chess.moves:move_features"
+
 
 def chess_pairs(ds):
-    """:class:`ChoicePairs` of the chess unit: every decision step's legal moves' features."""
-    from benchmarks.zoo.chess.moves import move_features
-    from pcpg_dist.stages.clustering.choice_mix import ChoicePairs
+    """:class:`ChoicePairs` of the chess unit, as ``clustering.move_features`` builds them."""
+    from pcpg_dist.stages.clustering.move_pairs import load_move_features, pairs_of
 
-    phis, starts, chosen, steps_of = [], [0], [], [0]
-    for i in range(len(ds.offsets) - 1):
-        for row in range(ds.offsets[i], ds.offsets[i + 1]):
-            action = int(ds.actions[row])
-            if action < 0:
-                continue
-            legal = np.nonzero(ds.valid[row])[0]
-            if action not in legal:  # a taken move always counts as legal
-                legal = np.sort(np.append(legal, action))
-            phis.append(move_features(ds.states[row], legal))
-            chosen.append(starts[-1] + int(np.searchsorted(legal, action)))
-            starts.append(starts[-1] + len(legal))
-        steps_of.append(len(chosen))
-    phi = np.concatenate(phis)
-    return ChoicePairs(phi, np.array(starts), np.array(chosen), np.array(steps_of))
+    return pairs_of(ds, load_move_features(SPEC), SPEC)
 
 
 def main() -> None:

@@ -20,7 +20,7 @@ from functools import cached_property
 
 import numpy as np
 from scipy.optimize import minimize
-from scipy.special import logsumexp
+from scipy.special import logsumexp, softmax
 
 from pcpg_dist.common.errors import DataError
 
@@ -64,6 +64,12 @@ class ChoicePairs:
     def counts(self) -> np.ndarray:
         """(steps,) how many legal moves each step has."""
         return np.diff(self.starts)
+
+
+def _standardisation(phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(mean, std) of each feature over the legal moves; a feature that never varies keeps std 1."""
+    sd = phi.std(axis=0)
+    return phi.mean(axis=0), np.where(sd > 0, sd, 1.0)
 
 
 def _step_loglik(pairs: ChoicePairs, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -147,8 +153,21 @@ class ChoiceFit:
 
     def scores(self, pairs: ChoicePairs) -> np.ndarray:
         """(n, k) each trajectory of ``pairs`` (raw features): log share + log-likelihood."""
-        moved = replace(pairs, phi=(pairs.phi - self.mean) / self.std)
-        return trajectory_loglik(moved, self.w) + self.log_share
+        return choice_scores(pairs, self.w, self.log_share, self.mean, self.std)
+
+
+def choice_scores(
+    pairs: ChoicePairs, w: np.ndarray, log_share: np.ndarray, mean: np.ndarray, std: np.ndarray
+) -> np.ndarray:
+    """(n, k) each trajectory of ``pairs`` (raw features, standardised by ``mean`` and ``std``):
+    log share + log-likelihood of its moves under each preference of ``w``."""
+    moved = replace(pairs, phi=(pairs.phi - mean) / std)
+    return trajectory_loglik(moved, w) + log_share
+
+
+def posteriors(scores: np.ndarray) -> np.ndarray:
+    """(n, k) float32: each trajectory's posterior over the styles from its (n, k) scores."""
+    return softmax(scores, axis=1).astype(np.float32)
 
 
 def fit_choice_mix(
@@ -167,8 +186,7 @@ def fit_choice_mix(
     n = len(pairs.steps_of) - 1
     if n < k:
         raise DataError(f"choice_mix: {n} trajectories, fewer than k={k}")
-    mean, sd = pairs.phi.mean(axis=0), pairs.phi.std(axis=0)
-    std = np.where(sd > 0, sd, 1.0)
+    mean, std = _standardisation(pairs.phi)
     pairs = replace(pairs, phi=(pairs.phi - mean) / std)
     rng = np.random.default_rng(seed)
     prefs = revealed_preferences(pairs)
@@ -197,9 +215,7 @@ def fit_choice_mix(
 def revealed_preferences(pairs: ChoicePairs) -> np.ndarray:
     """(n, F) per trajectory: the mean over its moves of the chosen move's features less the mean
     of the legal moves' (what it picked beyond what was on offer)."""
-    mean_legal = (
-        np.add.reduceat(pairs.phi, pairs.starts[:-1], axis=0) / np.diff(pairs.starts)[:, None]
-    )
+    mean_legal = np.add.reduceat(pairs.phi, pairs.starts[:-1], axis=0) / pairs.counts[:, None]
     beyond = pairs.phi[pairs.chosen] - mean_legal
     return np.add.reduceat(beyond, pairs.steps_of[:-1], axis=0) / np.diff(pairs.steps_of)[:, None]
 
@@ -210,8 +226,8 @@ def supervised_accuracy(pairs: ChoicePairs, styles: np.ndarray, cv, ridge: float
     trajectory given to the style under which its moves are most likely (log share included).
     Mean accuracy over the folds of ``cv``."""
     k = int(styles.max()) + 1
-    mean, sd = pairs.phi.mean(axis=0), pairs.phi.std(axis=0)
-    pairs = replace(pairs, phi=(pairs.phi - mean) / np.where(sd > 0, sd, 1.0))
+    mean, std = _standardisation(pairs.phi)
+    pairs = replace(pairs, phi=(pairs.phi - mean) / std)
     steps = np.diff(pairs.steps_of)
     scores = []
     for train, test in cv.split(np.zeros(len(styles)), styles):

@@ -135,7 +135,7 @@ class ClusterModel:
 
     def choice_scores(self, dataset) -> np.ndarray:
         """choice_mix: (n, k) log share + log-likelihood of each trajectory's moves."""
-        from pcpg_dist.stages.clustering.choice_mix import ChoiceFit
+        from pcpg_dist.stages.clustering.choice_mix import choice_scores
         from pcpg_dist.stages.clustering.move_pairs import load_move_features, pairs_of
 
         self._checked_states(dataset)
@@ -149,16 +149,16 @@ class ClusterModel:
                 f"gives {pairs.phi.shape[1]}"
             )
         w, log_share = self.choice
-        fit = ChoiceFit(w, log_share, self.mean.astype(np.float64), self.std.astype(np.float64),
-                        None, None, 0.0)  # fmt: skip
-        return fit.scores(pairs)
+        return choice_scores(
+            pairs, w, log_share, self.mean.astype(np.float64), self.std.astype(np.float64)
+        )
 
     def features(self, dataset) -> np.ndarray:
         """The space the centroids live in: latents (LSTM methods) or normalised summaries."""
         if self.choice is not None:
-            scores = self.choice_scores(dataset)
-            p = np.exp(scores - scores.max(axis=1, keepdims=True))
-            return (p / p.sum(axis=1, keepdims=True)).astype(np.float32)
+            from pcpg_dist.stages.clustering import choice_mix
+
+            return choice_mix.posteriors(self.choice_scores(dataset))
         states, offsets = self._checked_states(dataset)
         if self.bag is not None:
             actions = np.asarray(dataset.actions, np.int64)

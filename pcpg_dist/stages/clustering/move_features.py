@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from pcpg_dist.common.errors import DataError
-from pcpg_dist.stages.clustering.choice_mix import fit_choice_mix
+from pcpg_dist.stages.clustering.choice_mix import fit_choice_mix, posteriors
 from pcpg_dist.stages.clustering.move_pairs import KEY, load_move_features, pairs_of
 
 
@@ -23,7 +23,6 @@ def fit_choice(dataset, states, offsets, cfg, seed: int, metrics: dict[str, floa
         )
     pairs = pairs_of(dataset, load_move_features(cfg.move_features), cfg.move_features)
     fit = fit_choice_mix(pairs, cfg.k, seed)
-    scores = fit.scores(pairs)
     metrics["choice_loglik_per_move"] = fit.loglik
     model = ClusterModel(
         "choice_mix",
@@ -36,6 +35,5 @@ def fit_choice(dataset, states, offsets, cfg, seed: int, metrics: dict[str, floa
         choice=(fit.w, fit.log_share),
         move_features=cfg.move_features,
     )
-    posterior = np.exp(scores - scores.max(axis=1, keepdims=True))
-    posterior /= posterior.sum(axis=1, keepdims=True)
-    return Fitted(fit.labels, posterior.astype(np.float32), model, fit.margins, silhouette=False)
+    latents = posteriors(fit.scores(pairs))
+    return Fitted(fit.labels, latents, model, fit.margins, silhouette=False)

@@ -63,6 +63,9 @@ def pairs_of(dataset, features: MoveFeatures, spec: str) -> ChoicePairs:
             phi = _SEEN.get(key)
             if phi is None:
                 phi = _described(features, dataset.states[row], legal, where)
+                if len(_SEEN) >= MAX_SEEN:
+                    _SEEN.clear()
+                _SEEN[key] = phi
             width = phi.shape[1] if width is None and phi.ndim == 2 else width
             if phi.shape != (len(legal), width):
                 raise DataError(
@@ -71,9 +74,6 @@ def pairs_of(dataset, features: MoveFeatures, spec: str) -> ChoicePairs:
                 )
             if not np.isfinite(phi).all():
                 raise DataError(f"{where} returned NaN or infinite values; all must be finite")
-            if len(_SEEN) >= MAX_SEEN:
-                _SEEN.clear()
-            _SEEN[key] = phi
             phis.append(phi)
             chosen.append(starts[-1] + int(np.searchsorted(legal, actions[row])))
             starts.append(starts[-1] + len(legal))
