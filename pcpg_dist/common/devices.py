@@ -61,6 +61,15 @@ def _quiet_numba_layer() -> None:
         numba.config.THREADING_LAYER = "workqueue"
 
 
+def thread_budget() -> int:
+    """The threads this process's numpy work may use: what :func:`set_threads` gave it (a task's
+    CPUs), else ``OMP_NUM_THREADS`` where the user set it, else its CPUs."""
+    try:
+        return max(1, int(os.environ.get("OMP_NUM_THREADS", "")))
+    except ValueError:
+        return available_cpus()
+
+
 def available_cpus() -> int:
     """CPUs this process may use (affinity-aware), never less than 1."""
     try:

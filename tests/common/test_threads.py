@@ -65,3 +65,17 @@ def test_a_drivers_openmp_wait_policy_goes_to_every_ray_worker(monkeypatch):
     assert package_runtime_env()["env_vars"] == env
     monkeypatch.delenv("OMP_WAIT_POLICY")
     assert worker_env() == THREAD_ENV
+
+
+def test_numpy_work_takes_the_threads_a_task_was_given(monkeypatch):
+    from pcpg_dist.common.devices import available_cpus, set_threads, thread_budget
+
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")  # set_threads writes it; restored after the test
+    set_threads(2)
+    try:
+        assert thread_budget() == 2
+    finally:
+        set_threads(1)
+    assert thread_budget() == 1
+    monkeypatch.setenv("OMP_NUM_THREADS", "")  # unset or unreadable: the process's CPUs
+    assert thread_budget() == available_cpus()

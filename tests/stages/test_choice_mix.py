@@ -10,6 +10,8 @@ from pcpg_dist.common.devices import set_threads
 from pcpg_dist.common.errors import DataError
 from pcpg_dist.config import parse_config
 from pcpg_dist.stages.clustering import ClusterConfig, cluster, clustering_metrics, load_model
+from pcpg_dist.stages.clustering.choice_mix import fit_choice_mix
+from pcpg_dist.stages.clustering.move_pairs import load_move_features, pairs_of
 
 MOVES = "move_toy:features"
 
@@ -39,6 +41,14 @@ def test_same_seed_same_labels(log, fitted):
     again = cluster(log, ClusterConfig(k=3, move_features=MOVES, confidence_runs=0), seed=0)
     np.testing.assert_array_equal(again.labels, fitted.labels)
     np.testing.assert_array_equal(again.margins, fitted.margins)
+
+
+def test_starts_run_side_by_side_give_the_same_fit(log):
+    pairs = pairs_of(log, load_move_features(MOVES), MOVES)
+    one, two = (fit_choice_mix(pairs, 3, seed=1, threads=n) for n in (1, 2))
+    np.testing.assert_array_equal(one.labels, two.labels)
+    np.testing.assert_array_equal(one.w, two.w)
+    assert one.loglik == two.loglik
 
 
 def test_saved_model_predicts_the_same_and_unseen_trajectories(tmp_path, log, fitted):

@@ -15,6 +15,7 @@ order, with ``starts`` (where each step's pairs begin) and ``chosen`` (each step
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from functools import cached_property
 
@@ -177,11 +178,14 @@ def fit_choice_mix(
     starts: int = 8,
     rounds: int = 40,
     ridge: float = 1e-3,
+    threads: int = 1,
 ) -> ChoiceFit:
     """EM from ``starts`` starting partitions (k-means on the revealed preferences, then random
-    soft ones), each run 8 short rounds; the start of the highest log-likelihood is run on to
-    ``rounds``. The features are standardised first (the ridge is on their weights)."""
+    soft ones), each run 8 short rounds (``threads`` of them at a time); the start of the highest
+    log-likelihood is run on to ``rounds``. The features are standardised first (the ridge is on
+    their weights). The result does not depend on ``threads``."""
     from sklearn.cluster import KMeans
+    from threadpoolctl import threadpool_limits
 
     n = len(pairs.steps_of) - 1
     if n < k:
@@ -192,11 +196,15 @@ def fit_choice_mix(
     prefs = revealed_preferences(pairs)
     prefs = (prefs - prefs.mean(axis=0)) / (prefs.std(axis=0) + 1e-9)
     first = KMeans(k, n_init=4, random_state=seed).fit_predict(prefs)
-    tried = []
+    draws = []
     for i in range(starts):
         resp = np.eye(k)[first] * 0.9 + 0.1 / k if i == 0 else rng.dirichlet(np.ones(k), size=n)
-        w0 = rng.normal(0.0, 0.1, (k, pairs.phi_t.shape[0]))
-        tried.append(_em(pairs, resp, w0, 8, 5, ridge))
+        draws.append((resp, rng.normal(0.0, 0.1, (k, pairs.phi_t.shape[0]))))
+    pairs.counts  # noqa: B018 - computed once, before the threads share it
+    # the starts are independent: numpy releases the GIL in their array work, so ``threads``
+    # of them run side by side, each with one BLAS thread (the same numbers as one after another)
+    with threadpool_limits(1), ThreadPoolExecutor(max(1, min(threads, starts))) as pool:
+        tried = list(pool.map(lambda d: _em(pairs, *d, 8, 5, ridge), draws))
     _, w, _, scores = max(tried, key=lambda t: t[0])
     resp = np.exp(scores - logsumexp(scores, axis=1, keepdims=True))
     total, w, log_share, scores = _em(pairs, resp, w, rounds, 20, ridge)

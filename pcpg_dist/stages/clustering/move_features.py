@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from pcpg_dist.common.devices import thread_budget
 from pcpg_dist.common.errors import DataError
 from pcpg_dist.stages.clustering.choice_mix import fit_choice_mix, posteriors
 from pcpg_dist.stages.clustering.move_pairs import KEY, load_move_features, pairs_of
@@ -22,7 +23,7 @@ def fit_choice(dataset, states, offsets, cfg, seed: int, metrics: dict[str, floa
             "the legal moves' features of a state"
         )
     pairs = pairs_of(dataset, load_move_features(cfg.move_features), cfg.move_features)
-    fit = fit_choice_mix(pairs, cfg.k, seed)
+    fit = fit_choice_mix(pairs, cfg.k, seed, threads=thread_budget())
     metrics["choice_loglik_per_move"] = fit.loglik
     model = ClusterModel(
         "choice_mix",
