@@ -1,0 +1,41 @@
+"""The line games' move features (``benchmarks.zoo.line_moves``) say what the games' own rules
+say: the wins, blocks and occupied cells they mark are the generator's, on played positions."""
+
+from __future__ import annotations
+
+import importlib
+
+import numpy as np
+import pytest
+
+from benchmarks.zoo import line_moves
+
+SHAPES = {"tictactoe": (3, 3), "connect_four": (6, 7)}
+
+
+@pytest.mark.parametrize("game", sorted(SHAPES))
+def test_line_moves_mark_the_wins_blocks_and_full_cells_the_game_has(game):
+    gen = importlib.import_module(f"benchmarks.zoo.{game}.generator")
+    rows, cols = SHAPES[game]
+    ids = np.arange(gen.GAME.n_actions)
+    col = {name: i for i, name in enumerate(line_moves.NAMES)}
+    seen = {"wins": 0, "blocks": 0, "unplayable": 0}
+    for style in range(len(gen.STYLES)):
+        for state in gen.play(style, seed=11 + style).states[:-1]:
+            cells = rows * cols
+            board = state[:cells].reshape(rows, cols) + 2 * state[cells:].reshape(rows, cols)
+            board = board.astype(int)
+            if game == "tictactoe":
+                board, legal = board.reshape(-1), [c for c in ids if board.flat[c] == 0]
+            else:
+                legal = [c for c in ids if board[0, c] == 0]
+            phi = getattr(line_moves, game)(state, ids)
+            assert phi.shape == (len(ids), len(line_moves.NAMES))
+            for name, who in (("wins", 1), ("blocks", 2)):
+                marked = {int(c) for c in ids[phi[:, col[name]] == 1]}
+                assert marked == set(gen._completing(board, legal, who)), (name, state)
+                seen[name] += len(marked)
+            unplayable = {int(c) for c in ids[phi[:, col["unplayable"]] == 1]}
+            assert unplayable == set(ids.tolist()) - set(legal)
+            seen["unplayable"] += len(unplayable)
+    assert min(seen.values()) > 0, seen  # each rule was met on the positions played
