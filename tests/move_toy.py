@@ -19,6 +19,16 @@ def features(state: np.ndarray, ids: np.ndarray) -> np.ndarray:
     return np.stack([np.sin(state[0] * (ids + 1) + 1.7 * j) for j in range(4)], axis=1)
 
 
+features.names = ["first", "second", "third", "fourth"]  # the style_weights table's rows
+
+
+def wrong_names(state: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    return features(state, ids)
+
+
+wrong_names.names = ["first", "second"]  # four features, two names
+
+
 def wrong_width(state: np.ndarray, ids: np.ndarray) -> np.ndarray:
     return np.zeros((len(ids), 3 if state[0] > 1.5 else 4))
 

@@ -111,3 +111,6 @@ def _lines(board: np.ndarray, r: int, c: int, k: int):
             cells = [(r + (i - back) * dr, c + (i - back) * dc) for i in range(k)]
             if all(0 <= y < rows and 0 <= x < cols for y, x in cells):
                 yield [int(board[y, x]) for y, x in cells], cells
+
+
+tictactoe.names = connect_four.names = NAMES  # what pcpg's style_weights table calls each

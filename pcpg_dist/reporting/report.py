@@ -69,6 +69,13 @@ ENV_SECTIONS = (
     ("correlation", "Model vs subset correlation", "Fig. 7", "correlation.png", ("correlation",)),
     ("reward", "Reward distance to the optimum", "Table 3", None, ("reward_distance",)),
     (
+        "style_weights",
+        "What each cluster weighs (clustering.move_features)",
+        "",
+        "style_weights.png",
+        ("style_weights",),
+    ),
+    (
         "rollout_length",
         "Rollout length vs p",
         "Figs. 5 and 6",

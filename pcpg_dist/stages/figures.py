@@ -222,6 +222,28 @@ def heatmap(
         return _save(fig, path)
 
 
+def style_weights(table: pd.DataFrame, path: Path) -> Path:
+    """What each cluster weighs (``choice_mix``): move features (rows) against clusters
+    (columns), each weight per standard deviation of its feature, written in."""
+    values = table.drop(columns="feature").to_numpy(dtype=float)
+    n_features, k = values.shape
+    top = max(float(np.abs(values).max(initial=0.0)), 1e-9)
+    longest = max((len(str(n)) for n in table["feature"]), default=8)
+    with style():
+        fig, ax = plt.subplots(figsize=(2.0 + 0.08 * longest + 0.8 * k, 1.2 + 0.3 * n_features))
+        im = ax.imshow(values, vmin=-top, vmax=top, cmap="RdBu_r", aspect="auto")
+        ax.grid(False)
+        ax.set_xticks(range(k), [str(c) for c in table.columns[1:]])
+        ax.set_yticks(range(n_features), [str(n) for n in table["feature"]])
+        ax.set_xlabel("cluster")
+        for (i, j), v in np.ndenumerate(values):
+            colour = _text_colour(im.cmap(im.norm(v)))
+            ax.text(j, i, f"{v:+.1f}", ha="center", va="center", fontsize=8, color=colour)
+        ax.set_title("what each cluster weighs\n(per std. dev. of each move feature)", fontsize=10)
+        fig.colorbar(im, ax=ax, fraction=0.046, pad=0.04)
+        return _save(fig, path)
+
+
 def rollout_length(length: pd.DataFrame, path: Path, mode: str, ylabel: str | None = None) -> Path:
     """Fig. 5/6: mean rollout (or kept-trajectory) length vs p per style and for No Clustering."""
     with style():
@@ -318,6 +340,8 @@ def write_all(
             1,
             "RdBu_r",
         )
+    if "style_weights" in tables:
+        figs["style_weights"] = style_weights(tables["style_weights"], out / "style_weights.png")
     if "rollout_length" in tables:
         figs["rollout_length"] = rollout_length(
             tables["rollout_length"], out / "rollout_length.png", mode

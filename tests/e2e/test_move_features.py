@@ -36,8 +36,10 @@ def step_table(n_per_style: int, seed: int) -> pd.DataFrame:
 
 @pytest.mark.slow
 def test_own_game_with_move_features_end_to_end(ray_session, tmp_path) -> None:
+    from rich.console import Console
+
     from pcpg_dist.api.run import run_experiment
-    from pcpg_dist.reporting.summary import method_used
+    from pcpg_dist.reporting.summary import method_used, print_summary
     from pcpg_dist.stages.clustering.confidence import verdict_of
 
     path = tmp_path / "moves.parquet"
@@ -65,5 +67,16 @@ def test_own_game_with_move_features_end_to_end(ray_session, tmp_path) -> None:
     assert m["clustering/ceiling_choice_likelihood"] >= 0.95
     assert m["clustering/accuracy"] >= m["clustering/ceiling"] - 0.03
     assert m["clustering/ceiling_linear_bags"] < 0.8  # the ids and states alone say little
+    # what each cluster weighs, named by the function's names, in a table and on the terminal
+    (env,) = result.clustering
+    weights = pd.read_csv(result.out_dir / "summary" / env / "style_weights.csv")
+    assert list(weights.columns) == ["feature", "k0", "k1", "k2"]
+    assert list(weights["feature"]) == ["first", "second", "third", "fourth"]
+    console = Console(record=True, width=400)
+    print_summary(result, console, method="bag_auto")
+    said = console.export_text()
+    assert "bag_auto -> choice_mix" in said and "what sets each cluster apart" in said
+    for name in ("first", "second", "third"):  # each style's own feature sets its cluster apart
+        assert f"{name} +" in said
     summary = json.loads((result.out_dir / "summary" / "metrics.json").read_text())
     assert np.isclose(summary["clustering/accuracy"], m["clustering/accuracy"])

@@ -989,3 +989,21 @@ def test_past_thirty_environments_the_page_lists_the_rest_and_reads_each_table_o
     assert more is not None and "X29, X30, X31, X32, X33" in text_of(more)
     assert "35 environments" in text_of(doc.find(f".//{NS}header"))
     assert "## 5 more environments" in md_path.read_text()
+
+
+def test_what_each_cluster_weighs_is_a_figure_and_a_table_beside_it(summary, tmp_path):
+    """A clustering by the moves' features (choice_mix) writes ``style_weights``: the page shows
+    it as a section of its own, its figure drawn from the table, the feature names escaped."""
+    folder = edit_run(summary, tmp_path)
+    table = pd.DataFrame(
+        {"feature": ["takes", "<b>check</b>", "pawn push"], "k0": [1.5, -0.2, 0.1],
+         "k1": [-0.3, 2.0, 0.0]}
+    )  # fmt: skip
+    table.to_csv(folder / "E1" / "style_weights.csv", index=False)
+    assert folder / "E1" / "style_weights.png" in figures.redraw(folder)
+    html = render(folder, tmp_path / "out")[0].read_text()
+    parse(html)
+    section = html.split('id="E1-style_weights"')[1].split('id="E1-')[0]  # to the next one
+    assert "What each cluster weighs" in section and "data:image/png;base64," in section
+    assert "pawn push" in section and "&lt;b&gt;check&lt;/b&gt;" in section
+    assert "<b>check</b>" not in html

@@ -43,6 +43,24 @@ def test_same_seed_same_labels(log, fitted):
     np.testing.assert_array_equal(again.margins, fitted.margins)
 
 
+def test_what_each_cluster_weighs_reads_the_styles(log, fitted):
+    from move_toy import PREFERENCES
+
+    from pcpg_dist.stages.evaluation.style_weights import setting_apart, style_weights_of
+
+    table = style_weights_of(fitted.model)
+    assert list(table["feature"]) == ["first", "second", "third", "fourth"]
+    apart = setting_apart(table, top=1)
+    for style, prefs in enumerate(PREFERENCES):
+        col = f"k{np.bincount(fitted.labels[log.styles == style]).argmax()}"
+        liked = int(prefs.argmax())
+        # the style's cluster weighs the feature the style prefers more than any other cluster,
+        # and that is what sets it apart
+        assert table.loc[liked, ["k0", "k1", "k2"]].astype(float).idxmax() == col
+        assert apart[col][0][0] == table.at[liked, "feature"] and apart[col][0][1] > 0
+    assert style_weights_of(None) is None
+
+
 def test_starts_run_side_by_side_give_the_same_fit(log):
     pairs = pairs_of(log, load_move_features(MOVES), MOVES)
     one, two = (fit_choice_mix(pairs, 3, seed=1, threads=n) for n in (1, 2))
@@ -92,6 +110,7 @@ def test_a_confidence_is_measured(log):
         ("move_toy:NOT_A_FUNCTION", "is a int, not a function"),
         ("move_toy:wrong_width", "returned shape (12, 3)"),
         ("move_toy:with_nan", "NaN or infinite values"),
+        ("move_toy:wrong_names", "move_toy:wrong_names.names must be a list of 4 names"),
     ],
 )
 def test_a_bad_move_feature_function_is_one_line(log, spec, says):

@@ -89,3 +89,6 @@ def move_features(state: np.ndarray, ids: np.ndarray) -> np.ndarray:
         [_features(board, chess_utils.action_to_move(board, int(a), 0)) for a in ids],
         dtype=np.float64,
     ).reshape(len(ids), len(NAMES))
+
+
+move_features.names = NAMES  # what pcpg's style_weights table and figure call each feature

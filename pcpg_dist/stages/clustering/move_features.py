@@ -9,7 +9,12 @@ import numpy as np
 from pcpg_dist.common.devices import thread_budget
 from pcpg_dist.common.errors import DataError
 from pcpg_dist.stages.clustering.choice_mix import fit_choice_mix, posteriors
-from pcpg_dist.stages.clustering.move_pairs import KEY, load_move_features, pairs_of
+from pcpg_dist.stages.clustering.move_pairs import (
+    KEY,
+    feature_names,
+    load_move_features,
+    pairs_of,
+)
 
 
 def fit_choice(dataset, states, offsets, cfg, seed: int, metrics: dict[str, float]):
@@ -22,7 +27,9 @@ def fit_choice(dataset, states, offsets, cfg, seed: int, metrics: dict[str, floa
             f"clustering.method choice_mix needs {KEY}: 'package.module:function' that gives "
             "the legal moves' features of a state"
         )
-    pairs = pairs_of(dataset, load_move_features(cfg.move_features), cfg.move_features)
+    features = load_move_features(cfg.move_features)
+    pairs = pairs_of(dataset, features, cfg.move_features)
+    feature_names(features, pairs.phi.shape[1], cfg.move_features)  # checked before the fit
     fit = fit_choice_mix(pairs, cfg.k, seed, threads=thread_budget())
     metrics["choice_loglik_per_move"] = fit.loglik
     model = ClusterModel(

@@ -44,6 +44,29 @@ def load_move_features(spec: str) -> MoveFeatures:
     return found
 
 
+def feature_names(features: MoveFeatures, width: int, spec: str) -> list[str]:
+    """What the function calls its ``width`` features: its ``names`` attribute where it has one
+    (a list or tuple of ``width`` strings), else ``feature 0``, ``feature 1``, ...; one line
+    where ``names`` is something else."""
+    names = getattr(features, "names", None)
+    if names is None:
+        return [f"feature {i}" for i in range(width)]
+    if not (
+        isinstance(names, list | tuple)
+        and len(names) == width
+        and all(isinstance(n, str) and 0 < len(n) <= MAX_NAME for n in names)
+    ):
+        raise DataError(
+            f"{KEY}: {spec}.names must be a list of {width} names (one per feature it returns, "
+            f"each 1-{MAX_NAME} characters), got {type(names).__name__} "
+            f"{str(names)[:80]!r}"
+        )
+    return list(names)
+
+
+MAX_NAME = 60  # characters of a feature's name
+
+
 def pairs_of(dataset, features: MoveFeatures, spec: str) -> ChoicePairs:
     """Every decision step's legal moves (``valid``; the taken move counts as legal) and their
     features from ``features``, checked: one line naming the step for a wrong shape, a width that
