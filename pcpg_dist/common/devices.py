@@ -63,9 +63,9 @@ def _quiet_numba_layer() -> None:
 
 def thread_budget() -> int:
     """The threads this process's numpy work may use: what :func:`set_threads` gave it (a task's
-    CPUs), else ``OMP_NUM_THREADS`` where the user set it, else its CPUs."""
+    CPUs) or the user's ``OMP_NUM_THREADS``, never more than its CPUs; else its CPUs."""
     try:
-        return max(1, int(os.environ.get("OMP_NUM_THREADS", "")))
+        return max(1, min(int(os.environ.get("OMP_NUM_THREADS", "")), available_cpus()))
     except ValueError:
         return available_cpus()
 

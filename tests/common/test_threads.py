@@ -73,9 +73,11 @@ def test_numpy_work_takes_the_threads_a_task_was_given(monkeypatch):
     monkeypatch.setenv("OMP_NUM_THREADS", "1")  # set_threads writes it; restored after the test
     set_threads(2)
     try:
-        assert thread_budget() == 2
+        assert thread_budget() == min(2, available_cpus())
     finally:
         set_threads(1)
     assert thread_budget() == 1
     monkeypatch.setenv("OMP_NUM_THREADS", "")  # unset or unreadable: the process's CPUs
+    assert thread_budget() == available_cpus()
+    monkeypatch.setenv("OMP_NUM_THREADS", "4096")  # never more than the CPUs
     assert thread_budget() == available_cpus()
