@@ -22,7 +22,8 @@ def cluster(
     executor: Executor | None = None,
 ) -> dict[str, dict]:
     """Cluster every unit of ``cfg`` (its data generated into ``out/data``, or read from
-    ``data``); writes ``out/<env>/{model/, labels.json, margins.json, metrics.json}`` and returns
+    ``data``); writes ``out/<env>/{model/, labels.json, margins.json, metrics.json}`` (and
+    ``style_weights.csv`` for a clustering by the moves' features) and returns
     each environment's Step A result (labels, margins, metrics)."""
     from pcpg_dist.dataset import load_datasets
     from pcpg_dist.domains import contract
@@ -68,3 +69,8 @@ def _write_clustering(folder: Path, res: dict) -> None:
     else:  # never an earlier clustering's margins beside these labels
         (folder / "margins.json").unlink(missing_ok=True)
     atomic_write_bytes(folder / "metrics.json", json.dumps(res["metrics"], indent=1).encode())
+    weights = folder / "style_weights.csv"  # what each cluster weighs (a choice_mix clustering)
+    if res.get("style_weights"):
+        atomic_write_bytes(weights, res["style_weights"].encode())
+    else:  # never an earlier clustering's weights beside these labels
+        weights.unlink(missing_ok=True)

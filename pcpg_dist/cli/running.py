@@ -154,11 +154,16 @@ def _print_points(res) -> None:
 
 def cluster(args: argparse.Namespace) -> None:
     """Step A alone: one clustering per environment on Ray; saves models + labels."""
+    import io
+
+    import pandas as pd
+
     from pcpg_dist.api.cluster import cluster
     from pcpg_dist.common.files import confined
     from pcpg_dist.common.progress import out as console  # results: stdout
     from pcpg_dist.config.overrides import load_config_with
     from pcpg_dist.stages.clustering.confidence import verdict_of
+    from pcpg_dist.stages.evaluation.style_weights import apart_line
 
     cfg = load_config_with(args.config, args.overrides)
     _start_ray(args)
@@ -175,6 +180,9 @@ def cluster(args: argparse.Namespace) -> None:
         said = verdict_of(res["metrics"], cfg.clustering.k)
         if said.verdict != "not measured":
             console.print(f"{env}: confidence without labels: {said.line()}")
+        if res.get("style_weights"):
+            table = pd.read_csv(io.StringIO(res["style_weights"]))
+            console.print(apart_line(env, table), markup=False, highlight=False)
 
 
 def tune(args: argparse.Namespace) -> None:

@@ -19,6 +19,7 @@ from pcpg_dist.domains.base import Unit
 def cluster_task(unit: Unit, cluster_cfg, seed: int, threads: int) -> dict:
     """One unit's clustering: labels, margins, metrics and the fitted model's files as bytes."""
     from pcpg_dist.pipeline.units import cluster_unit
+    from pcpg_dist.stages.evaluation.style_weights import style_weights_of
 
     set_threads(threads)
     result = cluster_unit(unit, cluster_cfg, seed)
@@ -28,11 +29,13 @@ def cluster_task(unit: Unit, cluster_cfg, seed: int, threads: int) -> dict:
             result.model.save(Path(tmp))
             model = files_of(tmp)
     margins = None if result.margins is None else result.margins.tolist()
+    weights = style_weights_of(result.model)  # what each cluster weighs, by the moves' features
     return {
         "labels": result.labels.tolist(),
         "margins": margins,
         "metrics": result.metrics,
         "model": model,
+        "style_weights": None if weights is None else weights.to_csv(index=False),
     }
 
 

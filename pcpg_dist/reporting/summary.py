@@ -133,22 +133,12 @@ def print_summary(result, console, method: str | None = None, bc=None) -> None:
 def _print_weights(result, console) -> None:
     """For each environment clustered by its moves' features (``choice_mix``), what sets each
     cluster apart: the features whose weight differs most from the clusters' mean."""
-    from pcpg_dist.stages.evaluation.style_weights import setting_apart
+    from pcpg_dist.stages.evaluation.style_weights import apart_line
 
     for env in result.clustering:
         path = Path(result.out_dir) / "summary" / env / "style_weights.csv"
-        if not path.is_file():
-            continue
-        apart = setting_apart(pd.read_csv(path))
-        said = "; ".join(
-            f"{c} " + ", ".join(f"{name} {v:+.1f}" for name, v in top) for c, top in apart.items()
-        )
-        console.print(
-            f"{env}: what sets each cluster apart (a move feature's weight beyond the clusters' "
-            f"mean, per std. dev.; style_weights.csv): {said}",
-            markup=False,
-            highlight=False,
-        )
+        if path.is_file():
+            console.print(apart_line(env, pd.read_csv(path)), markup=False, highlight=False)
 
 
 def _print_starts(result, console, bc) -> None:

@@ -78,5 +78,11 @@ def test_own_game_with_move_features_end_to_end(ray_session, tmp_path) -> None:
     assert "bag_auto -> choice_mix" in said and "what sets each cluster apart" in said
     for name in ("first", "second", "third"):  # each style's own feature sets its cluster apart
         assert f"{name} +" in said
+    # `pcpg cluster` (Step A alone) writes the same table beside its model
+    from pcpg_dist.api.cluster import cluster
+
+    cluster(cfg, tmp_path / "step_a", show_progress=False)
+    alone = pd.read_csv(tmp_path / "step_a" / env / "style_weights.csv")
+    pd.testing.assert_frame_equal(alone, weights)
     summary = json.loads((result.out_dir / "summary" / "metrics.json").read_text())
     assert np.isclose(summary["clustering/accuracy"], m["clustering/accuracy"])

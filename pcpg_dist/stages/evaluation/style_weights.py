@@ -44,3 +44,15 @@ def setting_apart(table: pd.DataFrame, top: int = 3) -> dict[str, list[tuple[str
         order = apart[col].abs().sort_values(ascending=False, kind="stable").index[:top]
         out[str(col)] = [(str(table.at[i, "feature"]), float(apart.at[i, col])) for i in order]
     return out
+
+
+def apart_line(env: str, table: pd.DataFrame) -> str:
+    """One line for the terminal: what sets each of ``env``'s clusters apart."""
+    said = "; ".join(
+        f"{c} " + ", ".join(f"{name} {v:+.1f}" for name, v in top)
+        for c, top in setting_apart(table).items()
+    )
+    return (
+        f"{env}: what sets each cluster apart (a move feature's weight beyond the clusters' "
+        f"mean, per std. dev.; style_weights.csv): {said}"
+    )
