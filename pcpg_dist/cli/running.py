@@ -163,7 +163,7 @@ def cluster(args: argparse.Namespace) -> None:
     from pcpg_dist.common.progress import out as console  # results: stdout
     from pcpg_dist.config.overrides import load_config_with
     from pcpg_dist.stages.clustering.confidence import verdict_of
-    from pcpg_dist.stages.evaluation.style_weights import apart_line
+    from pcpg_dist.stages.clustering.style_weights import apart_line
 
     cfg = load_config_with(args.config, args.overrides)
     _start_ray(args)

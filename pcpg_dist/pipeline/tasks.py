@@ -19,7 +19,7 @@ from pcpg_dist.domains.base import Unit
 def cluster_task(unit: Unit, cluster_cfg, seed: int, threads: int) -> dict:
     """One unit's clustering: labels, margins, metrics and the fitted model's files as bytes."""
     from pcpg_dist.pipeline.units import cluster_unit
-    from pcpg_dist.stages.evaluation.style_weights import style_weights_of
+    from pcpg_dist.stages.clustering.style_weights import style_weights_of
 
     set_threads(threads)
     result = cluster_unit(unit, cluster_cfg, seed)

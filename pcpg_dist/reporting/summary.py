@@ -133,7 +133,7 @@ def print_summary(result, console, method: str | None = None, bc=None) -> None:
 def _print_weights(result, console) -> None:
     """For each environment clustered by its moves' features (``choice_mix``), what sets each
     cluster apart: the features whose weight differs most from the clusters' mean."""
-    from pcpg_dist.stages.evaluation.style_weights import apart_line
+    from pcpg_dist.stages.clustering.style_weights import apart_line
 
     for env in result.clustering:
         path = Path(result.out_dir) / "summary" / env / "style_weights.csv"

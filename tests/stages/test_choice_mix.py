@@ -46,7 +46,7 @@ def test_same_seed_same_labels(log, fitted):
 def test_what_each_cluster_weighs_reads_the_styles(log, fitted):
     from move_toy import PREFERENCES
 
-    from pcpg_dist.stages.evaluation.style_weights import setting_apart, style_weights_of
+    from pcpg_dist.stages.clustering.style_weights import setting_apart, style_weights_of
 
     table = style_weights_of(fitted.model)
     assert list(table["feature"]) == ["first", "second", "third", "fourth"]

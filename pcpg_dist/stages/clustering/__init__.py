@@ -6,7 +6,8 @@ The package's modules, by concern: :mod:`.step` (the dispatch over the table of 
 between two fits by stability), :mod:`.auto` (which method runs on a dataset, whether it trains
 a network), one module per clusterer family (:mod:`.kmeans`, :mod:`.bags`,
 :mod:`.greedy_mix` with :mod:`.greedy_likelihood`, :mod:`.lstm` with :mod:`.autoencoder`,
-:mod:`.policy_mix` with :mod:`.policy_network`), the shared inputs (:mod:`.states`,
+:mod:`.policy_mix` with :mod:`.policy_network`, :mod:`.choice_mix` with :mod:`.move_pairs`,
+:mod:`.move_features` and :mod:`.style_weights`), the shared inputs (:mod:`.states`,
 :mod:`.features`), the fitted model (:mod:`.model`, :mod:`.model_io`), :mod:`.metrics` and the
 supervised :mod:`.ceiling`.
 

@@ -27,6 +27,7 @@ from pcpg_dist.config.stages import EvalConfig
 from pcpg_dist.dataset import Dataset
 from pcpg_dist.domains.base import DomainHooks
 from pcpg_dist.stages.bc import TrainedCells
+from pcpg_dist.stages.clustering.style_weights import style_weights_of
 from pcpg_dist.stages.evaluation.accuracy import (
     accuracy_table,
     cluster_style_table,
@@ -37,7 +38,6 @@ from pcpg_dist.stages.evaluation.corruption import corruption_tables
 from pcpg_dist.stages.evaluation.cross import cross_tables
 from pcpg_dist.stages.evaluation.results import EvalResult
 from pcpg_dist.stages.evaluation.rollouts import rollout_tables
-from pcpg_dist.stages.evaluation.style_weights import style_weights_table
 from pcpg_dist.stages.evaluation.subsets import subset_length_table
 from pcpg_dist.stages.evaluation.writing import write_evaluation
 from pcpg_dist.stages.ranking import RankConfig, ScoreFn
@@ -68,7 +68,9 @@ def evaluate(
     wins_over_baseline(ctx)
     cross_tables(ctx)  # Table 4 and Fig. 7
     subset_length_table(ctx)  # Fig. 6 from the data
-    style_weights_table(ctx, model)  # what each cluster weighs, where its moves' features said
+    weights = style_weights_of(model)  # what each cluster weighs, where its moves' features said
+    if weights is not None:
+        ctx.tables["style_weights"] = weights
     rollout_sets: dict[tuple, Dataset] = {}
     if ctx.hooks.rollout is not None:  # Table 3, Fig. 5/6, Fig. 8
         rollout_tables(ctx, rollout_sets, model)

@@ -2,23 +2,16 @@
 features (``clustering.move_features``), so that a user without labels can read what the styles
 it found are.
 
-Why apart: it reads the fitted clustering, not the agents, and only a clustering by the moves'
-features has it. Each weight is per standard deviation of its feature over the log's legal
-moves: +1 multiplies the odds of a move by e for each standard deviation more of that feature.
+Only a clustering by the moves' features has it; the evaluation writes it beside its tables
+(``style_weights.csv``, and its figure), `pcpg cluster` beside its model, and the terminal says
+what sets each cluster apart. Each weight is per standard deviation of its feature over the
+log's legal moves: +1 multiplies the odds of a move by e for each standard deviation more of
+that feature.
 """
 
 from __future__ import annotations
 
 import pandas as pd
-
-from pcpg_dist.stages.evaluation.context import EvalContext
-
-
-def style_weights_table(ctx: EvalContext, model) -> None:
-    """Table ``style_weights`` (:func:`style_weights_of`), where the clustering has one."""
-    table = style_weights_of(model)
-    if table is not None:
-        ctx.tables["style_weights"] = table
 
 
 def style_weights_of(model) -> pd.DataFrame | None:
