@@ -39,3 +39,28 @@ def test_line_moves_mark_the_wins_blocks_and_full_cells_the_game_has(game):
             assert unplayable == set(ids.tolist()) - set(legal)
             seen["unplayable"] += len(unplayable)
     assert min(seen.values()) > 0, seen  # each rule was met on the positions played
+
+
+def test_goofspiel_moves_read_the_prize_and_the_hand_openspiel_has():
+    from benchmarks.zoo.goofspiel import generator as gen
+    from benchmarks.zoo.goofspiel import moves
+
+    col = {name: i for i, name in enumerate(moves.NAMES)}
+    rng = np.random.default_rng(5)
+    one_up = gen._policy(2, rng)
+    for _ in range(5):
+        state = gen.GAME_.new_initial_state()
+        while not state.is_terminal():
+            if state.is_chance_node():
+                state.apply_action(int(rng.choice([o for o, _ in state.chance_outcomes()])))
+                continue
+            hand = [a + 1 for a in state.legal_actions(0)]
+            prize = int(np.argmax(state.observation_tensor(0)[: gen.CARDS])) + 1
+            phi = moves.move_features(np.array(state.observation_tensor(0)), np.arange(8))
+            playable = np.flatnonzero(phi[:, col["unplayable"]] == 0) + 1
+            assert playable.tolist() == hand
+            assert np.flatnonzero(phi[:, col["lowest"]]).tolist() == [min(hand) - 1]
+            assert np.flatnonzero(phi[:, col["highest"]]).tolist() == [max(hand) - 1]
+            up = np.flatnonzero(phi[:, col["one_up"]]) + 1
+            assert up.tolist() == ([one_up(prize, hand, 0)] if max(hand) > prize else [])
+            state.apply_actions([int(rng.choice(hand)) - 1, state.legal_actions(1)[0]])
