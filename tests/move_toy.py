@@ -29,6 +29,25 @@ def wrong_names(state: np.ndarray, ids: np.ndarray) -> np.ndarray:
 wrong_names.names = ["first", "second"]  # four features, two names
 
 
+def playable_here(state: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """Which ids are moves in ``state`` (about two in three): what a log without action masks
+    does not say."""
+    return (np.asarray(ids) * 7919 + int(state[0] * 1000)) % 3 != 0
+
+
+def with_playable(state: np.ndarray, ids: np.ndarray):
+    """The features and which offered ids are moves here (for a log that offers every id)."""
+    return features(state, ids), playable_here(state, ids)
+
+
+def none_playable(state: np.ndarray, ids: np.ndarray):
+    return features(state, ids), np.zeros(len(ids), bool)
+
+
+def playable_of_wrong_shape(state: np.ndarray, ids: np.ndarray):
+    return features(state, ids), np.ones(len(ids) + 1, bool)
+
+
 def wrong_width(state: np.ndarray, ids: np.ndarray) -> np.ndarray:
     return np.zeros((len(ids), 3 if state[0] > 1.5 else 4))
 
@@ -42,8 +61,10 @@ def with_nan(state: np.ndarray, ids: np.ndarray) -> np.ndarray:
 NOT_A_FUNCTION = 3
 
 
-def players(n_per_style: int, seed: int) -> Dataset:
-    """Three styles, ``n_per_style`` trajectories each of 8-20 moves; 10 % random legal moves."""
+def players(n_per_style: int, seed: int, offered: int = 0) -> Dataset:
+    """Three styles, ``n_per_style`` trajectories each of 8-20 moves; 10 % random legal moves.
+    With ``offered``, the log's masks also offer that many ids a step that are no moves there
+    (:func:`playable_here`), as a log without action masks does."""
     rng = np.random.default_rng(seed)
     trajs, styles = [], []
     for style, w in enumerate(PREFERENCES):
@@ -53,8 +74,12 @@ def players(n_per_style: int, seed: int) -> Dataset:
             valid = np.zeros((t + 1, N_ACTIONS), bool)
             actions = np.zeros(t, np.int64)
             for i in range(t):
-                legal = np.sort(rng.choice(N_ACTIONS, int(rng.integers(6, 15)), replace=False))
+                moves = np.flatnonzero(playable_here(states[i], np.arange(N_ACTIONS)))
+                legal = np.sort(rng.choice(moves, int(rng.integers(6, 15)), replace=False))
                 valid[i, legal] = True
+                if offered:
+                    no_moves = np.flatnonzero(~playable_here(states[i], np.arange(N_ACTIONS)))
+                    valid[i, rng.choice(no_moves, offered, replace=False)] = True
                 score = features(states[i], legal) @ w + rng.gumbel(size=len(legal)) * 0.5
                 pick = rng.integers(len(legal)) if rng.random() < 0.1 else np.argmax(score)
                 actions[i] = legal[pick]

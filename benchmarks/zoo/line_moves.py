@@ -8,7 +8,9 @@ on top of it; how central its column and row are, whether it is a corner or on t
 many of its neighbours are the player's or the opponent's, what it lands on; how many of the
 k-long lines through it are still open to the player and how far the player has built them;
 its height; and whether it is the player's first move, alone and with the centre, a corner and
-the border (an opening). Like chess's (:mod:`benchmarks.zoo.chess.moves`) they were written
+the border (an opening). The zoo's line games log no action mask, so every id is offered at
+every step: the functions also return which offered moves are playable (a free cell, a column
+not full), and pcpg leaves the others out. Like chess's (:mod:`benchmarks.zoo.chess.moves`) they were written
 knowing what the styles weigh (the centre, corners, edges, blocking, building next to one's own
 or the opponent's pieces, stacking): they show what the framework does when a game's author says
 what a move does, not what an unseen game gives.
@@ -24,25 +26,35 @@ import numpy as np
 NAMES = (
     "wins", "blocks", "gives_win_above", "column_central", "row_central", "corner", "border",
     "own_near", "theirs_near", "on_own", "on_theirs", "open_lines", "built", "height",
-    "first", "first_central", "first_corner", "first_border", "unplayable",
+    "first", "first_central", "first_corner", "first_border",
 )  # fmt: skip
 DIRECTIONS = ((0, 1), (1, 0), (1, 1), (1, -1))
 
 
-def tictactoe(state: np.ndarray, legal: np.ndarray) -> np.ndarray:
-    """Tic-tac-toe's legal cells (id = row * 3 + column) on its 18 numbers."""
+def tictactoe(state: np.ndarray, legal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Tic-tac-toe's offered cells (id = row * 3 + column) on its 18 numbers, and which are free
+    (the log has no action mask: every cell is offered)."""
     board = _board(state, 3, 3)
-    return np.array([_features(board, int(c) // 3, int(c) % 3, 3, False) for c in legal])
+    cells = [(int(c) // 3, int(c) % 3) for c in legal]
+    return _described(board, cells, 3, False)
 
 
-def connect_four(state: np.ndarray, legal: np.ndarray) -> np.ndarray:
-    """Connect Four's legal columns on its 84 numbers (rows from the top): each move is the cell
-    its piece lands on (a full column's is its top cell, and unplayable)."""
+def connect_four(state: np.ndarray, legal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Connect Four's offered columns on its 84 numbers (rows from the top): each move is the
+    cell its piece lands on; a full column is no move (the log has no action mask)."""
     board = _board(state, 6, 7)
     rows = [int(np.nonzero(board[:, c] == 0)[0].max(initial=0)) for c in legal]
-    return np.array(
-        [_features(board, r, int(c), 4, True) for r, c in zip(rows, legal, strict=True)]
-    )
+    return _described(board, [(r, int(c)) for r, c in zip(rows, legal, strict=True)], 4, True)
+
+
+def _described(board: np.ndarray, cells, k: int, gravity: bool) -> tuple[np.ndarray, np.ndarray]:
+    """The features of a move to each of ``cells`` (zeros where it is taken) and which are free."""
+    free = np.array([board[r, c] == 0 for r, c in cells], bool)
+    rows = [
+        _features(board, r, c, k, gravity) if ok else [0.0] * len(NAMES)
+        for (r, c), ok in zip(cells, free, strict=True)
+    ]
+    return np.array(rows, dtype=np.float64).reshape(len(cells), len(NAMES)), free
 
 
 def _board(state: np.ndarray, rows: int, cols: int) -> np.ndarray:
@@ -54,10 +66,7 @@ def _board(state: np.ndarray, rows: int, cols: int) -> np.ndarray:
 
 
 def _features(board: np.ndarray, r: int, c: int, k: int, gravity: bool) -> list[float]:
-    """A move to (r, c); one the board does not allow (the zoo's line games log no action mask,
-    so every id is offered) is only marked unplayable."""
-    if board[r, c]:
-        return [0.0] * (len(NAMES) - 1) + [1.0]
+    """A move to the free cell (r, c)."""
     rows, cols = board.shape
     corner = r in (0, rows - 1) and c in (0, cols - 1)
     border = not corner and (r in (0, rows - 1) or c in (0, cols - 1))
@@ -91,7 +100,6 @@ def _features(board: np.ndarray, r: int, c: int, k: int, gravity: bool) -> list[
         first * (column + row) / 2,
         first * corner,
         first * border,
-        0.0,
     ]
 
 

@@ -61,6 +61,19 @@ def test_what_each_cluster_weighs_reads_the_styles(log, fitted):
     assert style_weights_of(None) is None
 
 
+def test_a_log_that_offers_ids_that_are_no_moves_is_told_by_the_function():
+    """A log without action masks offers ids that are no moves there; a function that returns
+    (features, playable) leaves them out of every step, and the styles are found as before."""
+    offering = players(30, seed=4, offered=6)
+    spec = "move_toy:with_playable"
+    pairs = pairs_of(offering, load_move_features(spec), spec)
+    steps = len(pairs.chosen)
+    decisions = offering.valid[np.asarray(offering.actions) >= 0]
+    assert len(pairs.phi) == int(decisions.sum()) - 6 * steps  # the offered ids left out
+    found = cluster(offering, ClusterConfig(k=3, move_features=spec, confidence_runs=0), seed=0)
+    assert clustering_metrics(offering.styles, found.labels)["accuracy"] >= 0.95
+
+
 def test_starts_run_side_by_side_give_the_same_fit(log):
     pairs = pairs_of(log, load_move_features(MOVES), MOVES)
     one, two = (fit_choice_mix(pairs, 3, seed=1, threads=n) for n in (1, 2))
@@ -111,6 +124,11 @@ def test_a_confidence_is_measured(log):
         ("move_toy:wrong_width", "returned shape (12, 3)"),
         ("move_toy:with_nan", "NaN or infinite values"),
         ("move_toy:wrong_names", "move_toy:wrong_names.names must be a list of 4 names"),
+        ("move_toy:none_playable", "says the log's move"),
+        (
+            "move_toy:playable_of_wrong_shape",
+            "shape (7,); it must be 6 booleans, one per offered move",
+        ),
     ],
 )
 def test_a_bad_move_feature_function_is_one_line(log, spec, says):

@@ -6,8 +6,8 @@ prizes left, both players' points one-hot, the player's hand, the win sequence);
 bids card ``a + 1``. Each bid is described against the prize and the hand: how far above the
 prize it is, how near the prize and the prize plus two, whether it is the lowest or highest card
 in hand or the smallest above the prize, the highest and the lowest weighed by the prize, the
-lowest in the first three rounds, the card itself, and whether it is in hand at all (the log has
-no action mask, so every id is offered). **Written knowing the styles** (a matcher, a sniper, a
+lowest in the first three rounds and the card itself; and which bids are in hand at all (the log
+has no action mask, so every id is offered: pcpg leaves the others out). **Written knowing the styles** (a matcher, a sniper, a
 one-up bidder, a patient bidder): this reading of the blind game is no longer blind.
 
     clustering.move_features: "benchmarks.zoo.goofspiel.moves:move_features"
@@ -21,23 +21,23 @@ CARDS = 8
 PRIZE, HAND = slice(0, CARDS), slice(90, 90 + CARDS)  # where the tensor holds them
 NAMES = (
     "above_prize", "near_prize", "near_prize_plus_two", "lowest", "highest", "one_up",
-    "highest_x_prize", "lowest_x_prize", "lowest_early", "card", "unplayable",
+    "highest_x_prize", "lowest_x_prize", "lowest_early", "card",
 )  # fmt: skip
 
 
-def move_features(state: np.ndarray, ids: np.ndarray) -> np.ndarray:
-    """(len(ids), 11): each bid of ``ids`` against the state's prize and hand."""
+def move_features(state: np.ndarray, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(len(ids), 10): each bid of ``ids`` against the state's prize and hand; and which of them
+    are in hand."""
     prize = int(np.argmax(state[PRIZE])) + 1
     hand = [c + 1 for c in np.flatnonzero(state[HAND] > 0.5)]
-    if not hand:  # the log's last observation: no prize and no hand left
-        return np.zeros((len(ids), len(NAMES)))
+    in_hand = np.array([int(a) + 1 in hand for a in ids], bool)
     above = [c for c in hand if c > prize]
     early = float(CARDS - len(hand) < 3)
     rows = []
     for a in ids:
         card = int(a) + 1
         if card not in hand:
-            rows.append([0.0] * (len(NAMES) - 1) + [1.0])
+            rows.append([0.0] * len(NAMES))
             continue
         low, high = float(card == min(hand)), float(card == max(hand))
         rows.append([
@@ -51,9 +51,8 @@ def move_features(state: np.ndarray, ids: np.ndarray) -> np.ndarray:
             low * prize / CARDS,
             low * early,
             card / CARDS,
-            0.0,
         ])  # fmt: skip
-    return np.array(rows)
+    return np.array(rows, dtype=np.float64).reshape(len(ids), len(NAMES)), in_hand
 
 
 move_features.names = NAMES  # what pcpg's style_weights table calls each feature

@@ -4,7 +4,8 @@ moves of a log with what it says of each (the input of :mod:`.choice_mix`).
 Where a log's move ids do not say what a move does (chess: 4,672 ids, each a from-square and a
 direction), the user names a function of their own, ``"package.module:function"``, that says it:
 ``function(state, legal_ids) -> (len(legal_ids), F)`` numbers for the legal moves of one state
-(the state as the log's row, the ids as ints, ascending). pcpg calls it once per decision step,
+(the state as the log's row, the ids as ints, ascending), or ``(those numbers, playable)`` with
+one boolean per id where the log offers ids that are not moves there (it has no action masks). pcpg calls it once per decision step,
 in the clustering task, and fits :mod:`.choice_mix` to the result. ``bag_auto`` uses it whenever
 the setting is given (docs/clustering.md, "What a move does").
 """
@@ -21,7 +22,8 @@ from pcpg_dist.stages.clustering.choice_mix import ChoicePairs
 
 KEY = "clustering.move_features"
 
-MoveFeatures = Callable[[np.ndarray, np.ndarray], np.ndarray]
+#: ``(state, legal_ids) -> features`` or ``-> (features, playable)``
+MoveFeatures = Callable[[np.ndarray, np.ndarray], np.ndarray | tuple[np.ndarray, np.ndarray]]
 
 #: the features each (function, state, legal ids) got, so the confidence's refits on subsamples,
 #: the ceiling and the model's assignments of the same log call the user's function once a step
@@ -70,7 +72,9 @@ MAX_NAME = 60  # characters of a feature's name
 def pairs_of(dataset, features: MoveFeatures, spec: str) -> ChoicePairs:
     """Every decision step's legal moves (``valid``; the taken move counts as legal) and their
     features from ``features``, checked: one line naming the step for a wrong shape, a width that
-    changes, a non-number or a NaN."""
+    changes, a non-number or a NaN. Where the function also says which offered moves are
+    playable (it returns ``(features, playable)``: a log without action masks offers every id),
+    only those are the step's moves; the taken one must be among them."""
     offsets = np.asarray(dataset.offsets, np.int64)
     actions = np.asarray(dataset.actions, np.int64)
     phis, starts, chosen, steps_of, width = [], [0], [], [0], None
@@ -83,12 +87,13 @@ def pairs_of(dataset, features: MoveFeatures, spec: str) -> ChoicePairs:
                 legal = np.sort(np.append(legal, actions[row]))
             where = f"{KEY}: {spec} at trajectory {i} (row {row})"
             key = (spec, dataset.states[row].tobytes(), legal.tobytes())
-            phi = _SEEN.get(key)
-            if phi is None:
-                phi = _described(features, dataset.states[row], legal, where)
+            got = _SEEN.get(key)
+            if got is None:
+                got = _described(features, dataset.states[row], legal, where)
                 if len(_SEEN) >= MAX_SEEN:
                     _SEEN.clear()
-                _SEEN[key] = phi
+                _SEEN[key] = got
+            phi, playable = got
             width = phi.shape[1] if width is None and phi.ndim == 2 else width
             if phi.shape != (len(legal), width):
                 raise DataError(
@@ -97,6 +102,13 @@ def pairs_of(dataset, features: MoveFeatures, spec: str) -> ChoicePairs:
                 )
             if not np.isfinite(phi).all():
                 raise DataError(f"{where} returned NaN or infinite values; all must be finite")
+            if playable is not None:
+                if not playable[np.searchsorted(legal, actions[row])]:
+                    raise DataError(
+                        f"{where} says the log's move {actions[row]} is not playable; the "
+                        "move a trajectory took must be"
+                    )
+                phi, legal = phi[playable], legal[playable]
             phis.append(phi)
             chosen.append(starts[-1] + int(np.searchsorted(legal, actions[row])))
             starts.append(starts[-1] + len(legal))
@@ -106,8 +118,24 @@ def pairs_of(dataset, features: MoveFeatures, spec: str) -> ChoicePairs:
     return ChoicePairs(np.concatenate(phis), np.array(starts), np.array(chosen), np.array(steps_of))
 
 
-def _described(features: MoveFeatures, state: np.ndarray, legal: np.ndarray, where: str):
+def _described(
+    features: MoveFeatures, state: np.ndarray, legal: np.ndarray, where: str
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """(the features as float64, which offered moves are playable or None), or one line."""
     try:
-        return np.asarray(features(state, legal), dtype=np.float64)
+        got, playable = features(state, legal), None
+        if isinstance(got, tuple):
+            if len(got) != 2:
+                raise DataError(
+                    f"{where} returned a tuple of {len(got)}; return the features, or "
+                    "(features, playable)"
+                )
+            got, playable = got[0], np.asarray(got[1])
+            if playable.dtype != np.bool_ or playable.shape != (len(legal),):
+                raise DataError(
+                    f"{where} returned playable of dtype {playable.dtype} and shape "
+                    f"{playable.shape}; it must be {len(legal)} booleans, one per offered move"
+                )
+        return np.asarray(got, dtype=np.float64), playable
     except (TypeError, ValueError) as exc:
         raise DataError(f"{where} gave no numbers: {exc}") from None
