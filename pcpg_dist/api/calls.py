@@ -124,8 +124,10 @@ def classify(
     is also written there as CSV (never over the dataset or the model, never inside a run).
 
     ``table.attrs`` holds ``unknown_rows`` (the share of rows in states the model was not fitted
-    on; None where the model has no such notion) and ``against_styles`` (accuracy and agreement
-    with the dataset's true styles where it has them, else None).
+    on; None where the model has no such notion), ``against_styles`` (accuracy and agreement
+    with the dataset's true styles where it has them, else None) and ``style_weights`` (what
+    each cluster of a ``choice_mix`` model weighs, column by column: ``feature``, ``k0`` ...;
+    else None).
 
     With a streamed run's clustering (``RUN/summary/model_seed<S>``) ``dataset`` is a Parquet log
     of any size, labelled block by block into ``out`` (required), and the table holds the cluster
@@ -137,6 +139,7 @@ def classify(
     from pcpg_dist.common.files import atomic_write_bytes
     from pcpg_dist.dataset import Dataset, load_dataset
     from pcpg_dist.stages.clustering import clustering_metrics, load_model
+    from pcpg_dist.stages.clustering.style_weights import style_weights_of
     from pcpg_dist.stages.streamed.model import is_streamed_model
 
     if out is not None:
@@ -159,6 +162,8 @@ def classify(
     table.attrs["unknown_rows"] = fitted.unknown_rows(ds)
     labelled = (ds.styles >= 0).all()
     table.attrs["against_styles"] = clustering_metrics(ds.styles, pred) if labelled else None
+    weights = style_weights_of(fitted)  # choice_mix: what each cluster weighs (plain lists)
+    table.attrs["style_weights"] = None if weights is None else weights.to_dict(orient="list")
     if out is not None:
         atomic_write_bytes(Path(out), table.to_csv(index=False).encode())
     return table

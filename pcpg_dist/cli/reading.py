@@ -52,6 +52,14 @@ def classify(args: argparse.Namespace) -> None:
         pred = table["predicted_style"].to_numpy()
         n, sizes = len(table), [int((pred == c).sum()) for c in range(int(pred.max()) + 1)]
     console.print(f"{n} trajectories -> {out}; cluster sizes {sizes}")
+    if table.attrs.get("style_weights") is not None:
+        import pandas as pd
+
+        from pcpg_dist.stages.clustering.style_weights import apart_line
+
+        weights = pd.DataFrame(table.attrs["style_weights"])
+        line = apart_line(Path(args.model).name, weights)
+        console.print(line, markup=False, highlight=False)
     unknown = table.attrs["unknown_rows"]
     if unknown is not None:
         console.print(f"{unknown:.0%} of the rows are in states the model was not fitted on")

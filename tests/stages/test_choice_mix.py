@@ -93,6 +93,10 @@ def test_saved_model_predicts_the_same_and_unseen_trajectories(tmp_path, log, fi
 
     table = classify(tmp_path / "m", fresh, move_features=MOVES)
     np.testing.assert_array_equal(table.predicted_style.to_numpy(), model.predict(fresh))
+    # and says what each cluster weighs, as the run did
+    weights = table.attrs["style_weights"]
+    assert weights["feature"] == ["first", "second", "third", "fourth"]
+    np.testing.assert_allclose(weights["k0"], fitted.model.choice[0][0])
 
 
 @pytest.mark.parametrize(
@@ -150,3 +154,16 @@ def test_the_ceiling_has_the_choice_models_given_the_styles(log):
     # the panel's other views read ids, which say nothing here
     assert max(v for n, v in panel.items() if n != "choice_likelihood") < 0.8, panel
     assert "choice_likelihood" not in ceiling_panel(log, seed=0)
+
+
+def test_pcpg_classify_says_what_sets_each_cluster_apart(tmp_path, fitted, capsys):
+    from pcpg_dist.cli import main
+    from pcpg_dist.dataset import write_parquet
+
+    fitted.model.save(tmp_path / "m")
+    write_parquet(players(5, seed=98), tmp_path / "fresh.parquet")
+    args = ["classify", str(tmp_path / "m"), str(tmp_path / "fresh.parquet"), "--move-features"]
+    out = tmp_path / "labels.csv"
+    assert main([*args, MOVES, "--out", str(out)]) == 0
+    said = capsys.readouterr().out
+    assert "m: what sets each cluster apart" in said and "first +" in said and out.is_file()
