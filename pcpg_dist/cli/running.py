@@ -154,10 +154,6 @@ def _print_points(res) -> None:
 
 def cluster(args: argparse.Namespace) -> None:
     """Step A alone: one clustering per environment on Ray; saves models + labels."""
-    import io
-
-    import pandas as pd
-
     from pcpg_dist.api.cluster import cluster
     from pcpg_dist.common.files import confined
     from pcpg_dist.common.progress import out as console  # results: stdout
@@ -180,7 +176,11 @@ def cluster(args: argparse.Namespace) -> None:
         said = verdict_of(res["metrics"], cfg.clustering.k)
         if said.verdict != "not measured":
             console.print(f"{env}: confidence without labels: {said.line()}")
-        if res.get("style_weights"):
+        if res.get("style_weights"):  # a clustering by the moves' features: what each weighs
+            import io
+
+            import pandas as pd
+
             table = pd.read_csv(io.StringIO(res["style_weights"]))
             console.print(apart_line(env, table), markup=False, highlight=False)
 

@@ -225,7 +225,8 @@ def heatmap(
 def style_weights(table: pd.DataFrame, path: Path) -> Path:
     """What each cluster weighs (``choice_mix``): move features (rows) against clusters
     (columns), each weight per standard deviation of its feature, written in."""
-    values = table.drop(columns="feature").to_numpy(dtype=float)
+    weights = table.drop(columns="feature")
+    values = weights.to_numpy(dtype=float)
     n_features, k = values.shape
     top = max(float(np.abs(values).max(initial=0.0)), 1e-9)
     longest = max((len(str(n)) for n in table["feature"]), default=8)
@@ -233,7 +234,7 @@ def style_weights(table: pd.DataFrame, path: Path) -> Path:
         fig, ax = plt.subplots(figsize=(2.0 + 0.08 * longest + 0.8 * k, 1.2 + 0.3 * n_features))
         im = ax.imshow(values, vmin=-top, vmax=top, cmap="RdBu_r", aspect="auto")
         ax.grid(False)
-        ax.set_xticks(range(k), [str(c) for c in table.columns[1:]])
+        ax.set_xticks(range(k), [str(c) for c in weights.columns])
         ax.set_yticks(range(n_features), [str(n) for n in table["feature"]])
         ax.set_xlabel("cluster")
         for (i, j), v in np.ndenumerate(values):

@@ -5,8 +5,9 @@ Where a log's move ids do not say what a move does (chess: 4,672 ids, each a fro
 direction), the user names a function of their own, ``"package.module:function"``, that says it:
 ``function(state, legal_ids) -> (len(legal_ids), F)`` numbers for the legal moves of one state
 (the state as the log's row, the ids as ints, ascending), or ``(those numbers, playable)`` with
-one boolean per id where the log offers ids that are not moves there (it has no action masks). pcpg calls it once per decision step,
-in the clustering task, and fits :mod:`.choice_mix` to the result. ``bag_auto`` uses it whenever
+one boolean per id where the log offers ids that are not moves there (it has no action masks).
+pcpg calls it once per decision step, in the clustering task, and fits :mod:`.choice_mix` to the
+result. ``bag_auto`` uses it whenever
 the setting is given (docs/clustering.md, "What a move does").
 """
 
@@ -29,6 +30,7 @@ MoveFeatures = Callable[[np.ndarray, np.ndarray], np.ndarray | tuple[np.ndarray,
 #: the ceiling and the model's assignments of the same log call the user's function once a step
 _SEEN: dict[tuple[str, bytes, bytes], np.ndarray] = {}
 MAX_SEEN = 500_000  # steps remembered; past it the memory starts again
+MAX_NAME = 60  # characters of a feature's name
 
 
 def load_move_features(spec: str) -> MoveFeatures:
@@ -64,9 +66,6 @@ def feature_names(features: MoveFeatures, width: int, spec: str) -> list[str]:
             f"{str(names)[:80]!r}"
         )
     return list(names)
-
-
-MAX_NAME = 60  # characters of a feature's name
 
 
 def pairs_of(dataset, features: MoveFeatures, spec: str) -> ChoicePairs:
