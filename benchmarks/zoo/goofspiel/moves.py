@@ -7,8 +7,9 @@ bids card ``a + 1``. Each bid is described against the prize and the hand: how f
 prize it is, how near the prize and the prize plus two, whether it is the lowest or highest card
 in hand or the smallest above the prize, the highest and the lowest weighed by the prize, the
 lowest in the first three rounds and the card itself; and which bids are in hand at all (the log
-has no action mask, so every id is offered: pcpg leaves the others out). **Written knowing the styles** (a matcher, a sniper, a
-one-up bidder, a patient bidder): this reading of the blind game is no longer blind.
+has no action mask, so every id is offered: pcpg leaves the others out). **Written knowing the
+styles** (a matcher, a sniper, a one-up bidder, a patient bidder): this reading of the blind game
+is no longer blind.
 
     clustering.move_features: "benchmarks.zoo.goofspiel.moves:move_features"
 """
@@ -17,7 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
-CARDS = 8
+from benchmarks.zoo.goofspiel.generator import CARDS
+
 PRIZE, HAND = slice(0, CARDS), slice(90, 90 + CARDS)  # where the tensor holds them
 NAMES = (
     "above_prize", "near_prize", "near_prize_plus_two", "lowest", "highest", "one_up",
@@ -34,9 +36,9 @@ def move_features(state: np.ndarray, ids: np.ndarray) -> tuple[np.ndarray, np.nd
     above = [c for c in hand if c > prize]
     early = float(CARDS - len(hand) < 3)
     rows = []
-    for a in ids:
+    for a, playable in zip(ids, in_hand, strict=True):
         card = int(a) + 1
-        if card not in hand:
+        if not playable:
             rows.append([0.0] * len(NAMES))
             continue
         low, high = float(card == min(hand)), float(card == max(hand))
