@@ -68,7 +68,7 @@ def play(style: int, seed: int) -> Episode:
     rng = np.random.default_rng(seed)
     bid, opponent, eps = _policy(style, rng), _opponent(rng), rng.uniform(0.03, 0.08)
     state = GAME_.new_initial_state()
-    states, actions, rewards = [], [], []
+    states, actions, rewards, valid = [], [], [], []
     while not state.is_terminal():
         if state.is_chance_node():
             outcomes = [o for o, _ in state.chance_outcomes()]
@@ -80,11 +80,12 @@ def play(style: int, seed: int) -> Episode:
         mine = int(rng.choice(hand)) if rng.random() < eps else bid(prize, hand, len(actions))
         theirs = opponent(prize, other)
         states.append(state.observation_tensor(0))
+        valid.append(np.isin(np.arange(CARDS), state.legal_actions(0)))
         actions.append(mine - 1)
         rewards.append(float(prize * np.sign(mine - theirs)))
         state.apply_actions([mine - 1, theirs - 1])
     states.append(state.observation_tensor(0))
-    return Episode(np.array(states), np.array(actions), np.array(rewards))
+    return Episode(np.array(states), np.array(actions), np.array(rewards), np.array(valid))
 
 
 GAME = Game(

@@ -79,9 +79,10 @@ def _opponent(rng: np.random.Generator):
 
 
 def _hand(
-    state, policies, seat: int, rng: np.random.Generator, states: list, actions: list
+    state, policies, seat: int, rng: np.random.Generator, states: list, actions: list, valid: list
 ) -> None:
-    """Plays one hand to its end, recording the styled player's (``seat``) decisions."""
+    """Plays one hand to its end, recording the styled player's (``seat``) decisions and
+    which actions each allowed."""
     while not state.is_terminal():
         if state.is_chance_node():
             outcomes, probs = zip(*state.chance_outcomes(), strict=True)
@@ -93,6 +94,7 @@ def _hand(
         if player == seat:
             states.append(tensor)
             actions.append(action)
+            valid.append(np.isin(np.arange(3), state.legal_actions()))
         state.apply_action(action)
 
 
@@ -103,13 +105,14 @@ def play(style: int, seed: int) -> Episode:
     states: list[np.ndarray] = []
     actions: list[int] = []
     rewards: list[float] = []
+    valid: list[np.ndarray] = []
     for hand in range(HANDS):
         seat, state = (first + hand) % 2, GAME_.new_initial_state()
-        _hand(state, policies, seat, rng, states, actions)
+        _hand(state, policies, seat, rng, states, actions, valid)
         rewards += [0.0] * (len(actions) - len(rewards))
         rewards[-1] += state.returns()[seat]
     states.append(np.asarray(state.information_state_tensor(seat), np.float32))
-    return Episode(np.array(states), np.array(actions), np.array(rewards))
+    return Episode(np.array(states), np.array(actions), np.array(rewards), np.array(valid))
 
 
 GAME = Game(

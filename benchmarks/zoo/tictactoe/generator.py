@@ -90,6 +90,7 @@ def play(style: int, seed: int) -> Episode:
         lambda r: _styled(style, r),
         lambda r: opponent(r, _completing),
         lambda p: (p[:, :, 0] + 2 * p[:, :, 1]).reshape(-1),
+        masks=True,
     )
 
 
