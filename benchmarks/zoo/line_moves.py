@@ -8,9 +8,9 @@ on top of it; how central its column and row are, whether it is a corner or on t
 many of its neighbours are the player's or the opponent's, what it lands on; how many of the
 k-long lines through it are still open to the player and how far the player has built them;
 its height; and whether it is the player's first move, alone and with the centre, a corner and
-the border (an opening). The zoo's line games log no action mask, so every id is offered at
-every step: the functions also return which offered moves are playable (a free cell, a column
-not full), and pcpg leaves the others out. Like chess's (:mod:`benchmarks.zoo.chess.moves`) they were written
+the border (an opening). A log without action masks offers every id at every step (the zoo's line games logged none
+until the twenty-ninth session): the functions also return which offered moves are playable (a
+free cell, a column not full), and pcpg leaves the others out. Like chess's (:mod:`benchmarks.zoo.chess.moves`) they were written
 knowing what the styles weigh (the centre, corners, edges, blocking, building next to one's own
 or the opponent's pieces, stacking): they show what the framework does when a game's author says
 what a move does, not what an unseen game gives.
@@ -33,7 +33,7 @@ DIRECTIONS = ((0, 1), (1, 0), (1, 1), (1, -1))
 
 def tictactoe(state: np.ndarray, legal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Tic-tac-toe's offered cells (id = row * 3 + column) on its 18 numbers, and which are free
-    (the log has no action mask: every cell is offered)."""
+    (a log without action masks offers every cell)."""
     board = _board(state, 3, 3)
     cells = [(int(c) // 3, int(c) % 3) for c in legal]
     return _described(board, cells, 3, False)
@@ -41,7 +41,7 @@ def tictactoe(state: np.ndarray, legal: np.ndarray) -> tuple[np.ndarray, np.ndar
 
 def connect_four(state: np.ndarray, legal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Connect Four's offered columns on its 84 numbers (rows from the top): each move is the
-    cell its piece lands on; a full column is no move (the log has no action mask)."""
+    cell its piece lands on; a full column is no move (where a log has no action mask)."""
     board = _board(state, 6, 7)
     rows = [int(np.nonzero(board[:, c] == 0)[0].max(initial=0)) for c in legal]
     return _described(board, [(r, int(c)) for r, c in zip(rows, legal, strict=True)], 4, True)

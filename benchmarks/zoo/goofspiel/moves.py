@@ -6,8 +6,9 @@ prizes left, both players' points one-hot, the player's hand, the win sequence);
 bids card ``a + 1``. Each bid is described against the prize and the hand: how far above the
 prize it is, how near the prize and the prize plus two, whether it is the lowest or highest card
 in hand or the smallest above the prize, the highest and the lowest weighed by the prize, the
-lowest in the first three rounds and the card itself; and which bids are in hand at all (the log
-has no action mask, so every id is offered: pcpg leaves the others out). **Written knowing the
+lowest in the first three rounds and the card itself; and which bids are in hand at all (a log
+without action masks offers every id, as the zoo's did until the twenty-ninth session: pcpg
+leaves the others out). **Written knowing the
 styles** (a matcher, a sniper, a one-up bidder, a patient bidder): this reading of the blind game
 is no longer blind.
 
