@@ -1,6 +1,7 @@
 """The zoo's move features say what the games' own rules say: the line games' wins, blocks and
 playable cells (``benchmarks.zoo.line_moves``) are the generators', goofspiel's hand and bids
-(``benchmarks.zoo.goofspiel.moves``) OpenSpiel's, on played positions."""
+(``benchmarks.zoo.goofspiel.moves``) and Othello's flips, mobility and squares
+(``benchmarks.zoo.othello.moves``) OpenSpiel's, on played positions."""
 
 from __future__ import annotations
 
@@ -63,3 +64,78 @@ def test_goofspiel_moves_read_the_prize_and_the_hand_openspiel_has():
             up = np.flatnonzero(phi[:, col["one_up"]]) + 1
             assert up.tolist() == ([one_up(prize, hand, 0)] if max(hand) > prize else [])
             state.apply_actions([int(rng.choice(hand)) - 1, state.legal_actions(1)[0]])
+
+
+def _othello_owner(state, player):
+    """+1 the player's disc, -1 the opponent's, 0 empty (8 x 8), from OpenSpiel's tensor."""
+    t = np.array(state.observation_tensor(player)).reshape(3, 8, 8)
+    return (t[1] - t[2]).astype(int)
+
+
+def _othello_check_move(moves, col, state, me, a, row, owner):
+    """One legal placement ``a`` of ``state`` against OpenSpiel's own play of it."""
+    after = state.clone()
+    after.apply_action(int(a))
+    new = _othello_owner(after, me)
+    changed = new != owner
+    assert changed.sum() == round(row[col["flips"]] * 10) + 1, a
+    assert new[changed].tolist() == [1] * int(changed.sum())
+    empty_after = np.pad(new == 0, 1)
+    touches = np.zeros((8, 8), bool)
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            touches |= empty_after[1 + dr : 9 + dr, 1 + dc : 9 + dc]
+    assert (changed & touches).sum() == round(row[col["frontier"]] * 10)
+    mine = moves.move_features(np.array(after.observation_tensor(me)), np.arange(64))[1]
+    assert mine.sum() == round(row[col["own_mobility"]] * 10)
+    theirs = [] if after.is_terminal() else after.legal_actions()
+    theirs = [b for b in theirs if b != moves.PASS]
+    assert len(theirs) == round(row[col["opp_mobility"]] * 10)
+    assert row[col["opp_passes"]] == float(not theirs)
+    assert row[col["opp_corners"]] == len({0, 7, 56, 63} & set(theirs))
+    r, c = divmod(int(a), 8)
+    assert row[col["corner"]] == float(r in (0, 7) and c in (0, 7))
+    assert row[col["edge"]] == float((r in (0, 7)) != (c in (0, 7)))
+    corner = {9: (0, 0), 14: (0, 7), 49: (7, 0), 54: (7, 7)}.get(int(a))
+    assert row[col["x_square"]] == float(corner is not None and owner[corner] == 0)
+    quadrant = owner[r // 4 * 4 : r // 4 * 4 + 4, c // 4 * 4 : c // 4 * 4 + 4]
+    assert row[col["odd_region"]] == float((quadrant == 0).sum() % 2)
+    assert row[col["stable_gain"]] >= row[col["corner"]] / 10
+
+
+def test_othello_moves_play_each_move_as_openspiel_does():
+    pyspiel = pytest.importorskip("pyspiel")
+    from benchmarks.zoo.othello import moves
+
+    assert len(moves.move_features.names) == len(moves.NAMES)
+    col = {name: i for i, name in enumerate(moves.NAMES)}
+    game = pyspiel.load_game("othello")
+    rng = np.random.default_rng(3)
+    seen = {"moves": 0, "passes": 0, "corners": 0, "opp_passes": 0, "stable": 0}
+    for _ in range(4):
+        state, claims = game.new_initial_state(), []  # claims: (player, squares said stable)
+        while not state.is_terminal():
+            me = state.current_player()
+            obs, legal = np.array(state.observation_tensor(me)), state.legal_actions()
+            phi, playable = moves.move_features(obs, np.arange(66))  # 65: no move at all
+            assert phi.shape == (66, len(moves.NAMES)) and np.isfinite(phi).all()
+            assert np.flatnonzero(playable).tolist() == legal
+            owner = _othello_owner(state, me)
+            for a in legal:
+                if a == moves.PASS:
+                    assert not phi[a].any()
+                    seen["passes"] += 1
+                    continue
+                _othello_check_move(moves, col, state, me, a, phi[a], owner)
+                seen["moves"] += 1
+                seen["corners"] += int(phi[a, col["corner"]])
+                seen["opp_passes"] += int(phi[a, col["opp_passes"]])
+            own, opp, _ = moves._board(obs)
+            stable = int(moves._stable(own, opp)[0])
+            claims.append((me, [s for s in range(64) if stable >> s & 1]))
+            seen["stable"] += len(claims[-1][1])
+            forcing = [a for a in legal if phi[a, col["opp_passes"]]]  # to meet passes too
+            state.apply_action(int(rng.choice(forcing or legal)))
+            for player, squares in claims:  # a disc said stable is never turned over
+                assert all(_othello_owner(state, player).flat[s] == 1 for s in squares)
+    assert min(seen.values()) > 0, seen  # each rule was met on the positions played
