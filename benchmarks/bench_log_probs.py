@@ -7,7 +7,9 @@ torch thread, on the shapes policy_mix fits (32,768 rows, k = 4 heads, 64 hidden
 
 Prints milliseconds per forward + backward and the ratio old / new for each action count; then,
 with every action valid (most logs), the additive mask added anyway (as until the eighteenth
-session) against ``picked_log_probs``, which skips an all-zero mask.
+session) against ``picked_log_probs``, which skips an all-zero mask; then, with a few legal ids
+of many (othello's 65 ids, about 10 legal), exp taken of the masked -1e9 entries too (as until
+the thirtieth session) against ``picked_log_probs``'s :func:`masked_exp`.
 """
 
 from __future__ import annotations
@@ -35,6 +37,15 @@ def masked_anyway(logits: torch.Tensor, actions: torch.Tensor, valid: torch.Tens
     """picked_log_probs as until the eighteenth session: the mask added even when all-zero."""
     mask = torch.zeros(valid.shape).masked_fill_(~valid, -1e9)
     return new_log_probs(logits + mask.view(len(actions), 1, -1), actions, valid)
+
+
+def unfloored(logits: torch.Tensor, actions: torch.Tensor, valid: torch.Tensor):
+    """picked_log_probs as until the thirtieth session: exp of every entry, the masked too."""
+    mask = torch.zeros(valid.shape).masked_fill_(~valid, -1e9)
+    logits = logits + mask.view(len(actions), 1, -1)
+    top = logits.detach().amax(-1, keepdim=True)
+    picked = logits.gather(-1, actions.view(-1, 1, 1).expand(*logits.shape[:-1], 1))
+    return (picked - top - (logits - top).exp().sum(-1, keepdim=True).log()).squeeze(-1).T
 
 
 def timed(fn, features, weight, actions, valid, k: int, n_actions: int, repeats: int) -> float:
@@ -84,6 +95,25 @@ def main() -> None:
             for fn in (masked_anyway, new_log_probs)
         )
         print(f"{n_actions:>7} {anyway:>8.2f} {skipped:>8.2f} {anyway / skipped:>8.2f}")
+    print(
+        f"\na few legal of many\n{'actions':>7} {'legal':>6} {'exp all':>8} {'floored':>8} {'ratio':>8}"
+    )
+    for n_actions, legal in ((65, 0.15), (65, 0.5), (18, 0.5)):
+        features = torch.randn(args.rows, hidden, generator=gen)
+        weight = (0.3 * torch.randn(hidden, k * n_actions, generator=gen)).requires_grad_()
+        actions = torch.randint(n_actions, (args.rows,), generator=gen)
+        valid = torch.rand(args.rows, n_actions, generator=gen) < legal
+        valid[torch.arange(args.rows), actions] = True
+        logits = (features @ weight).view(args.rows, k, n_actions)
+        if not torch.equal(
+            unfloored(logits, actions, valid), new_log_probs(logits, actions, valid)
+        ):
+            raise SystemExit(f"{n_actions} actions, {legal:.0%} legal: the two disagree")
+        every, floored = (
+            timed(fn, features, weight, actions, valid, k, n_actions, args.repeats)
+            for fn in (unfloored, new_log_probs)
+        )
+        print(f"{n_actions:>7} {legal:>6.0%} {every:>8.2f} {floored:>8.2f} {every / floored:>8.2f}")
 
 
 if __name__ == "__main__":

@@ -430,6 +430,30 @@ def test_picked_log_probs_is_the_masked_log_softmax_of_the_taken_action(heads):
     torch.testing.assert_close(picked_log_probs(logits, actions, every), plain, atol=1e-5, rtol=0)
 
 
+def test_picked_log_probs_under_a_mask_equals_exp_of_every_entry_and_keeps_far_moves():
+    """Few legal ids of many (exp of the masked ones skipped, masked_exp): the same numbers and
+    gradients, bit for bit, as exp of every entry; a taken move 120 below the row's best keeps
+    its log-probability of about -120 (the floor cuts terms of the sum, never the picked one)."""
+    gen = torch.Generator().manual_seed(1)
+    rows, heads, n_actions = 400, 4, 65
+    logits = (3 * torch.randn(rows, heads, n_actions, generator=gen)).requires_grad_()
+    actions = torch.randint(n_actions, (rows,), generator=gen)
+    valid = torch.rand(rows, n_actions, generator=gen) < 0.15
+    valid[torch.arange(rows), actions] = True
+    shifted = logits + torch.zeros(rows, n_actions).masked_fill_(~valid, -1e9)[:, None, :]
+    top = shifted.detach().amax(-1, keepdim=True)
+    index = actions[:, None, None].expand(rows, heads, 1)
+    every = shifted.gather(-1, index) - top - (shifted - top).exp().sum(-1, keepdim=True).log()
+    (every_grad,) = torch.autograd.grad(every.sum(), logits)
+    got = picked_log_probs(logits, actions, valid)
+    (grad,) = torch.autograd.grad(got.sum(), logits)
+    assert torch.equal(got, every.squeeze(-1)) and torch.equal(grad, every_grad)
+    far = torch.zeros(1, 3)
+    far[0, 0] = -120.0
+    far_valid = torch.tensor([[True, True, False]])
+    assert picked_log_probs(far, torch.tensor([0]), far_valid).item() == pytest.approx(-120.0)
+
+
 def test_the_clusterers_tanh_is_torchs_in_value_and_gradient():
     """2 sigmoid(2x) - 1 with tanh's own backward: within float32 rounding of torch.tanh over
     the whole range (saturated ends included, never NaN), and the policy trunk has no parameter

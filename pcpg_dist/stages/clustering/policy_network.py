@@ -27,6 +27,12 @@ def uniform_init(linears, generator: torch.Generator) -> None:
                 lin.bias.uniform_(-bound, bound, generator=generator)
 
 
+#: exp's floor under a mask (:func:`masked_exp`): torch's CPU exp of an argument below about
+#: -87.3 (a result under float32's smallest normal number, or 0) took 20-150x the time of one
+#: above it on the builds measured here, and most entries of a masked row are -1e9
+EXP_FLOOR = -87.0
+
+
 def picked_log_probs(logits: torch.Tensor, actions: torch.Tensor, valid: torch.Tensor):
     """log softmax(logits)[a] of each row's taken action, the actions not ``valid`` masked out.
 
@@ -37,12 +43,21 @@ def picked_log_probs(logits: torch.Tensor, actions: torch.Tensor, valid: torch.T
     (``benchmarks/bench_log_probs.py``); policy_mix spent a third of its time in log_softmax.
     """
     shape = (len(actions),) + (1,) * (logits.dim() - 2)
-    if not bool(valid.all()):  # adding an all-zero mask changes no value: skipped
+    masked = not bool(valid.all())
+    if masked:  # adding an all-zero mask changes no value: skipped
         mask = torch.zeros(valid.shape, device=logits.device).masked_fill_(~valid, -1e9)
         logits = logits + mask.view(*shape, -1)
     top = logits.detach().amax(-1, keepdim=True)
     picked = logits.gather(-1, actions.view(*shape, 1).expand(*logits.shape[:-1], 1))
-    return (picked - top - (logits - top).exp().sum(-1, keepdim=True).log()).squeeze(-1)
+    terms = (logits - top).exp() if not masked else masked_exp(logits - top, valid.view(*shape, -1))
+    return (picked - top - terms.sum(-1, keepdim=True).log()).squeeze(-1)
+
+
+def masked_exp(shifted: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
+    """exp(``shifted``) where ``valid``, exactly 0 elsewhere (as exp(-1e9) is), without calling
+    exp below :data:`EXP_FLOOR` or letting a term under float32's smallest normal number into
+    the backward pass: both ran 20-150x slower per element (``benchmarks/bench_log_probs.py``)."""
+    return shifted.clamp(min=EXP_FLOOR).exp() * valid
 
 
 class _SigmoidTanh(torch.autograd.Function):
