@@ -139,3 +139,22 @@ def test_othello_moves_play_each_move_as_openspiel_does():
             for player, squares in claims:  # a disc said stable is never turned over
                 assert all(_othello_owner(state, player).flat[s] == 1 for s in squares)
     assert min(seen.values()) > 0, seen  # each rule was met on the positions played
+
+
+def test_othellos_move_features_written_blind_find_its_styles_without_labels():
+    """Othello's features were written without seeing its styles (a blind game): at CI size
+    (80 games) the default clusters by them and places every game with its own style, and the
+    label-free confidence says so."""
+    pytest.importorskip("pyspiel")
+    from benchmarks.zoo.check import labelled_dataset
+    from pcpg_dist.config.clustering import ClusterConfig
+    from pcpg_dist.stages.clustering import cluster, clustering_metrics
+    from pcpg_dist.stages.clustering.confidence import stability, verdict_of
+
+    ds = labelled_dataset("othello", True)
+    cfg = ClusterConfig(k=4, move_features="benchmarks.zoo.othello.moves:move_features")
+    result = cluster(ds, cfg, 0)
+    assert result.metrics["auto_chose_choice_mix"] == 1.0
+    assert clustering_metrics(ds.styles, result.labels)["accuracy"] == 1.0
+    found = stability(ds, cfg, 0, result.labels, 2, 0.8)
+    assert verdict_of({**result.metrics, **found}, 4).verdict == "styles found"
