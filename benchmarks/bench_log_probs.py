@@ -48,6 +48,13 @@ def unfloored(logits: torch.Tensor, actions: torch.Tensor, valid: torch.Tensor):
     return (picked - top - (logits - top).exp().sum(-1, keepdim=True).log()).squeeze(-1).T
 
 
+def drawn(gen: torch.Generator, rows: int, hidden: int, k: int, n_actions: int, scale: float = 1.0):
+    """A problem's features, heads' weight (``scale`` x N(0, 1), trained) and taken actions."""
+    features = torch.randn(rows, hidden, generator=gen)
+    weight = (scale * torch.randn(hidden, k * n_actions, generator=gen)).requires_grad_()
+    return features, weight, torch.randint(n_actions, (rows,), generator=gen)
+
+
 def timed(fn, features, weight, actions, valid, k: int, n_actions: int, repeats: int) -> float:
     """Milliseconds per forward + backward of ``fn`` after the heads' matrix product."""
     for step in range(repeats + 3):  # 3 warm-up calls
@@ -68,9 +75,7 @@ def main() -> None:
     k, hidden = 4, 64
     print(f"{'actions':>7} {'old ms':>8} {'new ms':>8} {'old/new':>8}")
     for n_actions in (3, 5, 9, 18):
-        features = torch.randn(args.rows, hidden, generator=gen)
-        weight = torch.randn(hidden, k * n_actions, generator=gen).requires_grad_()
-        actions = torch.randint(n_actions, (args.rows,), generator=gen)
+        features, weight, actions = drawn(gen, args.rows, hidden, k, n_actions)
         valid = torch.rand(args.rows, n_actions, generator=gen) > 0.2
         valid[torch.arange(args.rows), actions] = True
         logits = (features @ weight).view(args.rows, k, n_actions)
@@ -86,9 +91,7 @@ def main() -> None:
         print(f"{n_actions:>7} {old:>8.2f} {new:>8.2f} {old / new:>8.2f}")
     print(f"\nevery action valid\n{'actions':>7} {'masked':>8} {'skipped':>8} {'ratio':>8}")
     for n_actions in (3, 6, 18):
-        features = torch.randn(args.rows, hidden, generator=gen)
-        weight = torch.randn(hidden, k * n_actions, generator=gen).requires_grad_()
-        actions = torch.randint(n_actions, (args.rows,), generator=gen)
+        features, weight, actions = drawn(gen, args.rows, hidden, k, n_actions)
         valid = torch.ones(args.rows, n_actions, dtype=torch.bool)
         anyway, skipped = (
             timed(fn, features, weight, actions, valid, k, n_actions, args.repeats)
@@ -99,9 +102,7 @@ def main() -> None:
         f"\na few legal of many\n{'actions':>7} {'legal':>6} {'exp all':>8} {'floored':>8} {'ratio':>8}"
     )
     for n_actions, legal in ((65, 0.15), (65, 0.5), (18, 0.5)):
-        features = torch.randn(args.rows, hidden, generator=gen)
-        weight = (0.3 * torch.randn(hidden, k * n_actions, generator=gen)).requires_grad_()
-        actions = torch.randint(n_actions, (args.rows,), generator=gen)
+        features, weight, actions = drawn(gen, args.rows, hidden, k, n_actions, 0.3)
         valid = torch.rand(args.rows, n_actions, generator=gen) < legal
         valid[torch.arange(args.rows), actions] = True
         logits = (features @ weight).view(args.rows, k, n_actions)

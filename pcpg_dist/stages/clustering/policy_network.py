@@ -43,13 +43,13 @@ def picked_log_probs(logits: torch.Tensor, actions: torch.Tensor, valid: torch.T
     (``benchmarks/bench_log_probs.py``); policy_mix spent a third of its time in log_softmax.
     """
     shape = (len(actions),) + (1,) * (logits.dim() - 2)
-    masked = not bool(valid.all())
-    if masked:  # adding an all-zero mask changes no value: skipped
-        mask = torch.zeros(valid.shape, device=logits.device).masked_fill_(~valid, -1e9)
-        logits = logits + mask.view(*shape, -1)
+    row_valid = None if bool(valid.all()) else valid.view(*shape, -1)  # all valid: no mask
+    if row_valid is not None:
+        mask = torch.zeros(row_valid.shape, device=logits.device).masked_fill_(~row_valid, -1e9)
+        logits = logits + mask
     top = logits.detach().amax(-1, keepdim=True)
     picked = logits.gather(-1, actions.view(*shape, 1).expand(*logits.shape[:-1], 1))
-    terms = (logits - top).exp() if not masked else masked_exp(logits - top, valid.view(*shape, -1))
+    terms = (logits - top).exp() if row_valid is None else masked_exp(logits - top, row_valid)
     return (picked - top - terms.sum(-1, keepdim=True).log()).squeeze(-1)
 
 
