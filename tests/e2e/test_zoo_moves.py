@@ -156,5 +156,5 @@ def test_othellos_move_features_written_blind_find_its_styles_without_labels():
     result = cluster(ds, cfg, 0)
     assert result.metrics["auto_chose_choice_mix"] == 1.0
     assert clustering_metrics(ds.styles, result.labels)["accuracy"] == 1.0
-    found = stability(ds, cfg, 0, result.labels, 2, 0.8)
+    found = stability(ds, cfg, 0, result.labels, cfg.confidence_runs, cfg.confidence_fraction)
     assert verdict_of({**result.metrics, **found}, 4).verdict == "styles found"
