@@ -79,6 +79,15 @@ def write_summary(
     return metrics
 
 
+def _lead(m: dict, p: float) -> str:
+    """PCPG's lead over No Clustering at ``p`` and one seed's paired standard error (trajectories
+    as the units; ``pcpg/lead_over_nc*``), or "-" where the run has none."""
+    lead, se = m.get(f"pcpg/lead_over_nc/p{p:g}"), m.get(f"pcpg/lead_over_nc_se/p{p:g}")
+    if lead is None:
+        return "-"
+    return f"{lead:+.3f}" + ("" if se is None or se != se else f" ± {se:.3f}")
+
+
 def print_summary(result, console, method: str | None = None, bc=None) -> None:
     """The terminal summary: accuracy per p (PCPG vs No Clustering), clustering quality (with the
     clustering ``method`` each environment was clustered with, where given), how the agents of
@@ -98,6 +107,7 @@ def print_summary(result, console, method: str | None = None, bc=None) -> None:
     t.add_column("p", justify="right")
     t.add_column("PCPG", justify="right")
     t.add_column("No Clustering", justify="right")
+    t.add_column("PCPG - NC (± s.e.)", justify="right")
     t.add_column("majority class", justify="right")
     t.add_column("random", justify="right")
     for p in ps:
@@ -105,6 +115,7 @@ def print_summary(result, console, method: str | None = None, bc=None) -> None:
             f"{p:g}",
             f"{m.get(f'pcpg/accuracy/p{p:g}', float('nan')):.3f}",
             f"{m.get(f'baseline/accuracy/p{p:g}', float('nan')):.3f}",
+            _lead(m, p),
             f"{m.get(f'majority/accuracy/p{p:g}', float('nan')):.3f}",
             f"{m.get(f'random/accuracy/p{p:g}', float('nan')):.3f}",
         )

@@ -120,3 +120,24 @@ def test_the_agents_start_is_said_where_the_verdict_doubts_the_styles():
     assert "found:" not in checked and "bc.finetune_check" in checked
     assert "bc.finetune_check" not in said(BCConfig(finetune_check=0))
     assert "fine-tuned" not in said(BCConfig(init="scratch")) and "fine-tuned" not in said(None)
+
+
+def test_pcpg_s_lead_over_no_clustering_is_printed_with_its_standard_error():
+    result = RunResult(
+        out_dir=Path("."),
+        metrics={
+            "pcpg/accuracy/p1": 0.81,
+            "baseline/accuracy/p1": 0.76,
+            "pcpg/lead_over_nc/p1": 0.05,
+            "pcpg/lead_over_nc_se/p1": 0.0123,
+            "pcpg/accuracy/p0.5": 0.8,  # a run without the lead (an older cache) prints a dash
+        },
+        clustering={"grid": {"clustering/accuracy": 0.9}},
+    )
+    console = Console(record=True, width=300)
+    print_summary(result, console, method=None)
+    text = console.export_text()
+    rows = {line.split()[1]: line.split("│") for line in text.splitlines() if "│" in line}
+    assert "PCPG - NC (± s.e.)" in text
+    assert rows["1"][4].strip() == "+0.050 ± 0.012"
+    assert rows["0.5"][4].strip() == "-"

@@ -84,6 +84,39 @@ def test_accuracy_matches_brute_force(run):
     assert scorer.random_accuracy(idx) == pytest.approx(np.mean(1 / test.valid_mask[rows].sum(1)))
 
 
+def test_paired_lead_matches_brute_force_with_trajectories_as_units(run):
+    ds, te, model, res, _ = run
+    scorer = Scorer(ds, te, model)
+    nc = model.index("nc-p1-s0")
+    parts = [(model.index(f"k{c}-p1-s0"), te[ds.styles[te] == c]) for c in (0, 1)]
+    lead, se = scorer.paired_lead(parts, nc)
+    # by hand: per test trajectory, its agent's hits less No Clustering's, and its steps
+    diff, steps = [], []
+    for cell, idx in parts:
+        for t in idx:
+            test = ds.subset(np.array([t]))
+            rows = test.step_rows
+            x, v, a = test.states[rows], test.valid_mask[rows], test.actions[rows]
+            diff.append(
+                np.sum(model.predict(x, v, cell) == a) - np.sum(model.predict(x, v, nc) == a)
+            )
+            steps.append(len(rows))
+    diff, steps = np.array(diff, float), np.array(steps, float)
+    assert lead == pytest.approx(diff.sum() / steps.sum())
+    assert lead == pytest.approx(scorer.pooled(parts) - scorer.accuracy(nc, te))
+    resid = diff - lead * steps
+    n = len(diff)
+    assert se == pytest.approx(np.sqrt((resid**2).sum() * n / (n - 1)) / steps.sum())
+    assert 0 < se < lead  # the toy's styles are clear: PCPG leads by more than one error
+    # an agent against itself leads by nothing, exactly
+    assert scorer.paired_lead([(nc, te)], nc) == (0.0, 0.0)
+    m = res.metrics
+    assert m["pcpg/lead_over_nc/p1"] == pytest.approx(
+        m["pcpg/accuracy/p1"] - m["baseline/accuracy/p1"]
+    )
+    assert 0 < m["pcpg/lead_over_nc_se/p1"] < m["pcpg/lead_over_nc/p1"]
+
+
 def test_rollouts_reward_distance_and_lengths(run):
     _, _, _, res, _ = run
     m = res.metrics

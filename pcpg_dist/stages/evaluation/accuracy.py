@@ -55,7 +55,7 @@ def _accuracy_at(
     """The accuracy rows and metrics of one p (appended to ``rows`` and ``ctx.metrics``)."""
     cells, scorer, h_test, k = ctx.cells, ctx.scorer, ctx.h_test, ctx.k
     union = np.unique(np.concatenate([h_test[(c, p)] for c in range(k)]))
-    pc, nc, nc_own = [], [], []
+    pc, nc, nc_own, lead = [], [], [], []
     nc_test = threshold_all(ctx.test_idx, ctx.scores, ctx.ids, [p])[p]
     for seed in ctx.seeds:
         # a cluster without an agent (no training trajectory) is scored with No Clustering's
@@ -72,6 +72,8 @@ def _accuracy_at(
         if ("nc", -1, p, seed, 0.0) in cells:
             nc.append(scorer.accuracy(cells[("nc", -1, p, seed, 0.0)], union))
             nc_own.append(scorer.accuracy(cells[("nc", -1, p, seed, 0.0)], nc_test))
+            if pcpg:
+                lead.append(scorer.paired_lead(pcpg, cells[("nc", -1, p, seed, 0.0)]))
     rnd = scorer.random_accuracy(union)
     for method, vals in (
         ("pcpg", pc),
@@ -96,6 +98,9 @@ def _accuracy_at(
         ctx.put(f"pcpg/accuracy/p{fmt(p)}", pc)
     if nc:
         ctx.put(f"baseline/accuracy/p{fmt(p)}", nc)
+    if lead:  # PCPG less No Clustering, and one seed's standard error (the seeds' mean)
+        ctx.metrics[f"pcpg/lead_over_nc/p{fmt(p)}"] = mean_std([v for v, _ in lead])[0]
+        ctx.metrics[f"pcpg/lead_over_nc_se/p{fmt(p)}"] = mean_std([e for _, e in lead])[0]
     ctx.metrics[f"random/accuracy/p{fmt(p)}"] = rnd
     for c in range(k):
         vals = [

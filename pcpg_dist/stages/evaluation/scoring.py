@@ -57,6 +57,30 @@ class Scorer:
         steps = sum(self.steps[self.local(i)].sum() for _, i in cells_and_subsets)
         return float(hits / steps) if steps else float("nan")
 
+    def paired_lead(
+        self, cells_and_subsets: list[tuple[int, np.ndarray]], base: int
+    ) -> tuple[float, float]:
+        """(the cells' :meth:`pooled` accuracy on their subsets less ``base``'s on the same
+        trajectories, its standard error). Both agents predict the same steps, so the error is
+        the paired one, with trajectories as the units (a trajectory's steps are not
+        independent draws): the ratio estimator's, linearised. NaN where it cannot be told."""
+        locs = [self.local(i) for _, i in cells_and_subsets]
+        diff = np.concatenate(
+            [
+                self.correct[c, loc] - self.correct[base, loc]
+                for (c, _), loc in zip(cells_and_subsets, locs, strict=True)
+            ]
+        )
+        steps = np.concatenate([self.steps[loc] for loc in locs])
+        total, n = steps.sum(), len(steps)
+        if not total:
+            return float("nan"), float("nan")
+        lead = diff.sum() / total
+        if n < 2:
+            return float(lead), float("nan")
+        spread = ((diff - lead * steps) ** 2).sum() * n / (n - 1)
+        return float(lead), float(np.sqrt(spread) / total)
+
     def random_accuracy(self, idx: np.ndarray) -> float:
         loc = self.local(idx)
         return float(self.random[loc].sum() / self.steps[loc].sum())
