@@ -26,22 +26,33 @@ import yaml
 from benchmarks.zoo.common import design_games
 from pcpg_dist.common.devices import set_threads
 from pcpg_dist.config import parse_config
+from pcpg_dist.config.overrides import apply_overrides, parse_overrides
 from pcpg_dist.domains import contract
 from pcpg_dist.pipeline.units import cluster_unit, plan_unit
 from pcpg_dist.stages.bc import bases_of, finetune_config, init_from, split_for_init, train_cells
 from pcpg_dist.stages.bc.finetune import kept_of, scores, trial
 
 
-def game_cells(zoo: Path, name: str):
-    """(unit, labels, No Clustering agents, fine-tuned cells, their agents, bases, config)."""
+def game_setup(zoo: Path, name: str, sets: list[str] = (), bc_seed: int = 0):
+    """(config, unit, clustering) of one game at p = 1: clustering at seed 0, BC at
+    ``bc_seed`` (a run's ``seeds``, as ``pcpg run --set "seeds=[S]"``); ``sets``: config keys
+    as ``pcpg run --set``."""
     raw = yaml.safe_load((zoo / name / "pcpg.yaml").read_text())
     raw["trajectories"]["path"] = str(zoo / name / "labelled")
     raw.update(
-        seeds=[0], ranking={"ps": [1.0]}, evaluation={"corruption_levels": [], "figures": False}
+        seeds=[bc_seed],
+        ranking={"ps": [1.0]},
+        evaluation={"corruption_levels": [], "figures": False},
     )
-    cfg = parse_config(raw)
+    cfg = parse_config(apply_overrides(raw, parse_overrides(list(sets))))
     (unit,) = contract.units(cfg, contract.generate(cfg, show_progress=False))
-    labels = cluster_unit(unit, cfg.clustering, cfg.seed, ceiling=False).labels
+    return cfg, unit, cluster_unit(unit, cfg.clustering, cfg.seed, ceiling=False)
+
+
+def game_cells(zoo: Path, name: str):
+    """(unit, labels, No Clustering agents, fine-tuned cells, their agents, bases, config)."""
+    cfg, unit, clustering = game_setup(zoo, name)
+    labels = clustering.labels
     cells = plan_unit(unit, labels, cfg, corruption=False)
     first, rest = split_for_init(cells, cfg.bc, True)
     base = train_cells(first, cfg.bc)
@@ -49,13 +60,18 @@ def game_cells(zoo: Path, name: str):
     return unit, labels, base, rest, tuned, bases_of(rest, first), cfg
 
 
+def hits(unit, labels, trained, cell: int, cluster: int) -> np.ndarray:
+    """1.0 where ``trained``'s agent ``cell`` predicts a test step of ``cluster``, else 0.0."""
+    sub = unit.dataset.subset(unit.test_idx[labels[unit.test_idx] == cluster])
+    rows = sub.step_rows
+    picked = trained.predict(sub.states[rows], sub.valid_mask[rows], cell)
+    return (picked == sub.actions[rows]).astype(np.float64)
+
+
 def test_accuracy(unit, labels, trained, cell: int, cluster: int) -> tuple[float, int]:
     """(accuracy on the test steps of one cluster, their count)."""
-    test = unit.test_idx[labels[unit.test_idx] == cluster]
-    sub = unit.dataset.subset(test)
-    rows = sub.step_rows
-    hit = trained.predict(sub.states[rows], sub.valid_mask[rows], cell) == sub.actions[rows]
-    return float(hit.mean()), len(rows)
+    hit = hits(unit, labels, trained, cell, cluster)
+    return float(hit.mean()), len(hit)
 
 
 def main() -> None:

@@ -29,33 +29,15 @@ import time
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from benchmarks.zoo.common import design_games
+from benchmarks.zoo.finetune_trial_exp import game_setup, hits
 from pcpg_dist.common.devices import set_threads
-from pcpg_dist.config import parse_config
-from pcpg_dist.config.overrides import apply_overrides, parse_overrides
-from pcpg_dist.domains import contract
-from pcpg_dist.pipeline.units import cluster_unit, plan_unit
+from pcpg_dist.pipeline.units import plan_unit
 from pcpg_dist.stages.bc import bases_of, init_from, split_for_init, train_cells
 from pcpg_dist.stages.bc.finetune import scores, split_rows, trial
 from pcpg_dist.stages.bc.network import init_params, layer_sizes
 from pcpg_dist.stages.clustering.confidence import verdict_of
-
-
-def game_setup(zoo: Path, name: str, sets: list[str], bc_seed: int = 0):
-    """(config, unit, clustering) of one game at p = 1: clustering at seed 0, BC at
-    ``bc_seed`` (a run's ``seeds``, as ``pcpg run --set "seeds=[S]"``)."""
-    raw = yaml.safe_load((zoo / name / "pcpg.yaml").read_text())
-    raw["trajectories"]["path"] = str(zoo / name / "labelled")
-    raw.update(
-        seeds=[bc_seed],
-        ranking={"ps": [1.0]},
-        evaluation={"corruption_levels": [], "figures": False},
-    )
-    cfg = parse_config(apply_overrides(raw, parse_overrides(sets)))
-    (unit,) = contract.units(cfg, contract.generate(cfg, show_progress=False))
-    return cfg, unit, cluster_unit(unit, cfg.clustering, cfg.seed, ceiling=False)
 
 
 def picks(rest, bases, cfg, share: float) -> dict[int, str]:
@@ -81,14 +63,6 @@ def mixed_starts(rest, init, cfg, mix: float) -> list[list]:
         [mix * a + (1 - mix) * b for a, b in zip(nc, init_params(sizes, c.spec.seed), strict=True)]
         for c, nc in zip(rest, init, strict=True)
     ]
-
-
-def hits(unit, labels, trained, cell: int, cluster: int) -> np.ndarray:
-    """1.0 where ``trained``'s agent ``cell`` predicts a test step of ``cluster``, else 0.0."""
-    sub = unit.dataset.subset(unit.test_idx[labels[unit.test_idx] == cluster])
-    rows = sub.step_rows
-    picked = trained.predict(sub.states[rows], sub.valid_mask[rows], cell)
-    return (picked == sub.actions[rows]).astype(np.float64)
 
 
 def read_game(args, name: str) -> None:

@@ -85,7 +85,7 @@ def _lead(m: dict, p: float) -> str:
     lead, se = m.get(f"pcpg/lead_over_nc/p{p:g}"), m.get(f"pcpg/lead_over_nc_se/p{p:g}")
     if lead is None:
         return "-"
-    return f"{lead:+.3f}" + ("" if se is None or se != se else f" ± {se:.3f}")
+    return f"{lead:+.3f}" + ("" if se is None or np.isnan(se) else f" ± {se:.3f}")
 
 
 def print_summary(result, console, method: str | None = None, bc=None) -> None:

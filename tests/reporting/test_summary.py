@@ -10,10 +10,12 @@ from pcpg_dist.orchestration.points import RunResult
 from pcpg_dist.reporting.summary import print_summary
 
 
-def _printed(clustering: dict[str, dict[str, float]], method: str | None) -> str:
+def _printed(
+    clustering: dict[str, dict[str, float]], method: str | None, metrics: dict | None = None
+) -> str:
     result = RunResult(
         out_dir=Path("."),
-        metrics={"pcpg/accuracy/p1": 0.8, "baseline/accuracy/p1": 0.7},
+        metrics=metrics or {"pcpg/accuracy/p1": 0.8, "baseline/accuracy/p1": 0.7},
         clustering=clustering,
     )
     console = Console(record=True, width=200)
@@ -123,20 +125,14 @@ def test_the_agents_start_is_said_where_the_verdict_doubts_the_styles():
 
 
 def test_pcpg_s_lead_over_no_clustering_is_printed_with_its_standard_error():
-    result = RunResult(
-        out_dir=Path("."),
-        metrics={
-            "pcpg/accuracy/p1": 0.81,
-            "baseline/accuracy/p1": 0.76,
-            "pcpg/lead_over_nc/p1": 0.05,
-            "pcpg/lead_over_nc_se/p1": 0.0123,
-            "pcpg/accuracy/p0.5": 0.8,  # a run without the lead (an older cache) prints a dash
-        },
-        clustering={"grid": {"clustering/accuracy": 0.9}},
-    )
-    console = Console(record=True, width=300)
-    print_summary(result, console, method=None)
-    text = console.export_text()
+    metrics = {
+        "pcpg/accuracy/p1": 0.81,
+        "baseline/accuracy/p1": 0.76,
+        "pcpg/lead_over_nc/p1": 0.05,
+        "pcpg/lead_over_nc_se/p1": 0.0123,
+        "pcpg/accuracy/p0.5": 0.8,  # a run without the lead (an older cache) prints a dash
+    }
+    text = _printed({"grid": {"clustering/accuracy": 0.9}}, None, metrics)
     rows = {line.split()[1]: line.split("│") for line in text.splitlines() if "│" in line}
     assert "PCPG - NC (± s.e.)" in text
     assert rows["1"][4].strip() == "+0.050 ± 0.012"

@@ -69,11 +69,12 @@ def _accuracy_at(
         pcpg = [(cell, idx) for cell, idx in pcpg if cell is not None]
         if pcpg:
             pc.append(scorer.pooled(pcpg))
-        if ("nc", -1, p, seed, 0.0) in cells:
-            nc.append(scorer.accuracy(cells[("nc", -1, p, seed, 0.0)], union))
-            nc_own.append(scorer.accuracy(cells[("nc", -1, p, seed, 0.0)], nc_test))
+        base = cells.get(("nc", -1, p, seed, 0.0))
+        if base is not None:
+            nc.append(scorer.accuracy(base, union))
+            nc_own.append(scorer.accuracy(base, nc_test))
             if pcpg:
-                lead.append(scorer.paired_lead(pcpg, cells[("nc", -1, p, seed, 0.0)]))
+                lead.append(scorer.paired_lead(pcpg, base))
     rnd = scorer.random_accuracy(union)
     for method, vals in (
         ("pcpg", pc),
