@@ -100,6 +100,9 @@ def run_game(name: str, out: Path, ci: bool, rollouts: int, sets: tuple[str, ...
         "stability": m.get("clustering/stability"),
         "pcpg": m.get("pcpg/accuracy/p1"),
         "nc": m.get("baseline/accuracy/p1"),
+        # PCPG less NC on the same test steps, and its paired error (trajectories as the units)
+        "lead": m.get("pcpg/lead_over_nc/p1"),
+        "lead_se": m.get("pcpg/lead_over_nc_se/p1"),
         "kept": m.get("rollout/style_kept/p1"),
         "kept_each": [m.get(f"rollout/style_kept/k{c}/p1") for c in range(k)],
         "not_rolled_out": rollable(name),

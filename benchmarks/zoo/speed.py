@@ -6,7 +6,8 @@ Each (game, threads) runs in a fresh process, one after another: the game's full
 log, then ``cluster`` with the default settings (``bag_auto``, k = its styles, seed 0) and the
 confidence refits (inside ``bag_auto``'s choice, or after a fit it did not choose by them, as a
 run's clustering task does), timed from the first call to the last refit. ``--set`` changes a
-clustering key (chess: ``move_features``). The one table
+clustering key (chess: ``move_features``); ``--legal-share`` moves the rule that picks the
+legal pairs over the dense softmax (``pcpg_dist.stages.legal_share``). The one table
 (``benchmarks.zoo.confidence``) times one thread, as a worker of a parallel sweep has; a single
 `pcpg run` on a 2-core laptop gives its one unit's clustering both CPUs
 (``runner.cpus_per_task``), which is what the issue's "≤ 60 s on 2 cores" asks about. By default
@@ -28,6 +29,9 @@ import json, sys, time
 name, threads, over = sys.argv[1], int(sys.argv[2]), json.loads(sys.argv[3])
 from pcpg_dist.common.devices import set_threads
 set_threads(threads)
+if len(sys.argv) > 4:  # --legal-share: the legal pairs' rule moved (a probe, not a setting)
+    from pcpg_dist.stages import legal_share
+    legal_share.SPARSE_MAX_SHARE = float(sys.argv[4])
 from benchmarks.zoo.check import labelled_dataset
 from benchmarks.zoo.common import load_game
 from pcpg_dist.config.clustering import ClusterConfig
@@ -48,9 +52,10 @@ print(json.dumps({"seconds": seconds, "fit": fit, "accuracy": float(accuracy)}))
 SLOWEST = ("pong", "mountaincar", "mujoco_reacher")
 
 
-def timed(name: str, threads: int, over: dict) -> dict:
+def timed(name: str, threads: int, over: dict, share: float | None = None) -> dict:
+    share_arg = [] if share is None else [str(share)]
     done = subprocess.run(
-        [sys.executable, "-c", CHILD, name, str(threads), json.dumps(over)],
+        [sys.executable, "-c", CHILD, name, str(threads), json.dumps(over), *share_arg],
         capture_output=True,
         text=True,
         check=True,
@@ -70,10 +75,16 @@ def main() -> None:
         metavar="KEY=VALUE",
         help="a clustering key for every game, the value as JSON (repeatable)",
     )
+    ap.add_argument(
+        "--legal-share",
+        type=float,
+        help="score the legal (row, action) pairs where at most this share of a row's actions is "
+        "legal (legal_share.SPARSE_MAX_SHARE; a probe of the rule, not a setting)",
+    )
     args = ap.parse_args()
     over = overrides(args.set)
     for name in args.games:
-        runs = {n: timed(name, n, over) for n in args.threads}
+        runs = {n: timed(name, n, over, args.legal_share) for n in args.threads}
         first = runs[args.threads[0]]["seconds"]
         cells = "  ".join(
             f"{n} thread{'s' * (n > 1)} {r['seconds']:5.1f} s (fit {r['fit']:.1f} s, "
