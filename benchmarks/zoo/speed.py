@@ -23,15 +23,15 @@ import subprocess
 import sys
 
 from benchmarks.zoo.common import overrides
+from pcpg_dist.stages import legal_share
 
 CHILD = r"""
 import json, sys, time
 name, threads, over = sys.argv[1], int(sys.argv[2]), json.loads(sys.argv[3])
 from pcpg_dist.common.devices import set_threads
 set_threads(threads)
-if len(sys.argv) > 4:  # --legal-share: the legal pairs' rule moved (a probe, not a setting)
-    from pcpg_dist.stages import legal_share
-    legal_share.SPARSE_MAX_SHARE = float(sys.argv[4])
+from pcpg_dist.stages import legal_share
+legal_share.SPARSE_MAX_SHARE = float(sys.argv[4])  # --legal-share (its default: the rule's own)
 from benchmarks.zoo.check import labelled_dataset
 from benchmarks.zoo.common import load_game
 from pcpg_dist.config.clustering import ClusterConfig
@@ -52,10 +52,9 @@ print(json.dumps({"seconds": seconds, "fit": fit, "accuracy": float(accuracy)}))
 SLOWEST = ("pong", "mountaincar", "mujoco_reacher")
 
 
-def timed(name: str, threads: int, over: dict, share: float | None = None) -> dict:
-    share_arg = [] if share is None else [str(share)]
+def timed(name: str, threads: int, over: dict, share: float) -> dict:
     done = subprocess.run(
-        [sys.executable, "-c", CHILD, name, str(threads), json.dumps(over), *share_arg],
+        [sys.executable, "-c", CHILD, name, str(threads), json.dumps(over), str(share)],
         capture_output=True,
         text=True,
         check=True,
@@ -78,6 +77,7 @@ def main() -> None:
     ap.add_argument(
         "--legal-share",
         type=float,
+        default=legal_share.SPARSE_MAX_SHARE,
         help="score the legal (row, action) pairs where at most this share of a row's actions is "
         "legal (legal_share.SPARSE_MAX_SHARE; a probe of the rule, not a setting)",
     )
